@@ -1,0 +1,13 @@
+#pragma once
+// Each subcommand registers its flags and callback on the top-level app.
+#include <CLI/CLI.hpp>
+
+namespace sonoslice {
+namespace cli {
+void add_slice_command(CLI::App& app);
+void add_info_command(CLI::App& app);
+void add_phantom_command(CLI::App& app);
+void add_demo_command(CLI::App& app);
+void add_bench_command(CLI::App& app);
+}  // namespace cli
+}  // namespace sonoslice

@@ -1,0 +1,159 @@
+#include "Common.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <sstream>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace cli {
+
+void VolumeFlags::add_to(CLI::App& app, bool path_required, const std::string& path_flag) {
+  auto* opt = app.add_option(path_flag, path,
+                             "Volume: .nii/.nii.gz, .mha/.mhd, .nrrd/.nhdr, .npy, or a DICOM directory");
+  if (path_required) opt->required();
+  app.add_option("--series", series, "DICOM directory: SeriesInstanceUID to read (default: largest)");
+  app.add_option("--spacing", spacing, ".npy volume: voxel spacing sx,sy,sz in mm");
+  app.add_option("--origin", origin, ".npy volume: world position of voxel (0,0,0) in mm");
+  app.add_option("--direction", direction, ".npy volume: 9 numbers, row-major 3x3 (index axes as columns)");
+  app.add_option("--npy-config", npy_config,
+                 "fan-slicer npy_config JSON for a fan-slicer .npy volume (axes [Y,X,Z])");
+}
+
+VolumeReadOptions VolumeFlags::options() const {
+  VolumeReadOptions o;
+  o.series_uid = series;
+  if (!spacing.empty()) {
+    const auto v = parse_numbers(spacing, 3, "--spacing");
+    o.spacing_mm = Vec3{v[0], v[1], v[2]};
+  }
+  if (!origin.empty()) {
+    const auto v = parse_numbers(origin, 3, "--origin");
+    o.origin_mm = Vec3{v[0], v[1], v[2]};
+  }
+  if (!direction.empty()) {
+    const auto v = parse_numbers(direction, 9, "--direction");
+    Mat3 d;
+    for (int i = 0; i < 9; ++i) d.m[i / 3][i % 3] = v[size_t(i)];
+    o.direction = d;
+  }
+  o.fanslicer_npy_config = npy_config;
+  return o;
+}
+
+std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag) {
+  std::vector<double> out;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    char* end = nullptr;
+    const double v = std::strtod(item.c_str(), &end);
+    while (end && *end == ' ') ++end;
+    if (item.empty() || *end != '\0' || !std::isfinite(v))
+      throw InputError(flag + " '" + text + "': '" + item + "' is not a finite number");
+    out.push_back(v);
+  }
+  if (out.size() != count)
+    throw InputError(flag + " '" + text + "': expected " + std::to_string(count) +
+                     " comma-separated numbers");
+  return out;
+}
+
+ProgressBar::ProgressBar(std::string label, int64_t total, bool enabled)
+    : label_(std::move(label)), total_(total), enabled_(enabled && ::isatty(STDERR_FILENO)) {}
+
+ProgressBar::~ProgressBar() {
+  if (enabled_ && !finished_ && last_draw_ >= 0) std::fputc('\n', stderr);
+}
+
+void ProgressBar::update(int64_t done) {
+  if (!enabled_) return;
+  const double t = clock_.seconds();
+  if (done < total_ && t - last_draw_ < 0.1) return;  // at most 10 redraws per second
+  last_draw_ = t;
+  const int width = 30;
+  const double f = total_ > 0 ? double(done) / double(total_) : 1.0;
+  const int filled = int(f * width);
+  std::string bar(size_t(filled), '=');
+  if (filled < width) bar += '>' + std::string(size_t(width - filled - 1), ' ');
+  std::fprintf(stderr, "\r%s [%s] %3d%% %lld/%lld  %.0f/s ", label_.c_str(), bar.c_str(),
+               int(f * 100), static_cast<long long>(done), static_cast<long long>(total_),
+               t > 0 ? double(done) / t : 0.0);
+  std::fflush(stderr);
+}
+
+void ProgressBar::finish() {
+  if (!enabled_ || finished_) return;
+  update(total_);
+  std::fputc('\n', stderr);
+  finished_ = true;
+}
+
+ProbeGeometry builtin_fan_probe() {
+  // models_intensity_LUS_config.json: fan_geometry [0.05, 0.1235, 36, 526, 380, 17],
+  // 668×544 px of 0.1235 mm, downsampling 2 (SPEC §4 mapping).
+  ProbeGeometry p;
+  p.type = ProbeType::Curvilinear;
+  const double da = 0.1235;
+  p.sector_deg = 36;
+  p.depth_mm = 526 * da;
+  p.radius_mm = 380 * da;
+  p.face_y_mm = 17 * da;
+  p.image.width = 668 / 2;
+  p.image.height = 544 / 2;
+  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 2 * da;
+  p.image.origin_mm[0] = -p.image.width * p.image.spacing_mm[0] / 2;
+  p.image.origin_mm[1] = 0;
+  return p;
+}
+
+ProbeGeometry builtin_linear_probe() {
+  // linear_config.json: 400×500 px of 0.1235 mm, whole image inside.
+  ProbeGeometry p;
+  p.type = ProbeType::Linear;
+  p.image.width = 400;
+  p.image.height = 500;
+  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.1235;
+  p.image.origin_mm[0] = -double(p.image.width / 2) * p.image.spacing_mm[0];
+  p.image.origin_mm[1] = 0;
+  return p;
+}
+
+int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes) {
+  return std::max<int64_t>(1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
+}
+
+double slice_into(const Slicer& slicer, const std::vector<Pose>& poses, StackWriter& writer,
+                  int64_t chunk, ProgressBar& progress, double* write_seconds) {
+  const int64_t n = int64_t(poses.size());
+  double slicing = 0, writing = 0;
+  for (int64_t first = 0; first < n; first += chunk) {
+    const int64_t count = std::min(chunk, n - first);
+    void* out = writer.buffer(first, count);
+    Stopwatch s;
+    slicer.slice(poses.data() + first, size_t(count), out, size_t(first));
+    slicing += s.seconds();
+    Stopwatch w;
+    writer.write(first, count);
+    writing += w.seconds();
+    progress.update(first + count);
+  }
+  if (write_seconds) *write_seconds = writing;
+  return slicing;
+}
+
+void write_mask(const std::string& path, const ProbeGeometry& probe,
+                const std::vector<uint8_t>& mask) {
+  std::vector<uint8_t> out(mask);
+  if (file_extension(path) == ".png")
+    for (auto& v : out) v = v ? 255 : 0;
+  write_image(path, out.data(), PixelType::UInt8, {probe.image.width, probe.image.height},
+              {probe.image.spacing_mm[0], probe.image.spacing_mm[1]});
+}
+
+}  // namespace cli
+}  // namespace sonoslice

@@ -1,0 +1,82 @@
+#pragma once
+// Pieces shared by the sonoslice subcommands: volume input flags, the progress bar, timing,
+// the built-in probes and the chunked slice-and-write loop.
+#include <chrono>
+#include <cstdio>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+
+#include "sonoslice/geometry/Pose.h"
+#include "sonoslice/geometry/Probe.h"
+#include "sonoslice/io/StackWriter.h"
+#include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/slice/Slicer.h"
+
+namespace sonoslice {
+namespace cli {
+
+/// Flags every command that reads a volume accepts.
+struct VolumeFlags {
+  std::string path;
+  std::string series;
+  std::string spacing, origin, direction;  // comma-separated numbers (.npy only)
+  std::string npy_config;
+
+  void add_to(CLI::App& app, bool path_required, const std::string& path_flag = "--volume");
+  VolumeReadOptions options() const;
+};
+
+/// Parses "a,b,c" into exactly `count` finite numbers; InputError naming `flag` otherwise.
+std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag);
+
+/// Wall-clock seconds since construction.
+class Stopwatch {
+ public:
+  Stopwatch() : start_(std::chrono::steady_clock::now()) {}
+  double seconds() const {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+ private:
+  std::chrono::steady_clock::time_point start_;
+};
+
+/// A one-line progress bar on stderr, drawn only when stderr is a terminal and not --quiet.
+class ProgressBar {
+ public:
+  ProgressBar(std::string label, int64_t total, bool enabled);
+  ~ProgressBar();
+  void update(int64_t done);
+  void finish();
+
+ private:
+  std::string label_;
+  int64_t total_;
+  bool enabled_, finished_ = false;
+  Stopwatch clock_;
+  double last_draw_ = -1;
+};
+
+/// The probes behind the benchmark workloads and the demo, identical to the fan-slicer files
+/// in shared/data/fanslicer: W1 = models_intensity_LUS_config.json with downsampling 2
+/// (334×272 fan at 0.247 mm), W2 = linear_config.json (400×500 at 0.1235 mm).
+ProbeGeometry builtin_fan_probe();
+ProbeGeometry builtin_linear_probe();
+
+/// Images per chunk so that one chunk of output stays under `bytes`.
+int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes = size_t(64) << 20);
+
+/// Slices `poses` through `slicer` chunk by chunk into `writer` (which provides the buffers),
+/// advancing `progress`. Returns the seconds spent slicing (writing excluded).
+double slice_into(const Slicer& slicer, const std::vector<Pose>& poses, StackWriter& writer,
+                  int64_t chunk, ProgressBar& progress, double* write_seconds);
+
+/// Writes the H×W probe mask: .png scaled to 0/255, other formats as 0/1 uint8.
+void write_mask(const std::string& path, const ProbeGeometry& probe,
+                const std::vector<uint8_t>& mask);
+
+}  // namespace cli
+}  // namespace sonoslice

@@ -1,0 +1,71 @@
+# Third-party dependencies. The core library needs only the standard library and OpenMP; the
+# header-only JSON and CLI libraries fall back to copies in third_party/ on machines without
+# Debian's packages (the GPU machine), and ITK stays at the edge (src/io).
+
+find_package(Threads REQUIRED)
+find_package(OpenMP)
+if(NOT OpenMP_CXX_FOUND)
+  message(WARNING "OpenMP not found: the CPU backend will run on one thread")
+endif()
+
+# nlohmann-json: Debian's nlohmann-json3-dev, else the vendored copy of the same version.
+find_package(nlohmann_json 3.10 QUIET)
+if(NOT nlohmann_json_FOUND)
+  add_library(nlohmann_json INTERFACE)
+  target_include_directories(nlohmann_json SYSTEM INTERFACE
+                             ${PROJECT_SOURCE_DIR}/third_party/nlohmann_json/include)
+  add_library(nlohmann_json::nlohmann_json ALIAS nlohmann_json)
+  message(STATUS "nlohmann-json: using third_party copy")
+endif()
+
+# CLI11: Debian's libcli11-dev, else the vendored copy.
+find_package(CLI11 2.1 QUIET CONFIG)
+if(NOT CLI11_FOUND)
+  add_library(sonoslice_cli11 INTERFACE)
+  target_include_directories(sonoslice_cli11 SYSTEM INTERFACE
+                             ${PROJECT_SOURCE_DIR}/third_party/CLI11/include)
+  add_library(CLI11::CLI11 ALIAS sonoslice_cli11)
+  message(STATUS "CLI11: using third_party copy")
+endif()
+
+# ITK: medical image formats. AUTO = use it when found.
+set(SONOSLICE_HAVE_ITK OFF)
+if(NOT SONOSLICE_WITH_ITK STREQUAL "OFF")
+  set(_itk_components ITKCommon ITKIOImageBase ITKIONIFTI ITKIOMeta ITKIONRRD ITKIOGDCM ITKIOPNG
+                      ITKImageGrid ITKImageFunction)
+  if(SONOSLICE_WITH_ITK STREQUAL "AUTO")
+    find_package(ITK QUIET COMPONENTS ${_itk_components})
+  else()
+    find_package(ITK REQUIRED COMPONENTS ${_itk_components})
+  endif()
+  if(ITK_FOUND)
+    set(SONOSLICE_HAVE_ITK ON)
+  endif()
+endif()
+
+# GoogleTest: an installed package, else the sources Debian's googletest package puts in
+# /usr/src/googletest (or any copy named by SONOSLICE_GTEST_SOURCE_DIR, e.g. carried to the GPU
+# machine).
+if(SONOSLICE_BUILD_TESTS)
+  find_package(GTest QUIET)
+  if(NOT GTest_FOUND)
+    set(SONOSLICE_GTEST_SOURCE_DIR "/usr/src/googletest" CACHE PATH "GoogleTest sources")
+    if(EXISTS "${SONOSLICE_GTEST_SOURCE_DIR}/CMakeLists.txt")
+      set(INSTALL_GTEST OFF CACHE BOOL "" FORCE)
+      add_subdirectory(${SONOSLICE_GTEST_SOURCE_DIR} ${CMAKE_BINARY_DIR}/googletest EXCLUDE_FROM_ALL)
+      add_library(GTest::gtest_main ALIAS gtest_main)
+      add_library(GTest::gtest ALIAS gtest)
+    else()
+      message(WARNING "GoogleTest not found: tests disabled")
+      set(SONOSLICE_BUILD_TESTS OFF)
+    endif()
+  endif()
+endif()
+
+if(SONOSLICE_BUILD_BENCHMARKS)
+  find_package(benchmark QUIET)
+  if(NOT benchmark_FOUND)
+    message(STATUS "Google Benchmark not found: bench/ programs disabled")
+    set(SONOSLICE_BUILD_BENCHMARKS OFF)
+  endif()
+endif()

@@ -1,0 +1,56 @@
+#pragma once
+/// @file Probe shapes and the output image grid (SPEC §3).
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace sonoslice {
+
+/// The output image grid in probe coordinates (mm). Pixel (u, v) (column u, row v) has its
+/// centre at x = origin_mm[0] + u·spacing_mm[0], y = origin_mm[1] + v·spacing_mm[1], z = 0.
+/// Row 0 is nearest the probe; rows grow with depth (the probe's axial axis ŷ).
+struct ImageGrid {
+  int width = 0;                          ///< columns (lateral, along x̂)
+  int height = 0;                         ///< rows (depth, along ŷ)
+  double spacing_mm[2] = {1.0, 1.0};      ///< (sx, sy) mm
+  double origin_mm[2] = {0.0, 0.0};       ///< probe coordinates of pixel (0, 0)'s centre
+
+  int64_t pixel_count() const { return int64_t(width) * int64_t(height); }
+  /// The SPEC default origin: (-(W-1)·sx/2, 0), i.e. centred laterally.
+  void set_default_origin() {
+    origin_mm[0] = -(width - 1) * spacing_mm[0] / 2.0;
+    origin_mm[1] = 0.0;
+  }
+};
+
+enum class ProbeType { Curvilinear, Linear };
+
+/// A probe: its shape (which pixels the beam covers) and its image grid.
+struct ProbeGeometry {
+  ProbeType type = ProbeType::Linear;
+  ImageGrid image;
+
+  // curvilinear (convex fan)
+  double radius_mm = 0.0;   ///< R: virtual apex to transducer face
+  double depth_mm = 0.0;    ///< D: imaging depth along a beam (curvilinear), or linear depth
+  double sector_deg = 0.0;  ///< Θ: full opening angle
+  double face_y_mm = 0.0;   ///< axial coordinate of the face centre; apex at (0, face_y - R)
+
+  // linear: optional limits; without them the whole image is inside
+  bool has_width = false;
+  double width_mm = 0.0;    ///< inside iff |x| <= width_mm / 2
+  bool has_depth = false;   ///< linear: inside iff 0 <= y - face_y <= depth_mm
+
+  /// Throws InputError naming `what` for non-positive or non-finite sizes and angles.
+  void validate(const std::string& what) const;
+
+  /// SPEC §3 inside test at probe coordinates (x, y) mm, evaluated in double precision.
+  bool inside(double x, double y) const;
+
+  /// The H×W uint8 mask (row-major, row 0 first): 1 where the pixel centre is inside.
+  std::vector<uint8_t> mask() const;
+
+  std::string describe() const;
+};
+
+}  // namespace sonoslice

@@ -1,0 +1,50 @@
+#pragma once
+/// @file NumPy .npy arrays (format versions 1–3): whole-array reading and streamed writing.
+#include <cstdint>
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "sonoslice/volume/PixelType.h"
+
+namespace sonoslice {
+
+struct NpyArray {
+  PixelType type = PixelType::Float32;
+  std::vector<int64_t> shape;
+  bool fortran_order = false;
+  std::shared_ptr<void> data;  ///< native byte order, 64-byte aligned
+  int64_t element_count() const;
+};
+
+/// Reads `path`; FileError for a missing, corrupt or truncated file, InputError for a dtype
+/// sonoslice does not handle (names the dtype). Big-endian data is swapped to native order.
+NpyArray read_npy(const std::string& path);
+
+/// Reads only the header (dtype and shape) without loading the data.
+NpyArray read_npy_header(const std::string& path);
+
+/// Writes a .npy whose data arrives in pieces (C order), through a temporary file renamed on
+/// commit(): an interrupted run leaves no partial file.
+class NpyWriter {
+ public:
+  NpyWriter(const std::string& path, PixelType type, const std::vector<int64_t>& shape);
+  ~NpyWriter();
+  NpyWriter(const NpyWriter&) = delete;
+  NpyWriter& operator=(const NpyWriter&) = delete;
+  void write(const void* data, size_t bytes);
+  void commit();  ///< checks that exactly the announced bytes arrived, then renames
+
+ private:
+  std::string path_;
+  std::unique_ptr<class AtomicFile> file_;
+  std::FILE* stream_ = nullptr;
+  uint64_t expected_ = 0, written_ = 0;
+};
+
+/// Convenience: writes a whole C-order array at once.
+void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
+               const void* data);
+
+}  // namespace sonoslice

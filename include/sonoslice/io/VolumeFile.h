@@ -1,0 +1,54 @@
+#pragma once
+/// @file Reading and writing volumes with their full geometry: NIfTI (.nii, .nii.gz), MetaImage
+/// (.mha, .mhd), NRRD (.nrrd, .nhdr) and DICOM series through ITK; NumPy .npy natively.
+/// Voxels stay in their native pixel type.
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "sonoslice/geometry/Math.h"
+#include "sonoslice/volume/Volume.h"
+
+namespace sonoslice {
+
+struct VolumeReadOptions {
+  /// DICOM directory: the SeriesInstanceUID to read (default: the series with the most files).
+  std::string series_uid;
+  /// .npy geometry (SPEC §1); flags win over a sidecar `<name>.json` beside the .npy, which
+  /// wins over the defaults (spacing 1 mm, origin 0, identity direction; with a warning).
+  std::optional<Vec3> spacing_mm, origin_mm;
+  std::optional<Mat3> direction;
+  /// fan-slicer's `npy_config` JSON ("voxel size", "bounding box"): the .npy is then read with
+  /// fan-slicer's axis order [Y, X, Z] (SPEC §4).
+  std::string fanslicer_npy_config;
+};
+
+/// Reads a volume file or DICOM directory. Errors (FileError / InputError) name the path and
+/// say why: missing, corrupt or truncated file, unsupported pixel type (RGB, complex, 64-bit
+/// integers), 4-D data, bad geometry.
+Volume read_volume(const std::string& path, const VolumeReadOptions& options = {});
+
+/// One DICOM series found in a directory.
+struct DicomSeriesInfo {
+  std::string uid;
+  size_t file_count = 0;
+};
+std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
+
+/// Writes a volume atomically: .npy (C order (nz, ny, nx), geometry in a sidecar .json) or any
+/// ITK format chosen by extension.
+void write_volume(const std::string& path, const Volume& volume);
+
+/// Writes an N-D (2 or 3) image through ITK atomically: dims/spacing/origin per axis, direction
+/// identity. Used for output stacks, masks and PNGs.
+void write_image(const std::string& path, const void* data, PixelType type,
+                 const std::vector<int64_t>& dims, const std::vector<double>& spacing);
+
+/// True when this build reads and writes ITK formats (otherwise only .npy).
+bool built_with_itk();
+
+/// Lower-case file extension with compound endings kept whole (".nii.gz", ".seq.mha"... as
+/// ".nii.gz", ".mha"); "" for none.
+std::string file_extension(const std::string& path);
+
+}  // namespace sonoslice

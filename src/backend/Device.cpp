@@ -1,0 +1,107 @@
+#include "sonoslice/backend/Device.h"
+
+#include <algorithm>
+#include <cstdlib>
+#include <cctype>
+#include <sstream>
+#include <thread>
+
+#include "sonoslice/core/Error.h"
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+namespace sonoslice {
+
+Device Device::parse(const std::string& text) {
+  std::string t = text;
+  std::transform(t.begin(), t.end(), t.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  if (t == "cpu") return Device::cpu();
+  if (t == "cuda" || t == "gpu") return Device{DeviceType::CUDA, 0};
+  if (t.rfind("cuda:", 0) == 0 && t.size() > 5 &&
+      std::all_of(t.begin() + 5, t.end(), [](unsigned char c) { return std::isdigit(c); }) &&
+      t.size() < 9)
+    return Device{DeviceType::CUDA, std::stoi(t.substr(5))};
+  throw InputError("device '" + text + "': expected cpu, cuda or cuda:K");
+}
+
+std::string Device::to_string() const {
+  return type == DeviceType::CPU ? "cpu" : "cuda:" + std::to_string(index);
+}
+
+bool built_with_cuda() { return false; }
+
+namespace {
+int hardware_threads() {
+#ifdef _OPENMP
+  return omp_get_num_procs();
+#else
+  return std::max(1u, std::thread::hardware_concurrency());
+#endif
+}
+int g_threads = 0;  // 0 = default
+}  // namespace
+
+int cpu_threads() {
+#ifdef _OPENMP
+  return g_threads > 0 ? g_threads : hardware_threads();
+#else
+  return 1;
+#endif
+}
+
+void set_cpu_threads(int n) {
+  if (n > 4096) throw InputError("--threads " + std::to_string(n) + ": too many threads");
+  g_threads = n > 0 ? n : 0;
+#ifdef _OPENMP
+  omp_set_num_threads(cpu_threads());
+#endif
+}
+
+namespace {
+bool avx2_available() {
+#if defined(SONOSLICE_HAVE_AVX2_KERNELS) && (defined(__x86_64__) || defined(__i386__))
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#else
+  return false;
+#endif
+}
+std::string initial_isa() {
+  const char* env = std::getenv("SONOSLICE_CPU_ISA");
+  if (env && std::string(env) == "generic") return "generic";
+  return avx2_available() ? "avx2" : "generic";
+}
+std::string g_isa = initial_isa();
+}  // namespace
+
+std::string cpu_kernel_isa() { return g_isa; }
+
+void set_cpu_kernel_isa(const std::string& isa) {
+  if (isa == "auto") {
+    g_isa = avx2_available() ? "avx2" : "generic";
+  } else if (isa == "generic") {
+    g_isa = "generic";
+  } else if (isa == "avx2") {
+    if (!avx2_available()) throw InputError("CPU kernels 'avx2': not available on this CPU/build");
+    g_isa = "avx2";
+  } else {
+    throw InputError("CPU kernels '" + isa + "': expected auto, generic or avx2");
+  }
+}
+
+void require_device(const Device& device) {
+  if (device.type == DeviceType::CPU) return;
+  if (!built_with_cuda())
+    throw Error("device " + device.to_string() + ": this sonoslice was built without CUDA");
+}
+
+std::string describe_devices() {
+  std::ostringstream s;
+  s << "cpu: " << cpu_threads() << " threads (" << hardware_threads() << " hardware threads), "
+    << cpu_kernel_isa() << " kernels\n";
+  s << "cuda: " << (built_with_cuda() ? "not available" : "not built (built without CUDA)") << "\n";
+  return s.str();
+}
+
+}  // namespace sonoslice

@@ -1,0 +1,54 @@
+#pragma once
+/// @file The one choke point through which every parallel loop of the CPU backend runs.
+/// Kernels are functors of per-element SONOSLICE_HOST_DEVICE functions; changing the CPU
+/// threading (OpenMP today) touches this header only. The CUDA backend provides the same entry
+/// points as grid-stride kernels (ParallelForCUDA.cuh).
+#include <cstdint>
+#include <type_traits>
+#include <utility>
+
+#include "sonoslice/backend/HostDevice.h"
+
+namespace sonoslice {
+namespace backend {
+inline namespace SONOSLICE_KERNEL_ISA {
+
+/// f(i) for i in [0, n), spread over the CPU threads. Items should be coarse (a slice, a
+/// chunk): each is scheduled separately.
+template <typename F>
+void parallel_for(int64_t n, const F& f) {
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int64_t i = 0; i < n; ++i) f(i);
+}
+
+namespace detail {
+template <typename F, typename S, typename = void>
+struct has_pixels : std::false_type {};
+template <typename F, typename S>
+struct has_pixels<F, S, decltype(std::declval<const F&>().pixels(std::declval<const S&>(), 0, 0))>
+    : std::true_type {};
+}  // namespace detail
+
+/// A 2D index space of `rows` × `width` elements. The functor provides
+///   State row(int64_t r) const;                   // per-row state (computed once per row)
+///   void pixel(const State&, int u) const;        // one element
+/// and, optionally, a CPU fast path for a run of elements (SIMD):
+///   void pixels(const State&, int begin, int end) const;
+/// On the CPU a thread takes whole rows, so per-row work (pose lookup, row base coordinates) is
+/// paid once per row and stays in registers; on CUDA each thread computes row() for its pixel.
+template <typename F>
+void parallel_for_rows(int64_t rows, int width, const F& f, void* /*stream*/ = nullptr) {
+#pragma omp parallel for schedule(dynamic, 8)
+  for (int64_t r = 0; r < rows; ++r) {
+    const auto state = f.row(r);
+    if constexpr (detail::has_pixels<F, decltype(state)>::value) {
+      f.pixels(state, 0, width);
+    } else {
+      for (int u = 0; u < width; ++u) f.pixel(state, u);
+    }
+  }
+}
+
+}  // namespace SONOSLICE_KERNEL_ISA
+}  // namespace backend
+}  // namespace sonoslice

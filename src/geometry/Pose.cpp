@@ -1,0 +1,69 @@
+#include "sonoslice/geometry/Pose.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <sstream>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+WorldFrame parse_world_frame(const std::string& name) {
+  std::string upper = name;
+  std::transform(upper.begin(), upper.end(), upper.begin(),
+                 [](unsigned char c) { return char(std::toupper(c)); });
+  if (upper == "LPS") return WorldFrame::LPS;
+  if (upper == "RAS") return WorldFrame::RAS;
+  throw InputError("world frame '" + name + "': expected LPS or RAS");
+}
+
+Pose pose_to_lps(const Pose& pose, WorldFrame frame) {
+  if (frame == WorldFrame::LPS) return pose;
+  Pose out = pose;  // diag(-1, -1, 1, 1) · pose
+  for (int c = 0; c < 4; ++c) {
+    out.m[0][c] = -pose.m[0][c];
+    out.m[1][c] = -pose.m[1][c];
+  }
+  return out;
+}
+
+void validate_poses(const Pose* poses, size_t count, const std::string& source,
+                    size_t first_index, bool warn_non_orthonormal) {
+  double worst_deviation = 0.0;
+  size_t worst_index = 0;
+  for (size_t n = 0; n < count; ++n) {
+    const Pose& p = poses[n];
+    auto fail = [&](const std::string& why) {
+      std::ostringstream s;
+      s << source << ": pose " << (first_index + n) << ": " << why;
+      throw InputError(s.str());
+    };
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c)
+        if (!std::isfinite(p.m[r][c])) fail("has a non-finite entry (NaN or inf)");
+    if (p.m[3][0] != 0 || p.m[3][1] != 0 || p.m[3][2] != 0 || p.m[3][3] != 1)
+      fail("last row must be 0 0 0 1");
+    const Vec3 x = p.column3(0), y = p.column3(1), z = p.column3(2);
+    const double nx = norm(x), ny = norm(y);
+    if (nx < 0.5 || nx > 2.0) fail("lateral axis (column 0) has norm " + std::to_string(nx));
+    if (ny < 0.5 || ny > 2.0) fail("axial axis (column 1) has norm " + std::to_string(ny));
+    if (std::fabs(dot(x, y)) > 0.5 * nx * ny) fail("lateral and axial axes are nearly parallel");
+    // Deviation from a rotation: norms, orthogonality and the elevation column.
+    const Vec3 expected_z = cross(x, y);
+    const double deviation = std::max({std::fabs(nx - 1), std::fabs(ny - 1), std::fabs(dot(x, y)),
+                                       norm(z - expected_z)});
+    if (deviation > worst_deviation) {
+      worst_deviation = deviation;
+      worst_index = first_index + n;
+    }
+  }
+  if (warn_non_orthonormal && worst_deviation > 1e-3) {
+    std::ostringstream s;
+    s << source << ": poses are not orthonormal (largest deviation " << worst_deviation
+      << " at pose " << worst_index << "); they are used as given";
+    warn(s.str());
+  }
+}
+
+}  // namespace sonoslice

@@ -1,0 +1,49 @@
+#include "sonoslice/geometry/VolumeGrid.h"
+
+#include <cmath>
+#include <sstream>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+void VolumeGrid::validate(const std::string& what) const {
+  std::ostringstream why;
+  for (int a = 0; a < 3; ++a) {
+    if (dims[a] <= 0) why << "size along axis " << a << " is " << dims[a] << " (must be > 0)";
+    else if (!(std::isfinite(spacing_mm[a]) && spacing_mm[a] > 0))
+      why << "spacing along axis " << a << " is " << spacing_mm[a] << " mm (must be > 0)";
+    else if (!std::isfinite(origin_mm[a]))
+      why << "origin is not finite";
+    if (!why.str().empty()) break;
+  }
+  if (why.str().empty()) {
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c)
+        if (!std::isfinite(direction.m[r][c])) why << "direction matrix is not finite";
+    if (why.str().empty() && std::fabs(direction.determinant()) < 1e-6)
+      why << "direction matrix is singular";
+  }
+  if (!why.str().empty()) throw InputError(what + ": " + why.str());
+}
+
+Vec3 VolumeGrid::index_to_world(const Vec3& c) const {
+  const Vec3 scaled{c[0] * spacing_mm[0], c[1] * spacing_mm[1], c[2] * spacing_mm[2]};
+  return origin_mm + direction * scaled;
+}
+
+Mat3 VolumeGrid::world_to_index_linear() const {
+  const Vec3 inv_spacing{1.0 / spacing_mm[0], 1.0 / spacing_mm[1], 1.0 / spacing_mm[2]};
+  return Mat3::diagonal(inv_spacing) * direction.inverse();
+}
+
+Vec3 VolumeGrid::world_to_index_offset() const {
+  const Vec3 t = world_to_index_linear() * origin_mm;
+  return {-t[0], -t[1], -t[2]};
+}
+
+Vec3 VolumeGrid::world_to_index(const Vec3& p) const {
+  return world_to_index_linear() * (p - origin_mm);
+}
+
+}  // namespace sonoslice

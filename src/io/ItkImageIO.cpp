@@ -1,0 +1,240 @@
+// The ITK edge of sonoslice: medical image formats in and out, geometry included.
+#include "ItkImageIO.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <mutex>
+#include <sstream>
+
+#include <itkGDCMImageIO.h>
+#include <itkGDCMImageIOFactory.h>
+#include <itkGDCMSeriesFileNames.h>
+#include <itkImage.h>
+#include <itkImageFileReader.h>
+#include <itkImageFileWriter.h>
+#include <itkImageIOFactory.h>
+#include <itkImageSeriesReader.h>
+#include <itkMetaImageIOFactory.h>
+#include <itkNiftiImageIOFactory.h>
+#include <itkNrrdImageIOFactory.h>
+#include <itkPNGImageIOFactory.h>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace itk_io {
+namespace {
+
+// Registered explicitly so the formats work however the executable was linked.
+void register_factories() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    itk::NiftiImageIOFactory::RegisterOneFactory();
+    itk::MetaImageIOFactory::RegisterOneFactory();
+    itk::NrrdImageIOFactory::RegisterOneFactory();
+    itk::GDCMImageIOFactory::RegisterOneFactory();
+    itk::PNGImageIOFactory::RegisterOneFactory();
+  });
+}
+
+// ITK's exception text is several lines with source locations; keep its description.
+std::string describe(const itk::ExceptionObject& e) {
+  std::string d = e.GetDescription();
+  std::replace(d.begin(), d.end(), '\n', ' ');
+  while (!d.empty() && d.back() == ' ') d.pop_back();
+  return d;
+}
+
+PixelType to_pixel_type(itk::IOComponentEnum component, const std::string& path) {
+  using C = itk::IOComponentEnum;
+  switch (component) {
+    case C::UCHAR: return PixelType::UInt8;
+    case C::CHAR: return PixelType::Int8;
+    case C::USHORT: return PixelType::UInt16;
+    case C::SHORT: return PixelType::Int16;
+    case C::UINT: return PixelType::UInt32;
+    case C::INT: return PixelType::Int32;
+    case C::FLOAT: return PixelType::Float32;
+    case C::DOUBLE: return PixelType::Float64;
+    default: break;
+  }
+  throw InputError("volume '" + path + "': unsupported pixel type " +
+                   itk::ImageIOBase::GetComponentTypeAsString(component) +
+                   " (supported: uint8, int8, uint16, int16, uint32, int32, float32, float64)");
+}
+
+template <typename T>
+using Image3 = itk::Image<T, 3>;
+
+template <typename T>
+Volume to_volume(typename Image3<T>::Pointer image) {
+  VolumeGrid g;
+  const auto size = image->GetLargestPossibleRegion().GetSize();
+  for (int a = 0; a < 3; ++a) {
+    g.dims[a] = int64_t(size[a]);
+    g.spacing_mm[a] = image->GetSpacing()[a];
+    g.origin_mm[a] = image->GetOrigin()[a];
+    for (int b = 0; b < 3; ++b) g.direction.m[a][b] = image->GetDirection()[a][b];
+  }
+  T* data = image->GetBufferPointer();
+  // The ITK image owns the voxels; the Volume keeps it alive (no copy).
+  auto holder = std::make_shared<typename Image3<T>::Pointer>(image);
+  return Volume::wrap(data, PixelTypeOf<T>::value, g, holder);
+}
+
+template <typename T>
+Volume read_typed(const std::string& path, itk::ImageIOBase* io) {
+  auto reader = itk::ImageFileReader<Image3<T>>::New();
+  reader->SetFileName(path);
+  reader->SetImageIO(io);
+  reader->Update();
+  return to_volume<T>(reader->GetOutput());
+}
+
+template <typename T>
+Volume read_series_typed(const std::vector<std::string>& files) {
+  auto reader = itk::ImageSeriesReader<Image3<T>>::New();
+  auto io = itk::GDCMImageIO::New();
+  reader->SetImageIO(io);
+  reader->SetFileNames(files);
+  reader->Update();
+  return to_volume<T>(reader->GetOutput());
+}
+
+template <typename T, unsigned Dim>
+void write_typed(const std::string& path, const void* data, const std::vector<int64_t>& dims,
+                 const std::vector<double>& spacing, const std::vector<double>& origin,
+                 const std::vector<double>& direction) {
+  using Image = itk::Image<T, Dim>;
+  auto image = Image::New();
+  typename Image::SizeType size;
+  typename Image::SpacingType sp;
+  typename Image::PointType org;
+  typename Image::DirectionType dir;
+  size_t count = 1;
+  for (unsigned a = 0; a < Dim; ++a) {
+    size[a] = itk::SizeValueType(dims[a]);
+    sp[a] = spacing[a];
+    org[a] = origin[a];
+    for (unsigned b = 0; b < Dim; ++b) dir[a][b] = direction[a * Dim + b];
+    count *= size_t(dims[a]);
+  }
+  image->SetRegions(typename Image::RegionType(size));
+  image->SetSpacing(sp);
+  image->SetOrigin(org);
+  image->SetDirection(dir);
+  // Borrow the caller's buffer: no copy of a possibly large output stack.
+  image->GetPixelContainer()->SetImportPointer(const_cast<T*>(static_cast<const T*>(data)), count,
+                                               false);
+  auto writer = itk::ImageFileWriter<Image>::New();
+  writer->SetFileName(path);
+  writer->SetInput(image);
+  writer->Update();
+}
+
+}  // namespace
+
+Volume read_image_file(const std::string& path) {
+  register_factories();
+  try {
+    itk::ImageIOBase::Pointer io =
+        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
+    if (!io) throw FileError("cannot read volume '" + path + "': not a readable image format (or corrupt)");
+    io->SetFileName(path);
+    io->ReadImageInformation();
+    const unsigned dims = io->GetNumberOfDimensions();
+    if (dims > 3) {
+      for (unsigned d = 3; d < dims; ++d)
+        if (io->GetDimensions(d) > 1)
+          throw InputError("volume '" + path + "': " + std::to_string(dims) +
+                           "-D image (sonoslice slices 3-D volumes)");
+    }
+    if (io->GetNumberOfComponents() != 1)
+      throw InputError("volume '" + path + "': unsupported pixel type " +
+                       itk::ImageIOBase::GetPixelTypeAsString(io->GetPixelType()) + " with " +
+                       std::to_string(io->GetNumberOfComponents()) +
+                       " components (sonoslice slices scalar volumes)");
+    const PixelType type = to_pixel_type(io->GetComponentType(), path);
+    return visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });
+  } catch (const itk::ExceptionObject& e) {
+    throw FileError("cannot read volume '" + path + "': " + describe(e));
+  }
+}
+
+std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
+  register_factories();
+  try {
+    auto names = itk::GDCMSeriesFileNames::New();
+    names->SetUseSeriesDetails(true);
+    names->SetDirectory(directory);
+    std::vector<DicomSeriesInfo> out;
+    for (const std::string& uid : names->GetSeriesUIDs())
+      out.push_back({uid, names->GetFileNames(uid).size()});
+    return out;
+  } catch (const itk::ExceptionObject& e) {
+    throw FileError("cannot read DICOM directory '" + directory + "': " + describe(e));
+  }
+}
+
+Volume read_dicom_directory(const std::string& directory, const std::string& series_uid) {
+  register_factories();
+  try {
+    auto names = itk::GDCMSeriesFileNames::New();
+    names->SetUseSeriesDetails(true);
+    names->SetDirectory(directory);
+    const auto uids = names->GetSeriesUIDs();
+    if (uids.empty())
+      throw FileError("cannot read volume '" + directory + "': no DICOM series in the directory");
+    std::string chosen;
+    if (!series_uid.empty()) {
+      // With series details, ITK's UIDs carry extra details after the SeriesInstanceUID.
+      for (const auto& uid : uids)
+        if (uid == series_uid || uid.rfind(series_uid + ".", 0) == 0) chosen = uid;
+      if (chosen.empty()) {
+        std::ostringstream s;
+        s << "DICOM directory '" << directory << "': no series '" << series_uid
+          << "' (found:";
+        for (const auto& uid : uids) s << " " << uid;
+        s << ")";
+        throw InputError(s.str());
+      }
+    } else {
+      size_t best = 0;
+      for (const auto& uid : uids) {
+        const size_t n = names->GetFileNames(uid).size();
+        if (n > best) best = n, chosen = uid;
+      }
+    }
+    const std::vector<std::string> files = names->GetFileNames(chosen);
+    // The pixel type after rescale slope/intercept, as GDCM reports it for the first file.
+    auto io = itk::GDCMImageIO::New();
+    io->SetFileName(files.front());
+    io->ReadImageInformation();
+    const PixelType type = to_pixel_type(io->GetComponentType(), directory);
+    if (io->GetNumberOfComponents() != 1)
+      throw InputError("DICOM directory '" + directory + "': colour images are not supported");
+    return visit_pixel_type(type, [&](auto zero) { return read_series_typed<decltype(zero)>(files); });
+  } catch (const itk::ExceptionObject& e) {
+    throw FileError("cannot read DICOM directory '" + directory + "': " + describe(e));
+  }
+}
+
+void write_image(const std::string& path, const void* data, PixelType type,
+                 const std::vector<int64_t>& dims, const std::vector<double>& spacing,
+                 const std::vector<double>& origin, const std::vector<double>& direction) {
+  register_factories();
+  try {
+    visit_pixel_type(type, [&](auto zero) {
+      using T = decltype(zero);
+      if (dims.size() == 2)
+        write_typed<T, 2>(path, data, dims, spacing, origin, direction);
+      else
+        write_typed<T, 3>(path, data, dims, spacing, origin, direction);
+    });
+  } catch (const itk::ExceptionObject& e) {
+    throw FileError("cannot write '" + path + "': " + describe(e));
+  }
+}
+
+}  // namespace itk_io
+}  // namespace sonoslice

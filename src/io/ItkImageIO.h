@@ -1,0 +1,20 @@
+#pragma once
+// Internal: the ITK side of the IO library (compiled only when ITK is found).
+#include <string>
+#include <vector>
+
+#include "sonoslice/io/VolumeFile.h"
+
+namespace sonoslice {
+namespace itk_io {
+
+Volume read_image_file(const std::string& path);
+Volume read_dicom_directory(const std::string& directory, const std::string& series_uid);
+std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
+/// Writes to exactly `path` (the caller handles temporary names).
+void write_image(const std::string& path, const void* data, PixelType type,
+                 const std::vector<int64_t>& dims, const std::vector<double>& spacing,
+                 const std::vector<double>& origin, const std::vector<double>& direction);
+
+}  // namespace itk_io
+}  // namespace sonoslice

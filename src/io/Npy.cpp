@@ -1,0 +1,210 @@
+#include "sonoslice/io/Npy.h"
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+
+namespace sonoslice {
+namespace {
+
+constexpr char kMagic[] = "\x93NUMPY";
+
+std::shared_ptr<void> aligned_buffer(size_t bytes, const std::string& path) {
+  void* p = std::aligned_alloc(64, ((bytes + 63) / 64) * 64 + 64);
+  if (!p)
+    throw ResourceError("'" + path + "': cannot allocate " + std::to_string(bytes >> 20) + " MiB");
+  return std::shared_ptr<void>(p, std::free);
+}
+
+// 'descr' → pixel type; `swap` is set for big-endian data.
+PixelType parse_descr(const std::string& descr, bool* swap, const std::string& path) {
+  if (descr.size() < 3) throw FileError("'" + path + "': bad dtype '" + descr + "'");
+  const char order = descr[0];
+  const std::string code = descr.substr(1);
+  *swap = order == '>' && code.back() != '1';
+  static const std::pair<const char*, PixelType> table[] = {
+      {"u1", PixelType::UInt8},   {"i1", PixelType::Int8},    {"u2", PixelType::UInt16},
+      {"i2", PixelType::Int16},   {"u4", PixelType::UInt32},  {"i4", PixelType::Int32},
+      {"f4", PixelType::Float32}, {"f8", PixelType::Float64}, {"b1", PixelType::UInt8}};
+  for (const auto& entry : table)
+    if (code == entry.first) return entry.second;
+  throw InputError("'" + path + "': unsupported dtype '" + descr +
+                   "' (supported: uint8, int8, uint16, int16, uint32, int32, float32, float64)");
+}
+
+std::string descr_of(PixelType type) {
+  switch (type) {
+    case PixelType::UInt8: return "|u1";
+    case PixelType::Int8: return "|i1";
+    case PixelType::UInt16: return "<u2";
+    case PixelType::Int16: return "<i2";
+    case PixelType::UInt32: return "<u4";
+    case PixelType::Int32: return "<i4";
+    case PixelType::Float32: return "<f4";
+    case PixelType::Float64: return "<f8";
+  }
+  return "<f4";
+}
+
+struct Header {
+  NpyArray array;
+  bool swap = false;
+  size_t data_offset = 0;
+};
+
+Header parse_header(std::ifstream& in, const std::string& path) {
+  char preamble[10];
+  if (!in.read(preamble, 10) || std::memcmp(preamble, kMagic, 6) != 0)
+    throw FileError("'" + path + "': not a .npy file (bad magic)");
+  const int major = static_cast<unsigned char>(preamble[6]);
+  size_t header_len = 0, offset = 10;
+  if (major == 1) {
+    header_len = static_cast<unsigned char>(preamble[8]) |
+                 (size_t(static_cast<unsigned char>(preamble[9])) << 8);
+  } else if (major == 2 || major == 3) {
+    char extra[2];
+    if (!in.read(extra, 2)) throw FileError("'" + path + "': truncated .npy header");
+    const unsigned char b[4] = {static_cast<unsigned char>(preamble[8]),
+                                static_cast<unsigned char>(preamble[9]),
+                                static_cast<unsigned char>(extra[0]),
+                                static_cast<unsigned char>(extra[1])};
+    header_len = b[0] | (size_t(b[1]) << 8) | (size_t(b[2]) << 16) | (size_t(b[3]) << 24);
+    offset = 12;
+  } else {
+    throw FileError("'" + path + "': unsupported .npy version " + std::to_string(major));
+  }
+  if (header_len > (1 << 20)) throw FileError("'" + path + "': corrupt .npy header");
+  std::string dict(header_len, '\0');
+  if (!in.read(&dict[0], std::streamsize(header_len)))
+    throw FileError("'" + path + "': truncated .npy header");
+
+  Header h;
+  h.data_offset = offset + header_len;
+  std::smatch m;
+  static const std::regex descr_re(R"('descr'\s*:\s*'([^']*)')");
+  static const std::regex fortran_re(R"('fortran_order'\s*:\s*(True|False))");
+  static const std::regex shape_re(R"('shape'\s*:\s*\(([^)]*)\))");
+  if (!std::regex_search(dict, m, descr_re))
+    throw FileError("'" + path + "': corrupt .npy header (no descr)");
+  const std::string descr = m[1];
+  if (!std::regex_search(dict, m, fortran_re))
+    throw FileError("'" + path + "': corrupt .npy header (no fortran_order)");
+  h.array.fortran_order = m[1] == "True";
+  if (!std::regex_search(dict, m, shape_re))
+    throw FileError("'" + path + "': corrupt .npy header (no shape)");
+  std::stringstream dims(m[1].str());
+  std::string item;
+  while (std::getline(dims, item, ',')) {
+    item.erase(std::remove_if(item.begin(), item.end(), ::isspace), item.end());
+    if (item.empty()) continue;
+    char* end = nullptr;
+    const long long v = std::strtoll(item.c_str(), &end, 10);
+    if (*end != '\0' || v < 0) throw FileError("'" + path + "': corrupt .npy shape");
+    h.array.shape.push_back(v);
+  }
+  h.array.type = parse_descr(descr, &h.swap, path);
+  return h;
+}
+
+void byteswap(void* data, size_t count, size_t size) {
+  auto* p = static_cast<unsigned char*>(data);
+  for (size_t i = 0; i < count; ++i, p += size) std::reverse(p, p + size);
+}
+
+}  // namespace
+
+int64_t NpyArray::element_count() const {
+  int64_t n = 1;
+  for (int64_t d : shape) n *= d;
+  return n;
+}
+
+NpyArray read_npy_header(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw FileError("cannot open '" + path + "': " + std::strerror(errno));
+  return parse_header(in, path).array;
+}
+
+NpyArray read_npy(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw FileError("cannot open '" + path + "': " + std::strerror(errno));
+  Header h = parse_header(in, path);
+  const size_t item = pixel_size(h.array.type);
+  const uint64_t bytes = uint64_t(h.array.element_count()) * item;
+  in.seekg(0, std::ios::end);
+  const uint64_t file_size = uint64_t(in.tellg());
+  if (file_size < h.data_offset + bytes) {
+    std::ostringstream s;
+    s << "'" << path << "': truncated .npy file (" << file_size - h.data_offset
+      << " data bytes, the header announces " << bytes << ")";
+    throw FileError(s.str());
+  }
+  h.array.data = aligned_buffer(bytes, path);
+  in.seekg(std::streamoff(h.data_offset));
+  if (!in.read(static_cast<char*>(h.array.data.get()), std::streamsize(bytes)))
+    throw FileError("'" + path + "': read error");
+  if (h.swap) byteswap(h.array.data.get(), size_t(h.array.element_count()), item);
+  return std::move(h.array);
+}
+
+NpyWriter::NpyWriter(const std::string& path, PixelType type, const std::vector<int64_t>& shape)
+    : path_(path), file_(std::make_unique<AtomicFile>(path)) {
+  std::ostringstream dict;
+  dict << "{'descr': '" << descr_of(type) << "', 'fortran_order': False, 'shape': (";
+  expected_ = pixel_size(type);
+  for (size_t i = 0; i < shape.size(); ++i) {
+    dict << shape[i] << (shape.size() == 1 || i + 1 < shape.size() ? "," : "");
+    if (i + 1 < shape.size()) dict << " ";
+    expected_ *= uint64_t(shape[i]);
+  }
+  dict << "), }";
+  std::string header = dict.str();
+  // Version 1 header: 10-byte preamble + dict padded with spaces to a multiple of 64, ending in \n.
+  const size_t total = ((10 + header.size() + 1 + 63) / 64) * 64;
+  header.append(total - 10 - header.size() - 1, ' ');
+  header.push_back('\n');
+  stream_ = std::fopen(file_->temp_path().c_str(), "wb");
+  if (!stream_) throw FileError("cannot write '" + path + "': " + std::strerror(errno));
+  unsigned char preamble[10] = {0x93, 'N', 'U', 'M', 'P', 'Y', 1, 0,
+                                static_cast<unsigned char>(header.size() & 0xff),
+                                static_cast<unsigned char>(header.size() >> 8)};
+  if (std::fwrite(preamble, 1, 10, stream_) != 10 ||
+      std::fwrite(header.data(), 1, header.size(), stream_) != header.size())
+    throw FileError("cannot write '" + path + "': " + std::strerror(errno));
+}
+
+NpyWriter::~NpyWriter() {
+  if (stream_) std::fclose(stream_);
+}
+
+void NpyWriter::write(const void* data, size_t bytes) {
+  if (written_ + bytes > expected_) throw Error("'" + path_ + "': more data than the shape holds");
+  if (std::fwrite(data, 1, bytes, stream_) != bytes)
+    throw FileError("cannot write '" + path_ + "': " + std::strerror(errno));
+  written_ += bytes;
+}
+
+void NpyWriter::commit() {
+  if (written_ != expected_) throw Error("'" + path_ + "': incomplete data");
+  const int rc = std::fclose(stream_);
+  stream_ = nullptr;
+  if (rc != 0) throw FileError("cannot write '" + path_ + "': " + std::strerror(errno));
+  file_->commit();
+}
+
+void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
+               const void* data) {
+  NpyWriter w(path, type, shape);
+  uint64_t bytes = pixel_size(type);
+  for (int64_t d : shape) bytes *= uint64_t(d);
+  w.write(data, bytes);
+  w.commit();
+}
+
+}  // namespace sonoslice

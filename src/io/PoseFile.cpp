@@ -1,0 +1,191 @@
+#include "sonoslice/io/PoseFile.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iomanip>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/Npy.h"
+
+namespace sonoslice {
+namespace {
+
+std::string lower_extension(const std::string& path) {
+  const size_t dot = path.find_last_of('.');
+  const size_t slash = path.find_last_of('/');
+  if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return "";
+  std::string ext = path.substr(dot);
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+
+std::string shape_string(const std::vector<int64_t>& shape) {
+  std::ostringstream s;
+  s << "(";
+  for (size_t i = 0; i < shape.size(); ++i) s << (i ? ", " : "") << shape[i];
+  s << (shape.size() == 1 ? ",)" : ")");
+  return s.str();
+}
+
+std::vector<Pose> poses_from_npy(const std::string& path) {
+  const NpyArray a = read_npy(path);
+  if (a.type != PixelType::Float32 && a.type != PixelType::Float64)
+    throw InputError("poses '" + path + "': dtype " + pixel_type_name(a.type) +
+                     " (expected float32 or float64)");
+  // Element (r, c) of pose n, honouring C or Fortran order.
+  std::vector<int64_t> strides(a.shape.size());
+  int64_t stride = 1;
+  if (a.fortran_order) {
+    for (size_t i = 0; i < a.shape.size(); ++i) strides[i] = stride, stride *= a.shape[i];
+  } else {
+    for (size_t i = a.shape.size(); i-- > 0;) strides[i] = stride, stride *= a.shape[i];
+  }
+  auto value = [&](int64_t offset) {
+    return a.type == PixelType::Float64 ? static_cast<const double*>(a.data.get())[offset]
+                                        : double(static_cast<const float*>(a.data.get())[offset]);
+  };
+  std::vector<Pose> poses;
+  if (a.shape.size() == 3 && a.shape[1] == 4 && a.shape[2] == 4) {
+    for (int64_t n = 0; n < a.shape[0]; ++n) {
+      Pose p;
+      for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c)
+          p.m[r][c] = value(n * strides[0] + r * strides[1] + c * strides[2]);
+      poses.push_back(p);
+    }
+  } else if (a.shape.size() == 2 && a.shape[0] == 4 && a.shape[1] % 4 == 0) {
+    // fan-slicer's strip: pose n is columns 4n..4n+3.
+    for (int64_t n = 0; n < a.shape[1] / 4; ++n) {
+      Pose p;
+      for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c) p.m[r][c] = value(r * strides[0] + (4 * n + c) * strides[1]);
+      poses.push_back(p);
+    }
+  } else {
+    throw InputError("poses '" + path + "': shape " + shape_string(a.shape) +
+                     " (expected (N, 4, 4) or fan-slicer's (4, 4N))");
+  }
+  return poses;
+}
+
+std::vector<Pose> poses_from_text(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw FileError("cannot open poses '" + path + "': " + std::strerror(errno));
+  std::vector<Pose> poses;
+  std::string line;
+  int line_number = 0;
+  while (std::getline(in, line)) {
+    ++line_number;
+    const size_t hash = line.find('#');
+    if (hash != std::string::npos) line.resize(hash);
+    std::replace_if(line.begin(), line.end(), [](char c) { return c == ',' || c == '\t' || c == ';'; }, ' ');
+    std::vector<double> values;
+    const char* p = line.c_str();
+    while (true) {
+      while (*p && std::isspace(static_cast<unsigned char>(*p))) ++p;
+      if (!*p) break;
+      char* end = nullptr;
+      const double v = std::strtod(p, &end);
+      if (end == p) {
+        std::string token(p);
+        token = token.substr(0, token.find(' '));
+        throw InputError("poses '" + path + "': line " + std::to_string(line_number) +
+                         ": '" + token + "' is not a number");
+      }
+      values.push_back(v);
+      p = end;
+    }
+    if (values.empty()) continue;
+    if (values.size() != 16 && values.size() != 12)
+      throw InputError("poses '" + path + "': line " + std::to_string(line_number) + " has " +
+                       std::to_string(values.size()) +
+                       " numbers (expected 16 for a 4x4 or 12 for a 3x4 row-major matrix)");
+    Pose pose;
+    for (size_t i = 0; i < values.size(); ++i) pose.m[i / 4][i % 4] = values[i];
+    poses.push_back(pose);
+  }
+  return poses;
+}
+
+std::vector<Pose> poses_from_json(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw FileError("cannot open poses '" + path + "': " + std::strerror(errno));
+  nlohmann::json root;
+  try {
+    root = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::parse_error& e) {
+    throw FileError("poses '" + path + "': invalid JSON (" + e.what() + ")");
+  }
+  if (!root.is_object() || !root.contains("poses") || !root["poses"].is_array())
+    throw InputError("poses '" + path + "': expected {\"poses\": [[16 numbers], ...]}");
+  for (auto it = root.begin(); it != root.end(); ++it)
+    if (it.key() != "poses") throw InputError("poses '" + path + "': unknown key '" + it.key() + "'");
+  std::vector<Pose> poses;
+  for (const auto& entry : root["poses"]) {
+    const std::string where = "poses '" + path + "': pose " + std::to_string(poses.size());
+    std::vector<double> values;
+    auto take = [&](const nlohmann::json& v) {
+      if (!v.is_number()) throw InputError(where + ": entries must be numbers");
+      values.push_back(v.get<double>());
+    };
+    if (!entry.is_array()) throw InputError(where + ": expected a list of 16 numbers");
+    for (const auto& e : entry) {
+      if (e.is_array())  // nested 4×4
+        for (const auto& v : e) take(v);
+      else
+        take(e);
+    }
+    if (values.size() != 16) throw InputError(where + ": expected 16 numbers (a 4x4 matrix)");
+    poses.push_back(Mat4::from_row_major(values.data()));
+  }
+  return poses;
+}
+
+}  // namespace
+
+std::vector<Pose> read_poses(const std::string& path, WorldFrame frame) {
+  const std::string ext = lower_extension(path);
+  std::vector<Pose> poses;
+  if (ext == ".npy")
+    poses = poses_from_npy(path);
+  else if (ext == ".txt" || ext == ".csv")
+    poses = poses_from_text(path);
+  else if (ext == ".json")
+    poses = poses_from_json(path);
+  else
+    throw InputError("poses '" + path + "': unknown extension (expected .npy, .txt, .csv or .json)");
+  if (poses.empty()) throw InputError("poses '" + path + "': no poses in the file");
+  for (Pose& p : poses) p = pose_to_lps(p, frame);
+  validate_poses(poses.data(), poses.size(), "poses '" + path + "'");
+  return poses;
+}
+
+void write_poses_text(const std::string& path, const std::vector<Pose>& poses) {
+  std::ostringstream out;
+  out << "# sonoslice poses: one 4x4 probe-to-world (LPS, mm) matrix per line, row-major\n";
+  out << std::setprecision(17);
+  for (const Pose& p : poses) {
+    for (int i = 0; i < 16; ++i) out << (i ? " " : "") << p.m[i / 4][i % 4];
+    out << "\n";
+  }
+  write_text_file(path, out.str());
+}
+
+void write_poses_npy(const std::string& path, const std::vector<Pose>& poses) {
+  std::vector<double> flat;
+  flat.reserve(poses.size() * 16);
+  for (const Pose& p : poses)
+    for (int i = 0; i < 16; ++i) flat.push_back(p.m[i / 4][i % 4]);
+  write_npy(path, PixelType::Float64, {int64_t(poses.size()), 4, 4}, flat.data());
+}
+
+}  // namespace sonoslice

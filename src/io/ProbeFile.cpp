@@ -1,0 +1,223 @@
+#include "sonoslice/io/ProbeFile.h"
+
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace {
+
+using json = nlohmann::json;
+
+// Reads keys from one JSON object, rejecting keys nobody asked for (typos must not pass).
+class Keys {
+ public:
+  Keys(const json& object, std::string where) : object_(object), where_(std::move(where)) {
+    if (!object_.is_object()) throw InputError(where_ + ": expected a JSON object");
+  }
+  bool has(const char* key) const { return object_.contains(key); }
+  const json& get(const char* key) {
+    seen_.insert(key);
+    if (!object_.contains(key)) throw InputError(where_ + ": missing key '" + key + "'");
+    return object_.at(key);
+  }
+  double number(const char* key) {
+    const json& v = get(key);
+    if (!v.is_number()) throw InputError(where_ + ": '" + key + "' must be a number");
+    return v.get<double>();
+  }
+  int integer(const char* key) {
+    const json& v = get(key);
+    if (!v.is_number_integer() && !(v.is_number() && v.get<double>() == std::floor(v.get<double>())))
+      throw InputError(where_ + ": '" + key + "' must be an integer");
+    const double d = v.get<double>();
+    if (std::fabs(d) > 1e9) throw InputError(where_ + ": '" + key + "' is absurdly large");
+    return int(d);
+  }
+  std::vector<double> numbers(const char* key, size_t count) {
+    const json& v = get(key);
+    if (!v.is_array() || v.size() != count)
+      throw InputError(where_ + ": '" + key + "' must be a list of " + std::to_string(count) +
+                       " numbers");
+    std::vector<double> out;
+    for (const json& e : v) {
+      if (!e.is_number())
+        throw InputError(where_ + ": '" + key + "' must be a list of " + std::to_string(count) +
+                         " numbers");
+      out.push_back(e.get<double>());
+    }
+    return out;
+  }
+  std::string string(const char* key) {
+    const json& v = get(key);
+    if (!v.is_string()) throw InputError(where_ + ": '" + key + "' must be a string");
+    return v.get<std::string>();
+  }
+  void mark(const char* key) { seen_.insert(key); }
+  /// Throws for the first key that was not read.
+  void reject_unknown() const {
+    for (auto it = object_.begin(); it != object_.end(); ++it)
+      if (!seen_.count(it.key()))
+        throw InputError(where_ + ": unknown key '" + it.key() + "'");
+  }
+
+ private:
+  const json& object_;
+  std::string where_;
+  std::set<std::string> seen_;
+};
+
+void apply_downsampling(ImageGrid& image, int ds) {
+  image.width /= ds;
+  image.height /= ds;
+  image.spacing_mm[0] *= ds;
+  image.spacing_mm[1] *= ds;
+}
+
+ProbeGeometry parse_native(const json& root, const std::string& source, int ds) {
+  Keys k(root, "probe '" + source + "'");
+  ProbeGeometry p;
+  const std::string type = k.string("type");
+  if (type == "curvilinear") {
+    p.type = ProbeType::Curvilinear;
+    p.radius_mm = k.number("radius_mm");
+    p.depth_mm = k.number("depth_mm");
+    p.sector_deg = k.number("sector_deg");
+  } else if (type == "linear") {
+    p.type = ProbeType::Linear;
+    if (k.has("width_mm")) {
+      p.has_width = true;
+      p.width_mm = k.number("width_mm");
+    }
+    if (k.has("depth_mm")) {
+      p.has_depth = true;
+      p.depth_mm = k.number("depth_mm");
+    }
+  } else {
+    throw InputError("probe '" + source + "': type '" + type + "' (expected curvilinear or linear)");
+  }
+  if (k.has("face_y_mm")) p.face_y_mm = k.number("face_y_mm");
+
+  Keys im(k.get("image"), "probe '" + source + "': image");
+  p.image.width = im.integer("width");
+  p.image.height = im.integer("height");
+  const auto spacing = im.numbers("spacing_mm", 2);
+  p.image.spacing_mm[0] = spacing[0];
+  p.image.spacing_mm[1] = spacing[1];
+  const bool has_origin = im.has("origin_mm");
+  std::vector<double> origin;
+  if (has_origin) origin = im.numbers("origin_mm", 2);
+  im.reject_unknown();
+  k.reject_unknown();
+
+  if (ds != 1) apply_downsampling(p.image, ds);
+  if (has_origin) {
+    p.image.origin_mm[0] = origin[0];
+    p.image.origin_mm[1] = origin[1];
+  } else {
+    p.image.set_default_origin();
+  }
+  return p;
+}
+
+// SPEC §4: fan-slicer's "simulation" block.
+ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int ds) {
+  Keys top(root, "fan-slicer config '" + source + "'");
+  const std::string where = "fan-slicer config '" + source + "': simulation";
+  Keys sim(top.get("simulation"), where);
+  if (top.has("models")) top.mark("models");  // surfaces: read by the surface module
+  top.reject_unknown();
+
+  ProbeGeometry p;
+  // Early fan-slicer configs (e.g. its EUS example) have no "transducer": they are fans.
+  const std::string transducer = sim.has("transducer") ? sim.string("transducer") : "curvilinear";
+  const auto dims = sim.numbers("image_dimensions", 2);
+  const auto pixel = sim.numbers("pixel_size", 2);
+  for (double d : dims)
+    if (d != std::floor(d) || d <= 0 || d > 1e6)
+      throw InputError(where + ": 'image_dimensions' must be two positive integers");
+  p.image.width = int(dims[0]);
+  p.image.height = int(dims[1]);
+  p.image.spacing_mm[0] = pixel[0];
+  p.image.spacing_mm[1] = pixel[1];
+  apply_downsampling(p.image, ds);
+  const double sx = p.image.spacing_mm[0];
+
+  if (transducer == "curvilinear") {
+    p.type = ProbeType::Curvilinear;
+    // fan_geometry = [dθ (deg), da (mm), Θ (deg), A, C, B]; A, C, B in units of da.
+    const auto fan = sim.numbers("fan_geometry", 6);
+    const double da = fan[1];
+    p.sector_deg = fan[2];
+    p.depth_mm = fan[3] * da;
+    p.radius_mm = fan[4] * da;
+    p.face_y_mm = fan[5] * da;
+    p.image.origin_mm[0] = -p.image.width * sx / 2.0;
+  } else if (transducer == "linear") {
+    p.type = ProbeType::Linear;
+    if (sim.has("fan_geometry")) sim.mark("fan_geometry");  // unused by linear probes
+    p.image.origin_mm[0] = -double(p.image.width / 2) * sx;
+  } else {
+    throw InputError(where + ": transducer '" + transducer + "' (expected curvilinear or linear)");
+  }
+  p.image.origin_mm[1] = 0.0;
+  // Surface-simulation keys belong to the same file; they do not change the probe.
+  for (const char* key : {"simulation_models", "colors", "opacity"})
+    if (sim.has(key)) sim.mark(key);
+  sim.reject_unknown();
+  return p;
+}
+
+}  // namespace
+
+ProbeGeometry parse_probe_json(const std::string& text, const std::string& source,
+                               int downsampling) {
+  if (downsampling < 1 || downsampling > 64)
+    throw InputError("--downsampling " + std::to_string(downsampling) + ": must be in 1..64");
+  json root;
+  try {
+    root = json::parse(text);
+  } catch (const json::parse_error& e) {
+    throw FileError("probe '" + source + "': invalid JSON (" + e.what() + ")");
+  }
+  if (!root.is_object()) throw InputError("probe '" + source + "': expected a JSON object");
+  ProbeGeometry p = root.contains("simulation") ? parse_fanslicer(root, source, downsampling)
+                                                : parse_native(root, source, downsampling);
+  p.validate("probe '" + source + "'");
+  return p;
+}
+
+ProbeGeometry read_probe(const std::string& path, int downsampling) {
+  std::ifstream in(path);
+  if (!in) throw FileError("cannot open probe file '" + path + "'");
+  std::stringstream text;
+  text << in.rdbuf();
+  return parse_probe_json(text.str(), path, downsampling);
+}
+
+std::string probe_to_json(const ProbeGeometry& probe) {
+  json j;
+  if (probe.type == ProbeType::Curvilinear) {
+    j["type"] = "curvilinear";
+    j["radius_mm"] = probe.radius_mm;
+    j["depth_mm"] = probe.depth_mm;
+    j["sector_deg"] = probe.sector_deg;
+  } else {
+    j["type"] = "linear";
+    if (probe.has_width) j["width_mm"] = probe.width_mm;
+    if (probe.has_depth) j["depth_mm"] = probe.depth_mm;
+  }
+  j["face_y_mm"] = probe.face_y_mm;
+  j["image"] = {{"width", probe.image.width},
+                {"height", probe.image.height},
+                {"spacing_mm", {probe.image.spacing_mm[0], probe.image.spacing_mm[1]}},
+                {"origin_mm", {probe.image.origin_mm[0], probe.image.origin_mm[1]}}};
+  return j.dump(2);
+}
+
+}  // namespace sonoslice

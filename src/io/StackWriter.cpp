@@ -1,0 +1,183 @@
+#include "sonoslice/io/StackWriter.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/Npy.h"
+#include "sonoslice/io/PoseFile.h"
+#include "sonoslice/io/VolumeFile.h"
+
+namespace fs = std::filesystem;
+
+namespace sonoslice {
+namespace {
+
+size_t image_bytes(const StackSpec& s) {
+  return size_t(s.width) * size_t(s.height) * pixel_size(s.type);
+}
+
+template <typename F>
+void for_each_value(const void* data, PixelType type, size_t n, F&& f) {
+  visit_pixel_type(type, [&](auto zero) {
+    using T = decltype(zero);
+    const T* p = static_cast<const T*>(data);
+    for (size_t i = 0; i < n; ++i) f(i, double(p[i]));
+  });
+}
+
+// .npy: header first, then images appended chunk by chunk.
+class NpyStackWriter : public StackWriter {
+ public:
+  NpyStackWriter(const std::string& path, const StackSpec& spec)
+      : spec_(spec), writer_(path, spec.type, {spec.count, spec.height, spec.width}) {}
+  bool streams() const override { return true; }
+  void* buffer(int64_t, int64_t n) override {
+    chunk_.resize(size_t(n) * image_bytes(spec_));
+    return chunk_.data();
+  }
+  void write(int64_t, int64_t n) override { writer_.write(chunk_.data(), size_t(n) * image_bytes(spec_)); }
+  void commit() override { writer_.commit(); }
+
+ private:
+  StackSpec spec_;
+  NpyWriter writer_;
+  std::vector<unsigned char> chunk_;
+};
+
+// NIfTI / MetaImage / NRRD: ITK writes whole images, so the stack is held in memory.
+class ItkStackWriter : public StackWriter {
+ public:
+  ItkStackWriter(const std::string& path, const StackSpec& spec) : path_(path), spec_(spec) {
+    check_output_path(path);
+    try {
+      stack_.resize(size_t(spec.count) * image_bytes(spec));
+    } catch (const std::bad_alloc&) {
+      throw ResourceError("output '" + path + "': cannot hold " +
+                          std::to_string((spec.count * image_bytes(spec)) >> 20) +
+                          " MiB in memory; write .npy or a PNG directory (streamed) instead");
+    }
+  }
+  bool streams() const override { return false; }
+  void* buffer(int64_t first, int64_t) override {
+    return stack_.data() + size_t(first) * image_bytes(spec_);
+  }
+  void write(int64_t, int64_t) override {}
+  void commit() override {
+    write_image(path_, stack_.data(), spec_.type, {spec_.width, spec_.height, spec_.count},
+                {spec_.spacing_mm[0], spec_.spacing_mm[1], 1.0});
+  }
+
+ private:
+  std::string path_;
+  StackSpec spec_;
+  std::vector<unsigned char> stack_;
+};
+
+// A directory of 8-bit PNGs plus poses.txt, built in a temporary directory.
+class PngStackWriter : public StackWriter {
+ public:
+  PngStackWriter(const std::string& path, const StackSpec& spec)
+      : spec_(spec), dir_(path, /*directory=*/true) {
+    if (!built_with_itk())
+      throw Error("output '" + path + "': PNG output needs a build with ITK");
+    digits_ = std::max<int>(5, int(std::to_string(std::max<int64_t>(spec.count - 1, 0)).size()));
+    if (spec.window) window_ = spec.window;
+  }
+  bool streams() const override { return true; }
+  void* buffer(int64_t, int64_t n) override {
+    chunk_.resize(size_t(n) * image_bytes(spec_));
+    return chunk_.data();
+  }
+  void write(int64_t first, int64_t n) override {
+    const size_t pixels = size_t(spec_.width) * size_t(spec_.height);
+    if (!window_) window_ = auto_window(chunk_.data(), spec_.type, n, pixels, spec_.mask);
+    std::vector<uint8_t> png(pixels);
+    for (int64_t i = 0; i < n; ++i) {
+      apply_window(chunk_.data() + size_t(i) * image_bytes(spec_), spec_.type, pixels,
+                   window_->first, window_->second, png.data());
+      char name[32];
+      std::snprintf(name, sizeof name, "img_%0*lld.png", digits_, static_cast<long long>(first + i));
+      write_image((fs::path(dir_.temp_path()) / name).string(), png.data(), PixelType::UInt8,
+                  {spec_.width, spec_.height}, {spec_.spacing_mm[0], spec_.spacing_mm[1]});
+    }
+  }
+  void commit() override {
+    write_poses_text((fs::path(dir_.temp_path()) / "poses.txt").string(), spec_.poses);
+    dir_.commit();
+  }
+
+ private:
+  StackSpec spec_;
+  AtomicFile dir_;
+  int digits_ = 5;
+  std::optional<std::pair<double, double>> window_;
+  std::vector<unsigned char> chunk_;
+};
+
+}  // namespace
+
+StackFormat stack_format(const std::string& path) {
+  const std::string ext = file_extension(path);
+  if (ext == ".npy") return StackFormat::Npy;
+  if (ext == ".nii" || ext == ".nii.gz" || ext == ".mha" || ext == ".mhd" || ext == ".nrrd" ||
+      ext == ".nhdr")
+    return StackFormat::ItkImage;
+  if (ext.empty() || path.back() == '/') return StackFormat::PngDirectory;
+  throw InputError("output '" + path + "': unknown format '" + ext +
+                   "' (expected .nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr, .npy, or a directory for "
+                   "PNGs)");
+}
+
+std::unique_ptr<StackWriter> StackWriter::create(const std::string& path, const StackSpec& spec) {
+  std::string clean = path;
+  while (clean.size() > 1 && clean.back() == '/') clean.pop_back();
+  switch (stack_format(path)) {
+    case StackFormat::Npy: return std::make_unique<NpyStackWriter>(clean, spec);
+    case StackFormat::ItkImage:
+      if (!built_with_itk())
+        throw Error("output '" + path + "': this sonoslice was built without ITK; write .npy");
+      return std::make_unique<ItkStackWriter>(clean, spec);
+    case StackFormat::PngDirectory: return std::make_unique<PngStackWriter>(clean, spec);
+  }
+  return nullptr;
+}
+
+uint64_t stack_memory_bytes(const std::string& path, const StackSpec& spec, int64_t chunk) {
+  const uint64_t one = image_bytes(spec);
+  return stack_format(path) == StackFormat::ItkImage ? one * uint64_t(spec.count)
+                                                     : one * uint64_t(std::min(chunk, spec.count));
+}
+
+void apply_window(const void* images, PixelType type, size_t pixels, double level, double width,
+                  uint8_t* out) {
+  const double lo = level - width / 2, scale = width > 0 ? 255.0 / width : 0.0;
+  for_each_value(images, type, pixels, [&](size_t i, double v) {
+    const double g = (v - lo) * scale;
+    out[i] = g != g ? 0 : uint8_t(std::lround(std::min(255.0, std::max(0.0, g))));
+  });
+}
+
+std::pair<double, double> auto_window(const void* images, PixelType type, int64_t n,
+                                      size_t image_pixels, const uint8_t* mask) {
+  std::vector<double> values;
+  values.reserve(size_t(n) * image_pixels / 2);
+  for_each_value(images, type, size_t(n) * image_pixels, [&](size_t i, double v) {
+    if ((!mask || mask[i % image_pixels]) && std::isfinite(v)) values.push_back(v);
+  });
+  if (values.empty()) return {0.5, 1.0};
+  auto at = [&](double q) {
+    auto it = values.begin() + std::ptrdiff_t(q * double(values.size() - 1));
+    std::nth_element(values.begin(), it, values.end());
+    return *it;
+  };
+  const double lo = at(0.005), hi = at(0.995);
+  if (!(hi > lo)) return {lo, 1.0};
+  return {(lo + hi) / 2, hi - lo};
+}
+
+}  // namespace sonoslice

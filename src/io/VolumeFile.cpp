@@ -1,0 +1,291 @@
+#include "sonoslice/io/VolumeFile.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/Npy.h"
+
+#ifdef SONOSLICE_HAVE_ITK
+#include "ItkImageIO.h"
+#endif
+
+namespace fs = std::filesystem;
+
+namespace sonoslice {
+namespace {
+
+#ifndef SONOSLICE_HAVE_ITK
+[[noreturn]] void no_itk(const std::string& path) {
+  throw Error("'" + path + "': this sonoslice was built without ITK; only .npy volumes are available");
+}
+#endif
+
+nlohmann::json read_json_file(const std::string& path, const std::string& what) {
+  std::ifstream in(path);
+  if (!in) throw FileError("cannot open " + what + " '" + path + "'");
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const nlohmann::json::parse_error& e) {
+    throw FileError(what + " '" + path + "': invalid JSON (" + e.what() + ")");
+  }
+}
+
+template <size_t N>
+std::array<double, N> json_numbers(const nlohmann::json& j, const std::string& where) {
+  std::array<double, N> out{};
+  if (!j.is_array() || j.size() != N)
+    throw InputError(where + " must be a list of " + std::to_string(N) + " numbers");
+  for (size_t i = 0; i < N; ++i) {
+    if (!j[i].is_number())
+      throw InputError(where + " must be a list of " + std::to_string(N) + " numbers");
+    out[i] = j[i].get<double>();
+  }
+  return out;
+}
+
+// Copies a C-order array whose axes are a permutation of (z, y, x) into x-fastest order,
+// keeping the native type: `axis_of[d]` is the volume axis (0 = x, 1 = y, 2 = z) of array
+// dimension d.
+Volume permuted(const NpyArray& a, const int axis_of[3], const VolumeGrid& grid_without_dims) {
+  VolumeGrid g = grid_without_dims;
+  for (int d = 0; d < 3; ++d) g.dims[axis_of[d]] = a.shape[d];
+  Volume v = Volume::allocate(a.type, g);
+  // Strides of the source array per volume axis (in elements).
+  int64_t src_stride[3];
+  int64_t stride = 1;
+  for (int d = 2; d >= 0; --d) {
+    src_stride[axis_of[d]] = stride;
+    stride *= a.shape[d];
+  }
+  if (a.fortran_order) {
+    stride = 1;
+    for (int d = 0; d < 3; ++d) {
+      src_stride[axis_of[d]] = stride;
+      stride *= a.shape[d];
+    }
+  }
+  const size_t item = pixel_size(a.type);
+  const auto* src = static_cast<const unsigned char*>(a.data.get());
+  auto* dst = static_cast<unsigned char*>(v.data());
+  size_t out = 0;
+  for (int64_t k = 0; k < g.dims[2]; ++k)
+    for (int64_t j = 0; j < g.dims[1]; ++j)
+      for (int64_t i = 0; i < g.dims[0]; ++i, ++out)
+        std::memcpy(dst + out * item,
+                    src + size_t(i * src_stride[0] + j * src_stride[1] + k * src_stride[2]) * item,
+                    item);
+  return v;
+}
+
+Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options) {
+  NpyArray a = read_npy(path);
+  if (a.shape.size() != 3)
+    throw InputError("volume '" + path + "': a .npy volume must be 3-D (nz, ny, nx); got " +
+                     std::to_string(a.shape.size()) + "-D");
+  for (int64_t d : a.shape)
+    if (d <= 0) throw InputError("volume '" + path + "': empty array");
+
+  VolumeGrid g;
+  if (!options.fanslicer_npy_config.empty()) {
+    // SPEC §4: array axes [Y, X, Z], spacing = voxel size, origin = bounding-box minimum.
+    const std::string cfg = options.fanslicer_npy_config;
+    const auto j = read_json_file(cfg, "npy_config");
+    const std::string where = "npy_config '" + cfg + "'";
+    if (!j.is_object() || !j.contains("voxel size") || !j.contains("bounding box"))
+      throw InputError(where + ": needs \"voxel size\" and \"bounding box\"");
+    for (auto it = j.begin(); it != j.end(); ++it)
+      if (it.key() != "voxel size" && it.key() != "bounding box" &&
+          it.key() != "planar resolution")
+        throw InputError(where + ": unknown key '" + it.key() + "'");
+    const auto voxel = json_numbers<3>(j["voxel size"], where + ": \"voxel size\"");
+    const auto& box = j["bounding box"];
+    if (!box.is_array() || box.size() != 2)
+      throw InputError(where + ": \"bounding box\" must be [[xmin, ymin, zmin], [xmax, ymax, zmax]]");
+    const auto lo = json_numbers<3>(box[0], where + ": \"bounding box\"[0]");
+    const auto hi = json_numbers<3>(box[1], where + ": \"bounding box\"[1]");
+    g.spacing_mm = {voxel[0], voxel[1], voxel[2]};
+    g.origin_mm = {lo[0], lo[1], lo[2]};
+    const int axis_of[3] = {1, 0, 2};  // array [Y, X, Z]
+    Volume v = permuted(a, axis_of, g);
+    v.grid().validate("volume '" + path + "'");
+    for (int k = 0; k < 3; ++k) {
+      const double extent = (hi[k] - lo[k]) / voxel[k] + 1;
+      if (std::fabs(extent - double(v.grid().dims[k])) > 1.5)
+        warn(where + ": bounding box spans " + std::to_string(extent) + " voxels along axis " +
+             std::to_string(k) + " but the array has " + std::to_string(v.grid().dims[k]));
+    }
+    return v;
+  }
+
+  // Geometry: sidecar JSON, then flags.
+  const fs::path sidecar = fs::path(path).replace_extension(".json");
+  bool have_geometry = options.spacing_mm.has_value();
+  if (fs::exists(sidecar)) {
+    const auto j = read_json_file(sidecar.string(), "volume sidecar");
+    const std::string where = "volume sidecar '" + sidecar.string() + "'";
+    if (!j.is_object()) throw InputError(where + ": expected a JSON object");
+    for (auto it = j.begin(); it != j.end(); ++it) {
+      if (it.key() == "spacing") {
+        const auto v = json_numbers<3>(*it, where + ": \"spacing\"");
+        g.spacing_mm = {v[0], v[1], v[2]};
+        have_geometry = true;
+      } else if (it.key() == "origin") {
+        const auto v = json_numbers<3>(*it, where + ": \"origin\"");
+        g.origin_mm = {v[0], v[1], v[2]};
+      } else if (it.key() == "direction") {
+        const auto v = json_numbers<9>(*it, where + ": \"direction\" (row-major 3x3)");
+        for (int i = 0; i < 9; ++i) g.direction.m[i / 3][i % 3] = v[size_t(i)];
+      } else {
+        throw InputError(where + ": unknown key '" + it.key() +
+                         "' (expected spacing, origin, direction)");
+      }
+    }
+  }
+  if (options.spacing_mm) g.spacing_mm = *options.spacing_mm;
+  if (options.origin_mm) g.origin_mm = *options.origin_mm;
+  if (options.direction) g.direction = *options.direction;
+  if (!have_geometry)
+    warn("volume '" + path + "': no spacing given (--spacing or a sidecar " +
+         sidecar.filename().string() + "); assuming 1 mm voxels at the origin");
+
+  if (a.fortran_order) {
+    const int axis_of[3] = {2, 1, 0};  // still (nz, ny, nx), but stored Fortran-order
+    Volume v = permuted(a, axis_of, g);
+    v.grid().validate("volume '" + path + "'");
+    return v;
+  }
+  g.dims = {a.shape[2], a.shape[1], a.shape[0]};
+  g.validate("volume '" + path + "'");
+  void* data = a.data.get();
+  return Volume::wrap(data, a.type, g, a.data);  // zero-copy: the Volume owns the npy buffer
+}
+
+#ifdef SONOSLICE_HAVE_ITK
+// ITK writes under a temporary name that is renamed into place; errors name the user's path.
+void write_itk_atomic(const std::string& path, const void* data, PixelType type,
+                      const std::vector<int64_t>& dims, const std::vector<double>& spacing,
+                      const std::vector<double>& origin, const std::vector<double>& direction) {
+  AtomicFile file(path);
+  try {
+    itk_io::write_image(file.temp_path(), data, type, dims, spacing, origin, direction);
+  } catch (const FileError& e) {
+    std::string msg = e.what();
+    const size_t at = msg.find(file.temp_path());
+    if (at != std::string::npos) msg.replace(at, file.temp_path().size(), path);
+    throw FileError(msg);
+  }
+  file.commit();
+}
+#endif
+
+}  // namespace
+
+bool built_with_itk() {
+#ifdef SONOSLICE_HAVE_ITK
+  return true;
+#else
+  return false;
+#endif
+}
+
+std::string file_extension(const std::string& path) {
+  std::string name = fs::path(path).filename().string();
+  std::transform(name.begin(), name.end(), name.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  for (const char* compound : {".nii.gz", ".tar.gz"})
+    if (name.size() > std::strlen(compound) &&
+        name.compare(name.size() - std::strlen(compound), std::string::npos, compound) == 0)
+      return compound;
+  const size_t dot = name.find_last_of('.');
+  return dot == std::string::npos || dot == 0 ? "" : name.substr(dot);
+}
+
+Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw FileError("cannot read volume '" + path + "': no such file");
+  const std::string ext = file_extension(path);
+  const bool npy_flags = options.spacing_mm || options.origin_mm || options.direction ||
+                         !options.fanslicer_npy_config.empty();
+  if (ext != ".npy" && npy_flags)
+    throw InputError("volume '" + path +
+                     "': --spacing/--origin/--direction/--npy-config apply to .npy volumes only "
+                     "(this file carries its own geometry)");
+  if (ext == ".npy") return read_npy_volume(path, options);
+  if (!options.series_uid.empty() && !fs::is_directory(path, ec))
+    throw InputError("--series applies to DICOM directories; '" + path + "' is a file");
+#ifdef SONOSLICE_HAVE_ITK
+  Volume v = fs::is_directory(path, ec) ? itk_io::read_dicom_directory(path, options.series_uid)
+                                        : itk_io::read_image_file(path);
+  v.grid().validate("volume '" + path + "'");
+  return v;
+#else
+  no_itk(path);
+#endif
+}
+
+std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
+#ifdef SONOSLICE_HAVE_ITK
+  return itk_io::list_dicom_series(directory);
+#else
+  no_itk(directory);
+#endif
+}
+
+void write_image(const std::string& path, const void* data, PixelType type,
+                 const std::vector<int64_t>& dims, const std::vector<double>& spacing) {
+  const std::string ext = file_extension(path);
+  if (ext == ".npy") {
+    std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
+    write_npy(path, type, shape, data);
+    return;
+  }
+#ifdef SONOSLICE_HAVE_ITK
+  const size_t n = dims.size();
+  std::vector<double> origin(n, 0.0), direction(n * n, 0.0);
+  for (size_t i = 0; i < n; ++i) direction[i * n + i] = 1.0;
+  write_itk_atomic(path, data, type, dims, spacing, origin, direction);
+#else
+  (void)type, (void)spacing, (void)data;
+  no_itk(path);
+#endif
+}
+
+void write_volume(const std::string& path, const Volume& volume) {
+  const VolumeGrid& g = volume.grid();
+  const std::string ext = file_extension(path);
+  if (ext == ".npy") {
+    write_npy(path, volume.pixel_type(), {g.dims[2], g.dims[1], g.dims[0]}, volume.data());
+    nlohmann::json j;
+    j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};
+    j["origin"] = {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]};
+    std::vector<double> d;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) d.push_back(g.direction.m[r][c]);
+    j["direction"] = d;
+    const std::string sidecar = fs::path(path).replace_extension(".json").string();
+    write_text_file(sidecar, j.dump(2) + "\n");
+    return;
+  }
+#ifdef SONOSLICE_HAVE_ITK
+  std::vector<double> spacing(g.spacing_mm.begin(), g.spacing_mm.end());
+  std::vector<double> origin(g.origin_mm.begin(), g.origin_mm.end());
+  std::vector<double> direction;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) direction.push_back(g.direction.m[r][c]);
+  write_itk_atomic(path, volume.data(), volume.pixel_type(), {g.dims[0], g.dims[1], g.dims[2]},
+                   spacing, origin, direction);
+#else
+  no_itk(path);
+#endif
+}
+
+}  // namespace sonoslice

@@ -1,0 +1,9 @@
+// The CPU backend of the slicing kernel for any x86-64 (or other) CPU: SliceImpl.h compiled
+// with the OpenMP parallel_for and scalar lanes.
+#include "SliceImpl.h"
+
+namespace sonoslice {
+namespace slice_impl {
+void slice_cpu_generic(const SliceLaunch& launch) { dispatch_slice(launch); }
+}  // namespace slice_impl
+}  // namespace sonoslice

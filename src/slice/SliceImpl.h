@@ -1,0 +1,230 @@
+#pragma once
+/// @file The slicing kernel (SPEC §5): one source for every backend. SliceCPU.cpp (generic
+/// x86-64), SliceCPUAvx2.cpp (AVX2 + FMA) and SliceCUDA.cu include this file. Everything below
+/// the dispatch layer takes pre-validated raw pointers and sizes.
+///
+/// The interpolation formulas are templates over the lane type (float on CUDA and in scalar
+/// code, eight AVX2 lanes in the CPU fast path), so there is exactly one trilinear formula.
+#include <cmath>
+#include <cstdint>
+#include <type_traits>
+
+#include "../backend/Convert.h"
+#include "SliceTypes.h"
+#include "sonoslice/backend/HostDevice.h"
+#include "sonoslice/volume/PixelType.h"
+
+#if defined(__CUDACC__)
+#include "../backend/ParallelForCUDA.cuh"
+#else
+#include "../backend/ParallelFor.h"
+#endif
+#if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
+#include "../backend/Avx2Lanes.h"
+#define SONOSLICE_SLICE_AVX2 1
+#endif
+
+namespace sonoslice {
+namespace slice_impl {
+inline namespace SONOSLICE_KERNEL_ISA {
+
+using backend::lerp;
+
+/// Trilinear blend of a cell's eight corners v[x][y][z] at fractions (fx, fy, fz) in [0, 1).
+template <typename F>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F trilinear(F fx, F fy, F fz, F v000, F v100, F v010,
+                                                   F v110, F v001, F v101, F v011, F v111) {
+  const F c00 = lerp(v000, v100, fx), c10 = lerp(v010, v110, fx);
+  const F c01 = lerp(v001, v101, fx), c11 = lerp(v011, v111, fx);
+  return lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz);
+}
+
+/// SPEC §5 `linear` at continuous index (cx, cy, cz), already known to be inside
+/// [-0.5, n - 0.5) on every axis. Neighbour indices are clamped to [0, n - 1].
+template <typename Acc, typename TIn>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc sample_linear(const TIn* __restrict__ volume,
+                                                         const VolumeView& g, Acc cx, Acc cy,
+                                                         Acc cz) {
+  // Inside the buffer c >= -0.5, so truncating c + 1 is floor(c) + 1 without a call to floor
+  // (which baseline x86-64 cannot inline). When c + 1 rounds up to an integer, f comes out as
+  // -ulp instead of 1 - ulp at the neighbouring cell: the same value to float precision.
+  const int ix = int(cx + Acc(1)) - 1, iy = int(cy + Acc(1)) - 1, iz = int(cz + Acc(1)) - 1;
+  const Acc fx = cx - Acc(ix), fy = cy - Acc(iy), fz = cz - Acc(iz);
+  // Inside the buffer -1 <= i <= n - 1, so one-sided clamps suffice.
+  const int x0 = ix < 0 ? 0 : ix, x1 = ix + 1 < g.nx ? ix + 1 : g.nx - 1;
+  const int y0 = iy < 0 ? 0 : iy, y1 = iy + 1 < g.ny ? iy + 1 : g.ny - 1;
+  const int z0 = iz < 0 ? 0 : iz, z1 = iz + 1 < g.nz ? iz + 1 : g.nz - 1;
+  const int64_t r00 = z0 * g.stride_z + y0 * g.stride_y, r10 = z0 * g.stride_z + y1 * g.stride_y;
+  const int64_t r01 = z1 * g.stride_z + y0 * g.stride_y, r11 = z1 * g.stride_z + y1 * g.stride_y;
+  return trilinear(fx, fy, fz, Acc(volume[r00 + x0]), Acc(volume[r00 + x1]),
+                   Acc(volume[r10 + x0]), Acc(volume[r10 + x1]), Acc(volume[r01 + x0]),
+                   Acc(volume[r01 + x1]), Acc(volume[r11 + x0]), Acc(volume[r11 + x1]));
+}
+
+/// SPEC §5 `nearest`: index floor(c + 0.5), clamped.
+template <typename TIn, typename Acc>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE TIn sample_nearest(const TIn* __restrict__ volume,
+                                                         const VolumeView& g, Acc cx, Acc cy,
+                                                         Acc cz) {
+  // c + 0.5 >= 0 inside the buffer: truncation is floor.
+  int ix = int(cx + Acc(0.5)), iy = int(cy + Acc(0.5)), iz = int(cz + Acc(0.5));
+  ix = ix < 0 ? 0 : (ix >= g.nx ? g.nx - 1 : ix);
+  iy = iy < 0 ? 0 : (iy >= g.ny ? g.ny - 1 : iy);
+  iz = iz < 0 ? 0 : (iz >= g.nz ? g.nz - 1 : iz);
+  return volume[iz * g.stride_z + iy * g.stride_y + ix];
+}
+
+/// One output image row at a time: row r of the batch is row v = r % H of image n = r / H.
+template <typename TIn, typename TOut, bool Linear>
+struct SliceKernel {
+  // Geometry in float except for float64 volumes (SPEC §5 allows float32 geometry).
+  using Acc = typename std::conditional<std::is_same<TIn, double>::value, double, float>::type;
+
+  const TIn* volume;
+  VolumeView grid;
+  const PixelToIndex* poses;  // one per image
+  const uint8_t* mask;        // H × W
+  TOut* out;                  // N × H × W
+  int width;
+  int height;
+  TOut fill;
+
+  struct Row {
+    Acc c[3];  // continuous index of pixel (0, v)
+    Acc d[3];  // step per column
+    const uint8_t* mask;
+    TOut* out;
+  };
+
+  SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Row row(int64_t r) const {
+    const int64_t n = r / height;
+    const int v = int(r - n * height);
+    const PixelToIndex& p = poses[n];
+    Row s;
+    for (int k = 0; k < 3; ++k) {
+      s.c[k] = Acc(p.origin[k]) + Acc(v) * Acc(p.per_row[k]);
+      s.d[k] = Acc(p.per_column[k]);
+    }
+    s.mask = mask + int64_t(v) * width;
+    s.out = out + r * width;
+    return s;
+  }
+
+  /// The general per-element path: every backend, every pixel type, every position.
+  SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void pixel(const Row& s, int u) const {
+    if (!s.mask[u]) {
+      s.out[u] = fill;
+      return;
+    }
+    const Acc cx = s.c[0] + Acc(u) * s.d[0];
+    const Acc cy = s.c[1] + Acc(u) * s.d[1];
+    const Acc cz = s.c[2] + Acc(u) * s.d[2];
+    // SPEC §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so NaN is outside.
+    if (!(cx >= Acc(-0.5) && cx < Acc(grid.nx) - Acc(0.5) && cy >= Acc(-0.5) &&
+          cy < Acc(grid.ny) - Acc(0.5) && cz >= Acc(-0.5) && cz < Acc(grid.nz) - Acc(0.5))) {
+      s.out[u] = fill;
+      return;
+    }
+    if (Linear) {
+      s.out[u] = backend::saturate_cast<TOut>(sample_linear<Acc>(volume, grid, cx, cy, cz));
+    } else {
+      s.out[u] = backend::saturate_cast<TOut>(Acc(sample_nearest(volume, grid, cx, cy, cz)));
+    }
+  }
+
+#ifdef SONOSLICE_SLICE_AVX2
+  /// CPU fast path: eight pixels at once where all eight are inside the probe mask and in the
+  /// volume's interior (no clamping, every gathered byte in the buffer); any other block goes
+  /// through pixel(). Needs int32 voxel offsets (the dispatcher checks the volume size).
+  void pixels(const Row& s, int begin, int end) const {
+    using namespace backend;
+    if constexpr (!has_gather_pair<TIn>::value) {
+      for (int u = begin; u < end; ++u) pixel(s, u);
+    } else {
+      // A pair gather at voxel i reads up to voxel i + reach along x (one-byte types load four
+      // bytes), so the fast path keeps i + reach inside the row; linear also needs i + 1 in y
+      // and z, and nearest rounds, so it stays half a voxel further from the x face.
+      const float reach = sizeof(TIn) == 1 ? 3.0f : 1.0f;
+      const float hx = float(grid.nx) - reach - (Linear ? 0.0f : 0.5f);
+      const float hy = float(grid.ny) - 1.0f, hz = float(grid.nz) - 1.0f;
+      const int32_t sy = int32_t(grid.stride_y), sz = int32_t(grid.stride_z);
+      int u = begin;
+      for (; u + 8 <= end; u += 8) {
+        const int in_mask = lanes_set(s.mask + u);
+        if (in_mask == 0) {
+          for (int k = 0; k < 8; ++k) s.out[u + k] = fill;
+          continue;
+        }
+        const Vec8f uu = Vec8f::iota(float(u));
+        const Vec8f cx = Vec8f(s.c[0]) + uu * Vec8f(s.d[0]);
+        const Vec8f cy = Vec8f(s.c[1]) + uu * Vec8f(s.d[1]);
+        const Vec8f cz = Vec8f(s.c[2]) + uu * Vec8f(s.d[2]);
+        const int interior = lanes_in_range(cx, 0.0f, hx) & lanes_in_range(cy, 0.0f, hy) &
+                             lanes_in_range(cz, 0.0f, hz);
+        if ((in_mask & interior) != 0xff) {
+          for (int k = 0; k < 8; ++k) pixel(s, u + k);
+          continue;
+        }
+        Vec8f value;
+        if (Linear) {
+          const Vec8i ix = floor_to_int(cx), iy = floor_to_int(cy), iz = floor_to_int(cz);
+          const Vec8i o00 = offsets(ix, iy, iz, sy, sz);
+          Vec8f v000, v100, v010, v110, v001, v101, v011, v111;
+          gather_pair(volume, o00, v000, v100);
+          gather_pair(volume, o00 + sy, v010, v110);
+          gather_pair(volume, o00 + sz, v001, v101);
+          gather_pair(volume, o00 + (sz + sy), v011, v111);
+          value = trilinear(cx - to_float(ix), cy - to_float(iy), cz - to_float(iz), v000, v100,
+                            v010, v110, v001, v101, v011, v111);
+        } else {
+          const Vec8f half(0.5f);
+          const Vec8i o = offsets(floor_to_int(cx + half), floor_to_int(cy + half),
+                                  floor_to_int(cz + half), sy, sz);
+          Vec8f upper;
+          gather_pair(volume, o, value, upper);
+        }
+        if constexpr (std::is_same<TOut, float>::value) {
+          value.store(s.out + u);
+        } else {
+          alignas(32) float lanes[8];
+          value.store(lanes);
+          for (int k = 0; k < 8; ++k) s.out[u + k] = saturate_cast<TOut>(lanes[k]);
+        }
+      }
+      for (; u < end; ++u) pixel(s, u);
+    }
+  }
+#endif
+};
+
+template <typename TIn, typename TOut, bool Linear>
+void run_slice_kernel(const SliceLaunch& launch) {
+  SliceKernel<TIn, TOut, Linear> k;
+  k.volume = static_cast<const TIn*>(launch.volume);
+  k.grid = launch.grid;
+  k.poses = launch.poses;
+  k.mask = launch.mask;
+  k.out = static_cast<TOut*>(launch.out);
+  k.width = launch.width;
+  k.height = launch.height;
+  k.fill = backend::saturate_cast<TOut>(launch.fill_value);
+  backend::parallel_for_rows(launch.count * launch.height, launch.width, k, launch.stream);
+}
+
+/// Type dispatch: volume type × output type × interpolation → one kernel instantiation.
+inline void dispatch_slice(const SliceLaunch& launch) {
+  visit_pixel_type(launch.volume_type, [&](auto in_zero) {
+    using TIn = decltype(in_zero);
+    visit_output_type(launch.output_type, [&](auto out_zero) {
+      using TOut = decltype(out_zero);
+      if (launch.linear)
+        run_slice_kernel<TIn, TOut, true>(launch);
+      else
+        run_slice_kernel<TIn, TOut, false>(launch);
+    });
+  });
+}
+
+}  // namespace SONOSLICE_KERNEL_ISA
+}  // namespace slice_impl
+}  // namespace sonoslice

@@ -1,0 +1,112 @@
+#include "sonoslice/slice/Slicer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "SliceTypes.h"
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace slice_impl {
+void slice_cpu_generic(const SliceLaunch& launch);
+#ifdef SONOSLICE_HAVE_AVX2_KERNELS
+void slice_cpu_avx2(const SliceLaunch& launch);
+#endif
+}  // namespace slice_impl
+
+Interpolation parse_interpolation(const std::string& name) {
+  if (name == "linear" || name == "trilinear") return Interpolation::Linear;
+  if (name == "nearest") return Interpolation::Nearest;
+  throw InputError("interpolation '" + name + "': expected linear or nearest");
+}
+
+std::string interpolation_name(Interpolation interpolation) {
+  return interpolation == Interpolation::Linear ? "linear" : "nearest";
+}
+
+Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Device device)
+    : volume_(std::move(volume)), probe_(probe), settings_(settings), device_(device) {
+  if (volume_.empty()) throw InputError("slicer: the volume is empty");
+  volume_.grid().validate("volume");
+  // The kernels index with int per axis and int64 offsets.
+  for (int a = 0; a < 3; ++a)
+    if (volume_.grid().dims[a] > std::numeric_limits<int>::max() / 2)
+      throw InputError("volume: too many voxels along axis " + std::to_string(a));
+  probe_.validate("probe");
+  switch (settings_.output_type) {
+    case PixelType::Float32:
+    case PixelType::Int16:
+    case PixelType::UInt8:
+    case PixelType::UInt16: break;
+    default:
+      throw InputError("output type " + pixel_type_name(settings_.output_type) +
+                       ": expected float32, int16, uint8 or uint16");
+  }
+  if (std::isnan(settings_.fill_value)) {
+    // NaN is a legitimate fill for float output (marks "no data"); integers cannot hold it.
+    if (settings_.output_type != PixelType::Float32)
+      throw InputError("fill value NaN needs float32 output");
+  }
+  require_device(device_);
+  mask_ = probe_.mask();
+}
+
+size_t Slicer::image_bytes() const {
+  return size_t(probe_.image.pixel_count()) * pixel_size(settings_.output_type);
+}
+
+void Slicer::check_output_type(PixelType type) const {
+  if (type != settings_.output_type)
+    throw InputError("slicer: output buffer type " + pixel_type_name(type) +
+                     " does not match the output type " + pixel_type_name(settings_.output_type));
+}
+
+void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_index) const {
+  if (count == 0) return;
+  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+
+  // Per image, reduce pose ∘ image grid ∘ world→index to one affine map pixel → index, in
+  // double, then hand the kernel floats.
+  const VolumeGrid& g = volume_.grid();
+  const Mat3 w2i = g.world_to_index_linear();
+  const ImageGrid& im = probe_.image;
+  std::vector<slice_impl::PixelToIndex> affines(count);
+  for (size_t n = 0; n < count; ++n) {
+    const Pose& T = poses[n];
+    const Vec3 p00 = T.transform_point({im.origin_mm[0], im.origin_mm[1], 0.0});
+    const Vec3 origin = w2i * (p00 - g.origin_mm);
+    const Vec3 per_column = w2i * (im.spacing_mm[0] * T.column3(0));
+    const Vec3 per_row = w2i * (im.spacing_mm[1] * T.column3(1));
+    for (int k = 0; k < 3; ++k) {
+      affines[n].origin[k] = float(origin[k]);
+      affines[n].per_column[k] = float(per_column[k]);
+      affines[n].per_row[k] = float(per_row[k]);
+    }
+  }
+
+  slice_impl::SliceLaunch launch{};
+  launch.volume = volume_.data();
+  launch.volume_type = volume_.pixel_type();
+  launch.grid = {int(g.dims[0]), int(g.dims[1]), int(g.dims[2]), g.dims[0], g.dims[0] * g.dims[1]};
+  launch.poses = affines.data();
+  launch.count = int64_t(count);
+  launch.mask = mask_.data();
+  launch.out = out;
+  launch.output_type = settings_.output_type;
+  launch.width = probe_.image.width;
+  launch.height = probe_.image.height;
+  launch.fill_value = settings_.fill_value;
+  launch.linear = settings_.interpolation == Interpolation::Linear;
+  launch.stream = nullptr;
+#ifdef SONOSLICE_HAVE_AVX2_KERNELS
+  // The AVX2 fast path addresses voxels with int32 offsets.
+  if (cpu_kernel_isa() == "avx2" && g.voxel_count() < (int64_t(1) << 31) - 4) {
+    slice_impl::slice_cpu_avx2(launch);
+    return;
+  }
+#endif
+  slice_impl::slice_cpu_generic(launch);
+}
+
+}  // namespace sonoslice

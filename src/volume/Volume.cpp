@@ -1,0 +1,96 @@
+#include "sonoslice/volume/Volume.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <limits>
+#include <sstream>
+#include <vector>
+
+#include "../backend/Convert.h"
+#include "../backend/ParallelFor.h"
+#include "sonoslice/backend/Device.h"
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+Volume Volume::allocate(PixelType type, const VolumeGrid& grid) {
+  grid.validate("volume");
+  const size_t bytes = size_t(grid.voxel_count()) * pixel_size(type);
+  // calloc: large blocks come from the OS already zeroed, so this costs no extra pass.
+  void* p = std::calloc(size_t(grid.voxel_count()), pixel_size(type));
+  if (!p) {
+    std::ostringstream s;
+    s << "cannot allocate a " << grid.dims[0] << "x" << grid.dims[1] << "x" << grid.dims[2] << " "
+      << pixel_type_name(type) << " volume (" << double(bytes) / (1 << 20) << " MiB)";
+    throw ResourceError(s.str());
+  }
+  return wrap(p, type, grid, std::shared_ptr<void>(p, std::free));
+}
+
+Volume Volume::wrap(void* data, PixelType type, const VolumeGrid& grid,
+                    std::shared_ptr<void> owner) {
+  Volume v;
+  v.type_ = type;
+  v.grid_ = grid;
+  v.data_ = data;
+  v.owner_ = std::move(owner);
+  return v;
+}
+
+std::pair<double, double> Volume::value_range() const {
+  const int64_t n = grid_.voxel_count();
+  const int64_t chunk = 1 << 20;
+  const int64_t chunks = (n + chunk - 1) / chunk;
+  std::vector<double> lo(size_t(chunks), std::numeric_limits<double>::infinity());
+  std::vector<double> hi(size_t(chunks), -std::numeric_limits<double>::infinity());
+  visit_pixel_type(type_, [&](auto zero) {
+    using T = decltype(zero);
+    const T* p = data_as<T>();
+    backend::parallel_for(chunks, [&](int64_t c) {
+      const int64_t end = std::min(n, (c + 1) * chunk);
+      T mn = std::numeric_limits<T>::max(), mx = std::numeric_limits<T>::lowest();
+      bool any = false;
+      for (int64_t i = c * chunk; i < end; ++i) {
+        const T v = p[i];
+        if (v != v) continue;  // NaN
+        any = true;
+        mn = v < mn ? v : mn;
+        mx = v > mx ? v : mx;
+      }
+      if (any) {
+        lo[size_t(c)] = double(mn);
+        hi[size_t(c)] = double(mx);
+      }
+    });
+  });
+  double mn = std::numeric_limits<double>::infinity(), mx = -mn;
+  for (int64_t c = 0; c < chunks; ++c) {
+    mn = std::min(mn, lo[size_t(c)]);
+    mx = std::max(mx, hi[size_t(c)]);
+  }
+  if (mn > mx) mn = mx = std::numeric_limits<double>::quiet_NaN();  // all NaN
+  return {mn, mx};
+}
+
+Volume Volume::converted(PixelType type) const {
+  Volume out = allocate(type, grid_);
+  const int64_t n = grid_.voxel_count();
+  const int64_t chunk = 1 << 20;
+  visit_pixel_type(type_, [&](auto in_zero) {
+    using TIn = decltype(in_zero);
+    visit_pixel_type(type, [&](auto out_zero) {
+      using TOut = decltype(out_zero);
+      const TIn* src = data_as<TIn>();
+      TOut* dst = out.data_as<TOut>();
+      backend::parallel_for((n + chunk - 1) / chunk, [&](int64_t c) {
+        const int64_t end = std::min(n, (c + 1) * chunk);
+        for (int64_t i = c * chunk; i < end; ++i)
+          dst[i] = backend::saturate_cast<TOut>(double(src[i]));
+      });
+    });
+  });
+  return out;
+}
+
+}  // namespace sonoslice
