@@ -37,10 +37,9 @@ void run_slice(const SliceFlags& f) {
   require_device(device);
   SliceSettings settings;
   settings.interpolation = parse_interpolation(f.interp);
-  settings.output_type = parse_pixel_type(f.dtype);
-  if (settings.output_type != PixelType::Float32 && settings.output_type != PixelType::Int16 &&
-      settings.output_type != PixelType::UInt8 && settings.output_type != PixelType::UInt16)
+  if (f.dtype != "float32" && f.dtype != "int16" && f.dtype != "uint8" && f.dtype != "uint16")
     throw InputError("--dtype " + f.dtype + ": expected float32, int16, uint8 or uint16");
+  settings.output_type = parse_pixel_type(f.dtype);
   settings.fill_value = f.fill;
   std::optional<std::pair<double, double>> window;
   if (!f.window.empty()) {

@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <iostream>
+#include <memory>
 #include <mutex>
 #include <sstream>
 
@@ -19,16 +21,53 @@
 #include <itkNrrdImageIOFactory.h>
 #include <itkPNGImageIOFactory.h>
 
+#include <itkOutputWindow.h>
+
+#include "FileIntegrity.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
 namespace itk_io {
 namespace {
 
+// ITK's warnings arrive as multi-line text with source locations; pass on one clean line.
+class WarningWindow : public itk::OutputWindow {
+ public:
+  itkNewMacro(WarningWindow);
+  void DisplayText(const char* text) override {
+    std::string t = text ? text : "";
+    // "WARNING: In /path/file.cxx, line N\nClass (0x...): message" → "message"
+    const size_t colon = t.find("): ");
+    if (colon != std::string::npos) t = t.substr(colon + 3);
+    std::replace(t.begin(), t.end(), '\n', ' ');
+    while (!t.empty() && t.back() == ' ') t.pop_back();
+    if (!t.empty()) warn("ITK: " + t);
+  }
+};
+
+// MetaIO (MetaImage's library) reports short reads only on std::cerr and then returns success;
+// this captures what it prints during a read so it can be turned into an error.
+class CerrCapture {
+ public:
+  CerrCapture() : old_(std::cerr.rdbuf(text_.rdbuf())) {}
+  ~CerrCapture() { std::cerr.rdbuf(old_); }
+  std::string text() const {
+    std::string t = text_.str();
+    std::replace(t.begin(), t.end(), '\n', ' ');
+    while (!t.empty() && t.back() == ' ') t.pop_back();
+    return t;
+  }
+
+ private:
+  std::stringstream text_;
+  std::streambuf* old_;
+};
+
 // Registered explicitly so the formats work however the executable was linked.
 void register_factories() {
   static std::once_flag once;
   std::call_once(once, [] {
+    itk::OutputWindow::SetInstance(WarningWindow::New());
     itk::NiftiImageIOFactory::RegisterOneFactory();
     itk::MetaImageIOFactory::RegisterOneFactory();
     itk::NrrdImageIOFactory::RegisterOneFactory();
@@ -87,7 +126,15 @@ Volume read_typed(const std::string& path, itk::ImageIOBase* io) {
   auto reader = itk::ImageFileReader<Image3<T>>::New();
   reader->SetFileName(path);
   reader->SetImageIO(io);
-  reader->Update();
+  const bool metaio = std::string(io->GetNameOfClass()) == "MetaImageIO";
+  std::string complaint;
+  {
+    std::unique_ptr<CerrCapture> capture(metaio ? new CerrCapture : nullptr);
+    reader->Update();
+    if (capture) complaint = capture->text();
+  }
+  if (!complaint.empty())
+    throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + complaint + ")");
   return to_volume<T>(reader->GetOutput());
 }
 
@@ -155,6 +202,7 @@ Volume read_image_file(const std::string& path) {
                        std::to_string(io->GetNumberOfComponents()) +
                        " components (sonoslice slices scalar volumes)");
     const PixelType type = to_pixel_type(io->GetComponentType(), path);
+    check_complete(path, io->GetImageSizeInBytes());
     return visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });
   } catch (const itk::ExceptionObject& e) {
     throw FileError("cannot read volume '" + path + "': " + describe(e));

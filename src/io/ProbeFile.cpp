@@ -2,7 +2,6 @@
 
 #include <cmath>
 #include <fstream>
-#include <set>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -14,15 +13,25 @@ namespace {
 
 using json = nlohmann::json;
 
-// Reads keys from one JSON object, rejecting keys nobody asked for (typos must not pass).
+// Reads keys from one JSON object. Keys outside `allowed` are rejected before anything is read,
+// so a typo ("sector" for "sector_deg") is reported as itself, not as a missing key.
 class Keys {
  public:
-  Keys(const json& object, std::string where) : object_(object), where_(std::move(where)) {
+  Keys(const json& object, std::string where, std::initializer_list<const char*> allowed)
+      : object_(object), where_(std::move(where)) {
     if (!object_.is_object()) throw InputError(where_ + ": expected a JSON object");
+    for (auto it = object_.begin(); it != object_.end(); ++it) {
+      bool ok = false;
+      std::string expected;
+      for (const char* a : allowed) {
+        ok |= it.key() == a;
+        expected += (expected.empty() ? "" : ", ") + std::string(a);
+      }
+      if (!ok) throw InputError(where_ + ": unknown key '" + it.key() + "' (expected: " + expected + ")");
+    }
   }
   bool has(const char* key) const { return object_.contains(key); }
   const json& get(const char* key) {
-    seen_.insert(key);
     if (!object_.contains(key)) throw InputError(where_ + ": missing key '" + key + "'");
     return object_.at(key);
   }
@@ -58,18 +67,10 @@ class Keys {
     if (!v.is_string()) throw InputError(where_ + ": '" + key + "' must be a string");
     return v.get<std::string>();
   }
-  void mark(const char* key) { seen_.insert(key); }
-  /// Throws for the first key that was not read.
-  void reject_unknown() const {
-    for (auto it = object_.begin(); it != object_.end(); ++it)
-      if (!seen_.count(it.key()))
-        throw InputError(where_ + ": unknown key '" + it.key() + "'");
-  }
 
  private:
   const json& object_;
   std::string where_;
-  std::set<std::string> seen_;
 };
 
 void apply_downsampling(ImageGrid& image, int ds) {
@@ -80,15 +81,20 @@ void apply_downsampling(ImageGrid& image, int ds) {
 }
 
 ProbeGeometry parse_native(const json& root, const std::string& source, int ds) {
-  Keys k(root, "probe '" + source + "'");
+  const std::string where = "probe '" + source + "'";
+  if (!root.contains("type") || !root["type"].is_string())
+    throw InputError(where + ": missing key 'type' (curvilinear or linear)");
+  const std::string type = root["type"].get<std::string>();
   ProbeGeometry p;
-  const std::string type = k.string("type");
   if (type == "curvilinear") {
+    Keys k(root, where, {"type", "radius_mm", "depth_mm", "sector_deg", "face_y_mm", "image"});
     p.type = ProbeType::Curvilinear;
     p.radius_mm = k.number("radius_mm");
     p.depth_mm = k.number("depth_mm");
     p.sector_deg = k.number("sector_deg");
+    if (k.has("face_y_mm")) p.face_y_mm = k.number("face_y_mm");
   } else if (type == "linear") {
+    Keys k(root, where, {"type", "width_mm", "depth_mm", "face_y_mm", "image"});
     p.type = ProbeType::Linear;
     if (k.has("width_mm")) {
       p.has_width = true;
@@ -98,25 +104,20 @@ ProbeGeometry parse_native(const json& root, const std::string& source, int ds) 
       p.has_depth = true;
       p.depth_mm = k.number("depth_mm");
     }
+    if (k.has("face_y_mm")) p.face_y_mm = k.number("face_y_mm");
   } else {
-    throw InputError("probe '" + source + "': type '" + type + "' (expected curvilinear or linear)");
+    throw InputError(where + ": type '" + type + "' (expected curvilinear or linear)");
   }
-  if (k.has("face_y_mm")) p.face_y_mm = k.number("face_y_mm");
-
-  Keys im(k.get("image"), "probe '" + source + "': image");
+  if (!root.contains("image")) throw InputError(where + ": missing key 'image'");
+  Keys im(root["image"], where + ": image", {"width", "height", "spacing_mm", "origin_mm"});
   p.image.width = im.integer("width");
   p.image.height = im.integer("height");
   const auto spacing = im.numbers("spacing_mm", 2);
   p.image.spacing_mm[0] = spacing[0];
   p.image.spacing_mm[1] = spacing[1];
-  const bool has_origin = im.has("origin_mm");
-  std::vector<double> origin;
-  if (has_origin) origin = im.numbers("origin_mm", 2);
-  im.reject_unknown();
-  k.reject_unknown();
-
   if (ds != 1) apply_downsampling(p.image, ds);
-  if (has_origin) {
+  if (im.has("origin_mm")) {
+    const auto origin = im.numbers("origin_mm", 2);
     p.image.origin_mm[0] = origin[0];
     p.image.origin_mm[1] = origin[1];
   } else {
@@ -127,11 +128,13 @@ ProbeGeometry parse_native(const json& root, const std::string& source, int ds) 
 
 // SPEC §4: fan-slicer's "simulation" block.
 ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int ds) {
-  Keys top(root, "fan-slicer config '" + source + "'");
+  // "models" (surface files) is read by the surface module; it does not change the probe.
+  Keys top(root, "fan-slicer config '" + source + "'", {"simulation", "models"});
   const std::string where = "fan-slicer config '" + source + "': simulation";
-  Keys sim(top.get("simulation"), where);
-  if (top.has("models")) top.mark("models");  // surfaces: read by the surface module
-  top.reject_unknown();
+  // simulation_models, colors and opacity configure surface rendering, not the probe.
+  Keys sim(top.get("simulation"), where,
+           {"transducer", "fan_geometry", "image_dimensions", "pixel_size", "simulation_models",
+            "colors", "opacity"});
 
   ProbeGeometry p;
   // Early fan-slicer configs (e.g. its EUS example) have no "transducer": they are fans.
@@ -159,17 +162,12 @@ ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int d
     p.face_y_mm = fan[5] * da;
     p.image.origin_mm[0] = -p.image.width * sx / 2.0;
   } else if (transducer == "linear") {
-    p.type = ProbeType::Linear;
-    if (sim.has("fan_geometry")) sim.mark("fan_geometry");  // unused by linear probes
+    p.type = ProbeType::Linear;  // a fan_geometry, if present, is unused
     p.image.origin_mm[0] = -double(p.image.width / 2) * sx;
   } else {
     throw InputError(where + ": transducer '" + transducer + "' (expected curvilinear or linear)");
   }
   p.image.origin_mm[1] = 0.0;
-  // Surface-simulation keys belong to the same file; they do not change the probe.
-  for (const char* key : {"simulation_models", "colors", "opacity"})
-    if (sim.has(key)) sim.mark(key);
-  sim.reject_unknown();
   return p;
 }
 

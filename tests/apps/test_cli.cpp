@@ -1,0 +1,286 @@
+// The sonoslice command line end to end: outputs on disk, and one clear line plus a non-zero
+// exit (and no partial or overwritten output) for every kind of bad input.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "../common/TestUtil.h"
+#include "sonoslice/io/Npy.h"
+#include "sonoslice/io/PoseFile.h"
+#include "sonoslice/io/ProbeFile.h"
+#include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/phantom/Phantom.h"
+
+namespace sonoslice {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CliRun {
+  int code;
+  std::string out, err;
+};
+
+std::string quote(const std::string& s) { return "'" + s + "'"; }
+
+CliRun run(const std::string& args, const test::TempDir& dir) {
+  const std::string out_file = dir.file(".stdout"), err_file = dir.file(".stderr");
+  const std::string cmd = std::string(SONOSLICE_CLI) + " " + args + " >" + quote(out_file) + " 2>" + quote(err_file);
+  const int status = std::system(cmd.c_str());
+  auto slurp = [](const std::string& p) {
+    std::ifstream in(p);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  };
+  CliRun r{WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out_file), slurp(err_file)};
+  fs::remove(out_file);
+  fs::remove(err_file);
+  return r;
+}
+
+// Directory entries other than the ones named (to spot partial or temporary outputs).
+std::vector<std::string> entries(const test::TempDir& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir.path())) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    data_ = new test::TempDir();
+    ASSERT_EQ(run("phantom " + quote(data_->file("ph")) + " --size small -q", *data_).code, 0);
+    const ProbeGeometry probe = [] {
+      ProbeGeometry p;
+      p.type = ProbeType::Curvilinear;
+      p.radius_mm = 20;
+      p.depth_mm = 60;
+      p.sector_deg = 60;
+      p.image.width = 120;
+      p.image.height = 100;
+      p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.7;
+      p.image.set_default_origin();
+      return p;
+    }();
+    std::ofstream(data_->file("fan.json")) << probe_to_json(probe);
+    write_poses_text(data_->file("poses.txt"), phantom_random_poses(12, 5));
+  }
+  static void TearDownTestSuite() {
+    delete data_;
+    data_ = nullptr;
+  }
+  static std::string ct() { return quote(data_->file("ph/ct.nii.gz")); }
+  static std::string fan() { return quote(data_->file("fan.json")); }
+  static std::string poses() { return quote(data_->file("poses.txt")); }
+  static test::TempDir* data_;
+};
+test::TempDir* Cli::data_ = nullptr;
+
+TEST_F(Cli, SliceToNpyMatchesLibraryAndWritesMask) {
+  test::TempDir out;
+  const CliRun r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() +
+                        " --out " + quote(out.file("s.npy")) + " --mask " + quote(out.file("mask.png")) +
+                        " --verbose",
+                    out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("load"), std::string::npos);  // --verbose timings
+  EXPECT_NE(r.err.find("slice"), std::string::npos);
+  const NpyArray a = read_npy(out.file("s.npy"));
+  EXPECT_EQ(a.type, PixelType::Float32);
+  EXPECT_EQ(a.shape, (std::vector<int64_t>{12, 100, 120}));
+  // Same numbers as the library on the same inputs.
+  const Slicer slicer(read_volume(data_->file("ph/ct.nii.gz")), read_probe(data_->file("fan.json")));
+  const auto expected = slicer.slice<float>(read_poses(data_->file("poses.txt")));
+  EXPECT_EQ(0, std::memcmp(expected.data(), a.data.get(), expected.size() * sizeof(float)));
+  const Volume mask = read_volume(out.file("mask.png"));
+  EXPECT_EQ(mask.grid().dims, (std::array<int64_t, 3>{120, 100, 1}));
+  int64_t inside = 0;
+  for (int64_t i = 0; i < 12000; ++i) inside += mask.data_as<uint8_t>()[i] == 255;
+  int64_t expected_inside = 0;
+  for (uint8_t m : slicer.mask()) expected_inside += m;
+  EXPECT_EQ(inside, expected_inside);
+  EXPECT_EQ(entries(out), (std::vector<std::string>{"mask.png", "s.npy"}));
+}
+
+TEST_F(Cli, SliceToNiftiStackAndPngDirectory) {
+  test::TempDir out;
+  CliRun r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() + " --out " +
+                  quote(out.file("s.nii.gz")) + " --dtype int16 --interp nearest --fill -1000 -q",
+              out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Volume stack = read_volume(out.file("s.nii.gz"));
+  EXPECT_EQ(stack.pixel_type(), PixelType::Int16);
+  EXPECT_EQ(stack.grid().dims, (std::array<int64_t, 3>{120, 100, 12}));
+  EXPECT_NEAR(stack.grid().spacing_mm[0], 0.7, 1e-6);
+  EXPECT_NEAR(stack.grid().spacing_mm[2], 1.0, 1e-6);
+  EXPECT_EQ(stack.data_as<int16_t>()[0], -1000);  // top-left corner: outside the fan
+  r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() + " --out " +
+              quote(out.file("pngs")) + " --window 40,400",
+          out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(out.file("pngs/img_00000.png")));
+  EXPECT_TRUE(fs::exists(out.file("pngs/img_00011.png")));
+  EXPECT_EQ(read_poses(out.file("pngs/poses.txt")).size(), 12u);
+  EXPECT_EQ(read_volume(out.file("pngs/img_00003.png")).pixel_type(), PixelType::UInt8);
+}
+
+TEST_F(Cli, InfoPrintsGeometryAndJson) {
+  test::TempDir out;
+  CliRun r = run("info " + ct(), out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("128 x 128 x 100"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("int16"), std::string::npos);
+  r = run("info --json " + ct(), out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["dims"], nlohmann::json({128, 128, 100}));
+  EXPECT_EQ(j["pixel_type"], "int16");
+  EXPECT_NEAR(j["spacing"][2].get<double>(), 4.0, 1e-6);
+  EXPECT_LT(j["value_range"][0].get<double>(), -900);
+  r = run("info --devices", out);
+  ASSERT_EQ(r.code, 0);
+  EXPECT_NE(r.out.find("cuda: "), std::string::npos);
+}
+
+TEST_F(Cli, DemoAndBenchRun) {
+  test::TempDir out;
+  CliRun r = run("demo " + quote(out.file("demo")) + " --size small --poses 4 -q", out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(out.file("demo/contact_sheet.png")));
+  EXPECT_TRUE(fs::exists(out.file("demo/fan/img_00003.png")));
+  const Volume sheet = read_volume(out.file("demo/contact_sheet.png"));
+  EXPECT_GT(sheet.grid().dims[0], 1000);
+  r = run("bench --size small --count 20 --repeat 1 --json", out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j.size(), 4u);  // W1, W2 × float32, int16
+  for (const auto& row : j) EXPECT_GT(row["images_per_second"].get<double>(), 0);
+}
+
+// --- bad input: one line on stderr naming the input, exit 1, nothing written -----------------
+
+struct BadCase {
+  std::string name, args, needle;
+};
+void PrintTo(const BadCase& c, std::ostream* os) { *os << c.name; }
+
+class CliBadInput : public Cli, public ::testing::WithParamInterface<BadCase> {};
+
+void write_text(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+
+// The broken inputs the cases read (all named in_*).
+void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
+  write_text(dir.file("in_junk.nii.gz"), "not a volume at all");
+  fs::copy_file(good_ct, dir.file("in_trunc.nii.gz"));
+  fs::resize_file(dir.file("in_trunc.nii.gz"), fs::file_size(good_ct) / 3);
+  // A MetaImage with RGB voxels, written by hand.
+  write_text(dir.file("in_rgb.mha"),
+             "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementNumberOfChannels = 3\n"
+             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(4 * 4 * 4 * 3, '\x7f'));
+  const std::string eye = "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n";
+  write_text(dir.file("in_nan.txt"), eye + eye + "1 0 0 nan 0 1 0 0 0 0 1 0 0 0 0 1\n");
+  write_text(dir.file("in_flat.txt"), "1 1 0 0 0 0 0 0 0 0 1 0 0 0 0 1\n");
+  std::vector<double> wrong(15, 0.0);
+  write_npy(dir.file("in_shape.npy"), PixelType::Float64, {3, 5}, wrong.data());
+  const std::string image = R"("image": {"width": 64, "height": 64, "spacing_mm": [0.5, 0.5]})";
+  write_text(dir.file("in_typo.json"), R"({"type": "curvilinear", "radius_mm": 20, "depth_mm": 40, "sector": 60, )" + image + "}");
+  write_text(dir.file("in_missing.json"), R"({"type": "curvilinear", "radius_mm": 20, "sector_deg": 60, )" + image + "}");
+  write_text(dir.file("in_negative.json"), R"({"type": "linear", "image": {"width": -5, "height": 64, "spacing_mm": [0.5, 0.5]}})");
+  write_text(dir.file("in_huge.json"), R"({"type": "linear", "image": {"width": 30000, "height": 30000, "spacing_mm": [0.01, 0.01]}})");
+  std::vector<float> vol(4 * 4 * 4, 1.0f);
+  write_npy(dir.file("in_vol.npy"), PixelType::Float32, {4, 4, 4}, vol.data());
+  fs::create_directory(dir.file("in_dir.npy"));
+}
+
+TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
+  test::TempDir out;
+  const BadCase& c = GetParam();
+  write_bad_inputs(out, data_->file("ph/ct.nii.gz"));
+  // A good output from an earlier run must survive the failed one untouched.
+  std::ofstream(out.file("out.npy")) << "previous good data";
+  std::string args = c.args;
+  auto replace = [&](const std::string& key, const std::string& value) {
+    for (size_t at; (at = args.find(key)) != std::string::npos;) args.replace(at, key.size(), value);
+  };
+  replace("{CT}", ct());
+  replace("{FAN}", fan());
+  replace("{POSES}", poses());
+  replace("{OUT}", quote(out.file("out.npy")));
+  replace("{DIR}", out.path().string());
+  replace("{SHARED}", test::shared_data_dir());
+  const CliRun r = run(args, out);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_EQ(r.err.rfind("sonoslice: error: ", 0), 0u) << r.err;
+  EXPECT_NE(r.err.find(c.needle), std::string::npos) << "expected '" << c.needle << "' in: " << r.err;
+  std::ifstream previous(out.file("out.npy"));
+  std::string content((std::istreambuf_iterator<char>(previous)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(content, "previous good data");
+  // Only the inputs the case made itself and the untouched output: no partial or temp files.
+  for (const std::string& name : entries(out))
+    EXPECT_TRUE(name == "out.npy" || name.rfind("in", 0) == 0) << "left behind: " << name;
+}
+
+const char* kSlice = "slice --volume {CT} --probe {FAN} --poses {POSES} --out {OUT} ";
+
+std::vector<BadCase> bad_cases() {
+  std::vector<BadCase> cases = {
+      {"MissingVolume", "slice --volume {DIR}/nope.nii.gz --probe {FAN} --poses {POSES} --out {OUT}",
+       "nope.nii.gz': no such file"},
+      {"CorruptVolume",
+       "slice --volume {DIR}/in_junk.nii.gz --probe {FAN} --poses {POSES} --out {OUT}",
+       "in_junk.nii.gz"},
+      {"TruncatedVolume",
+       "slice --volume {DIR}/in_trunc.nii.gz --probe {FAN} --poses {POSES} --out {OUT}",
+       "in_trunc.nii.gz"},
+      {"UnsupportedPixelType",
+       "slice --volume {DIR}/in_rgb.mha --probe {FAN} --poses {POSES} --out {OUT}",
+       "unsupported pixel type"},
+      {"NanPose", "slice --volume {CT} --probe {FAN} --poses {DIR}/in_nan.txt --out {OUT}",
+       "in_nan.txt': pose 2: has a non-finite"},
+      {"DegeneratePose", "slice --volume {CT} --probe {FAN} --poses {DIR}/in_flat.txt --out {OUT}",
+       "in_flat.txt': pose 0: lateral and axial axes"},
+      {"WrongPoseShape", "slice --volume {CT} --probe {FAN} --poses {DIR}/in_shape.npy --out {OUT}",
+       "shape (3, 5)"},
+      {"UnknownProbeKey", "slice --volume {CT} --probe {DIR}/in_typo.json --poses {POSES} --out {OUT}",
+       "unknown key 'sector'"},
+      {"MissingProbeKey", "slice --volume {CT} --probe {DIR}/in_missing.json --poses {POSES} --out {OUT}",
+       "missing key 'depth_mm'"},
+      {"NegativeImageSize", "slice --volume {CT} --probe {DIR}/in_negative.json --poses {POSES} --out {OUT}",
+       "width and height must be > 0"},
+      {"ZeroSpacing",
+       "slice --volume {DIR}/in_vol.npy --spacing 1,0,1 --probe {FAN} --poses {POSES} --out {OUT}",
+       "spacing along axis 1"},
+      {"OutputExceedsMemory",
+       "slice --volume {CT} --probe {DIR}/in_huge.json --poses {POSES} --out {DIR}/big.nii",
+       "GiB in memory"},
+      {"UnwritableOutput", "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/no/such/dir/x.npy",
+       "does not exist"},
+      {"OutputIsADirectory", "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/in_dir.npy",
+       "is an existing directory"},
+      {"UnknownDtype", std::string(kSlice) + "--dtype float16", "--dtype float16"},
+      {"UnknownInterp", std::string(kSlice) + "--interp cubic", "interpolation 'cubic'"},
+      {"UnknownWorld", std::string(kSlice) + "--world XYZ", "world frame 'XYZ'"},
+      {"BadWindow", std::string(kSlice) + "--window 40", "--window '40'"},
+      {"BadDownsampling", std::string(kSlice) + "--downsampling 0", "--downsampling 0"},
+      {"CudaUnavailable", std::string(kSlice) + "--device cuda", "cuda"},
+      {"UnknownOutputFormat", "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/x.tiff",
+       "unknown format '.tiff'"},
+  };
+  return cases;
+}
+
+INSTANTIATE_TEST_SUITE_P(Cases, CliBadInput, ::testing::ValuesIn(bad_cases()),
+                         [](const auto& info) { return info.param.name; });
+
+}  // namespace
+}  // namespace sonoslice

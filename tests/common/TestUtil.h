@@ -1,0 +1,107 @@
+#pragma once
+// Helpers shared by the test programs: temporary directories, analytic volumes, poses, and an
+// independent float64 evaluation of SPEC §5 to compare the kernels against.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "sonoslice/backend/Device.h"
+#include "sonoslice/geometry/Pose.h"
+#include "sonoslice/geometry/Probe.h"
+#include "sonoslice/slice/Slicer.h"
+#include "sonoslice/volume/Volume.h"
+
+namespace sonoslice {
+namespace test {
+
+/// A fresh directory under the system temp dir, removed at the end of the test.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  const std::filesystem::path& path() const { return path_; }
+  std::string file(const std::string& name) const { return (path_ / name).string(); }
+
+ private:
+  std::filesystem::path path_;
+};
+
+/// ../shared/data (CMake passes its location); empty when it is not there.
+std::string shared_data_dir();
+#define SONOSLICE_REQUIRE_SHARED_DATA()                                                  \
+  do {                                                                                   \
+    if (::sonoslice::test::shared_data_dir().empty())                                    \
+      GTEST_SKIP() << "../shared/data not found next to the repository";                 \
+  } while (0)
+
+/// A volume of type T whose voxel (i, j, k) holds f(world position of its centre).
+template <typename T>
+Volume make_volume(const VolumeGrid& grid, const std::function<double(const Vec3&)>& f) {
+  Volume v = Volume::allocate(PixelTypeOf<T>::value, grid);
+  T* p = v.data_as<T>();
+  for (int64_t k = 0; k < grid.dims[2]; ++k)
+    for (int64_t j = 0; j < grid.dims[1]; ++j)
+      for (int64_t i = 0; i < grid.dims[0]; ++i)
+        p[(k * grid.dims[1] + j) * grid.dims[0] + i] =
+            static_cast<T>(f(grid.index_to_world({double(i), double(j), double(k)})));
+  return v;
+}
+
+/// A rotation by `degrees` about the unit axis.
+Mat3 rotation(Vec3 axis, double degrees);
+
+/// An oblique grid: rotated axes, anisotropic spacing, non-zero origin.
+VolumeGrid oblique_grid(std::array<int64_t, 3> dims);
+
+/// A pose with probe origin `origin` and orthonormal axes from a rotation.
+Pose make_pose(const Mat3& r, const Vec3& origin);
+
+/// Random poses whose probe origin lies within `radius` mm of `centre`.
+std::vector<Pose> random_poses(size_t count, const Vec3& centre, double radius, uint32_t seed);
+
+/// SPEC §5 evaluated in float64 for one world point: returns false (and `fill`) outside the
+/// buffer; `margin` receives the distance (in voxels) of c to the nearest inside/outside
+/// boundary (and, for nearest, to the nearest rounding tie x.5), so callers can exclude pixels
+/// within 1e-3 voxel of it.
+bool reference_sample(const Volume& volume, const Vec3& world, Interpolation interp, double fill,
+                      double* value, double* margin);
+
+struct Comparison {
+  double max_abs_error = 0;     ///< over pixels farther than 1e-3 voxel from the boundary
+  int64_t compared = 0;         ///< pixels compared
+  int64_t excluded = 0;         ///< pixels within 1e-3 voxel of the inside/outside boundary
+  int64_t mask_mismatches = 0;  ///< fill where a value was expected or vice versa
+};
+
+/// Compares float32 images sliced by sonoslice with the float64 reference, pixel by pixel.
+Comparison compare_with_reference(const Volume& volume, const ProbeGeometry& probe,
+                                  const std::vector<Pose>& poses, Interpolation interp,
+                                  double fill, const std::vector<float>& images);
+
+/// Device-parameterised tests (Open3D style): each TEST_P body runs once per backend —
+/// "cpu-generic", "cpu-avx2" and "cuda" — and is reported as skipped where that backend is not
+/// available here, never silently passed.
+class BackendTest : public ::testing::TestWithParam<std::string> {
+ protected:
+  void SetUp() override;
+  void TearDown() override;
+  Device device() const;  ///< the Device to hand to Slicer
+};
+std::vector<std::string> all_backends();
+#define SONOSLICE_INSTANTIATE_BACKENDS(Suite)                                       \
+  INSTANTIATE_TEST_SUITE_P(Backends, Suite,                                         \
+                           ::testing::ValuesIn(::sonoslice::test::all_backends()), \
+                           [](const auto& info) {                                   \
+                             std::string n = info.param;                            \
+                             for (auto& c : n)                                      \
+                               if (c == '-') c = '_';                               \
+                             return n;                                              \
+                           })
+
+}  // namespace test
+}  // namespace sonoslice
