@@ -23,7 +23,7 @@
 
 #include <itkOutputWindow.h>
 
-#include "FileIntegrity.h"
+#include "NiftiData.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -202,7 +202,18 @@ Volume read_image_file(const std::string& path) {
                        std::to_string(io->GetNumberOfComponents()) +
                        " components (sonoslice slices scalar volumes)");
     const PixelType type = to_pixel_type(io->GetComponentType(), path);
-    check_complete(path, io->GetImageSizeInBytes());
+    if (std::string(io->GetNameOfClass()) == "NiftiImageIO") {
+      VolumeGrid grid;
+      for (unsigned a = 0; a < 3; ++a) {
+        grid.dims[a] = a < dims ? int64_t(io->GetDimensions(a)) : 1;
+        grid.spacing_mm[a] = a < dims ? io->GetSpacing(a) : 1.0;
+        grid.origin_mm[a] = a < dims ? io->GetOrigin(a) : 0.0;
+        const auto axis = io->GetDirection(a < dims ? a : 0);
+        for (unsigned b = 0; b < 3; ++b)
+          grid.direction.m[b][a] = a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
+      }
+      if (auto v = read_nifti_voxels(path, grid, type)) return std::move(*v);
+    }
     return visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });
   } catch (const itk::ExceptionObject& e) {
     throw FileError("cannot read volume '" + path + "': " + describe(e));

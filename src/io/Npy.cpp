@@ -109,6 +109,8 @@ Header parse_header(std::ifstream& in, const std::string& path) {
     h.array.shape.push_back(v);
   }
   h.array.type = parse_descr(descr, &h.swap, path);
+  h.array.data_offset = h.data_offset;
+  h.array.swapped_on_disk = h.swap;
   return h;
 }
 

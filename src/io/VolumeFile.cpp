@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "MappedFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
@@ -87,7 +88,11 @@ Volume permuted(const NpyArray& a, const int axis_of[3], const VolumeGrid& grid_
 }
 
 Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options) {
-  NpyArray a = read_npy(path);
+  // C order and native byte order (the usual case) maps the file: no copy, no load time.
+  const NpyArray header = read_npy_header(path);
+  const bool mappable = !header.fortran_order && !header.swapped_on_disk &&
+                        options.fanslicer_npy_config.empty() && header.shape.size() == 3;
+  NpyArray a = mappable ? header : read_npy(path);
   if (a.shape.size() != 3)
     throw InputError("volume '" + path + "': a .npy volume must be 3-D (nz, ny, nx); got " +
                      std::to_string(a.shape.size()) + "-D");
@@ -165,8 +170,10 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
   }
   g.dims = {a.shape[2], a.shape[1], a.shape[0]};
   g.validate("volume '" + path + "'");
+  if (mappable)
+    a.data = map_file_region(path, a.data_offset, uint64_t(a.element_count()) * pixel_size(a.type));
   void* data = a.data.get();
-  return Volume::wrap(data, a.type, g, a.data);  // zero-copy: the Volume owns the npy buffer
+  return Volume::wrap(data, a.type, g, a.data);  // zero-copy: the Volume owns the buffer or map
 }
 
 #ifdef SONOSLICE_HAVE_ITK
