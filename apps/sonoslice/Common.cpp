@@ -75,6 +75,7 @@ void ProgressBar::update(int64_t done) {
   const double t = clock_.seconds();
   if (done < total_ && t - last_draw_ < 0.1) return;  // at most 10 redraws per second
   last_draw_ = t;
+  last_done_ = done;
   const int width = 30;
   const double f = total_ > 0 ? double(done) / double(total_) : 1.0;
   const int filled = int(f * width);
@@ -88,7 +89,7 @@ void ProgressBar::update(int64_t done) {
 
 void ProgressBar::finish() {
   if (!enabled_ || finished_) return;
-  update(total_);
+  if (last_done_ != total_) update(total_);
   std::fputc('\n', stderr);
   finished_ = true;
 }

@@ -58,6 +58,7 @@ class ProgressBar {
   bool enabled_, finished_ = false;
   Stopwatch clock_;
   double last_draw_ = -1;
+  int64_t last_done_ = -1;
 };
 
 /// The probes behind the benchmark workloads and the demo, identical to the fan-slicer files

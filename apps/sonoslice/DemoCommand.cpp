@@ -132,17 +132,25 @@ void run_demo(const DemoFlags& f) {
   }
   write_image((out / "overview.png").string(), axial_view.pixels.data(), PixelType::UInt8,
               {overview, overview}, {1.0, 1.0});
+  // The same axial slice of the label map, one grey level per tissue.
+  Canvas label_view(overview, overview, 0);
+  const uint8_t* labels = phantom.labels.data_as<uint8_t>() + size_t(k) * nx * ny;
+  for (int v = 0; v < overview; ++v)
+    for (int u = 0; u < overview; ++u)
+      label_view.pixels[size_t(v) * overview + u] =
+          uint8_t(labels[size_t(v * ny / overview) * nx + u * nx / overview] * 255 / (kPhantomLabelCount - 1));
 
-  // Contact sheet: the overview on the left; fan images (two rows) and linear images (two rows)
-  // for the same skin positions on the right.
+  // Contact sheet: on the left the axial CT with the probes and the label map; on the right the
+  // fan images (two rows) and the linear images (two rows) from the same skin positions.
   const int gap = 8, columns = 4;
   const int rows = (f.poses + columns - 1) / columns;
   const int cell_w = std::max(fan.image.width, linear.image.width);
   const int width = gap + overview + gap + columns * (cell_w + gap);
-  const int height =
-      std::max(gap + overview + gap, gap + rows * (fan.image.height + gap) + rows * (linear.image.height + gap));
+  const int height = std::max(gap + 2 * (overview + gap),
+                              gap + rows * (fan.image.height + gap) + rows * (linear.image.height + gap));
   Canvas sheet(width, height, 48);
   sheet.paste(axial_view.pixels.data(), overview, overview, gap, gap);
+  sheet.paste(label_view.pixels.data(), overview, overview, gap, gap + overview + gap);
   const int x_images = gap + overview + gap;
   auto paste_all = [&](const std::vector<float>& images, const ProbeGeometry& probe, int y_top) {
     const size_t pixels = size_t(probe.image.pixel_count());
@@ -160,8 +168,9 @@ void run_demo(const DemoFlags& f) {
 
   if (!f.quiet)
     std::fprintf(stderr,
-                 "sonoslice: demo in %.1f s: %s (left: axial CT with the %d probe positions; right: "
-                 "fan images, then linear images at the same positions); PNG stacks in %s and %s\n",
+                 "sonoslice: demo in %.1f s: %s (left: axial CT with the %d probe positions, and its "
+                 "labels; right: fan images, then linear images at the same positions); PNG stacks in "
+                 "%s and %s\n",
                  clock.seconds(), sheet_path.c_str(), f.poses, (out / "fan").c_str(),
                  (out / "linear").c_str());
 }

@@ -1,11 +1,13 @@
 // sonoslice phantom: writes the built-in CT-like abdominal phantom and its label map.
 #include <cstdio>
 #include <filesystem>
+#include <algorithm>
 #include <memory>
 
 #include "Commands.h"
 #include "Common.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/io/PoseFile.h"
 #include "sonoslice/phantom/Phantom.h"
 
 namespace sonoslice {
@@ -14,7 +16,7 @@ namespace {
 
 struct PhantomFlags {
   std::string out_dir, size = "small", format = "nii.gz";
-  int threads = 0;
+  int threads = 0, poses = 0;
   bool quiet = false;
 };
 
@@ -34,6 +36,14 @@ void run_phantom(const PhantomFlags& f) {
   const std::string labels = (std::filesystem::path(f.out_dir) / ("labels." + f.format)).string();
   write_volume(ct, phantom.ct);
   write_volume(labels, phantom.labels);
+  if (f.poses > 0) {
+    // The benchmark's poses (random, inside the body) and probes on the skin, to slice with.
+    write_poses_npy((std::filesystem::path(f.out_dir) / "poses.npy").string(),
+                    phantom_random_poses(size_t(f.poses)));
+    write_poses_text((std::filesystem::path(f.out_dir) / "surface_poses.txt").string(),
+                     phantom_surface_poses(size_t(std::min(f.poses, 64)),
+                                           builtin_fan_probe().face_y_mm));
+  }
   if (!f.quiet) {
     const auto& g = phantom.ct.grid();
     std::fprintf(stderr,
@@ -57,6 +67,9 @@ void add_phantom_command(CLI::App& app) {
   cmd->add_option("out_dir", flags->out_dir, "Output directory (created if missing)")->required();
   cmd->add_option("--size", flags->size, "small (128x128x100, default) or full (512x512x400)");
   cmd->add_option("--format", flags->format, "nii.gz (default), nii, mha, nrrd or npy");
+  cmd->add_option("--poses", flags->poses,
+                  "Also write N random poses inside the body (poses.npy, the benchmark's) and up to "
+                  "64 poses on the skin (surface_poses.txt)");
   cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
   cmd->add_flag("--quiet,-q", flags->quiet, "No summary");
   cmd->callback([flags] { run_phantom(*flags); });

@@ -84,6 +84,7 @@ struct Shape {
   double hu, noise_sd;
   bool textured;
   Clip clip;
+  double gas_below_y = -1e9;  // content anterior of this y is gas (a supine patient's stomach)
 
   bool contains(double x, double y, double z) const {
     if (x < lo[0] || x > hi[0] || y < lo[1] || y > hi[1] || z < lo[2] || z > hi[2]) return false;
@@ -157,6 +158,49 @@ Shape capsule(Vec3 a, Vec3 b, double radius, uint8_t label, double hu, double sd
   return s;
 }
 
+bool inside_liver(const Vec3& p) {
+  auto in = [&](Vec3 c, Vec3 r) {
+    const Vec3 d{(p[0] - c[0]) / r[0], (p[1] - c[1]) / r[1], (p[2] - c[2]) / r[2]};
+    return dot(d, d) < 0.8;  // well inside, so branches do not poke out
+  };
+  return (in({-62, 0, 92}, {78, 88, 82}) || in({5, -45, 118}, {68, 38, 42})) &&
+         p[2] < dome_z(p[0], p[1]) - 8;
+}
+
+// Two generations of side branches off every hepatic vessel segment already in `s`: each child
+// leaves its parent's far end at a hashed angle, 0.6x as long and 0.65x as thick, and is
+// shortened until it ends inside the liver.
+void add_branches(std::vector<Shape>& s) {
+  std::vector<Shape> parents;
+  for (const Shape& x : s)
+    if (x.kind == Shape::Capsule && x.label == kHepaticVessel) parents.push_back(x);
+  uint32_t seed = 11;
+  for (int generation = 0; generation < 2; ++generation) {
+    std::vector<Shape> children;
+    for (const Shape& parent : parents) {
+      const Vec3 a{parent.p[0], parent.p[1], parent.p[2]}, b{parent.q[0], parent.q[1], parent.q[2]};
+      const Vec3 axis = b - a;
+      const double length = norm(axis);
+      for (int k = 0; k < 2; ++k) {
+        const Vec3 random{unit(hash3(seed, 1, 0, 5)) - 0.5, unit(hash3(seed, 2, 0, 5)) - 0.5,
+                          unit(hash3(seed, 3, 0, 5)) - 0.5};
+        ++seed;
+        const Vec3 side = normalized(cross(axis, random));
+        // 35° off the parent's direction, to either side.
+        Vec3 dir = normalized(normalized(axis) + (k ? 0.7 : -0.7) * side);
+        const Vec3 start = a + 0.75 * axis;
+        double l = 0.6 * length;
+        while (l > 4 && !inside_liver(start + l * dir)) l *= 0.8;
+        if (l <= 4 || !inside_liver(start)) continue;
+        children.push_back(capsule(start, start + l * dir, std::max(1.2, 0.65 * parent.radius),
+                                   kHepaticVessel, parent.hu, 8));
+      }
+    }
+    s.insert(s.end(), children.begin(), children.end());
+    parents = children;
+  }
+}
+
 // Painter's order: later shapes overwrite earlier ones.
 std::vector<Shape> anatomy() {
   std::vector<Shape> s;
@@ -176,6 +220,11 @@ std::vector<Shape> anatomy() {
     s.push_back(ellipsoid(c + Vec3{-side * 6, -4, 0}, {13, 11, 32}, kKidney, 25, 10, false));
   }
   s.push_back(ellipsoid({82, 45, 95}, {28, 45, 55}, kSpleen, 50, 10, true, Clip::BelowDiaphragm));
+  // Stomach under the left dome (wall, then content), and the pancreas across the midline.
+  s.push_back(ellipsoid({48, -38, 92}, {46, 38, 42}, kSoftTissue, 45, 10, false, Clip::BelowDiaphragm));
+  s.push_back(ellipsoid({48, -38, 92}, {42, 34, 38}, kBowel, 15, 10, false, Clip::BelowDiaphragm));
+  s.back().gas_below_y = -58;
+  s.push_back(capsule({-12, 12, 32}, {62, 22, 48}, 11, kSoftTissue, 45, 10));
   // Liver: right lobe plus a left lobe reaching across the midline, under the right dome.
   s.push_back(ellipsoid({-62, 0, 92}, {78, 88, 82}, kLiver, 60, 10, true, Clip::BelowDiaphragm));
   s.push_back(ellipsoid({5, -45, 118}, {68, 38, 42}, kLiver, 60, 10, true, Clip::BelowDiaphragm));
@@ -197,6 +246,13 @@ std::vector<Shape> anatomy() {
   s.push_back(capsule(confluence, {12, -52, 112}, 4.5, kHepaticVessel, 150, 8));
   s.push_back(capsule({-75, 18, 108}, {-105, 55, 75}, 3.2, kHepaticVessel, 150, 8));
   s.push_back(capsule({-38, -20, 100}, {-80, -65, 110}, 3.0, kHepaticVessel, 150, 8));
+  // Smaller branches, grown deterministically from the main veins above.
+  add_branches(s);
+  // The gallbladder under the liver's anterior edge, and three lesions in the right lobe.
+  s.push_back(ellipsoid({-42, -66, 52}, {15, 14, 28}, kGallbladder, 8, 8, false));
+  s.push_back(ellipsoid({-72, -42, 82}, {15, 15, 15}, kLesion, 30, 10, false));
+  s.push_back(ellipsoid({-100, 8, 100}, {11, 11, 11}, kLesion, 25, 10, false));
+  s.push_back(ellipsoid({-28, -52, 112}, {8, 8, 8}, kLesion, 130, 10, false));
   // Great vessels: IVC (right), aorta (left), and the iliacs below the bifurcation.
   s.push_back(cylinder(-24, 30, 11, 11, -125, 185, kGreatVessel, 150, 8));
   s.push_back(cylinder(18, 38, 12, 12, -125, kInf, kGreatVessel, 220, 8));
@@ -260,7 +316,7 @@ PhantomSize parse_phantom_size(const std::string& name) {
 const char* phantom_label_name(int label) {
   static const char* names[kPhantomLabelCount] = {
       "air", "fat", "soft tissue", "liver", "hepatic vessel", "great vessel",
-      "bone", "lung", "kidney", "spleen", "bowel"};
+      "bone", "lung", "kidney", "spleen", "bowel", "lesion", "gallbladder"};
   return label >= 0 && label < kPhantomLabelCount ? names[label] : "unknown";
 }
 
@@ -298,13 +354,18 @@ Phantom make_phantom(PhantomSize size) {
         if (t.label != kAir) {
           const BodySection body = body_at(z);
           const bool in_cavity = ellipse_level(x, y, body.a - kWallDepth, body.b - kWallDepth * 0.85) <= 1;
+          const Shape* hit = nullptr;
           for (const Shape* s : active) {
             // Organs stay inside the cavity; the spine and paraspinal muscles may cross the wall.
             if (s->label != kBone && s->label != kSoftTissue && !in_cavity) continue;
-            if (s->contains(x, y, z)) t = {s->label, s->hu, s->noise_sd, s->textured};
+            if (s->contains(x, y, z)) hit = s;
           }
-          // Gas rises anteriorly (towards -y) in bowel loops of a supine patient.
-          if (t.label == kBowel && smooth_noise(x * 2, y * 2, z * 2) > 0.1) t.hu = -950;
+          if (hit) t = {hit->label, hit->hu, hit->noise_sd, hit->textured};
+          // Gas rises anteriorly (towards -y) in a supine patient: a cap in the stomach, pockets
+          // in the bowel.
+          if (hit && hit->label == kBowel &&
+              (y < hit->gas_below_y || (hit->gas_below_y < -1e8 && smooth_noise(x * 2, y * 2, z * 2) > 0.3)))
+            t.hu = -950;
         }
         double hu = t.hu + t.noise_sd * white_noise(i, j, k);
         if (t.textured) hu += 10 * smooth_noise(x, y, z);
@@ -359,11 +420,14 @@ std::vector<Pose> phantom_surface_poses(size_t count, double face_y_mm) {
     const double z = 95.0 + 25.0 * std::sin(6.0 * f);
     const BodySection s = body_at(z);
     const Vec3 skin{s.a * std::cos(t), s.b * std::sin(t), z};
-    const Vec3 inward = normalized(Vec3{-std::cos(t) / s.a, -std::sin(t) / s.b, 0});
+    // Aimed, as a sonographer would, at the right lobe's portal branches and lesions.
+    const Vec3 target{-62, -12, z - 5};
+    const Vec3 inward = normalized(target - skin);
     const Vec3 tangent = normalized(cross(Vec3{0, 0, 1}, inward));  // in the axial plane
-    const Vec3 axis{0, 0, 1};
+    const Vec3 up{0, 0, 1};
+    const Vec3 along = normalized(up - dot(up, inward) * inward);  // body axis, made ⟂ to ŷ
     // Even poses: transverse (x̂ in the axial plane); odd: longitudinal (x̂ along the body).
-    const Vec3 x_hat = n % 2 == 0 ? tangent : axis;
+    const Vec3 x_hat = n % 2 == 0 ? tangent : along;
     const Vec3 y_hat = inward;
     const Vec3 z_hat = cross(x_hat, y_hat);
     Mat3 r;

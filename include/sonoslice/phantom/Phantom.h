@@ -29,9 +29,11 @@ enum PhantomLabel : uint8_t {
   kLung = 7,           ///< lung bases
   kKidney = 8,
   kSpleen = 9,
-  kBowel = 10,  ///< bowel content (fluid and gas)
+  kBowel = 10,        ///< stomach and bowel content (fluid and gas)
+  kLesion = 11,       ///< liver lesions (two hypodense, one hyperdense)
+  kGallbladder = 12,  ///< bile
 };
-constexpr int kPhantomLabelCount = 11;
+constexpr int kPhantomLabelCount = 13;
 const char* phantom_label_name(int label);
 
 struct Phantom {
@@ -49,8 +51,8 @@ VolumeGrid phantom_grid(PhantomSize size);
 /// a uniformly random orientation: the benchmark workloads' poses.
 std::vector<Pose> phantom_random_poses(size_t count, uint64_t seed = 2024);
 
-/// Poses with the probe face on the skin looking inward (ŷ along the inward normal), spread over
-/// the anterior and right-lateral abdomen over the liver; alternating transverse (x̂ in the axial
+/// Poses with the probe face on the skin looking inward (ŷ aimed at the liver's right lobe),
+/// spread over the anterior and right-lateral abdomen; alternating transverse (x̂ in the axial
 /// plane) and longitudinal (x̂ along the body axis) orientations. `face_y_mm` is the probe's
 /// axial face offset so the face, not the probe origin, touches the skin.
 std::vector<Pose> phantom_surface_poses(size_t count, double face_y_mm);

@@ -1,0 +1,93 @@
+// Slicing throughput on the benchmark workloads, in images per second (items_per_second):
+//   W1: fan-slicer's LUS fan (models_intensity_LUS_config.json, downsampling 2): 334×272 px at
+//       0.247 mm, on the full phantom (512×512×400) as float32 and int16.
+//   W2: fan-slicer's linear probe (linear_config.json): 400×500 px at 0.1235 mm.
+// Poses: 1000 random poses inside the body (phantom_random_poses). The peers' figures come from
+// bench/peers.py, which runs them in the same process session as `sonoslice bench`.
+//
+//   build/bin/bench_slice --benchmark_filter=W1 --benchmark_min_time=2
+#include <benchmark/benchmark.h>
+
+#include <memory>
+
+#include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/slice/Slicer.h"
+
+namespace sonoslice {
+namespace {
+
+ProbeGeometry w1_fan() {
+  ProbeGeometry p;
+  p.type = ProbeType::Curvilinear;
+  p.sector_deg = 36;
+  p.depth_mm = 526 * 0.1235;
+  p.radius_mm = 380 * 0.1235;
+  p.face_y_mm = 17 * 0.1235;
+  p.image.width = 334;
+  p.image.height = 272;
+  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.247;
+  p.image.origin_mm[0] = -334 * 0.247 / 2;
+  return p;
+}
+
+ProbeGeometry w2_linear() {
+  ProbeGeometry p;
+  p.type = ProbeType::Linear;
+  p.image.width = 400;
+  p.image.height = 500;
+  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.1235;
+  p.image.origin_mm[0] = -200 * 0.1235;
+  return p;
+}
+
+const Phantom& phantom() {
+  static const Phantom p = make_phantom(PhantomSize::Full);
+  return p;
+}
+
+const Volume& volume(PixelType t) {
+  static const Volume f32 = phantom().ct.converted(PixelType::Float32);
+  return t == PixelType::Float32 ? f32 : phantom().ct;
+}
+
+// args: 0 = W1 / 1 = W2, volume type, 0 = linear / 1 = nearest, threads, kernel set (0 auto, 1 generic)
+void BM_Slice(benchmark::State& state, int workload, PixelType type, Interpolation interp) {
+  set_cpu_threads(int(state.range(0)));
+  set_cpu_kernel_isa(state.range(1) ? "generic" : "auto");
+  const auto poses = phantom_random_poses(1000);
+  SliceSettings s;
+  s.interpolation = interp;
+  const Slicer slicer(volume(type), workload == 1 ? w1_fan() : w2_linear(), s);
+  std::vector<float> out(poses.size() * size_t(slicer.width()) * size_t(slicer.height()));
+  for (auto _ : state) {
+    slicer.slice(poses.data(), poses.size(), out.data());
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
+  state.counters["threads"] = double(cpu_threads());
+  state.SetLabel(cpu_kernel_isa());
+  set_cpu_kernel_isa("auto");
+  set_cpu_threads(0);
+}
+
+void threads_and_kernels(benchmark::internal::Benchmark* b) {
+  b->Unit(benchmark::kMillisecond)->UseRealTime()->ArgNames({"threads", "generic"});
+  for (int generic : {0, 1})
+    for (int threads : {1, 2}) b->Args({threads, generic});
+}
+
+BENCHMARK_CAPTURE(BM_Slice, W1_float32_linear, 1, PixelType::Float32, Interpolation::Linear)
+    ->Apply(threads_and_kernels);
+BENCHMARK_CAPTURE(BM_Slice, W1_int16_linear, 1, PixelType::Int16, Interpolation::Linear)
+    ->Apply(threads_and_kernels);
+BENCHMARK_CAPTURE(BM_Slice, W1_int16_nearest, 1, PixelType::Int16, Interpolation::Nearest)
+    ->Apply(threads_and_kernels);
+BENCHMARK_CAPTURE(BM_Slice, W2_float32_linear, 2, PixelType::Float32, Interpolation::Linear)
+    ->Apply(threads_and_kernels);
+BENCHMARK_CAPTURE(BM_Slice, W2_int16_linear, 2, PixelType::Int16, Interpolation::Linear)
+    ->Apply(threads_and_kernels);
+
+}  // namespace
+}  // namespace sonoslice
+
+BENCHMARK_MAIN();

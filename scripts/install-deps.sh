@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Installs the Debian (bookworm) packages sonoslice builds and tests with. Idempotent: packages
+# already present are not fetched again. Needs root (or sudo).
+#   scripts/install-deps.sh          build + test dependencies
+#   scripts/install-deps.sh --bench  also the peers of bench/peers.py (Debian's python3-torch,
+#                                    python3-vtk9, python3-scipy, python3-nibabel for /usr/bin/python3)
+set -euo pipefail
+
+packages=(
+  build-essential cmake pkg-config
+  libinsighttoolkit5-dev libgdcm-tools   # ITK 5.2 (NIfTI, MetaImage, NRRD, DICOM, PNG); gdcm tools
+                                         # only so GDCM's CMake config finds the files it lists
+  zlib1g-dev
+  nlohmann-json3-dev libcli11-dev
+  googletest libgtest-dev libbenchmark-dev
+)
+if [[ "${1:-}" == "--bench" ]]; then
+  packages+=(python3-numpy python3-torch python3-vtk9 python3-scipy python3-nibabel)
+fi
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [[ ${#missing[@]} -eq 0 ]]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+sudo=""
+if [[ $(id -u) -ne 0 ]]; then
+  command -v sudo >/dev/null || { echo "install-deps: need root or sudo to install: ${missing[*]}" >&2; exit 1; }
+  sudo="sudo"
+fi
+echo "install-deps: installing ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -q
+$sudo apt-get install -y -q --no-install-recommends "${missing[@]}"
