@@ -11,34 +11,11 @@
 #include <memory>
 
 #include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/phantom/Workloads.h"
 #include "sonoslice/slice/Slicer.h"
 
 namespace sonoslice {
 namespace {
-
-ProbeGeometry w1_fan() {
-  ProbeGeometry p;
-  p.type = ProbeType::Curvilinear;
-  p.sector_deg = 36;
-  p.depth_mm = 526 * 0.1235;
-  p.radius_mm = 380 * 0.1235;
-  p.face_y_mm = 17 * 0.1235;
-  p.image.width = 334;
-  p.image.height = 272;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.247;
-  p.image.origin_mm[0] = -334 * 0.247 / 2;
-  return p;
-}
-
-ProbeGeometry w2_linear() {
-  ProbeGeometry p;
-  p.type = ProbeType::Linear;
-  p.image.width = 400;
-  p.image.height = 500;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.1235;
-  p.image.origin_mm[0] = -200 * 0.1235;
-  return p;
-}
 
 const Phantom& phantom() {
   static const Phantom p = make_phantom(PhantomSize::Full);
@@ -57,7 +34,7 @@ void BM_Slice(benchmark::State& state, int workload, PixelType type, Interpolati
   const auto poses = phantom_random_poses(1000);
   SliceSettings s;
   s.interpolation = interp;
-  const Slicer slicer(volume(type), workload == 1 ? w1_fan() : w2_linear(), s);
+  const Slicer slicer(volume(type), workload == 1 ? workload_w1_fan_probe() : workload_w2_linear_probe(), s);
   std::vector<float> out(poses.size() * size_t(slicer.width()) * size_t(slicer.height()));
   for (auto _ : state) {
     slicer.slice(poses.data(), poses.size(), out.data());

@@ -66,7 +66,7 @@ void run_bench(const BenchFlags& f) {
   if (!f.probe.empty())
     workloads.push_back({f.probe, read_probe(f.probe, f.downsampling)});
   else
-    workloads = {{"W1 fan 334x272", builtin_fan_probe()}, {"W2 linear 400x500", builtin_linear_probe()}};
+    workloads = {{"W1 fan 334x272", workload_w1_fan_probe()}, {"W2 linear 400x500", workload_w2_linear_probe()}};
 
   const std::vector<Pose> poses =
       f.poses.empty() ? phantom_random_poses(size_t(f.count)) : read_poses(f.poses);

@@ -94,36 +94,6 @@ void ProgressBar::finish() {
   finished_ = true;
 }
 
-ProbeGeometry builtin_fan_probe() {
-  // models_intensity_LUS_config.json: fan_geometry [0.05, 0.1235, 36, 526, 380, 17],
-  // 668×544 px of 0.1235 mm, downsampling 2 (SPEC §4 mapping).
-  ProbeGeometry p;
-  p.type = ProbeType::Curvilinear;
-  const double da = 0.1235;
-  p.sector_deg = 36;
-  p.depth_mm = 526 * da;
-  p.radius_mm = 380 * da;
-  p.face_y_mm = 17 * da;
-  p.image.width = 668 / 2;
-  p.image.height = 544 / 2;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 2 * da;
-  p.image.origin_mm[0] = -p.image.width * p.image.spacing_mm[0] / 2;
-  p.image.origin_mm[1] = 0;
-  return p;
-}
-
-ProbeGeometry builtin_linear_probe() {
-  // linear_config.json: 400×500 px of 0.1235 mm, whole image inside.
-  ProbeGeometry p;
-  p.type = ProbeType::Linear;
-  p.image.width = 400;
-  p.image.height = 500;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.1235;
-  p.image.origin_mm[0] = -double(p.image.width / 2) * p.image.spacing_mm[0];
-  p.image.origin_mm[1] = 0;
-  return p;
-}
-
 int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes) {
   return std::max<int64_t>(1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
 }

@@ -13,6 +13,7 @@
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/phantom/Workloads.h"
 #include "sonoslice/slice/Slicer.h"
 
 namespace sonoslice {
@@ -60,12 +61,6 @@ class ProgressBar {
   double last_draw_ = -1;
   int64_t last_done_ = -1;
 };
-
-/// The probes behind the benchmark workloads and the demo, identical to the fan-slicer files
-/// in shared/data/fanslicer: W1 = models_intensity_LUS_config.json with downsampling 2
-/// (334×272 fan at 0.247 mm), W2 = linear_config.json (400×500 at 0.1235 mm).
-ProbeGeometry builtin_fan_probe();
-ProbeGeometry builtin_linear_probe();
 
 /// Images per chunk so that one chunk of output stays under `bytes`.
 int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes = size_t(64) << 20);

@@ -89,7 +89,7 @@ void run_demo(const DemoFlags& f) {
   Stopwatch clock;
 
   const Phantom phantom = make_phantom(parse_phantom_size(f.size));
-  const ProbeGeometry fan = builtin_fan_probe(), linear = builtin_linear_probe();
+  const ProbeGeometry fan = workload_w1_fan_probe(), linear = workload_w2_linear_probe();
   const std::vector<Pose> fan_poses = phantom_surface_poses(size_t(f.poses), fan.face_y_mm);
   const std::vector<Pose> linear_poses = phantom_surface_poses(size_t(f.poses), linear.face_y_mm);
   const auto fan_images = slice_and_write(phantom.ct, fan, fan_poses, (out / "fan").string());

@@ -36,10 +36,7 @@ void run_info(const InfoFlags& f) {
     j["dims"] = {g.dims[0], g.dims[1], g.dims[2]};
     j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};
     j["origin"] = {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]};
-    std::vector<double> d;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) d.push_back(g.direction.m[r][c]);
-    j["direction"] = d;
+    j["direction"] = g.direction.row_major();
     j["pixel_type"] = pixel_type_name(v.pixel_type());
     j["value_range"] = {range.first, range.second};
     j["bytes"] = v.byte_size();

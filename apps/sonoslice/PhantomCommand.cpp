@@ -42,7 +42,7 @@ void run_phantom(const PhantomFlags& f) {
                     phantom_random_poses(size_t(f.poses)));
     write_poses_text((std::filesystem::path(f.out_dir) / "surface_poses.txt").string(),
                      phantom_surface_poses(size_t(std::min(f.poses, 64)),
-                                           builtin_fan_probe().face_y_mm));
+                                           workload_w1_fan_probe().face_y_mm));
   }
   if (!f.quiet) {
     const auto& g = phantom.ct.grid();

@@ -274,10 +274,7 @@ void write_volume(const std::string& path, const Volume& volume) {
     nlohmann::json j;
     j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};
     j["origin"] = {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]};
-    std::vector<double> d;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) d.push_back(g.direction.m[r][c]);
-    j["direction"] = d;
+    j["direction"] = g.direction.row_major();
     const std::string sidecar = fs::path(path).replace_extension(".json").string();
     write_text_file(sidecar, j.dump(2) + "\n");
     return;
@@ -285,9 +282,8 @@ void write_volume(const std::string& path, const Volume& volume) {
 #ifdef SONOSLICE_HAVE_ITK
   std::vector<double> spacing(g.spacing_mm.begin(), g.spacing_mm.end());
   std::vector<double> origin(g.origin_mm.begin(), g.origin_mm.end());
-  std::vector<double> direction;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) direction.push_back(g.direction.m[r][c]);
+  const auto d = g.direction.row_major();
+  const std::vector<double> direction(d.begin(), d.end());
   write_itk_atomic(path, volume.data(), volume.pixel_type(), {g.dims[0], g.dims[1], g.dims[2]},
                    spacing, origin, direction);
 #else

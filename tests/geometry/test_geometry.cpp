@@ -11,25 +11,14 @@
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/geometry/VolumeGrid.h"
+#include "sonoslice/phantom/Workloads.h"
 
 namespace sonoslice {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-ProbeGeometry w1_fan() {
-  ProbeGeometry p;
-  p.type = ProbeType::Curvilinear;
-  p.radius_mm = 380 * 0.1235;
-  p.depth_mm = 526 * 0.1235;
-  p.sector_deg = 36;
-  p.face_y_mm = 17 * 0.1235;
-  p.image.width = 334;
-  p.image.height = 272;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.247;
-  p.image.origin_mm[0] = -41.249;
-  return p;
-}
+ProbeGeometry w1_fan() { return workload_w1_fan_probe(); }
 
 // The mask, recomputed here from the SPEC §3 wording with polar coordinates about the apex.
 TEST(ProbeMask, CurvilinearMatchesSpecFormula) {
@@ -41,7 +30,7 @@ TEST(ProbeMask, CurvilinearMatchesSpecFormula) {
     int inside = 0;
     for (int v = 0; v < 272; ++v)
       for (int u = 0; u < 334; ++u) {
-        const double x = -41.249 + u * 0.247, y = v * 0.247;
+        const double x = p.image.origin_mm[0] + u * 0.247, y = v * 0.247;
         const double apex_y = p.face_y_mm - p.radius_mm;
         const double r = std::hypot(x, y - apex_y);
         const double phi = std::atan2(x, y - apex_y);

@@ -7,6 +7,7 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/ProbeFile.h"
+#include "sonoslice/phantom/Workloads.h"
 
 namespace sonoslice {
 namespace {
@@ -96,6 +97,11 @@ TEST(FanSlicerConfig, CurvilinearMappingWithDownsampling) {
   EXPECT_EQ(q.image.width, 222);
   EXPECT_EQ(q.image.height, 181);
   EXPECT_DOUBLE_EQ(q.image.spacing_mm[0], 3 * 0.1235);
+  // The built-in W1 probe (benchmarks, demo) is exactly this file.
+  const ProbeGeometry w1 = workload_w1_fan_probe();
+  EXPECT_EQ(w1.mask(), p.mask());
+  EXPECT_DOUBLE_EQ(w1.image.origin_mm[0], p.image.origin_mm[0]);
+  EXPECT_DOUBLE_EQ(w1.face_y_mm, p.face_y_mm);
   // The surface config of the same probe gives the same probe.
   const ProbeGeometry s = read_probe(test::shared_data_dir() + "/fanslicer/models_binary_LUS_config.json", 2);
   EXPECT_EQ(s.mask(), p.mask());
@@ -117,6 +123,7 @@ TEST(FanSlicerConfig, LinearMapping) {
   EXPECT_EQ(p.image.height, 500);
   EXPECT_DOUBLE_EQ(p.image.origin_mm[0], -200 * 0.1235);  // −floor(W'/2)·sx
   EXPECT_EQ(p.mask(), std::vector<uint8_t>(400 * 500, 1));
+  EXPECT_EQ(workload_w2_linear_probe().image.origin_mm[0], p.image.origin_mm[0]);  // built-in W2
   const ProbeGeometry q = read_probe(path, 3);  // W' = 133: origin −floor(133/2)·sx = −66·sx
   EXPECT_EQ(q.image.width, 133);
   EXPECT_DOUBLE_EQ(q.image.origin_mm[0], -66 * 3 * 0.1235);

@@ -164,6 +164,26 @@ TEST(DicomSeries, WrittenWithItkThenReadBack) {
   EXPECT_NE(error_of(dir.path().string(), o).find("no series '1.2.3'"), std::string::npos);
 }
 
+// A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path
+// steps aside for it.
+TEST(VolumeFile, NiftiRescaleSlopeAndIntercept) {
+  test::TempDir dir;
+  VolumeGrid grid;
+  grid.dims = {6, 5, 4};
+  const Volume v = test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[0] + 10 * p[1] + 100 * p[2]; });
+  write_volume(dir.file("s.nii"), v);
+  std::fstream f(dir.file("s.nii"), std::ios::in | std::ios::out | std::ios::binary);
+  const float slope = 2.0f, inter = -5.0f;
+  f.seekp(112);
+  f.write(reinterpret_cast<const char*>(&slope), 4);
+  f.write(reinterpret_cast<const char*>(&inter), 4);
+  f.close();
+  const Volume r = read_volume(dir.file("s.nii"));
+  ASSERT_EQ(r.pixel_type(), PixelType::Float32);
+  for (int64_t i = 0; i < grid.voxel_count(); ++i)
+    ASSERT_EQ(r.data_as<float>()[i], 2.0f * v.data_as<int16_t>()[i] - 5.0f) << i;
+}
+
 TEST(VolumeFile, NpyWithFlagsSidecarAndDefaults) {
   test::TempDir dir;
   const VolumeGrid grid = test::oblique_grid({7, 6, 5});

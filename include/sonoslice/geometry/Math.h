@@ -20,6 +20,9 @@ struct Mat3 {
     return r;
   }
   Vec3 column(int c) const { return {m[0][c], m[1][c], m[2][c]}; }
+  std::array<double, 9> row_major() const {
+    return {m[0][0], m[0][1], m[0][2], m[1][0], m[1][1], m[1][2], m[2][0], m[2][1], m[2][2]};
+  }
   Vec3 operator*(const Vec3& v) const {
     return {m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
             m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
