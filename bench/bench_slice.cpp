@@ -27,14 +27,16 @@ const Volume& volume(PixelType t) {
   return t == PixelType::Float32 ? f32 : phantom().ct;
 }
 
-// args: 0 = W1 / 1 = W2, volume type, 0 = linear / 1 = nearest, threads, kernel set (0 auto, 1 generic)
+// args: 0 = W1 / 1 = W2, volume type, 0 = linear / 1 = nearest, threads, kernel set (0 auto, 1
+// generic)
 void BM_Slice(benchmark::State& state, int workload, PixelType type, Interpolation interp) {
   set_cpu_threads(int(state.range(0)));
   set_cpu_kernel_isa(state.range(1) ? "generic" : "auto");
   const auto poses = phantom_random_poses(1000);
   SliceSettings s;
   s.interpolation = interp;
-  const Slicer slicer(volume(type), workload == 1 ? workload_w1_fan_probe() : workload_w2_linear_probe(), s);
+  const Slicer slicer(volume(type),
+                      workload == 1 ? workload_w1_fan_probe() : workload_w2_linear_probe(), s);
   std::vector<float> out(poses.size() * size_t(slicer.width()) * size_t(slicer.height()));
   for (auto _ : state) {
     slicer.slice(poses.data(), poses.size(), out.data());

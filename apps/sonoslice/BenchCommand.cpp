@@ -52,8 +52,12 @@ Result measure(const Workload& w, const Volume& volume, const std::vector<Pose>&
     times.push_back(s.seconds());
   }
   std::sort(times.begin(), times.end());
-  return {w.name, pixel_type_name(volume.pixel_type()), interpolation_name(interp),
-          int64_t(poses.size()), times.front(), times[times.size() / 2]};
+  return {w.name,
+          pixel_type_name(volume.pixel_type()),
+          interpolation_name(interp),
+          int64_t(poses.size()),
+          times.front(),
+          times[times.size() / 2]};
 }
 
 void run_bench(const BenchFlags& f) {
@@ -66,7 +70,8 @@ void run_bench(const BenchFlags& f) {
   if (!f.probe.empty())
     workloads.push_back({f.probe, read_probe(f.probe, f.downsampling)});
   else
-    workloads = {{"W1 fan 334x272", workload_w1_fan_probe()}, {"W2 linear 400x500", workload_w2_linear_probe()}};
+    workloads = {{"W1 fan 334x272", workload_w1_fan_probe()},
+                 {"W2 linear 400x500", workload_w2_linear_probe()}};
 
   const std::vector<Pose> poses =
       f.poses.empty() ? phantom_random_poses(size_t(f.count)) : read_poses(f.poses);
@@ -85,7 +90,8 @@ void run_bench(const BenchFlags& f) {
 
   std::vector<Result> results;
   for (const Workload& w : workloads)
-    for (const Volume& v : volumes) results.push_back(measure(w, v, poses, interp, f.repeat, device));
+    for (const Volume& v : volumes)
+      results.push_back(measure(w, v, poses, interp, f.repeat, device));
 
   if (f.json) {
     nlohmann::json j = nlohmann::json::array();

@@ -13,13 +13,15 @@ namespace sonoslice {
 namespace cli {
 
 void VolumeFlags::add_to(CLI::App& app, bool path_required, const std::string& path_flag) {
-  auto* opt = app.add_option(path_flag, path,
-                             "Volume: .nii/.nii.gz, .mha/.mhd, .nrrd/.nhdr, .npy, or a DICOM directory");
+  auto* opt = app.add_option(
+      path_flag, path, "Volume: .nii/.nii.gz, .mha/.mhd, .nrrd/.nhdr, .npy, or a DICOM directory");
   if (path_required) opt->required();
-  app.add_option("--series", series, "DICOM directory: SeriesInstanceUID to read (default: largest)");
+  app.add_option("--series", series,
+                 "DICOM directory: SeriesInstanceUID to read (default: largest)");
   app.add_option("--spacing", spacing, ".npy volume: voxel spacing sx,sy,sz in mm");
   app.add_option("--origin", origin, ".npy volume: world position of voxel (0,0,0) in mm");
-  app.add_option("--direction", direction, ".npy volume: 9 numbers, row-major 3x3 (index axes as columns)");
+  app.add_option("--direction", direction,
+                 ".npy volume: 9 numbers, row-major 3x3 (index axes as columns)");
   app.add_option("--npy-config", npy_config,
                  "fan-slicer npy_config JSON for a fan-slicer .npy volume (axes [Y,X,Z])");
 }
@@ -95,7 +97,8 @@ void ProgressBar::finish() {
 }
 
 int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes) {
-  return std::max<int64_t>(1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
+  return std::max<int64_t>(
+      1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
 }
 
 double slice_into(const Slicer& slicer, const std::vector<Pose>& poses, StackWriter& writer,

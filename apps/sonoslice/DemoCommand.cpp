@@ -35,7 +35,8 @@ constexpr double kLevel = 40, kWidth = 400;
 struct Canvas {
   int width, height;
   std::vector<uint8_t> pixels;
-  Canvas(int w, int h, uint8_t background) : width(w), height(h), pixels(size_t(w) * h, background) {}
+  Canvas(int w, int h, uint8_t background)
+      : width(w), height(h), pixels(size_t(w) * h, background) {}
   void paste(const uint8_t* image, int w, int h, int x0, int y0) {
     for (int v = 0; v < h; ++v)
       std::memcpy(&pixels[size_t(y0 + v) * width + x0], image + size_t(v) * w, size_t(w));
@@ -81,7 +82,8 @@ std::vector<float> slice_and_write(const Volume& ct, const ProbeGeometry& probe,
 
 void run_demo(const DemoFlags& f) {
   set_cpu_threads(f.threads);
-  if (f.poses < 1 || f.poses > 64) throw InputError("--poses " + std::to_string(f.poses) + ": use 1..64");
+  if (f.poses < 1 || f.poses > 64)
+    throw InputError("--poses " + std::to_string(f.poses) + ": use 1..64");
   std::error_code ec;
   fs::create_directories(f.out_dir, ec);
   if (ec) throw FileError("cannot create directory '" + f.out_dir + "': " + ec.message());
@@ -116,7 +118,8 @@ void run_demo(const DemoFlags& f) {
   Canvas axial_view(overview, overview, 0);
   for (int v = 0; v < overview; ++v)
     for (int u = 0; u < overview; ++u)
-      axial_view.pixels[size_t(v) * overview + u] = axial[size_t(v * ny / overview) * nx + u * nx / overview];
+      axial_view.pixels[size_t(v) * overview + u] =
+          axial[size_t(v * ny / overview) * nx + u * nx / overview];
   auto to_view = [&](const Vec3& p, int* u, int* v) {
     *u = int((p[0] - g.origin_mm[0]) / g.spacing_mm[0] * overview / nx);
     *v = int((p[1] - g.origin_mm[1]) / g.spacing_mm[1] * overview / ny);
@@ -138,7 +141,8 @@ void run_demo(const DemoFlags& f) {
   for (int v = 0; v < overview; ++v)
     for (int u = 0; u < overview; ++u)
       label_view.pixels[size_t(v) * overview + u] =
-          uint8_t(labels[size_t(v * ny / overview) * nx + u * nx / overview] * 255 / (kPhantomLabelCount - 1));
+          uint8_t(labels[size_t(v * ny / overview) * nx + u * nx / overview] * 255 /
+                  (kPhantomLabelCount - 1));
 
   // Contact sheet: on the left the axial CT with the probes and the label map; on the right the
   // fan images (two rows) and the linear images (two rows) from the same skin positions.
@@ -146,8 +150,8 @@ void run_demo(const DemoFlags& f) {
   const int rows = (f.poses + columns - 1) / columns;
   const int cell_w = std::max(fan.image.width, linear.image.width);
   const int width = gap + overview + gap + columns * (cell_w + gap);
-  const int height = std::max(gap + 2 * (overview + gap),
-                              gap + rows * (fan.image.height + gap) + rows * (linear.image.height + gap));
+  const int height = std::max(gap + 2 * (overview + gap), gap + rows * (fan.image.height + gap) +
+                                                              rows * (linear.image.height + gap));
   Canvas sheet(width, height, 48);
   sheet.paste(axial_view.pixels.data(), overview, overview, gap, gap);
   sheet.paste(label_view.pixels.data(), overview, overview, gap, gap + overview + gap);
@@ -167,12 +171,13 @@ void run_demo(const DemoFlags& f) {
   write_image(sheet_path, sheet.pixels.data(), PixelType::UInt8, {width, height}, {1.0, 1.0});
 
   if (!f.quiet)
-    std::fprintf(stderr,
-                 "sonoslice: demo in %.1f s: %s (left: axial CT with the %d probe positions, and its "
-                 "labels; right: fan images, then linear images at the same positions); PNG stacks in "
-                 "%s and %s\n",
-                 clock.seconds(), sheet_path.c_str(), f.poses, (out / "fan").c_str(),
-                 (out / "linear").c_str());
+    std::fprintf(
+        stderr,
+        "sonoslice: demo in %.1f s: %s (left: axial CT with the %d probe positions, and its "
+        "labels; right: fan images, then linear images at the same positions); PNG stacks in "
+        "%s and %s\n",
+        clock.seconds(), sheet_path.c_str(), f.poses, (out / "fan").c_str(),
+        (out / "linear").c_str());
 }
 
 }  // namespace

@@ -42,7 +42,8 @@ void run_info(const InfoFlags& f) {
     j["bytes"] = v.byte_size();
     if (!series.empty()) {
       j["dicom_series"] = nlohmann::json::array();
-      for (const auto& s : series) j["dicom_series"].push_back({{"uid", s.uid}, {"files", s.file_count}});
+      for (const auto& s : series)
+        j["dicom_series"].push_back({{"uid", s.uid}, {"files", s.file_count}});
     }
     std::printf("%s\n", j.dump(2).c_str());
     return;
@@ -50,12 +51,15 @@ void run_info(const InfoFlags& f) {
   std::printf("file:        %s\n", f.volume.path.c_str());
   std::printf("dimensions:  %lld x %lld x %lld\n", static_cast<long long>(g.dims[0]),
               static_cast<long long>(g.dims[1]), static_cast<long long>(g.dims[2]));
-  std::printf("spacing:     %.6g %.6g %.6g mm\n", g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]);
-  std::printf("origin:      %.6g %.6g %.6g mm (LPS)\n", g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]);
-  std::printf("direction:   [%.6g %.6g %.6g; %.6g %.6g %.6g; %.6g %.6g %.6g] (index axes as columns)\n",
-              g.direction.m[0][0], g.direction.m[0][1], g.direction.m[0][2], g.direction.m[1][0],
-              g.direction.m[1][1], g.direction.m[1][2], g.direction.m[2][0], g.direction.m[2][1],
-              g.direction.m[2][2]);
+  std::printf("spacing:     %.6g %.6g %.6g mm\n", g.spacing_mm[0], g.spacing_mm[1],
+              g.spacing_mm[2]);
+  std::printf("origin:      %.6g %.6g %.6g mm (LPS)\n", g.origin_mm[0], g.origin_mm[1],
+              g.origin_mm[2]);
+  std::printf(
+      "direction:   [%.6g %.6g %.6g; %.6g %.6g %.6g; %.6g %.6g %.6g] (index axes as columns)\n",
+      g.direction.m[0][0], g.direction.m[0][1], g.direction.m[0][2], g.direction.m[1][0],
+      g.direction.m[1][1], g.direction.m[1][2], g.direction.m[2][0], g.direction.m[2][1],
+      g.direction.m[2][2]);
   std::printf("pixel type:  %s\n", pixel_type_name(v.pixel_type()).c_str());
   std::printf("value range: %.6g .. %.6g\n", range.first, range.second);
   std::printf("memory:      %.1f MiB\n", double(v.byte_size()) / (1 << 20));
@@ -67,7 +71,8 @@ void run_info(const InfoFlags& f) {
 
 void add_info_command(CLI::App& app) {
   auto flags = std::make_shared<InfoFlags>();
-  CLI::App* cmd = app.add_subcommand("info", "Print a volume's geometry, pixel type and value range");
+  CLI::App* cmd =
+      app.add_subcommand("info", "Print a volume's geometry, pixel type and value range");
   flags->volume.add_to(*cmd, /*path_required=*/false, "path");
   cmd->add_flag("--json", flags->json, "Machine-readable output");
   cmd->add_flag("--devices", flags->devices, "List compute devices");

@@ -1,7 +1,7 @@
 // sonoslice phantom: writes the built-in CT-like abdominal phantom and its label map.
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
-#include <algorithm>
 #include <memory>
 
 #include "Commands.h"
@@ -40,9 +40,9 @@ void run_phantom(const PhantomFlags& f) {
     // The benchmark's poses (random, inside the body) and probes on the skin, to slice with.
     write_poses_npy((std::filesystem::path(f.out_dir) / "poses.npy").string(),
                     phantom_random_poses(size_t(f.poses)));
-    write_poses_text((std::filesystem::path(f.out_dir) / "surface_poses.txt").string(),
-                     phantom_surface_poses(size_t(std::min(f.poses, 64)),
-                                           workload_w1_fan_probe().face_y_mm));
+    write_poses_text(
+        (std::filesystem::path(f.out_dir) / "surface_poses.txt").string(),
+        phantom_surface_poses(size_t(std::min(f.poses, 64)), workload_w1_fan_probe().face_y_mm));
   }
   if (!f.quiet) {
     const auto& g = phantom.ct.grid();
@@ -53,7 +53,8 @@ void run_phantom(const PhantomFlags& f) {
                  static_cast<long long>(g.dims[2]), g.spacing_mm[0], g.spacing_mm[1],
                  g.spacing_mm[2], ct.c_str(), labels.c_str(), clock.seconds(), generate);
     std::fprintf(stderr, "sonoslice: labels:");
-    for (int l = 0; l < kPhantomLabelCount; ++l) std::fprintf(stderr, " %d=%s", l, phantom_label_name(l));
+    for (int l = 0; l < kPhantomLabelCount; ++l)
+      std::fprintf(stderr, " %d=%s", l, phantom_label_name(l));
     std::fprintf(stderr, "\n");
   }
 }
@@ -67,9 +68,10 @@ void add_phantom_command(CLI::App& app) {
   cmd->add_option("out_dir", flags->out_dir, "Output directory (created if missing)")->required();
   cmd->add_option("--size", flags->size, "small (128x128x100, default) or full (512x512x400)");
   cmd->add_option("--format", flags->format, "nii.gz (default), nii, mha, nrrd or npy");
-  cmd->add_option("--poses", flags->poses,
-                  "Also write N random poses inside the body (poses.npy, the benchmark's) and up to "
-                  "64 poses on the skin (surface_poses.txt)");
+  cmd->add_option(
+      "--poses", flags->poses,
+      "Also write N random poses inside the body (poses.npy, the benchmark's) and up to "
+      "64 poses on the skin (surface_poses.txt)");
   cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
   cmd->add_flag("--quiet,-q", flags->quiet, "No summary");
   cmd->callback([flags] { run_phantom(*flags); });

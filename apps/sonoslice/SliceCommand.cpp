@@ -59,7 +59,8 @@ void run_slice(const SliceFlags& f) {
     const std::string ext = file_extension(f.mask);
     if (ext != ".png" && ext != ".npy" && ext != ".nii" && ext != ".nii.gz" && ext != ".mha" &&
         ext != ".nrrd")
-      throw InputError("--mask '" + f.mask + "': expected .png, .npy, .nii, .nii.gz, .mha or .nrrd");
+      throw InputError("--mask '" + f.mask +
+                       "': expected .png, .npy, .nii, .nii.gz, .mha or .nrrd");
     check_output_path(f.mask);
   }
 

@@ -27,11 +27,19 @@ struct Vec8f {
   }
   void store(float* p) const { _mm256_storeu_ps(p, v); }
 };
-inline Vec8f operator+(Vec8f a, Vec8f b) { return _mm256_add_ps(a.v, b.v); }
-inline Vec8f operator-(Vec8f a, Vec8f b) { return _mm256_sub_ps(a.v, b.v); }
-inline Vec8f operator*(Vec8f a, Vec8f b) { return _mm256_mul_ps(a.v, b.v); }
+inline Vec8f operator+(Vec8f a, Vec8f b) {
+  return _mm256_add_ps(a.v, b.v);
+}
+inline Vec8f operator-(Vec8f a, Vec8f b) {
+  return _mm256_sub_ps(a.v, b.v);
+}
+inline Vec8f operator*(Vec8f a, Vec8f b) {
+  return _mm256_mul_ps(a.v, b.v);
+}
 /// a + t·(b − a), the lerp every interpolation formula uses (fused on AVX2).
-inline Vec8f lerp(Vec8f a, Vec8f b, Vec8f t) { return _mm256_fmadd_ps(t.v, _mm256_sub_ps(b.v, a.v), a.v); }
+inline Vec8f lerp(Vec8f a, Vec8f b, Vec8f t) {
+  return _mm256_fmadd_ps(t.v, _mm256_sub_ps(b.v, a.v), a.v);
+}
 
 /// Bit mask of the lanes with lo <= x < hi.
 inline int lanes_in_range(Vec8f x, float lo, float hi) {
@@ -49,15 +57,21 @@ inline int lanes_set(const uint8_t* p) {
 struct Vec8i {
   __m256i v;
 };
-inline Vec8i floor_to_int(Vec8f x) { return {_mm256_cvttps_epi32(_mm256_floor_ps(x.v))}; }
-inline Vec8f to_float(Vec8i i) { return _mm256_cvtepi32_ps(i.v); }
+inline Vec8i floor_to_int(Vec8f x) {
+  return {_mm256_cvttps_epi32(_mm256_floor_ps(x.v))};
+}
+inline Vec8f to_float(Vec8i i) {
+  return _mm256_cvtepi32_ps(i.v);
+}
 /// z·sz + y·sy + x, in elements (the caller guarantees it fits in int32).
 inline Vec8i offsets(Vec8i x, Vec8i y, Vec8i z, int32_t sy, int32_t sz) {
   return {_mm256_add_epi32(_mm256_add_epi32(_mm256_mullo_epi32(z.v, _mm256_set1_epi32(sz)),
                                             _mm256_mullo_epi32(y.v, _mm256_set1_epi32(sy))),
                            x.v)};
 }
-inline Vec8i operator+(Vec8i a, int32_t b) { return {_mm256_add_epi32(a.v, _mm256_set1_epi32(b))}; }
+inline Vec8i operator+(Vec8i a, int32_t b) {
+  return {_mm256_add_epi32(a.v, _mm256_set1_epi32(b))};
+}
 
 /// Loads voxel[i] and voxel[i + 1] for the eight offsets i (both must be inside the buffer, and
 /// for types narrower than 4 bytes so must the bytes up to voxel[i] + 4). Narrow types load a

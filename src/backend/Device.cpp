@@ -1,8 +1,8 @@
 #include "sonoslice/backend/Device.h"
 
 #include <algorithm>
-#include <cstdlib>
 #include <cctype>
+#include <cstdlib>
 #include <sstream>
 #include <thread>
 
@@ -16,7 +16,8 @@ namespace sonoslice {
 
 Device Device::parse(const std::string& text) {
   std::string t = text;
-  std::transform(t.begin(), t.end(), t.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  std::transform(t.begin(), t.end(), t.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
   if (t == "cpu") return Device::cpu();
   if (t == "cuda" || t == "gpu") return Device{DeviceType::CUDA, 0};
   if (t.rfind("cuda:", 0) == 0 && t.size() > 5 &&
@@ -30,7 +31,9 @@ std::string Device::to_string() const {
   return type == DeviceType::CPU ? "cpu" : "cuda:" + std::to_string(index);
 }
 
-bool built_with_cuda() { return false; }
+bool built_with_cuda() {
+  return false;
+}
 
 namespace {
 int hardware_threads() {
@@ -75,7 +78,9 @@ std::string initial_isa() {
 std::string g_isa = initial_isa();
 }  // namespace
 
-std::string cpu_kernel_isa() { return g_isa; }
+std::string cpu_kernel_isa() {
+  return g_isa;
+}
 
 void set_cpu_kernel_isa(const std::string& isa) {
   if (isa == "auto") {

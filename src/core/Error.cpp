@@ -15,6 +15,8 @@ void set_warning_handler(WarningHandler handler) {
   g_handler.store(handler ? handler : &default_warning_handler);
 }
 
-void warn(const std::string& message) { g_handler.load()(message); }
+void warn(const std::string& message) {
+  g_handler.load()(message);
+}
 
 }  // namespace sonoslice

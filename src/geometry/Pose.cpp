@@ -28,8 +28,8 @@ Pose pose_to_lps(const Pose& pose, WorldFrame frame) {
   return out;
 }
 
-void validate_poses(const Pose* poses, size_t count, const std::string& source,
-                    size_t first_index, bool warn_non_orthonormal) {
+void validate_poses(const Pose* poses, size_t count, const std::string& source, size_t first_index,
+                    bool warn_non_orthonormal) {
   double worst_deviation = 0.0;
   size_t worst_index = 0;
   for (size_t n = 0; n < count; ++n) {
@@ -51,8 +51,8 @@ void validate_poses(const Pose* poses, size_t count, const std::string& source,
     if (std::fabs(dot(x, y)) > 0.5 * nx * ny) fail("lateral and axial axes are nearly parallel");
     // Deviation from a rotation: norms, orthogonality and the elevation column.
     const Vec3 expected_z = cross(x, y);
-    const double deviation = std::max({std::fabs(nx - 1), std::fabs(ny - 1), std::fabs(dot(x, y)),
-                                       norm(z - expected_z)});
+    const double deviation = std::max(
+        {std::fabs(nx - 1), std::fabs(ny - 1), std::fabs(dot(x, y)), norm(z - expected_z)});
     if (deviation > worst_deviation) {
       worst_deviation = deviation;
       worst_index = first_index + n;

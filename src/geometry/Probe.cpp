@@ -11,7 +11,9 @@ constexpr double kPi = 3.14159265358979323846;
 // One image larger than this many pixels is a typo, not a probe (2^31: also the kernels' limit).
 constexpr int64_t kMaxPixelsPerImage = int64_t(1) << 31;
 
-bool positive(double v) { return std::isfinite(v) && v > 0; }
+bool positive(double v) {
+  return std::isfinite(v) && v > 0;
+}
 }  // namespace
 
 void ProbeGeometry::validate(const std::string& what) const {

@@ -10,7 +10,8 @@ namespace sonoslice {
 void VolumeGrid::validate(const std::string& what) const {
   std::ostringstream why;
   for (int a = 0; a < 3; ++a) {
-    if (dims[a] <= 0) why << "size along axis " << a << " is " << dims[a] << " (must be > 0)";
+    if (dims[a] <= 0)
+      why << "size along axis " << a << " is " << dims[a] << " (must be > 0)";
     else if (!(std::isfinite(spacing_mm[a]) && spacing_mm[a] > 0))
       why << "spacing along axis " << a << " is " << spacing_mm[a] << " mm (must be > 0)";
     else if (!std::isfinite(origin_mm[a]))

@@ -87,15 +87,24 @@ std::string describe(const itk::ExceptionObject& e) {
 PixelType to_pixel_type(itk::IOComponentEnum component, const std::string& path) {
   using C = itk::IOComponentEnum;
   switch (component) {
-    case C::UCHAR: return PixelType::UInt8;
-    case C::CHAR: return PixelType::Int8;
-    case C::USHORT: return PixelType::UInt16;
-    case C::SHORT: return PixelType::Int16;
-    case C::UINT: return PixelType::UInt32;
-    case C::INT: return PixelType::Int32;
-    case C::FLOAT: return PixelType::Float32;
-    case C::DOUBLE: return PixelType::Float64;
-    default: break;
+    case C::UCHAR:
+      return PixelType::UInt8;
+    case C::CHAR:
+      return PixelType::Int8;
+    case C::USHORT:
+      return PixelType::UInt16;
+    case C::SHORT:
+      return PixelType::Int16;
+    case C::UINT:
+      return PixelType::UInt32;
+    case C::INT:
+      return PixelType::Int32;
+    case C::FLOAT:
+      return PixelType::Float32;
+    case C::DOUBLE:
+      return PixelType::Float64;
+    default:
+      break;
   }
   throw InputError("volume '" + path + "': unsupported pixel type " +
                    itk::ImageIOBase::GetComponentTypeAsString(component) +
@@ -134,7 +143,8 @@ Volume read_typed(const std::string& path, itk::ImageIOBase* io) {
     if (capture) complaint = capture->text();
   }
   if (!complaint.empty())
-    throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + complaint + ")");
+    throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + complaint +
+                    ")");
   return to_volume<T>(reader->GetOutput());
 }
 
@@ -186,7 +196,9 @@ Volume read_image_file(const std::string& path) {
   try {
     itk::ImageIOBase::Pointer io =
         itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
-    if (!io) throw FileError("cannot read volume '" + path + "': not a readable image format (or corrupt)");
+    if (!io)
+      throw FileError("cannot read volume '" + path +
+                      "': not a readable image format (or corrupt)");
     io->SetFileName(path);
     io->ReadImageInformation();
     const unsigned dims = io->GetNumberOfDimensions();
@@ -210,7 +222,8 @@ Volume read_image_file(const std::string& path) {
         grid.origin_mm[a] = a < dims ? io->GetOrigin(a) : 0.0;
         const auto axis = io->GetDirection(a < dims ? a : 0);
         for (unsigned b = 0; b < 3; ++b)
-          grid.direction.m[b][a] = a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
+          grid.direction.m[b][a] =
+              a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
       }
       if (auto v = read_nifti_voxels(path, grid, type)) return std::move(*v);
     }
@@ -251,8 +264,7 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
         if (uid == series_uid || uid.rfind(series_uid + ".", 0) == 0) chosen = uid;
       if (chosen.empty()) {
         std::ostringstream s;
-        s << "DICOM directory '" << directory << "': no series '" << series_uid
-          << "' (found:";
+        s << "DICOM directory '" << directory << "': no series '" << series_uid << "' (found:";
         for (const auto& uid : uids) s << " " << uid;
         s << ")";
         throw InputError(s.str());
@@ -272,7 +284,8 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
     const PixelType type = to_pixel_type(io->GetComponentType(), directory);
     if (io->GetNumberOfComponents() != 1)
       throw InputError("DICOM directory '" + directory + "': colour images are not supported");
-    return visit_pixel_type(type, [&](auto zero) { return read_series_typed<decltype(zero)>(files); });
+    return visit_pixel_type(type,
+                            [&](auto zero) { return read_series_typed<decltype(zero)>(files); });
   } catch (const itk::ExceptionObject& e) {
     throw FileError("cannot read DICOM directory '" + directory + "': " + describe(e));
   }

@@ -61,15 +61,24 @@ Header parse_header(const unsigned char* h, size_t n, const std::string& path) {
 
 std::optional<PixelType> pixel_type_of(int datatype) {
   switch (datatype) {
-    case 2: return PixelType::UInt8;
-    case 4: return PixelType::Int16;
-    case 8: return PixelType::Int32;
-    case 16: return PixelType::Float32;
-    case 64: return PixelType::Float64;
-    case 256: return PixelType::Int8;
-    case 512: return PixelType::UInt16;
-    case 768: return PixelType::UInt32;
-    default: return std::nullopt;
+    case 2:
+      return PixelType::UInt8;
+    case 4:
+      return PixelType::Int16;
+    case 8:
+      return PixelType::Int32;
+    case 16:
+      return PixelType::Float32;
+    case 64:
+      return PixelType::Float64;
+    case 256:
+      return PixelType::Int8;
+    case 512:
+      return PixelType::UInt16;
+    case 768:
+      return PixelType::UInt32;
+    default:
+      return std::nullopt;
   }
 }
 
@@ -124,7 +133,8 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
     uint64_t position = got;
     char skip[4096];
     while (position < h.vox_offset) {
-      const int n = gzread(f, skip, unsigned(std::min<uint64_t>(sizeof skip, h.vox_offset - position)));
+      const int n =
+          gzread(f, skip, unsigned(std::min<uint64_t>(sizeof skip, h.vox_offset - position)));
       if (n <= 0) truncated(path, "ends inside its header");
       position += uint64_t(n);
     }
@@ -147,7 +157,8 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
     std::ifstream in(path, std::ios::binary);
     in.seekg(std::streamoff(h.vox_offset));
     in.read(static_cast<char*>(v.data()), std::streamsize(bytes));
-    if (uint64_t(in.gcount()) != bytes) truncated(path, "fewer voxel bytes than the header announces");
+    if (uint64_t(in.gcount()) != bytes)
+      truncated(path, "fewer voxel bytes than the header announces");
   }
   if (h.swapped) byteswap(v.data(), size_t(grid.voxel_count()), pixel_size(type));
   return v;

@@ -40,14 +40,22 @@ PixelType parse_descr(const std::string& descr, bool* swap, const std::string& p
 
 std::string descr_of(PixelType type) {
   switch (type) {
-    case PixelType::UInt8: return "|u1";
-    case PixelType::Int8: return "|i1";
-    case PixelType::UInt16: return "<u2";
-    case PixelType::Int16: return "<i2";
-    case PixelType::UInt32: return "<u4";
-    case PixelType::Int32: return "<i4";
-    case PixelType::Float32: return "<f4";
-    case PixelType::Float64: return "<f8";
+    case PixelType::UInt8:
+      return "|u1";
+    case PixelType::Int8:
+      return "|i1";
+    case PixelType::UInt16:
+      return "<u2";
+    case PixelType::Int16:
+      return "<i2";
+    case PixelType::UInt32:
+      return "<u4";
+    case PixelType::Int32:
+      return "<i4";
+    case PixelType::Float32:
+      return "<f4";
+    case PixelType::Float64:
+      return "<f8";
   }
   return "<f4";
 }
@@ -70,10 +78,9 @@ Header parse_header(std::ifstream& in, const std::string& path) {
   } else if (major == 2 || major == 3) {
     char extra[2];
     if (!in.read(extra, 2)) throw FileError("'" + path + "': truncated .npy header");
-    const unsigned char b[4] = {static_cast<unsigned char>(preamble[8]),
-                                static_cast<unsigned char>(preamble[9]),
-                                static_cast<unsigned char>(extra[0]),
-                                static_cast<unsigned char>(extra[1])};
+    const unsigned char b[4] = {
+        static_cast<unsigned char>(preamble[8]), static_cast<unsigned char>(preamble[9]),
+        static_cast<unsigned char>(extra[0]), static_cast<unsigned char>(extra[1])};
     header_len = b[0] | (size_t(b[1]) << 8) | (size_t(b[2]) << 16) | (size_t(b[3]) << 24);
     offset = 12;
   } else {
@@ -173,7 +180,14 @@ NpyWriter::NpyWriter(const std::string& path, PixelType type, const std::vector<
   header.push_back('\n');
   stream_ = std::fopen(file_->temp_path().c_str(), "wb");
   if (!stream_) throw FileError("cannot write '" + path + "': " + std::strerror(errno));
-  unsigned char preamble[10] = {0x93, 'N', 'U', 'M', 'P', 'Y', 1, 0,
+  unsigned char preamble[10] = {0x93,
+                                'N',
+                                'U',
+                                'M',
+                                'P',
+                                'Y',
+                                1,
+                                0,
                                 static_cast<unsigned char>(header.size() & 0xff),
                                 static_cast<unsigned char>(header.size() >> 8)};
   if (std::fwrite(preamble, 1, 10, stream_) != 10 ||

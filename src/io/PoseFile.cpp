@@ -87,7 +87,8 @@ std::vector<Pose> poses_from_text(const std::string& path) {
     ++line_number;
     const size_t hash = line.find('#');
     if (hash != std::string::npos) line.resize(hash);
-    std::replace_if(line.begin(), line.end(), [](char c) { return c == ',' || c == '\t' || c == ';'; }, ' ');
+    std::replace_if(
+        line.begin(), line.end(), [](char c) { return c == ',' || c == '\t' || c == ';'; }, ' ');
     std::vector<double> values;
     const char* p = line.c_str();
     while (true) {
@@ -98,8 +99,8 @@ std::vector<Pose> poses_from_text(const std::string& path) {
       if (end == p) {
         std::string token(p);
         token = token.substr(0, token.find(' '));
-        throw InputError("poses '" + path + "': line " + std::to_string(line_number) +
-                         ": '" + token + "' is not a number");
+        throw InputError("poses '" + path + "': line " + std::to_string(line_number) + ": '" +
+                         token + "' is not a number");
       }
       values.push_back(v);
       p = end;
@@ -128,7 +129,8 @@ std::vector<Pose> poses_from_json(const std::string& path) {
   if (!root.is_object() || !root.contains("poses") || !root["poses"].is_array())
     throw InputError("poses '" + path + "': expected {\"poses\": [[16 numbers], ...]}");
   for (auto it = root.begin(); it != root.end(); ++it)
-    if (it.key() != "poses") throw InputError("poses '" + path + "': unknown key '" + it.key() + "'");
+    if (it.key() != "poses")
+      throw InputError("poses '" + path + "': unknown key '" + it.key() + "'");
   std::vector<Pose> poses;
   for (const auto& entry : root["poses"]) {
     const std::string where = "poses '" + path + "': pose " + std::to_string(poses.size());
@@ -162,7 +164,8 @@ std::vector<Pose> read_poses(const std::string& path, WorldFrame frame) {
   else if (ext == ".json")
     poses = poses_from_json(path);
   else
-    throw InputError("poses '" + path + "': unknown extension (expected .npy, .txt, .csv or .json)");
+    throw InputError("poses '" + path +
+                     "': unknown extension (expected .npy, .txt, .csv or .json)");
   if (poses.empty()) throw InputError("poses '" + path + "': no poses in the file");
   for (Pose& p : poses) p = pose_to_lps(p, frame);
   validate_poses(poses.data(), poses.size(), "poses '" + path + "'");

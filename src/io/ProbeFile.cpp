@@ -27,7 +27,8 @@ class Keys {
         ok |= it.key() == a;
         expected += (expected.empty() ? "" : ", ") + std::string(a);
       }
-      if (!ok) throw InputError(where_ + ": unknown key '" + it.key() + "' (expected: " + expected + ")");
+      if (!ok)
+        throw InputError(where_ + ": unknown key '" + it.key() + "' (expected: " + expected + ")");
     }
   }
   bool has(const char* key) const { return object_.contains(key); }
@@ -42,7 +43,8 @@ class Keys {
   }
   int integer(const char* key) {
     const json& v = get(key);
-    if (!v.is_number_integer() && !(v.is_number() && v.get<double>() == std::floor(v.get<double>())))
+    if (!v.is_number_integer() &&
+        !(v.is_number() && v.get<double>() == std::floor(v.get<double>())))
       throw InputError(where_ + ": '" + key + "' must be an integer");
     const double d = v.get<double>();
     if (std::fabs(d) > 1e9) throw InputError(where_ + ": '" + key + "' is absurdly large");

@@ -40,7 +40,9 @@ class NpyStackWriter : public StackWriter {
     chunk_.resize(size_t(n) * image_bytes(spec_));
     return chunk_.data();
   }
-  void write(int64_t, int64_t n) override { writer_.write(chunk_.data(), size_t(n) * image_bytes(spec_)); }
+  void write(int64_t, int64_t n) override {
+    writer_.write(chunk_.data(), size_t(n) * image_bytes(spec_));
+  }
   void commit() override { writer_.commit(); }
 
  private:
@@ -83,8 +85,7 @@ class PngStackWriter : public StackWriter {
  public:
   PngStackWriter(const std::string& path, const StackSpec& spec)
       : spec_(spec), dir_(path, /*directory=*/true) {
-    if (!built_with_itk())
-      throw Error("output '" + path + "': PNG output needs a build with ITK");
+    if (!built_with_itk()) throw Error("output '" + path + "': PNG output needs a build with ITK");
     digits_ = std::max<int>(5, int(std::to_string(std::max<int64_t>(spec.count - 1, 0)).size()));
     if (spec.window) window_ = spec.window;
   }
@@ -101,7 +102,8 @@ class PngStackWriter : public StackWriter {
       apply_window(chunk_.data() + size_t(i) * image_bytes(spec_), spec_.type, pixels,
                    window_->first, window_->second, png.data());
       char name[32];
-      std::snprintf(name, sizeof name, "img_%0*lld.png", digits_, static_cast<long long>(first + i));
+      std::snprintf(name, sizeof name, "img_%0*lld.png", digits_,
+                    static_cast<long long>(first + i));
       write_image((fs::path(dir_.temp_path()) / name).string(), png.data(), PixelType::UInt8,
                   {spec_.width, spec_.height}, {spec_.spacing_mm[0], spec_.spacing_mm[1]});
     }
@@ -137,12 +139,14 @@ std::unique_ptr<StackWriter> StackWriter::create(const std::string& path, const 
   std::string clean = path;
   while (clean.size() > 1 && clean.back() == '/') clean.pop_back();
   switch (stack_format(path)) {
-    case StackFormat::Npy: return std::make_unique<NpyStackWriter>(clean, spec);
+    case StackFormat::Npy:
+      return std::make_unique<NpyStackWriter>(clean, spec);
     case StackFormat::ItkImage:
       if (!built_with_itk())
         throw Error("output '" + path + "': this sonoslice was built without ITK; write .npy");
       return std::make_unique<ItkStackWriter>(clean, spec);
-    case StackFormat::PngDirectory: return std::make_unique<PngStackWriter>(clean, spec);
+    case StackFormat::PngDirectory:
+      return std::make_unique<PngStackWriter>(clean, spec);
   }
   return nullptr;
 }

@@ -26,7 +26,8 @@ namespace {
 
 #ifndef SONOSLICE_HAVE_ITK
 [[noreturn]] void no_itk(const std::string& path) {
-  throw Error("'" + path + "': this sonoslice was built without ITK; only .npy volumes are available");
+  throw Error("'" + path +
+              "': this sonoslice was built without ITK; only .npy volumes are available");
 }
 #endif
 
@@ -108,13 +109,13 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
     if (!j.is_object() || !j.contains("voxel size") || !j.contains("bounding box"))
       throw InputError(where + ": needs \"voxel size\" and \"bounding box\"");
     for (auto it = j.begin(); it != j.end(); ++it)
-      if (it.key() != "voxel size" && it.key() != "bounding box" &&
-          it.key() != "planar resolution")
+      if (it.key() != "voxel size" && it.key() != "bounding box" && it.key() != "planar resolution")
         throw InputError(where + ": unknown key '" + it.key() + "'");
     const auto voxel = json_numbers<3>(j["voxel size"], where + ": \"voxel size\"");
     const auto& box = j["bounding box"];
     if (!box.is_array() || box.size() != 2)
-      throw InputError(where + ": \"bounding box\" must be [[xmin, ymin, zmin], [xmax, ymax, zmax]]");
+      throw InputError(where +
+                       ": \"bounding box\" must be [[xmin, ymin, zmin], [xmax, ymax, zmax]]");
     const auto lo = json_numbers<3>(box[0], where + ": \"bounding box\"[0]");
     const auto hi = json_numbers<3>(box[1], where + ": \"bounding box\"[1]");
     g.spacing_mm = {voxel[0], voxel[1], voxel[2]};

@@ -23,7 +23,9 @@ inline uint32_t hash3(uint32_t x, uint32_t y, uint32_t z, uint32_t seed) {
   h ^= h >> 16;
   return h;
 }
-inline double unit(uint32_t h) { return (h >> 8) * (1.0 / 16777216.0); }  // [0, 1)
+inline double unit(uint32_t h) {
+  return (h >> 8) * (1.0 / 16777216.0);
+}  // [0, 1)
 
 // Roughly Gaussian white noise with unit standard deviation (sum of three uniforms).
 inline double white_noise(int64_t i, int64_t j, int64_t k) {
@@ -64,7 +66,9 @@ constexpr double kBackY = 108.0;  // the flattened back (the patient lies on a t
 constexpr double kFatDepth = 16.0, kWallDepth = 27.0;  // mm under the skin
 
 // Diaphragm: the right dome sits higher than the left; z above it is thorax.
-inline double sq(double v) { return v * v; }
+inline double sq(double v) {
+  return v * v;
+}
 inline double dome_z(double x, double y) {
   const double r = 125 + 40 * (1 - sq((x + 70) / 100) - sq((y - 10) / 110));
   const double l = 115 + 35 * (1 - sq((x - 70) / 95) - sq((y - 10) / 110));
@@ -135,8 +139,8 @@ Shape ellipsoid(Vec3 c, Vec3 r, uint8_t label, double hu, double sd, bool textur
 
 Shape cylinder(double cx, double cy, double rx, double ry, double zlo, double zhi, uint8_t label,
                double hu, double sd, Clip clip = Clip::None) {
-  Shape s = ellipsoid({cx, cy, 0.5 * (zlo + zhi)}, {rx, ry, 0.5 * (zhi - zlo)}, label, hu, sd, false,
-                      clip);
+  Shape s = ellipsoid({cx, cy, 0.5 * (zlo + zhi)}, {rx, ry, 0.5 * (zhi - zlo)}, label, hu, sd,
+                      false, clip);
   s.kind = Shape::Cylinder;
   return s;
 }
@@ -206,9 +210,9 @@ std::vector<Shape> anatomy() {
   std::vector<Shape> s;
   const double kInf = 1e9;
   // Bowel loops in the lower anterior abdomen: wall, then fluid content (gas added per voxel).
-  const double loops[][3] = {{-60, -45, -60}, {-20, -60, -90}, {25, -55, -50}, {65, -40, -95},
-                             {-75, -30, -130}, {0, -40, -140}, {50, -25, -150}, {-35, -35, -20},
-                             {40, -45, -10}, {-5, -70, -15}};
+  const double loops[][3] = {{-60, -45, -60},  {-20, -60, -90}, {25, -55, -50},  {65, -40, -95},
+                             {-75, -30, -130}, {0, -40, -140},  {50, -25, -150}, {-35, -35, -20},
+                             {40, -45, -10},   {-5, -70, -15}};
   for (const auto& c : loops) {
     s.push_back(ellipsoid({c[0], c[1], c[2]}, {24, 18, 22}, kSoftTissue, 40, 10, false));
     s.push_back(ellipsoid({c[0], c[1], c[2]}, {20.5, 14.5, 18.5}, kBowel, 15, 10, false));
@@ -221,7 +225,8 @@ std::vector<Shape> anatomy() {
   }
   s.push_back(ellipsoid({82, 45, 95}, {28, 45, 55}, kSpleen, 50, 10, true, Clip::BelowDiaphragm));
   // Stomach under the left dome (wall, then content), and the pancreas across the midline.
-  s.push_back(ellipsoid({48, -38, 92}, {46, 38, 42}, kSoftTissue, 45, 10, false, Clip::BelowDiaphragm));
+  s.push_back(
+      ellipsoid({48, -38, 92}, {46, 38, 42}, kSoftTissue, 45, 10, false, Clip::BelowDiaphragm));
   s.push_back(ellipsoid({48, -38, 92}, {42, 34, 38}, kBowel, 15, 10, false, Clip::BelowDiaphragm));
   s.back().gas_below_y = -58;
   s.push_back(capsule({-12, 12, 32}, {62, 22, 48}, 11, kSoftTissue, 45, 10));
@@ -229,8 +234,8 @@ std::vector<Shape> anatomy() {
   s.push_back(ellipsoid({-62, 0, 92}, {78, 88, 82}, kLiver, 60, 10, true, Clip::BelowDiaphragm));
   s.push_back(ellipsoid({5, -45, 118}, {68, 38, 42}, kLiver, 60, 10, true, Clip::BelowDiaphragm));
   // Heart above the diaphragm.
-  s.push_back(ellipsoid({15, -25, 205}, {70, 58, 65}, kSoftTissue, 40, 10, false,
-                        Clip::AboveDiaphragm));
+  s.push_back(
+      ellipsoid({15, -25, 205}, {70, 58, 65}, kSoftTissue, 40, 10, false, Clip::AboveDiaphragm));
   // Portal vein and its branches (contrast-enhanced).
   const double pv = 170;
   s.push_back(capsule({5, 20, 15}, {-30, 5, 70}, 7.0, kHepaticVessel, pv, 8));
@@ -289,7 +294,8 @@ inline Tissue base_tissue(double x, double y, double z) {
   const BodySection s = body_at(z);
   if (y > kBackY || ellipse_level(x, y, s.a, s.b) > 1) return {kAir, -1000, 4, false};
   if (ellipse_level(x, y, s.a - 2.5, s.b - 2.5) > 1) return {kSoftTissue, 30, 10, false};  // skin
-  if (ellipse_level(x, y, s.a - kFatDepth, s.b - kFatDepth * 0.8) > 1) return {kFat, -100, 10, false};
+  if (ellipse_level(x, y, s.a - kFatDepth, s.b - kFatDepth * 0.8) > 1)
+    return {kFat, -100, 10, false};
   const double wall_a = s.a - kWallDepth, wall_b = s.b - kWallDepth * 0.85;
   const double level = ellipse_level(x, y, wall_a, wall_b);
   if (level > 1) {
@@ -315,8 +321,8 @@ PhantomSize parse_phantom_size(const std::string& name) {
 
 const char* phantom_label_name(int label) {
   static const char* names[kPhantomLabelCount] = {
-      "air", "fat", "soft tissue", "liver", "hepatic vessel", "great vessel",
-      "bone", "lung", "kidney", "spleen", "bowel", "lesion", "gallbladder"};
+      "air",  "fat",    "soft tissue", "liver", "hepatic vessel", "great vessel", "bone",
+      "lung", "kidney", "spleen",      "bowel", "lesion",         "gallbladder"};
   return label >= 0 && label < kPhantomLabelCount ? names[label] : "unknown";
 }
 
@@ -353,7 +359,8 @@ Phantom make_phantom(PhantomSize size) {
         Tissue t = base_tissue(x, y, z);
         if (t.label != kAir) {
           const BodySection body = body_at(z);
-          const bool in_cavity = ellipse_level(x, y, body.a - kWallDepth, body.b - kWallDepth * 0.85) <= 1;
+          const bool in_cavity =
+              ellipse_level(x, y, body.a - kWallDepth, body.b - kWallDepth * 0.85) <= 1;
           const Shape* hit = nullptr;
           for (const Shape* s : active) {
             // Organs stay inside the cavity; the spine and paraspinal muscles may cross the wall.
@@ -364,7 +371,8 @@ Phantom make_phantom(PhantomSize size) {
           // Gas rises anteriorly (towards -y) in a supine patient: a cap in the stomach, pockets
           // in the bowel.
           if (hit && hit->label == kBowel &&
-              (y < hit->gas_below_y || (hit->gas_below_y < -1e8 && smooth_noise(x * 2, y * 2, z * 2) > 0.3)))
+              (y < hit->gas_below_y ||
+               (hit->gas_below_y < -1e8 && smooth_noise(x * 2, y * 2, z * 2) > 0.3)))
             t.hu = -950;
         }
         double hu = t.hu + t.noise_sd * white_noise(i, j, k);
@@ -382,7 +390,9 @@ std::vector<Pose> phantom_random_poses(size_t count, uint64_t seed) {
   std::mt19937_64 rng(seed);
   // Own uniform mapping (not std::uniform_real_distribution) so every standard library gives
   // the same poses.
-  auto uniform = [&](double lo, double hi) { return lo + (hi - lo) * double(rng() >> 11) * 0x1p-53; };
+  auto uniform = [&](double lo, double hi) {
+    return lo + (hi - lo) * double(rng() >> 11) * 0x1p-53;
+  };
   std::vector<Pose> poses;
   poses.reserve(count);
   while (poses.size() < count) {

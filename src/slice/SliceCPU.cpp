@@ -4,6 +4,8 @@
 
 namespace sonoslice {
 namespace slice_impl {
-void slice_cpu_generic(const SliceLaunch& launch) { dispatch_slice(launch); }
+void slice_cpu_generic(const SliceLaunch& launch) {
+  dispatch_slice(launch);
+}
 }  // namespace slice_impl
 }  // namespace sonoslice

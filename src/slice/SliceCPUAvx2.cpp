@@ -5,6 +5,8 @@
 
 namespace sonoslice {
 namespace slice_impl {
-void slice_cpu_avx2(const SliceLaunch& launch) { dispatch_slice(launch); }
+void slice_cpu_avx2(const SliceLaunch& launch) {
+  dispatch_slice(launch);
+}
 }  // namespace slice_impl
 }  // namespace sonoslice

@@ -32,8 +32,8 @@ using backend::lerp;
 
 /// Trilinear blend of a cell's eight corners v[x][y][z] at fractions (fx, fy, fz) in [0, 1).
 template <typename F>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F trilinear(F fx, F fy, F fz, F v000, F v100, F v010,
-                                                   F v110, F v001, F v101, F v011, F v111) {
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F trilinear(F fx, F fy, F fz, F v000, F v100, F v010, F v110,
+                                                   F v001, F v101, F v011, F v111) {
   const F c00 = lerp(v000, v100, fx), c10 = lerp(v010, v110, fx);
   const F c01 = lerp(v001, v101, fx), c11 = lerp(v011, v111, fx);
   return lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz);
@@ -56,16 +56,16 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc sample_linear(const TIn* __restrict__
   const int z0 = iz < 0 ? 0 : iz, z1 = iz + 1 < g.nz ? iz + 1 : g.nz - 1;
   const int64_t r00 = z0 * g.stride_z + y0 * g.stride_y, r10 = z0 * g.stride_z + y1 * g.stride_y;
   const int64_t r01 = z1 * g.stride_z + y0 * g.stride_y, r11 = z1 * g.stride_z + y1 * g.stride_y;
-  return trilinear(fx, fy, fz, Acc(volume[r00 + x0]), Acc(volume[r00 + x1]),
-                   Acc(volume[r10 + x0]), Acc(volume[r10 + x1]), Acc(volume[r01 + x0]),
-                   Acc(volume[r01 + x1]), Acc(volume[r11 + x0]), Acc(volume[r11 + x1]));
+  return trilinear(fx, fy, fz, Acc(volume[r00 + x0]), Acc(volume[r00 + x1]), Acc(volume[r10 + x0]),
+                   Acc(volume[r10 + x1]), Acc(volume[r01 + x0]), Acc(volume[r01 + x1]),
+                   Acc(volume[r11 + x0]), Acc(volume[r11 + x1]));
 }
 
 /// SPEC §5 `nearest`: index floor(c + 0.5), clamped.
 template <typename TIn, typename Acc>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE TIn sample_nearest(const TIn* __restrict__ volume,
-                                                         const VolumeView& g, Acc cx, Acc cy,
-                                                         Acc cz) {
+                                                          const VolumeView& g, Acc cx, Acc cy,
+                                                          Acc cz) {
   // c + 0.5 >= 0 inside the buffer: truncation is floor.
   int ix = int(cx + Acc(0.5)), iy = int(cy + Acc(0.5)), iz = int(cz + Acc(0.5));
   ix = ix < 0 ? 0 : (ix >= g.nx ? g.nx - 1 : ix);

@@ -43,10 +43,14 @@ struct SliceLaunch {
 template <typename F>
 decltype(auto) visit_output_type(PixelType type, F&& f) {
   switch (type) {
-    case PixelType::UInt8: return f(uint8_t{});
-    case PixelType::Int16: return f(int16_t{});
-    case PixelType::UInt16: return f(uint16_t{});
-    default: break;
+    case PixelType::UInt8:
+      return f(uint8_t{});
+    case PixelType::Int16:
+      return f(int16_t{});
+    case PixelType::UInt16:
+      return f(uint16_t{});
+    default:
+      break;
   }
   return f(float{});
 }

@@ -38,7 +38,8 @@ Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Devic
     case PixelType::Float32:
     case PixelType::Int16:
     case PixelType::UInt8:
-    case PixelType::UInt16: break;
+    case PixelType::UInt16:
+      break;
     default:
       throw InputError("output type " + pixel_type_name(settings_.output_type) +
                        ": expected float32, int16, uint8 or uint16");

@@ -10,14 +10,22 @@ size_t pixel_size(PixelType type) {
 
 std::string pixel_type_name(PixelType type) {
   switch (type) {
-    case PixelType::UInt8: return "uint8";
-    case PixelType::Int8: return "int8";
-    case PixelType::UInt16: return "uint16";
-    case PixelType::Int16: return "int16";
-    case PixelType::UInt32: return "uint32";
-    case PixelType::Int32: return "int32";
-    case PixelType::Float32: return "float32";
-    case PixelType::Float64: return "float64";
+    case PixelType::UInt8:
+      return "uint8";
+    case PixelType::Int8:
+      return "int8";
+    case PixelType::UInt16:
+      return "uint16";
+    case PixelType::Int16:
+      return "int16";
+    case PixelType::UInt32:
+      return "uint32";
+    case PixelType::Int32:
+      return "int32";
+    case PixelType::Float32:
+      return "float32";
+    case PixelType::Float64:
+      return "float64";
   }
   return "unknown";
 }
@@ -28,7 +36,8 @@ PixelType parse_pixel_type(const std::string& name) {
     if (pixel_type_name(t) == name) return t;
   if (name == "float") return PixelType::Float32;
   if (name == "double") return PixelType::Float64;
-  throw InputError("pixel type '" + name + "': expected one of uint8, int8, uint16, int16, uint32, "
+  throw InputError("pixel type '" + name +
+                   "': expected one of uint8, int8, uint16, int16, uint32, "
                    "int32, float32, float64");
 }
 

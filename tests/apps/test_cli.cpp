@@ -28,11 +28,14 @@ struct CliRun {
   std::string out, err;
 };
 
-std::string quote(const std::string& s) { return "'" + s + "'"; }
+std::string quote(const std::string& s) {
+  return "'" + s + "'";
+}
 
 CliRun run(const std::string& args, const test::TempDir& dir) {
   const std::string out_file = dir.file(".stdout"), err_file = dir.file(".stderr");
-  const std::string cmd = std::string(SONOSLICE_CLI) + " " + args + " >" + quote(out_file) + " 2>" + quote(err_file);
+  const std::string cmd =
+      std::string(SONOSLICE_CLI) + " " + args + " >" + quote(out_file) + " 2>" + quote(err_file);
   const int status = std::system(cmd.c_str());
   auto slurp = [](const std::string& p) {
     std::ifstream in(p);
@@ -49,7 +52,8 @@ CliRun run(const std::string& args, const test::TempDir& dir) {
 // Directory entries other than the ones named (to spot partial or temporary outputs).
 std::vector<std::string> entries(const test::TempDir& dir) {
   std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir.path())) names.push_back(e.path().filename().string());
+  for (const auto& e : fs::directory_iterator(dir.path()))
+    names.push_back(e.path().filename().string());
   std::sort(names.begin(), names.end());
   return names;
 }
@@ -87,10 +91,10 @@ test::TempDir* Cli::data_ = nullptr;
 
 TEST_F(Cli, SliceToNpyMatchesLibraryAndWritesMask) {
   test::TempDir out;
-  const CliRun r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() +
-                        " --out " + quote(out.file("s.npy")) + " --mask " + quote(out.file("mask.png")) +
-                        " --verbose",
-                    out);
+  const CliRun r =
+      run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() + " --out " +
+              quote(out.file("s.npy")) + " --mask " + quote(out.file("mask.png")) + " --verbose",
+          out);
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("load"), std::string::npos);  // --verbose timings
   EXPECT_NE(r.err.find("slice"), std::string::npos);
@@ -98,7 +102,8 @@ TEST_F(Cli, SliceToNpyMatchesLibraryAndWritesMask) {
   EXPECT_EQ(a.type, PixelType::Float32);
   EXPECT_EQ(a.shape, (std::vector<int64_t>{12, 100, 120}));
   // Same numbers as the library on the same inputs.
-  const Slicer slicer(read_volume(data_->file("ph/ct.nii.gz")), read_probe(data_->file("fan.json")));
+  const Slicer slicer(read_volume(data_->file("ph/ct.nii.gz")),
+                      read_probe(data_->file("fan.json")));
   const auto expected = slicer.slice<float>(read_poses(data_->file("poses.txt")));
   EXPECT_EQ(0, std::memcmp(expected.data(), a.data.get(), expected.size() * sizeof(float)));
   const Volume mask = read_volume(out.file("mask.png"));
@@ -113,9 +118,10 @@ TEST_F(Cli, SliceToNpyMatchesLibraryAndWritesMask) {
 
 TEST_F(Cli, SliceToNiftiStackAndPngDirectory) {
   test::TempDir out;
-  CliRun r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() + " --out " +
-                  quote(out.file("s.nii.gz")) + " --dtype int16 --interp nearest --fill -1000 -q",
-              out);
+  CliRun r =
+      run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() + " --out " +
+              quote(out.file("s.nii.gz")) + " --dtype int16 --interp nearest --fill -1000 -q",
+          out);
   ASSERT_EQ(r.code, 0) << r.err;
   const Volume stack = read_volume(out.file("s.nii.gz"));
   EXPECT_EQ(stack.pixel_type(), PixelType::Int16);
@@ -171,11 +177,15 @@ TEST_F(Cli, DemoAndBenchRun) {
 struct BadCase {
   std::string name, args, needle;
 };
-void PrintTo(const BadCase& c, std::ostream* os) { *os << c.name; }
+void PrintTo(const BadCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class CliBadInput : public Cli, public ::testing::WithParamInterface<BadCase> {};
 
-void write_text(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+void write_text(const std::string& path, const std::string& text) {
+  std::ofstream(path) << text;
+}
 
 // The broken inputs the cases read (all named in_*).
 void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
@@ -185,17 +195,25 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
   // A MetaImage with RGB voxels, written by hand.
   write_text(dir.file("in_rgb.mha"),
              "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementNumberOfChannels = 3\n"
-             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(4 * 4 * 4 * 3, '\x7f'));
+             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+                 std::string(4 * 4 * 4 * 3, '\x7f'));
   const std::string eye = "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n";
   write_text(dir.file("in_nan.txt"), eye + eye + "1 0 0 nan 0 1 0 0 0 0 1 0 0 0 0 1\n");
   write_text(dir.file("in_flat.txt"), "1 1 0 0 0 0 0 0 0 0 1 0 0 0 0 1\n");
   std::vector<double> wrong(15, 0.0);
   write_npy(dir.file("in_shape.npy"), PixelType::Float64, {3, 5}, wrong.data());
   const std::string image = R"("image": {"width": 64, "height": 64, "spacing_mm": [0.5, 0.5]})";
-  write_text(dir.file("in_typo.json"), R"({"type": "curvilinear", "radius_mm": 20, "depth_mm": 40, "sector": 60, )" + image + "}");
-  write_text(dir.file("in_missing.json"), R"({"type": "curvilinear", "radius_mm": 20, "sector_deg": 60, )" + image + "}");
-  write_text(dir.file("in_negative.json"), R"({"type": "linear", "image": {"width": -5, "height": 64, "spacing_mm": [0.5, 0.5]}})");
-  write_text(dir.file("in_huge.json"), R"({"type": "linear", "image": {"width": 30000, "height": 30000, "spacing_mm": [0.01, 0.01]}})");
+  write_text(
+      dir.file("in_typo.json"),
+      R"({"type": "curvilinear", "radius_mm": 20, "depth_mm": 40, "sector": 60, )" + image + "}");
+  write_text(dir.file("in_missing.json"),
+             R"({"type": "curvilinear", "radius_mm": 20, "sector_deg": 60, )" + image + "}");
+  write_text(
+      dir.file("in_negative.json"),
+      R"({"type": "linear", "image": {"width": -5, "height": 64, "spacing_mm": [0.5, 0.5]}})");
+  write_text(
+      dir.file("in_huge.json"),
+      R"({"type": "linear", "image": {"width": 30000, "height": 30000, "spacing_mm": [0.01, 0.01]}})");
   std::vector<float> vol(4 * 4 * 4, 1.0f);
   write_npy(dir.file("in_vol.npy"), PixelType::Float32, {4, 4, 4}, vol.data());
   fs::create_directory(dir.file("in_dir.npy"));
@@ -209,7 +227,8 @@ TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
   std::ofstream(out.file("out.npy")) << "previous good data";
   std::string args = c.args;
   auto replace = [&](const std::string& key, const std::string& value) {
-    for (size_t at; (at = args.find(key)) != std::string::npos;) args.replace(at, key.size(), value);
+    for (size_t at; (at = args.find(key)) != std::string::npos;)
+      args.replace(at, key.size(), value);
   };
   replace("{CT}", ct());
   replace("{FAN}", fan());
@@ -221,7 +240,8 @@ TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
   EXPECT_EQ(r.code, 1) << r.err;
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
   EXPECT_EQ(r.err.rfind("sonoslice: error: ", 0), 0u) << r.err;
-  EXPECT_NE(r.err.find(c.needle), std::string::npos) << "expected '" << c.needle << "' in: " << r.err;
+  EXPECT_NE(r.err.find(c.needle), std::string::npos)
+      << "expected '" << c.needle << "' in: " << r.err;
   std::ifstream previous(out.file("out.npy"));
   std::string content((std::istreambuf_iterator<char>(previous)), std::istreambuf_iterator<char>());
   EXPECT_EQ(content, "previous good data");
@@ -234,7 +254,8 @@ const char* kSlice = "slice --volume {CT} --probe {FAN} --poses {POSES} --out {O
 
 std::vector<BadCase> bad_cases() {
   std::vector<BadCase> cases = {
-      {"MissingVolume", "slice --volume {DIR}/nope.nii.gz --probe {FAN} --poses {POSES} --out {OUT}",
+      {"MissingVolume",
+       "slice --volume {DIR}/nope.nii.gz --probe {FAN} --poses {POSES} --out {OUT}",
        "nope.nii.gz': no such file"},
       {"CorruptVolume",
        "slice --volume {DIR}/in_junk.nii.gz --probe {FAN} --poses {POSES} --out {OUT}",
@@ -251,11 +272,14 @@ std::vector<BadCase> bad_cases() {
        "in_flat.txt': pose 0: lateral and axial axes"},
       {"WrongPoseShape", "slice --volume {CT} --probe {FAN} --poses {DIR}/in_shape.npy --out {OUT}",
        "shape (3, 5)"},
-      {"UnknownProbeKey", "slice --volume {CT} --probe {DIR}/in_typo.json --poses {POSES} --out {OUT}",
+      {"UnknownProbeKey",
+       "slice --volume {CT} --probe {DIR}/in_typo.json --poses {POSES} --out {OUT}",
        "unknown key 'sector'"},
-      {"MissingProbeKey", "slice --volume {CT} --probe {DIR}/in_missing.json --poses {POSES} --out {OUT}",
+      {"MissingProbeKey",
+       "slice --volume {CT} --probe {DIR}/in_missing.json --poses {POSES} --out {OUT}",
        "missing key 'depth_mm'"},
-      {"NegativeImageSize", "slice --volume {CT} --probe {DIR}/in_negative.json --poses {POSES} --out {OUT}",
+      {"NegativeImageSize",
+       "slice --volume {CT} --probe {DIR}/in_negative.json --poses {POSES} --out {OUT}",
        "width and height must be > 0"},
       {"ZeroSpacing",
        "slice --volume {DIR}/in_vol.npy --spacing 1,0,1 --probe {FAN} --poses {POSES} --out {OUT}",
@@ -263,9 +287,11 @@ std::vector<BadCase> bad_cases() {
       {"OutputExceedsMemory",
        "slice --volume {CT} --probe {DIR}/in_huge.json --poses {POSES} --out {DIR}/big.nii",
        "GiB in memory"},
-      {"UnwritableOutput", "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/no/such/dir/x.npy",
+      {"UnwritableOutput",
+       "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/no/such/dir/x.npy",
        "does not exist"},
-      {"OutputIsADirectory", "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/in_dir.npy",
+      {"OutputIsADirectory",
+       "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/in_dir.npy",
        "is an existing directory"},
       {"UnknownDtype", std::string(kSlice) + "--dtype float16", "--dtype float16"},
       {"UnknownInterp", std::string(kSlice) + "--interp cubic", "interpolation 'cubic'"},
@@ -273,7 +299,8 @@ std::vector<BadCase> bad_cases() {
       {"BadWindow", std::string(kSlice) + "--window 40", "--window '40'"},
       {"BadDownsampling", std::string(kSlice) + "--downsampling 0", "--downsampling 0"},
       {"CudaUnavailable", std::string(kSlice) + "--device cuda", "cuda"},
-      {"UnknownOutputFormat", "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/x.tiff",
+      {"UnknownOutputFormat",
+       "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/x.tiff",
        "unknown format '.tiff'"},
   };
   return cases;

@@ -59,7 +59,9 @@ VolumeGrid oblique_grid(std::array<int64_t, 3> dims) {
   return g;
 }
 
-Pose make_pose(const Mat3& r, const Vec3& origin) { return Mat4::from_rotation_translation(r, origin); }
+Pose make_pose(const Mat3& r, const Vec3& origin) {
+  return Mat4::from_rotation_translation(r, origin);
+}
 
 std::vector<Pose> random_poses(size_t count, const Vec3& centre, double radius, uint32_t seed) {
   std::mt19937 rng(seed);
@@ -99,13 +101,16 @@ bool reference_sample(const Volume& volume, const Vec3& world, Interpolation int
     *value = fill;
     return false;
   }
-  auto clamp = [&](int64_t i, int a) { return std::max<int64_t>(0, std::min<int64_t>(i, g.dims[a] - 1)); };
+  auto clamp = [&](int64_t i, int a) {
+    return std::max<int64_t>(0, std::min<int64_t>(i, g.dims[a] - 1));
+  };
   if (interp == Interpolation::Nearest) {
     // Rounding ties: a float32 evaluation may round the other way within ~1e-5 voxel of x.5.
     for (int a = 0; a < 3; ++a)
       *margin = std::min(*margin, std::fabs(c[a] - std::floor(c[a]) - 0.5));
-    *value = voxel(volume, clamp(int64_t(std::floor(c[0] + 0.5)), 0),
-                   clamp(int64_t(std::floor(c[1] + 0.5)), 1), clamp(int64_t(std::floor(c[2] + 0.5)), 2));
+    *value =
+        voxel(volume, clamp(int64_t(std::floor(c[0] + 0.5)), 0),
+              clamp(int64_t(std::floor(c[1] + 0.5)), 1), clamp(int64_t(std::floor(c[2] + 0.5)), 2));
     return true;
   }
   int64_t i0[3];
@@ -130,8 +135,8 @@ bool reference_sample(const Volume& volume, const Vec3& world, Interpolation int
 }
 
 Comparison compare_with_reference(const Volume& volume, const ProbeGeometry& probe,
-                                  const std::vector<Pose>& poses, Interpolation interp,
-                                  double fill, const std::vector<float>& images) {
+                                  const std::vector<Pose>& poses, Interpolation interp, double fill,
+                                  const std::vector<float>& images) {
   Comparison out;
   const ImageGrid& im = probe.image;
   size_t idx = 0;
@@ -159,7 +164,9 @@ Comparison compare_with_reference(const Volume& volume, const ProbeGeometry& pro
   return out;
 }
 
-std::vector<std::string> all_backends() { return {"cpu-generic", "cpu-avx2", "cuda"}; }
+std::vector<std::string> all_backends() {
+  return {"cpu-generic", "cpu-avx2", "cuda"};
+}
 
 void BackendTest::SetUp() {
   const std::string& b = GetParam();
@@ -176,7 +183,9 @@ void BackendTest::SetUp() {
   }
 }
 
-void BackendTest::TearDown() { set_cpu_kernel_isa("auto"); }
+void BackendTest::TearDown() {
+  set_cpu_kernel_isa("auto");
+}
 
 Device BackendTest::device() const {
   return GetParam() == "cuda" ? Device{DeviceType::CUDA, 0} : Device::cpu();

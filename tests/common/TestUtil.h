@@ -33,10 +33,10 @@ class TempDir {
 
 /// ../shared/data (CMake passes its location); empty when it is not there.
 std::string shared_data_dir();
-#define SONOSLICE_REQUIRE_SHARED_DATA()                                                  \
-  do {                                                                                   \
-    if (::sonoslice::test::shared_data_dir().empty())                                    \
-      GTEST_SKIP() << "../shared/data not found next to the repository";                 \
+#define SONOSLICE_REQUIRE_SHARED_DATA()                                  \
+  do {                                                                   \
+    if (::sonoslice::test::shared_data_dir().empty())                    \
+      GTEST_SKIP() << "../shared/data not found next to the repository"; \
   } while (0)
 
 /// A volume of type T whose voxel (i, j, k) holds f(world position of its centre).
@@ -80,8 +80,8 @@ struct Comparison {
 
 /// Compares float32 images sliced by sonoslice with the float64 reference, pixel by pixel.
 Comparison compare_with_reference(const Volume& volume, const ProbeGeometry& probe,
-                                  const std::vector<Pose>& poses, Interpolation interp,
-                                  double fill, const std::vector<float>& images);
+                                  const std::vector<Pose>& poses, Interpolation interp, double fill,
+                                  const std::vector<float>& images);
 
 /// Device-parameterised tests (Open3D style): each TEST_P body runs once per backend —
 /// "cpu-generic", "cpu-avx2" and "cuda" — and is reported as skipped where that backend is not
@@ -93,14 +93,14 @@ class BackendTest : public ::testing::TestWithParam<std::string> {
   Device device() const;  ///< the Device to hand to Slicer
 };
 std::vector<std::string> all_backends();
-#define SONOSLICE_INSTANTIATE_BACKENDS(Suite)                                       \
-  INSTANTIATE_TEST_SUITE_P(Backends, Suite,                                         \
+#define SONOSLICE_INSTANTIATE_BACKENDS(Suite)                                      \
+  INSTANTIATE_TEST_SUITE_P(Backends, Suite,                                        \
                            ::testing::ValuesIn(::sonoslice::test::all_backends()), \
-                           [](const auto& info) {                                   \
-                             std::string n = info.param;                            \
-                             for (auto& c : n)                                      \
-                               if (c == '-') c = '_';                               \
-                             return n;                                              \
+                           [](const auto& info) {                                  \
+                             std::string n = info.param;                           \
+                             for (auto& c : n)                                     \
+                               if (c == '-') c = '_';                              \
+                             return n;                                             \
                            })
 
 }  // namespace test

@@ -18,7 +18,9 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-ProbeGeometry w1_fan() { return workload_w1_fan_probe(); }
+ProbeGeometry w1_fan() {
+  return workload_w1_fan_probe();
+}
 
 // The mask, recomputed here from the SPEC §3 wording with polar coordinates about the apex.
 TEST(ProbeMask, CurvilinearMatchesSpecFormula) {
@@ -129,7 +131,8 @@ TEST(Poses, ValidationNamesTheIndex) {
       validate_poses(poses, "poses 'file.npy'");
       ADD_FAILURE() << "expected error " << needle;
     } catch (const InputError& e) {
-      EXPECT_NE(std::string(e.what()).find("poses 'file.npy': pose 2"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("poses 'file.npy': pose 2"), std::string::npos)
+          << e.what();
       EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
     }
   };
@@ -151,7 +154,9 @@ TEST(Poses, ValidationNamesTheIndex) {
 }
 
 std::vector<std::string> g_warnings;
-void capture(const std::string& m) { g_warnings.push_back(m); }
+void capture(const std::string& m) {
+  g_warnings.push_back(m);
+}
 
 TEST(Poses, OneWarningPerFileForNonOrthonormal) {
   g_warnings.clear();
@@ -191,7 +196,8 @@ TEST(VolumeGrid, WorldToIndexInvertsIndexToWorld) {
   }
   // The affine form gives the same answer.
   const Vec3 p{3, -4, 50};
-  const Vec3 c1 = g.world_to_index(p), c2 = g.world_to_index_linear() * p + g.world_to_index_offset();
+  const Vec3 c1 = g.world_to_index(p),
+             c2 = g.world_to_index_linear() * p + g.world_to_index_offset();
   for (int a = 0; a < 3; ++a) EXPECT_NEAR(c1[a], c2[a], 1e-12);
   // SPEC §1: voxel centre = origin + D·diag(spacing)·c (no half-voxel shift).
   const Vec3 w = g.index_to_world({1, 0, 0});

@@ -4,8 +4,8 @@
 
 #include <cmath>
 
-#include <itkImage.h>
 #include <itkIdentityTransform.h>
+#include <itkImage.h>
 #include <itkLinearInterpolateImageFunction.h>
 #include <itkNearestNeighborInterpolateImageFunction.h>
 #include <itkResampleImageFilter.h>
@@ -106,23 +106,26 @@ TEST(ItkOracle, LinearProbePlanesThroughObliqueVolume) {
         for (int u = 0; u < probe.image.width; ++u) {
           const size_t i = size_t(v) * probe.image.width + u;
           double ref, margin;
-          const Vec3 p = poses[n].transform_point({probe.image.origin_mm[0] + u * probe.image.spacing_mm[0],
-                                                   probe.image.origin_mm[1] + v * probe.image.spacing_mm[1], 0});
+          const Vec3 p = poses[n].transform_point(
+              {probe.image.origin_mm[0] + u * probe.image.spacing_mm[0],
+               probe.image.origin_mm[1] + v * probe.image.spacing_mm[1], 0});
           test::reference_sample(volume, p, s.interpolation, s.fill_value, &ref, &margin);
           if (margin < 1e-3) {
             ++excluded;
             continue;
           }
           outside += theirs[i] == float(s.fill_value);
-          worst = std::max(worst, double(std::fabs(ours[n * probe.image.pixel_count() + i] - theirs[i])));
+          worst = std::max(worst,
+                           double(std::fabs(ours[n * probe.image.pixel_count() + i] - theirs[i])));
           ++compared;
         }
     }
-    std::printf("[ accuracy ] vs ITK ResampleImageFilter (%s): max |difference| = %.3g (%.3g of the "
-                "range) over %lld pixels, %lld outside the volume, %lld near-boundary excluded\n",
-                linear ? "linear" : "nearest", worst, worst / (range.second - range.first),
-                static_cast<long long>(compared), static_cast<long long>(outside),
-                static_cast<long long>(excluded));
+    std::printf(
+        "[ accuracy ] vs ITK ResampleImageFilter (%s): max |difference| = %.3g (%.3g of the "
+        "range) over %lld pixels, %lld outside the volume, %lld near-boundary excluded\n",
+        linear ? "linear" : "nearest", worst, worst / (range.second - range.first),
+        static_cast<long long>(compared), static_cast<long long>(outside),
+        static_cast<long long>(excluded));
     EXPECT_GT(outside, 1000);
     EXPECT_GT(compared - outside, 50000);
     EXPECT_LE(worst, 1e-4 * (range.second - range.first));

@@ -67,7 +67,8 @@ TEST(PoseFile, TextFormats) {
   // 12 numbers (3x4), commas, tabs, comments, blank lines.
   std::string csv = "# a comment\n\n";
   for (const Pose& p : poses) {
-    for (int i = 0; i < 12; ++i) csv += std::to_string(p.m[i / 4][i % 4]) + (i % 3 == 0 ? ",\t" : ", ");
+    for (int i = 0; i < 12; ++i)
+      csv += std::to_string(p.m[i / 4][i % 4]) + (i % 3 == 0 ? ",\t" : ", ");
     csv += "  # trailing comment\n";
   }
   write_text(dir.file("p.csv"), csv);
@@ -125,7 +126,8 @@ TEST(PoseFile, Errors) {
   write_text(dir.file("word.txt"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 x1\n");
   EXPECT_NE(error_of(dir.file("word.txt")).find("'x1' is not a number"), std::string::npos);
   // Non-finite entry, index named.
-  write_text(dir.file("nan.txt"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 0 0 nan 0 1 0 0 0 0 1 0 0 0 0 1\n");
+  write_text(dir.file("nan.txt"),
+             "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 0 0 nan 0 1 0 0 0 0 1 0 0 0 0 1\n");
   EXPECT_NE(error_of(dir.file("nan.txt")).find("pose 1"), std::string::npos);
   // Degenerate axes.
   write_text(dir.file("flat.txt"), "1 1 0 0 0 0 0 0 0 0 1 0 0 0 0 1\n");

@@ -25,7 +25,8 @@ TEST(ProbeFile, NativeCurvilinear) {
   const ProbeGeometry p = parse_probe_json(R"({"type": "curvilinear", "radius_mm": 46.93,
       "depth_mm": 64.96, "sector_deg": 36, "face_y_mm": 2.1,
       "image": {"width": 334, "height": 272, "spacing_mm": [0.247, 0.247],
-                "origin_mm": [-41.25, 0.0]}})", "p.json");
+                "origin_mm": [-41.25, 0.0]}})",
+                                           "p.json");
   EXPECT_EQ(p.type, ProbeType::Curvilinear);
   EXPECT_DOUBLE_EQ(p.radius_mm, 46.93);
   EXPECT_DOUBLE_EQ(p.depth_mm, 64.96);
@@ -52,21 +53,37 @@ TEST(ProbeFile, NativeLinearDefaultsAndRoundTrip) {
 
 TEST(ProbeFile, ErrorsNameTheKey) {
   const std::string base = R"("image": {"width": 10, "height": 10, "spacing_mm": [1, 1]})";
-  EXPECT_NE(error_of(R"({"type": "curvilinear", "radius_mm": 5, "depth_mm": 5, "sector_deg": 30, "radius": 3, )" + base + "}")
-                .find("unknown key 'radius'"), std::string::npos);
+  EXPECT_NE(
+      error_of(
+          R"({"type": "curvilinear", "radius_mm": 5, "depth_mm": 5, "sector_deg": 30, "radius": 3, )" +
+          base + "}")
+          .find("unknown key 'radius'"),
+      std::string::npos);
   EXPECT_NE(error_of(R"({"type": "curvilinear", "depth_mm": 5, "sector_deg": 30, )" + base + "}")
-                .find("missing key 'radius_mm'"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "phased", )" + base + "}").find("type 'phased'"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "linear", "image": {"width": 10, "height": -2, "spacing_mm": [1, 1]}})")
-                .find("width and height"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "linear", "image": {"width": 10, "height": 2, "spacing_mm": [1]}})")
-                .find("'spacing_mm' must be a list of 2"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "linear", "image": {"width": 10, "height": 2, "spacing_mm": [1, 0]}})")
-                .find("spacing"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "linear", "image": {"width": 10, "height": 2, "spacing_mm": [1, 1], "colour": 1}})")
-                .find("unknown key 'colour'"), std::string::npos);
+                .find("missing key 'radius_mm'"),
+            std::string::npos);
+  EXPECT_NE(error_of(R"({"type": "phased", )" + base + "}").find("type 'phased'"),
+            std::string::npos);
+  EXPECT_NE(
+      error_of(R"({"type": "linear", "image": {"width": 10, "height": -2, "spacing_mm": [1, 1]}})")
+          .find("width and height"),
+      std::string::npos);
+  EXPECT_NE(
+      error_of(R"({"type": "linear", "image": {"width": 10, "height": 2, "spacing_mm": [1]}})")
+          .find("'spacing_mm' must be a list of 2"),
+      std::string::npos);
+  EXPECT_NE(
+      error_of(R"({"type": "linear", "image": {"width": 10, "height": 2, "spacing_mm": [1, 0]}})")
+          .find("spacing"),
+      std::string::npos);
+  EXPECT_NE(
+      error_of(
+          R"({"type": "linear", "image": {"width": 10, "height": 2, "spacing_mm": [1, 1], "colour": 1}})")
+          .find("unknown key 'colour'"),
+      std::string::npos);
   EXPECT_NE(error_of(R"({"type": "linear", )").find("invalid JSON"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "linear", )" + base + "}", 0).find("--downsampling"), std::string::npos);
+  EXPECT_NE(error_of(R"({"type": "linear", )" + base + "}", 0).find("--downsampling"),
+            std::string::npos);
   EXPECT_NE(error_of("[1, 2]").find("expected a JSON object"), std::string::npos);
   // Every message names the file.
   EXPECT_NE(error_of(R"({"type": "curvilinear", )" + base + "}").find("p.json"), std::string::npos);
@@ -103,10 +120,12 @@ TEST(FanSlicerConfig, CurvilinearMappingWithDownsampling) {
   EXPECT_DOUBLE_EQ(w1.image.origin_mm[0], p.image.origin_mm[0]);
   EXPECT_DOUBLE_EQ(w1.face_y_mm, p.face_y_mm);
   // The surface config of the same probe gives the same probe.
-  const ProbeGeometry s = read_probe(test::shared_data_dir() + "/fanslicer/models_binary_LUS_config.json", 2);
+  const ProbeGeometry s =
+      read_probe(test::shared_data_dir() + "/fanslicer/models_binary_LUS_config.json", 2);
   EXPECT_EQ(s.mask(), p.mask());
   // And the 70° fan.
-  const ProbeGeometry w = read_probe(test::shared_data_dir() + "/fanslicer/intensity_config_2.json");
+  const ProbeGeometry w =
+      read_probe(test::shared_data_dir() + "/fanslicer/intensity_config_2.json");
   EXPECT_EQ(w.image.width, 600);
   EXPECT_DOUBLE_EQ(w.sector_deg, 70);
   EXPECT_DOUBLE_EQ(w.image.origin_mm[0], -600 * 0.1235 / 2);
@@ -131,14 +150,21 @@ TEST(FanSlicerConfig, LinearMapping) {
 
 TEST(FanSlicerConfig, UnknownKeysAreErrors) {
   EXPECT_NE(error_of(R"({"simulation": {"transducer": "linear", "image_dimensions": [10, 10],
-      "pixel_size": [1, 1], "pixelsize": 3}})").find("unknown key 'pixelsize'"), std::string::npos);
+      "pixel_size": [1, 1], "pixelsize": 3}})")
+                .find("unknown key 'pixelsize'"),
+            std::string::npos);
   EXPECT_NE(error_of(R"({"simulation": {"transducer": "linear", "image_dimensions": [10, 10]}})")
-                .find("missing key 'pixel_size'"), std::string::npos);
+                .find("missing key 'pixel_size'"),
+            std::string::npos);
   EXPECT_NE(error_of(R"({"simulation": {"transducer": "curvilinear", "image_dimensions": [10, 10],
-      "pixel_size": [1, 1], "fan_geometry": [1, 2, 3]}})").find("fan_geometry"), std::string::npos);
+      "pixel_size": [1, 1], "fan_geometry": [1, 2, 3]}})")
+                .find("fan_geometry"),
+            std::string::npos);
   // fan-slicer's early configs have no transducer: a fan.
-  const ProbeGeometry p = parse_probe_json(R"({"simulation": {"fan_geometry": [0.1, 0.1235, 110, 394, 46, 19],
-      "image_dimensions": [722, 402], "pixel_size": [0.1235, 0.1235]}})", "eus.json");
+  const ProbeGeometry p =
+      parse_probe_json(R"({"simulation": {"fan_geometry": [0.1, 0.1235, 110, 394, 46, 19],
+      "image_dimensions": [722, 402], "pixel_size": [0.1235, 0.1235]}})",
+                       "eus.json");
   EXPECT_EQ(p.type, ProbeType::Curvilinear);
   EXPECT_DOUBLE_EQ(p.sector_deg, 110);
 }

@@ -23,7 +23,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-double field(const Vec3& p) { return std::round(20 * std::sin(p[0] * 0.3) + p[1] - 0.5 * p[2]); }
+double field(const Vec3& p) {
+  return std::round(20 * std::sin(p[0] * 0.3) + p[1] - 0.5 * p[2]);
+}
 
 void expect_same_geometry(const VolumeGrid& a, const VolumeGrid& b, double tol) {
   for (int k = 0; k < 3; ++k) {
@@ -64,9 +66,11 @@ TEST_P(ItkRoundTrip, GeometryAndNativeTypes) {
   const Volume back = read_volume(path);
   EXPECT_EQ(back.pixel_type(), PixelType::Int16);
   // NIfTI stores geometry as float32 quaternions/matrices.
-  expect_same_geometry(grid, back.grid(), GetParam().find(".nii") != std::string::npos ? 1e-4 : 1e-9);
+  expect_same_geometry(grid, back.grid(),
+                       GetParam().find(".nii") != std::string::npos ? 1e-4 : 1e-9);
   expect_same_voxels<int16_t>(i16, back);
-  for (PixelType t : {PixelType::UInt8, PixelType::UInt16, PixelType::Float32, PixelType::Float64}) {
+  for (PixelType t :
+       {PixelType::UInt8, PixelType::UInt16, PixelType::Float32, PixelType::Float64}) {
     const Volume v = i16.converted(t);
     write_volume(path, v);  // replaces the previous file atomically
     const Volume r = read_volume(path);
@@ -77,7 +81,10 @@ TEST_P(ItkRoundTrip, GeometryAndNativeTypes) {
 
 INSTANTIATE_TEST_SUITE_P(Formats, ItkRoundTrip,
                          ::testing::Values(".nii", ".nii.gz", ".mha", ".mhd", ".nrrd", ".nhdr"),
-                         [](const auto& info) { return info.param.substr(1) == "nii.gz" ? std::string("nii_gz") : info.param.substr(1); });
+                         [](const auto& info) {
+                           return info.param.substr(1) == "nii.gz" ? std::string("nii_gz")
+                                                                   : info.param.substr(1);
+                         });
 
 // Writes `volume` as a DICOM series of 2-D slices with explicit position/orientation tags and a
 // rescale (stored = (HU - intercept) / slope), the way scanners do.
@@ -134,9 +141,8 @@ TEST(DicomSeries, WrittenWithItkThenReadBack) {
   grid.origin_mm = {-30.5, 12.0, 100.25};
   grid.direction = test::rotation({0.2, 1.0, 0.1}, 15.0);
   // CT values, even so that a slope of 2 stores them exactly.
-  const Volume hu = test::make_volume<int16_t>(grid, [](const Vec3& p) {
-    return 2 * std::round(200 * std::sin(p[0] * 0.2) + p[2]) - 1000;
-  });
+  const Volume hu = test::make_volume<int16_t>(
+      grid, [](const Vec3& p) { return 2 * std::round(200 * std::sin(p[0] * 0.2) + p[2]) - 1000; });
   write_dicom_series(hu, dir.path().string(), "1.2.826.0.1.3680043.2.1125.2.11", 2.0, -1024.0);
   // A second, smaller series in the same directory.
   VolumeGrid small = grid;
@@ -170,7 +176,8 @@ TEST(VolumeFile, NiftiRescaleSlopeAndIntercept) {
   test::TempDir dir;
   VolumeGrid grid;
   grid.dims = {6, 5, 4};
-  const Volume v = test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[0] + 10 * p[1] + 100 * p[2]; });
+  const Volume v =
+      test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[0] + 10 * p[1] + 100 * p[2]; });
   write_volume(dir.file("s.nii"), v);
   std::fstream f(dir.file("s.nii"), std::ios::in | std::ios::out | std::ios::binary);
   const float slope = 2.0f, inter = -5.0f;
@@ -215,7 +222,8 @@ TEST(VolumeFile, NpyFortranOrderIsTransposed) {
   std::vector<float> data(size_t(nx * ny * nz));
   for (int k = 0; k < nz; ++k)
     for (int j = 0; j < ny; ++j)
-      for (int i = 0; i < nx; ++i) data[size_t(k + nz * (j + ny * i))] = float(100 * k + 10 * j + i);
+      for (int i = 0; i < nx; ++i)
+        data[size_t(k + nz * (j + ny * i))] = float(100 * k + 10 * j + i);
   write_npy(dir.file("f.npy"), PixelType::Float32, {nz, ny, nx}, data.data());
   // Patch the header to say fortran_order: True (same length as False + one space of padding).
   std::fstream f(dir.file("f.npy"), std::ios::in | std::ios::out | std::ios::binary);
@@ -246,7 +254,8 @@ TEST(VolumeFile, FanSlicerNpyConfig) {
     for (int x = 0; x < nx; ++x)
       for (int z = 0; z < nz; ++z) a[size_t((y * nx + x) * nz + z)] = int16_t(100 * z + 10 * y + x);
   write_npy(dir.file("ct.npy"), PixelType::Int16, {ny, nx, nz}, a.data());
-  std::ofstream(dir.file("cfg.json")) << R"({"planar resolution": [0.5, 0.5], "voxel size": [0.5, 0.5, 2.0],
+  std::ofstream(dir.file("cfg.json"))
+      << R"({"planar resolution": [0.5, 0.5], "voxel size": [0.5, 0.5, 2.0],
       "bounding box": [[-1.0, -2.0, -3.0], [1.0, -0.5, 1.0]]})";
   VolumeReadOptions o;
   o.fanslicer_npy_config = dir.file("cfg.json");

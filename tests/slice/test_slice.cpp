@@ -75,8 +75,9 @@ TEST_P(SliceTest, LinearRampIsExactThroughObliqueVolume) {
   for (const Pose& pose : poses)
     for (int v = 0; v < probe.image.height; ++v)
       for (int u = 0; u < probe.image.width; ++u, ++idx) {
-        const Vec3 p = pose.transform_point({probe.image.origin_mm[0] + u * probe.image.spacing_mm[0],
-                                             probe.image.origin_mm[1] + v * probe.image.spacing_mm[1], 0});
+        const Vec3 p =
+            pose.transform_point({probe.image.origin_mm[0] + u * probe.image.spacing_mm[0],
+                                  probe.image.origin_mm[1] + v * probe.image.spacing_mm[1], 0});
         const Vec3 c = w2i * (p - grid.origin_mm);
         bool interior = true;
         for (int a = 0; a < 3; ++a) interior &= c[a] >= 0 && c[a] <= double(grid.dims[a] - 1);
@@ -101,7 +102,8 @@ TEST_P(SliceTest, MatchesFloat64ReferenceOnObliqueGrid) {
       s.interpolation = interp;
       s.fill_value = -77;
       const auto images = Slicer(volume, probe, s, device()).slice<float>(poses);
-      const auto cmp = test::compare_with_reference(volume, probe, poses, interp, s.fill_value, images);
+      const auto cmp =
+          test::compare_with_reference(volume, probe, poses, interp, s.fill_value, images);
       SCOPED_TRACE(probe.describe() + " " + interpolation_name(interp));
       EXPECT_EQ(cmp.mask_mismatches, 0);
       EXPECT_GT(cmp.compared, 10000);
@@ -134,7 +136,8 @@ TEST_P(SliceTest, NearestRounding) {
   VolumeGrid grid;
   grid.dims = {5, 2, 2};
   grid.spacing_mm = {2.0, 1.0, 1.0};
-  const Volume volume = test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[0] / 2 * 10; });
+  const Volume volume =
+      test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[0] / 2 * 10; });
   SliceSettings s;
   s.interpolation = Interpolation::Nearest;
   Slicer slicer(volume, point_probe(), s, device());
@@ -187,7 +190,8 @@ TEST_P(SliceTest, FillOutsideFanAndOutsideVolume) {
 TEST_P(SliceTest, OutputTypesRoundAndSaturate) {
   VolumeGrid grid;
   grid.dims = {6, 1, 1};
-  const double values[] = {40000.0, -40000.0, 2.5, -2.5, 254.6, std::numeric_limits<double>::quiet_NaN()};
+  const double values[] = {40000.0, -40000.0, 2.5,
+                           -2.5,    254.6,    std::numeric_limits<double>::quiet_NaN()};
   Volume volume = Volume::allocate(PixelType::Float32, grid);
   for (int i = 0; i < 6; ++i) volume.data_as<float>()[i] = float(values[i]);
   std::vector<Pose> poses;
@@ -211,7 +215,8 @@ TEST_P(SliceTest, EveryVoxelTypeMatchesFloat) {
   const VolumeGrid grid = test::oblique_grid({30, 28, 26});
   // Integers in [0, 120]: exact in every voxel type, int8 included.
   auto field = [](const Vec3& p) {
-    return std::min(120.0, std::max(0.0, std::floor(60 + 50 * std::sin(p[0] * 0.3 + p[1] * 0.2) + 0.2 * p[2])));
+    return std::min(
+        120.0, std::max(0.0, std::floor(60 + 50 * std::sin(p[0] * 0.3 + p[1] * 0.2) + 0.2 * p[2])));
   };
   const Volume reference = test::make_volume<float>(grid, field);
   const auto poses = test::random_poses(6, grid_centre(grid), 12.0, 5);
@@ -224,7 +229,8 @@ TEST_P(SliceTest, EveryVoxelTypeMatchesFloat) {
       const Volume v = reference.converted(t);
       const auto got = Slicer(v, fan_probe(), s, device()).slice<float>(poses);
       double worst = 0;
-      for (size_t i = 0; i < got.size(); ++i) worst = std::max(worst, double(std::fabs(got[i] - expected[i])));
+      for (size_t i = 0; i < got.size(); ++i)
+        worst = std::max(worst, double(std::fabs(got[i] - expected[i])));
       EXPECT_LE(worst, 1e-4) << pixel_type_name(t) << " " << interpolation_name(interp);
     }
   }
@@ -274,10 +280,11 @@ TEST_P(SliceTest, PhantomAccuracyAgainstFloat64Reference) {
     const auto images = Slicer(phantom.ct, probe, s, device()).slice<float>(poses);
     const auto cmp = test::compare_with_reference(phantom.ct, probe, poses, interp, 0.0, images);
     const double relative = cmp.max_abs_error / (range.second - range.first);
-    std::printf("[ accuracy ] %s %s: max |error| = %.3g HU = %.3g of the value range over %lld "
-                "pixels (%lld within 1e-3 voxel of a boundary excluded)\n",
-                GetParam().c_str(), interpolation_name(interp).c_str(), cmp.max_abs_error,
-                relative, static_cast<long long>(cmp.compared), static_cast<long long>(cmp.excluded));
+    std::printf(
+        "[ accuracy ] %s %s: max |error| = %.3g HU = %.3g of the value range over %lld "
+        "pixels (%lld within 1e-3 voxel of a boundary excluded)\n",
+        GetParam().c_str(), interpolation_name(interp).c_str(), cmp.max_abs_error, relative,
+        static_cast<long long>(cmp.compared), static_cast<long long>(cmp.excluded));
     EXPECT_EQ(cmp.mask_mismatches, 0);
     EXPECT_LE(relative, 1e-4);
   }

@@ -18,7 +18,8 @@ class InputError : public Error {
   using Error::Error;
 };
 
-/// A file that cannot be read or written: missing, corrupt, truncated, unwritable (Python: OSError).
+/// A file that cannot be read or written: missing, corrupt, truncated, unwritable (Python:
+/// OSError).
 class FileError : public Error {
  public:
   using Error::Error;

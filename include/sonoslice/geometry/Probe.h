@@ -10,10 +10,10 @@ namespace sonoslice {
 /// centre at x = origin_mm[0] + u·spacing_mm[0], y = origin_mm[1] + v·spacing_mm[1], z = 0.
 /// Row 0 is nearest the probe; rows grow with depth (the probe's axial axis ŷ).
 struct ImageGrid {
-  int width = 0;                          ///< columns (lateral, along x̂)
-  int height = 0;                         ///< rows (depth, along ŷ)
-  double spacing_mm[2] = {1.0, 1.0};      ///< (sx, sy) mm
-  double origin_mm[2] = {0.0, 0.0};       ///< probe coordinates of pixel (0, 0)'s centre
+  int width = 0;                      ///< columns (lateral, along x̂)
+  int height = 0;                     ///< rows (depth, along ŷ)
+  double spacing_mm[2] = {1.0, 1.0};  ///< (sx, sy) mm
+  double origin_mm[2] = {0.0, 0.0};   ///< probe coordinates of pixel (0, 0)'s centre
 
   int64_t pixel_count() const { return int64_t(width) * int64_t(height); }
   /// The SPEC default origin: (-(W-1)·sx/2, 0), i.e. centred laterally.
@@ -38,8 +38,8 @@ struct ProbeGeometry {
 
   // linear: optional limits; without them the whole image is inside
   bool has_width = false;
-  double width_mm = 0.0;    ///< inside iff |x| <= width_mm / 2
-  bool has_depth = false;   ///< linear: inside iff 0 <= y - face_y <= depth_mm
+  double width_mm = 0.0;   ///< inside iff |x| <= width_mm / 2
+  bool has_depth = false;  ///< linear: inside iff 0 <= y - face_y <= depth_mm
 
   /// Throws InputError naming `what` for non-positive or non-finite sizes and angles.
   void validate(const std::string& what) const;

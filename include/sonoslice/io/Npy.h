@@ -14,8 +14,8 @@ struct NpyArray {
   PixelType type = PixelType::Float32;
   std::vector<int64_t> shape;
   bool fortran_order = false;
-  std::shared_ptr<void> data;  ///< native byte order, 64-byte aligned (null from read_npy_header)
-  uint64_t data_offset = 0;    ///< where the data starts in the file
+  std::shared_ptr<void> data;    ///< native byte order, 64-byte aligned (null from read_npy_header)
+  uint64_t data_offset = 0;      ///< where the data starts in the file
   bool swapped_on_disk = false;  ///< the file stores the other byte order
   int64_t element_count() const;
 };

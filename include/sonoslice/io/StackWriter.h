@@ -17,13 +17,13 @@ namespace sonoslice {
 struct StackSpec {
   PixelType type = PixelType::Float32;
   int width = 0, height = 0;
-  int64_t count = 0;                    ///< N images
-  double spacing_mm[2] = {1.0, 1.0};    ///< pixel spacing (sx, sy)
+  int64_t count = 0;                  ///< N images
+  double spacing_mm[2] = {1.0, 1.0};  ///< pixel spacing (sx, sy)
   /// PNG only: display window (level, width); default: robust auto-window (0.5th–99.5th
   /// percentile of the first chunk's pixels inside `mask`).
   std::optional<std::pair<double, double>> window;
-  const uint8_t* mask = nullptr;        ///< H×W probe mask for the auto-window (may be null)
-  std::vector<Pose> poses;              ///< PNG only: written to poses.txt
+  const uint8_t* mask = nullptr;  ///< H×W probe mask for the auto-window (may be null)
+  std::vector<Pose> poses;        ///< PNG only: written to poses.txt
 };
 
 enum class StackFormat { Npy, ItkImage, PngDirectory };

@@ -30,8 +30,14 @@ class Volume {
   void* data() { return data_; }
   size_t byte_size() const { return size_t(grid_.voxel_count()) * pixel_size(type_); }
 
-  template <typename T> const T* data_as() const { return static_cast<const T*>(data_); }
-  template <typename T> T* data_as() { return static_cast<T*>(data_); }
+  template <typename T>
+  const T* data_as() const {
+    return static_cast<const T*>(data_);
+  }
+  template <typename T>
+  T* data_as() {
+    return static_cast<T*>(data_);
+  }
 
   /// Minimum and maximum voxel value (NaNs ignored), computed in parallel.
   std::pair<double, double> value_range() const;
