@@ -55,6 +55,33 @@ void threads_and_kernels(benchmark::internal::Benchmark* b) {
     for (int threads : {1, 2}) b->Args({threads, generic});
 }
 
+// CUDA: images left in GPU memory (device=0) or copied into host memory (device=1).
+void BM_SliceCuda(benchmark::State& state, int workload, PixelType type) {
+  const Device gpu{DeviceType::CUDA, 0};
+  try {
+    require_device(gpu);
+  } catch (const std::exception& e) {
+    state.SkipWithError(e.what());
+    return;
+  }
+  const auto poses = phantom_random_poses(1000);
+  const Slicer slicer(volume(type), workload == 1 ? workload_w1_fan_probe() : workload_w2_linear_probe(),
+                      {}, gpu);
+  const bool to_host = state.range(0) == 1;
+  std::vector<float> out(to_host ? poses.size() * size_t(slicer.width()) * size_t(slicer.height()) : 0);
+  for (auto _ : state) {
+    if (to_host)
+      slicer.slice(poses.data(), poses.size(), out.data());
+    else
+      slicer.slice_on_device(poses.data(), poses.size()).synchronize();
+  }
+  state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
+}
+BENCHMARK_CAPTURE(BM_SliceCuda, W1_float32, 1, PixelType::Float32)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W1_int16, 1, PixelType::Int16)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W2_float32, 2, PixelType::Float32)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W2_int16, 2, PixelType::Int16)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
+
 BENCHMARK_CAPTURE(BM_Slice, W1_float32_linear, 1, PixelType::Float32, Interpolation::Linear)
     ->Apply(threads_and_kernels);
 BENCHMARK_CAPTURE(BM_Slice, W1_int16_linear, 1, PixelType::Int16, Interpolation::Linear)

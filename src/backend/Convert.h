@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <type_traits>
 
 #include "sonoslice/backend/HostDevice.h"
 
@@ -16,6 +17,20 @@ inline namespace SONOSLICE_KERNEL_ISA {
 template <typename F>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F lerp(F a, F b, F t) {
   return a + t * (b - a);
+}
+
+/// a + b·c rounded as two operations, never fused: every backend then computes the same pixel
+/// coordinates and makes the same inside/outside decision (nvcc fuses by default).
+template <typename F>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F add_product(F a, F b, F c) {
+#if defined(__CUDA_ARCH__)
+  if constexpr (std::is_same<F, float>::value)
+    return __fadd_rn(a, __fmul_rn(b, c));
+  else
+    return __dadd_rn(a, __dmul_rn(b, c));
+#else
+  return a + b * c;
+#endif
 }
 
 template <typename T, typename V>

@@ -7,6 +7,9 @@
 #include <thread>
 
 #include "sonoslice/core/Error.h"
+#ifdef SONOSLICE_HAVE_CUDA
+#include "CudaRuntime.h"
+#endif
 
 #ifdef _OPENMP
 #include <omp.h>
@@ -32,7 +35,11 @@ std::string Device::to_string() const {
 }
 
 bool built_with_cuda() {
+#ifdef SONOSLICE_HAVE_CUDA
+  return true;
+#else
   return false;
+#endif
 }
 
 namespace {
@@ -97,15 +104,22 @@ void set_cpu_kernel_isa(const std::string& isa) {
 
 void require_device(const Device& device) {
   if (device.type == DeviceType::CPU) return;
-  if (!built_with_cuda())
-    throw Error("device " + device.to_string() + ": this sonoslice was built without CUDA");
+#ifdef SONOSLICE_HAVE_CUDA
+  cuda::use_device(device.index);  // "cuda:K: not available (why)" / "no such GPU"
+#else
+  throw Error("device " + device.to_string() + ": this sonoslice was built without CUDA");
+#endif
 }
 
 std::string describe_devices() {
   std::ostringstream s;
   s << "cpu: " << cpu_threads() << " threads (" << hardware_threads() << " hardware threads), "
     << cpu_kernel_isa() << " kernels\n";
-  s << "cuda: " << (built_with_cuda() ? "not available" : "not built (built without CUDA)") << "\n";
+#ifdef SONOSLICE_HAVE_CUDA
+  s << cuda::describe_devices();
+#else
+  s << "cuda: not available (this sonoslice was built without CUDA)\n";
+#endif
   return s.str();
 }
 

@@ -102,7 +102,7 @@ struct SliceKernel {
     const PixelToIndex& p = poses[n];
     Row s;
     for (int k = 0; k < 3; ++k) {
-      s.c[k] = Acc(p.origin[k]) + Acc(v) * Acc(p.per_row[k]);
+      s.c[k] = backend::add_product(Acc(p.origin[k]), Acc(v), Acc(p.per_row[k]));
       s.d[k] = Acc(p.per_column[k]);
     }
     s.mask = mask + int64_t(v) * width;
@@ -116,9 +116,9 @@ struct SliceKernel {
       s.out[u] = fill;
       return;
     }
-    const Acc cx = s.c[0] + Acc(u) * s.d[0];
-    const Acc cy = s.c[1] + Acc(u) * s.d[1];
-    const Acc cz = s.c[2] + Acc(u) * s.d[2];
+    const Acc cx = backend::add_product(s.c[0], Acc(u), s.d[0]);
+    const Acc cy = backend::add_product(s.c[1], Acc(u), s.d[1]);
+    const Acc cz = backend::add_product(s.c[2], Acc(u), s.d[2]);
     // SPEC §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so NaN is outside.
     if (!(cx >= Acc(-0.5) && cx < Acc(grid.nx) - Acc(0.5) && cy >= Acc(-0.5) &&
           cy < Acc(grid.ny) - Acc(0.5) && cz >= Acc(-0.5) && cz < Acc(grid.nz) - Acc(0.5))) {

@@ -5,6 +5,9 @@
 #include <limits>
 
 #include "SliceTypes.h"
+#ifdef SONOSLICE_HAVE_CUDA
+#include "SliceCUDA.h"
+#endif
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -51,6 +54,9 @@ Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Devic
   }
   require_device(device_);
   mask_ = probe_.mask();
+#ifdef SONOSLICE_HAVE_CUDA
+  if (device_.type == DeviceType::CUDA) cuda_ = slice_impl::cuda_prepare(volume_, mask_, device_.index);
+#endif
 }
 
 size_t Slicer::image_bytes() const {
@@ -63,15 +69,13 @@ void Slicer::check_output_type(PixelType type) const {
                      " does not match the output type " + pixel_type_name(settings_.output_type));
 }
 
-void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_index) const {
-  if (count == 0) return;
-  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+namespace {
 
-  // Per image, reduce pose ∘ image grid ∘ world→index to one affine map pixel → index, in
-  // double, then hand the kernel floats.
-  const VolumeGrid& g = volume_.grid();
+// Per image, pose ∘ image grid ∘ world→index reduced to one affine map pixel → continuous index,
+// computed in double, handed to the kernels as floats.
+std::vector<slice_impl::PixelToIndex> pixel_to_index(const VolumeGrid& g, const ImageGrid& im,
+                                                     const Pose* poses, size_t count) {
   const Mat3 w2i = g.world_to_index_linear();
-  const ImageGrid& im = probe_.image;
   std::vector<slice_impl::PixelToIndex> affines(count);
   for (size_t n = 0; n < count; ++n) {
     const Pose& T = poses[n];
@@ -85,29 +89,101 @@ void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_inde
       affines[n].per_row[k] = float(per_row[k]);
     }
   }
+  return affines;
+}
 
+}  // namespace
+
+slice_impl::SliceLaunch Slicer::launch_template() const {
+  const VolumeGrid& g = volume_.grid();
   slice_impl::SliceLaunch launch{};
   launch.volume = volume_.data();
   launch.volume_type = volume_.pixel_type();
   launch.grid = {int(g.dims[0]), int(g.dims[1]), int(g.dims[2]), g.dims[0], g.dims[0] * g.dims[1]};
-  launch.poses = affines.data();
-  launch.count = int64_t(count);
   launch.mask = mask_.data();
-  launch.out = out;
   launch.output_type = settings_.output_type;
   launch.width = probe_.image.width;
   launch.height = probe_.image.height;
   launch.fill_value = settings_.fill_value;
   launch.linear = settings_.interpolation == Interpolation::Linear;
-  launch.stream = nullptr;
+  return launch;
+}
+
+void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_index) const {
+  if (count == 0) return;
+  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+  const auto affines = pixel_to_index(volume_.grid(), probe_.image, poses, count);
+  slice_impl::SliceLaunch launch = launch_template();
+#ifdef SONOSLICE_HAVE_CUDA
+  if (device_.type == DeviceType::CUDA) {
+    slice_impl::cuda_slice_to_host(*cuda_, launch, affines, out);
+    return;
+  }
+#endif
+  launch.poses = affines.data();
+  launch.count = int64_t(count);
+  launch.out = out;
 #ifdef SONOSLICE_HAVE_AVX2_KERNELS
   // The AVX2 fast path addresses voxels with int32 offsets.
-  if (cpu_kernel_isa() == "avx2" && g.voxel_count() < (int64_t(1) << 31) - 4) {
+  if (cpu_kernel_isa() == "avx2" && volume_.grid().voxel_count() < (int64_t(1) << 31) - 4) {
     slice_impl::slice_cpu_avx2(launch);
     return;
   }
 #endif
   slice_impl::slice_cpu_generic(launch);
+}
+
+DeviceImages Slicer::slice_on_device(const Pose* poses, size_t count, size_t first_index) const {
+  if (device_.type != DeviceType::CUDA)
+    throw InputError("slice_on_device: this slicer runs on " + device_.to_string() +
+                     "; create it with a CUDA device");
+  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+  DeviceImages images;
+  images.count = int64_t(count);
+  images.height = height();
+  images.width = width();
+  images.type = settings_.output_type;
+  images.device = device_;
+#ifdef SONOSLICE_HAVE_CUDA
+  if (count > 0)
+    images.data = slice_impl::cuda_slice_to_own_buffer(
+        *cuda_, launch_template(), pixel_to_index(volume_.grid(), probe_.image, poses, count),
+        &images.stream);
+#endif
+  return images;
+}
+
+void Slicer::slice_into_device(const Pose* poses, size_t count, void* device_out, void* stream,
+                               size_t first_index) const {
+  if (device_.type != DeviceType::CUDA)
+    throw InputError("slice_into_device: this slicer runs on " + device_.to_string() +
+                     "; create it with a CUDA device");
+  if (count == 0) return;
+  if (!device_out) throw InputError("slice_into_device: the output pointer is null");
+  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+#ifdef SONOSLICE_HAVE_CUDA
+  slice_impl::cuda_slice_into_device(*cuda_, launch_template(),
+                                     pixel_to_index(volume_.grid(), probe_.image, poses, count),
+                                     device_out, stream);
+#else
+  (void)stream;
+#endif
+}
+
+void DeviceImages::synchronize() const {
+#ifdef SONOSLICE_HAVE_CUDA
+  if (stream) slice_impl::cuda_synchronize(stream, device.index);
+#endif
+}
+
+void DeviceImages::copy_to_host(void* host_out) const {
+  if (!data || bytes() == 0) return;
+#ifdef SONOSLICE_HAVE_CUDA
+  slice_impl::cuda_copy_to_host(host_out, data, bytes(), stream, device.index);
+#else
+  (void)host_out;
+  throw Error("this sonoslice was built without CUDA");
+#endif
 }
 
 }  // namespace sonoslice

@@ -172,6 +172,11 @@ void BackendTest::SetUp() {
   const std::string& b = GetParam();
   if (b == "cuda") {
     if (!built_with_cuda()) GTEST_SKIP() << "cuda: not available (built without CUDA)";
+    try {
+      require_device(Device{DeviceType::CUDA, 0});
+    } catch (const std::exception& e) {
+      GTEST_SKIP() << e.what();
+    }
   } else if (b == "cpu-avx2") {
     try {
       set_cpu_kernel_isa("avx2");

@@ -1,6 +1,7 @@
 #pragma once
 /// @file Slicing: a batch of probe poses through a volume → a batch of ultrasound-shaped images.
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -10,6 +11,11 @@
 #include "sonoslice/volume/Volume.h"
 
 namespace sonoslice {
+
+namespace slice_impl {
+struct CudaSliceState;
+struct SliceLaunch;
+}
 
 enum class Interpolation { Linear, Nearest };
 Interpolation parse_interpolation(const std::string& name);  ///< "linear" / "nearest"
@@ -23,7 +29,23 @@ struct SliceSettings {
   PixelType output_type = PixelType::Float32;
 };
 
-/// Bound to one volume, one probe and one device. The volume is shared, not copied.
+/// A batch of images in GPU memory (CUDA devices).
+struct DeviceImages {
+  void* data = nullptr;  ///< device pointer to a C-order (count, height, width) array of `type`
+  int64_t count = 0, height = 0, width = 0;
+  PixelType type = PixelType::Float32;
+  Device device;
+  void* stream = nullptr;  ///< the cudaStream_t the kernel was queued on (not yet synchronized)
+  size_t bytes() const { return size_t(count * height * width) * pixel_size(type); }
+  /// Waits for the kernel and copies the images into host memory of bytes() bytes.
+  void copy_to_host(void* host_out) const;
+  /// Waits for the kernel (and everything else queued on `stream`).
+  void synchronize() const;
+};
+
+/// Bound to one volume, one probe and one device. The volume is shared, not copied; on a CUDA
+/// device it is uploaded once, in its own pixel type, and stays there for the slicer's life.
+/// A slicer serves one caller at a time (copies share their GPU buffers).
 class Slicer {
  public:
   Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings = {},
@@ -44,6 +66,16 @@ class Slicer {
   /// counted from `first_index`); nothing is written when one is bad.
   void slice(const Pose* poses, size_t count, void* out, size_t first_index = 0) const;
 
+  /// CUDA: slices into GPU memory the slicer owns (it grows with the batch and stays valid until
+  /// the next call). InputError on a CPU slicer.
+  DeviceImages slice_on_device(const Pose* poses, size_t count, size_t first_index = 0) const;
+
+  /// CUDA: slices into caller-owned GPU memory (count·H·W elements of output_type), queued on
+  /// `stream` (a cudaStream_t; null: the slicer's own) without waiting for it. For handing the
+  /// images to PyTorch and friends without a copy.
+  void slice_into_device(const Pose* poses, size_t count, void* device_out, void* stream = nullptr,
+                         size_t first_index = 0) const;
+
   /// Convenience: slices into a new buffer of count·H·W elements of type T (T must match
   /// settings().output_type).
   template <typename T>
@@ -56,12 +88,14 @@ class Slicer {
 
  private:
   void check_output_type(PixelType type) const;
+  slice_impl::SliceLaunch launch_template() const;
 
   Volume volume_;
   ProbeGeometry probe_;
   SliceSettings settings_;
   Device device_;
   std::vector<uint8_t> mask_;
+  std::shared_ptr<slice_impl::CudaSliceState> cuda_;  // CUDA devices: resident volume, buffers
 };
 
 }  // namespace sonoslice

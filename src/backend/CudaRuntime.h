@@ -1,0 +1,84 @@
+#pragma once
+// Internal, CUDA builds only: the host side of the CUDA backend (devices, errors, buffers,
+// streams). Plain C++ over the CUDA runtime API; kernels live in .cu files. cudaStream_t is
+// passed around as void* so that code outside the backend needs no CUDA header.
+#include <cstddef>
+#include <string>
+
+namespace sonoslice {
+namespace cuda {
+
+/// GPUs the runtime sees; 0 when there is no driver or no GPU (never throws, never hangs).
+int device_count();
+/// Why device_count() is 0, in words ("no CUDA-capable GPU", "driver too old ..."); "" otherwise.
+std::string unavailable_reason();
+/// One line per GPU: name, memory, compute capability.
+std::string describe_devices();
+
+/// Makes `index` the calling thread's device; Error naming cuda:index when it cannot.
+void use_device(int index);
+/// Throws for a failed runtime call: ResourceError for out-of-memory, Error otherwise; `what`
+/// says which operation (e.g. "cuda:0: uploading the volume (200 MiB)").
+void check(int error, const std::string& what);
+/// Free and total memory of the current device, in bytes.
+void memory_info(size_t* free_bytes, size_t* total_bytes);
+
+/// Device memory that only grows (reallocating only when a larger size is asked for).
+class DeviceBuffer {
+ public:
+  DeviceBuffer() = default;
+  ~DeviceBuffer();
+  DeviceBuffer(const DeviceBuffer&) = delete;
+  DeviceBuffer& operator=(const DeviceBuffer&) = delete;
+  void reserve(size_t bytes, const std::string& what);
+  void* data() const { return data_; }
+  size_t capacity() const { return capacity_; }
+
+ private:
+  void* data_ = nullptr;
+  size_t capacity_ = 0;
+};
+
+/// Page-locked host memory (fast, asynchronous device↔host copies); grows like DeviceBuffer.
+class PinnedBuffer {
+ public:
+  PinnedBuffer() = default;
+  ~PinnedBuffer();
+  PinnedBuffer(const PinnedBuffer&) = delete;
+  PinnedBuffer& operator=(const PinnedBuffer&) = delete;
+  void reserve(size_t bytes, const std::string& what);
+  void* data() const { return data_; }
+
+ private:
+  void* data_ = nullptr;
+  size_t capacity_ = 0;
+};
+
+/// A non-blocking stream on the current device.
+class Stream {
+ public:
+  Stream();
+  ~Stream();
+  Stream(const Stream&) = delete;
+  Stream& operator=(const Stream&) = delete;
+  void* get() const { return stream_; }
+  void synchronize(const std::string& what) const;
+
+ private:
+  void* stream_ = nullptr;
+};
+
+/// Stream-ordered scratch memory (cudaMallocAsync / cudaFreeAsync): safe to free right after
+/// queuing the kernels that use it, whatever the caller's stream.
+void* malloc_async(size_t bytes, void* stream, const std::string& what);
+void free_async(void* data, void* stream);
+
+/// Waits for everything queued on `stream`.
+void synchronize(void* stream, const std::string& what);
+
+/// Asynchronous copies on `stream`.
+void copy_to_device(void* dst, const void* src, size_t bytes, void* stream, const std::string& what);
+void copy_to_host(void* dst, const void* src, size_t bytes, void* stream, const std::string& what);
+
+}  // namespace cuda
+}  // namespace sonoslice

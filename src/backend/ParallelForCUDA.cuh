@@ -1,0 +1,66 @@
+#pragma once
+/// @file The CUDA side of the parallel_for choke point (see ParallelFor.h): the same functors,
+/// launched as grid-stride kernels on a stream. Only .cu files include this.
+#include <cuda_runtime.h>
+
+#include <cstdint>
+#include <string>
+
+#include "sonoslice/backend/HostDevice.h"
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace backend {
+inline namespace SONOSLICE_KERNEL_ISA {
+
+namespace detail {
+inline void check_launch(const char* what) {
+  const cudaError_t err = cudaGetLastError();
+  if (err != cudaSuccess)
+    throw Error(std::string("cuda: launching ") + what + " failed: " + cudaGetErrorString(err));
+}
+
+template <typename F>
+__global__ void for_kernel(int64_t n, F f) {
+  for (int64_t i = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; i < n;
+       i += int64_t(blockDim.x) * gridDim.x)
+    f(i);
+}
+
+// Threads of a warp take 32 consecutive pixels of one row (coalesced stores, neighbouring voxels);
+// the y dimension strides over rows, so any batch size fits the grid.
+template <typename F>
+__global__ void rows_kernel(int64_t rows, int width, F f) {
+  const int u = int(blockIdx.x) * int(blockDim.x) + int(threadIdx.x);
+  if (u >= width) return;
+  for (int64_t r = int64_t(blockIdx.y) * blockDim.y + threadIdx.y; r < rows;
+       r += int64_t(gridDim.y) * blockDim.y)
+    f.pixel(f.row(r), u);
+}
+}  // namespace detail
+
+/// f(i) for i in [0, n) on the current device, on `stream` (cudaStream_t; null: default).
+template <typename F>
+void parallel_for(int64_t n, const F& f, void* stream = nullptr) {
+  if (n <= 0) return;
+  const int block = 256;
+  const int64_t blocks = (n + block - 1) / block;
+  detail::for_kernel<<<unsigned(blocks < 65535 * 16 ? blocks : 65535 * 16), block, 0,
+                       static_cast<cudaStream_t>(stream)>>>(n, f);
+  detail::check_launch("parallel_for");
+}
+
+/// The rows × width index space of ParallelFor.h, one thread per element.
+template <typename F>
+void parallel_for_rows(int64_t rows, int width, const F& f, void* stream = nullptr) {
+  if (rows <= 0 || width <= 0) return;
+  const dim3 block(32, 8);
+  const int64_t row_blocks = (rows + block.y - 1) / block.y;
+  const dim3 grid(unsigned((width + 31) / 32), unsigned(row_blocks < 65535 ? row_blocks : 65535));
+  detail::rows_kernel<<<grid, block, 0, static_cast<cudaStream_t>(stream)>>>(rows, width, f);
+  detail::check_launch("parallel_for_rows");
+}
+
+}  // namespace SONOSLICE_KERNEL_ISA
+}  // namespace backend
+}  // namespace sonoslice

@@ -1,0 +1,142 @@
+// Host side of the CUDA slicing backend: the resident volume, buffers, streams and the chunked,
+// overlapped copy-back. The kernel is SliceImpl.h compiled by nvcc (SliceCUDA.cu).
+#include <algorithm>
+#include <cstring>
+#include <memory>
+
+#include "../backend/CudaRuntime.h"
+#include "SliceCUDA.h"
+
+namespace sonoslice {
+namespace slice_impl {
+
+void slice_cuda_launch(const SliceLaunch& launch);  // SliceCUDA.cu
+
+struct CudaSliceState {
+  int device = 0;
+  std::string name;  // "cuda:K", for messages
+  cuda::DeviceBuffer volume, mask;
+  cuda::DeviceBuffer out[2];         // the slicer's own output buffers (grow with the batch)
+  cuda::PinnedBuffer staging[2];     // page-locked landing zones for device → host copies
+  std::unique_ptr<cuda::Stream> streams[2];
+};
+
+namespace {
+
+size_t image_bytes(const SliceLaunch& l) {
+  return size_t(l.width) * size_t(l.height) * pixel_size(l.output_type);
+}
+
+// Uploads the affines on `stream` into stream-ordered scratch memory, queues the kernel, and
+// releases the scratch behind it: nothing waits, and the host vector may go right away
+// (a copy from pageable memory returns once the data has been staged).
+void queue_slice(const CudaSliceState& st, SliceLaunch l, const PixelToIndex* affines, size_t count,
+                 void* device_out, void* stream) {
+  const size_t bytes = count * sizeof(PixelToIndex);
+  void* poses = cuda::malloc_async(bytes, stream, st.name + ": pose buffer");
+  cuda::copy_to_device(poses, affines, bytes, stream, st.name + ": uploading poses");
+  l.volume = st.volume.data();
+  l.mask = static_cast<const uint8_t*>(st.mask.data());
+  l.poses = static_cast<const PixelToIndex*>(poses);
+  l.count = int64_t(count);
+  l.out = device_out;
+  l.stream = stream;
+  slice_cuda_launch(l);
+  cuda::free_async(poses, stream);
+}
+
+}  // namespace
+
+std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::vector<uint8_t>& mask,
+                                             int device) {
+  cuda::use_device(device);
+  auto st = std::make_shared<CudaSliceState>();
+  st->device = device;
+  st->name = "cuda:" + std::to_string(device);
+  for (auto& s : st->streams) s = std::make_unique<cuda::Stream>();
+  const size_t bytes = volume.byte_size();
+  // The volume keeps its pixel type on the GPU: an int16 CT costs 2 bytes per voxel there too.
+  st->volume.reserve(bytes, st->name + ": the volume (" + std::to_string(bytes >> 20) + " MiB, " +
+                                pixel_type_name(volume.pixel_type()) + ")");
+  cuda::copy_to_device(st->volume.data(), volume.data(), bytes, st->streams[0]->get(),
+                       st->name + ": uploading the volume");
+  st->mask.reserve(mask.size(), st->name + ": the probe mask");
+  cuda::copy_to_device(st->mask.data(), mask.data(), mask.size(), st->streams[0]->get(),
+                       st->name + ": uploading the probe mask");
+  st->streams[0]->synchronize(st->name + ": uploading the volume");
+  return st;
+}
+
+void cuda_slice_into_device(const CudaSliceState& st, SliceLaunch l,
+                            const std::vector<PixelToIndex>& affines, void* device_out, void* stream) {
+  cuda::use_device(st.device);
+  queue_slice(st, l, affines.data(), affines.size(), device_out,
+              stream ? stream : st.streams[0]->get());
+}
+
+void* cuda_slice_to_own_buffer(CudaSliceState& st, SliceLaunch l,
+                               const std::vector<PixelToIndex>& affines, void** stream) {
+  cuda::use_device(st.device);
+  const size_t bytes = affines.size() * image_bytes(l);
+  *stream = st.streams[0]->get();
+  st.streams[0]->synchronize(st.name);  // the previous batch may still be in use by this stream
+  st.out[0].reserve(std::max<size_t>(bytes, 1), st.name + ": " + std::to_string(affines.size()) +
+                                                    " output images (" + std::to_string(bytes >> 20) + " MiB)");
+  queue_slice(st, l, affines.data(), affines.size(), st.out[0].data(), *stream);
+  return st.out[0].data();
+}
+
+void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<PixelToIndex>& affines,
+                        void* host_out) {
+  cuda::use_device(st.device);
+  const size_t ib = image_bytes(l), count = affines.size();
+  // Chunks small enough for any batch size to stream through (GPU memory is never asked for the
+  // whole output) and large enough to keep the GPU busy.
+  size_t free_bytes = 0, total = 0;
+  cuda::memory_info(&free_bytes, &total);
+  const size_t budget = std::clamp<size_t>(free_bytes / 8, size_t(16) << 20, size_t(256) << 20);
+  const size_t chunk = std::max<size_t>(1, std::min(count, budget / std::max<size_t>(ib, 1)));
+  for (int s = 0; s < 2; ++s) {
+    st.out[s].reserve(chunk * ib, st.name + ": output chunk");
+    st.staging[s].reserve(chunk * ib, st.name + ": pinned staging buffer");
+  }
+  struct Pending {
+    size_t first = 0, n = 0;
+  } pending[2];
+  auto drain = [&](int s) {
+    if (!pending[s].n) return;
+    st.streams[s]->synchronize(st.name + ": slicing");
+    std::memcpy(static_cast<char*>(host_out) + pending[s].first * ib, st.staging[s].data(),
+                pending[s].n * ib);
+    pending[s].n = 0;
+  };
+  // Two streams alternate: while one chunk's images travel to the host (and are copied into the
+  // caller's memory), the other chunk's kernel runs.
+  int s = 0;
+  for (size_t first = 0; first < count; first += chunk, s ^= 1) {
+    drain(s);
+    const size_t n = std::min(chunk, count - first);
+    void* stream = st.streams[s]->get();
+    queue_slice(st, l, affines.data() + first, n, st.out[s].data(), stream);
+    cuda::copy_to_host(st.staging[s].data(), st.out[s].data(), n * ib, stream,
+                       st.name + ": copying images to the host");
+    pending[s] = {first, n};
+  }
+  drain(s);
+  drain(s ^ 1);
+}
+
+void cuda_synchronize(void* stream, int device) {
+  cuda::use_device(device);
+  cuda::synchronize(stream, "cuda:" + std::to_string(device) + ": slicing");
+}
+
+void cuda_copy_to_host(void* host_out, const void* device_data, size_t bytes, void* stream, int device) {
+  cuda::use_device(device);
+  const std::string what = "cuda:" + std::to_string(device) + ": copying images to the host";
+  cuda::copy_to_host(host_out, device_data, bytes, stream, what);
+  cuda::synchronize(stream, what);
+}
+
+}  // namespace slice_impl
+}  // namespace sonoslice

@@ -1,0 +1,204 @@
+// The CUDA backend: equivalence with the CPU backend, GPU-resident outputs, batches larger than
+// one chunk; and, on machines without a GPU, a clear "not available" instead of a crash.
+// Everything needing a GPU reports itself as skipped where there is none.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+
+#include "../common/TestUtil.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/phantom/Workloads.h"
+#include "sonoslice/slice/Slicer.h"
+
+namespace sonoslice {
+namespace {
+
+const Device kCuda{DeviceType::CUDA, 0};
+
+bool gpu_available(std::string* why) {
+  if (!built_with_cuda()) {
+    *why = "cuda: not available (built without CUDA)";
+    return false;
+  }
+  try {
+    require_device(kCuda);
+    return true;
+  } catch (const std::exception& e) {
+    *why = e.what();
+    return false;
+  }
+}
+
+class Cuda : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string why;
+    if (!gpu_available(&why)) GTEST_SKIP() << why;
+  }
+};
+
+// The small phantom turned to an oblique, off-centre grid, so direction cosines matter.
+Volume oblique(const Volume& v) {
+  Volume out = v;
+  out.grid().direction = test::rotation({1, 2, 2}, 23);
+  out.grid().origin_mm = {15, -20, 7};
+  return out;
+}
+
+ProbeGeometry half_w1() {
+  ProbeGeometry p = workload_w1_fan_probe();
+  p.image.width /= 2;
+  p.image.height /= 2;
+  p.image.spacing_mm[0] *= 2;
+  p.image.spacing_mm[1] *= 2;
+  return p;
+}
+
+struct Diff {
+  double max_abs = 0;
+  size_t differing = 0;
+};
+Diff compare(const std::vector<float>& a, const std::vector<float>& b) {
+  Diff d;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const double e = std::isnan(a[i]) && std::isnan(b[i]) ? 0 : std::fabs(double(a[i]) - b[i]);
+    d.max_abs = std::max(d.max_abs, e);
+    d.differing += e > 0;
+  }
+  return d;
+}
+
+// CPU and CUDA agree to 1e-4 of the value range (linear) and exactly (nearest) on intensity
+// (float32, int16) and label (uint8) volumes, both probe types, oblique directions, and poses
+// that leave the volume.
+TEST_F(Cuda, EquivalentToCpu) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const Volume ct16 = oblique(ph.ct), ct32 = oblique(ph.ct.converted(PixelType::Float32));
+  const Volume labels = oblique(ph.labels);
+  auto poses = phantom_random_poses(60, 21);
+  for (Pose& p : poses) p.m[0][3] += 80;  // a good share of the fans now leave the volume
+  for (const Volume* v : {&ct32, &ct16, &labels}) {
+    const auto range = v->value_range();
+    for (const ProbeGeometry& probe : {half_w1(), workload_w2_linear_probe()}) {
+      for (Interpolation interp : {Interpolation::Linear, Interpolation::Nearest}) {
+        if (v == &labels && interp == Interpolation::Linear) continue;  // labels are nearest
+        SliceSettings s;
+        s.interpolation = interp;
+        s.fill_value = -5;
+        const auto cpu = Slicer(*v, probe, s).slice<float>(poses);
+        const auto gpu = Slicer(*v, probe, s, kCuda).slice<float>(poses);
+        const Diff d = compare(cpu, gpu);
+        SCOPED_TRACE(pixel_type_name(v->pixel_type()) + " " + probe.describe() + " " +
+                     interpolation_name(interp));
+        std::printf("[ cuda vs cpu ] %s %s %s: max |difference| %.3g (%.3g of the range)\n",
+                    pixel_type_name(v->pixel_type()).c_str(),
+                    probe.type == ProbeType::Linear ? "linear" : "fan", interpolation_name(interp).c_str(),
+                    d.max_abs, d.max_abs / (range.second - range.first));
+        if (interp == Interpolation::Nearest)
+          EXPECT_EQ(d.differing, 0u);
+        else
+          EXPECT_LE(d.max_abs, 1e-4 * (range.second - range.first));
+      }
+    }
+  }
+}
+
+// Integer outputs saturate the same way on the GPU.
+TEST_F(Cuda, IntegerOutputsMatchCpu) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const auto poses = phantom_random_poses(20, 4);
+  for (PixelType t : {PixelType::Int16, PixelType::UInt8, PixelType::UInt16}) {
+    SliceSettings s;
+    s.output_type = t;
+    std::vector<unsigned char> cpu(20 * half_w1().image.pixel_count() * pixel_size(t));
+    std::vector<unsigned char> gpu(cpu.size());
+    Slicer(ph.ct, half_w1(), s).slice(poses.data(), poses.size(), cpu.data());
+    Slicer(ph.ct, half_w1(), s, kCuda).slice(poses.data(), poses.size(), gpu.data());
+    // Rounding ties may differ by one unit where the lerps round differently (FMA).
+    size_t off_by_more = 0;
+    visit_pixel_type(t, [&](auto zero) {
+      using T = decltype(zero);
+      const T* a = reinterpret_cast<const T*>(cpu.data());
+      const T* b = reinterpret_cast<const T*>(gpu.data());
+      for (size_t i = 0; i < cpu.size() / sizeof(T); ++i) off_by_more += std::abs(int(a[i]) - int(b[i])) > 1;
+    });
+    EXPECT_EQ(off_by_more, 0u) << pixel_type_name(t);
+  }
+}
+
+// Output kept on the GPU, copied back, and written into caller-owned GPU memory.
+TEST_F(Cuda, DeviceResidentOutputs) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const auto poses = phantom_random_poses(40, 8);
+  const ProbeGeometry probe = half_w1();
+  const Slicer cpu(ph.ct, probe);
+  const Slicer gpu(ph.ct, probe, {}, kCuda);
+  const auto expected = cpu.slice<float>(poses);
+
+  const DeviceImages images = gpu.slice_on_device(poses.data(), poses.size());
+  ASSERT_NE(images.data, nullptr);
+  EXPECT_EQ(images.count, 40);
+  EXPECT_EQ(images.height, probe.image.height);
+  EXPECT_EQ(images.width, probe.image.width);
+  EXPECT_EQ(images.bytes(), expected.size() * sizeof(float));
+  std::vector<float> back(expected.size());
+  images.copy_to_host(back.data());
+  EXPECT_LE(compare(expected, back).max_abs, 0.05);  // HU; FMA-level differences
+
+  // Caller-owned device memory: here, another slicer's buffer of the right size.
+  const Slicer other(ph.ct, probe, {}, kCuda);
+  const DeviceImages target = other.slice_on_device(poses.data(), poses.size());
+  target.synchronize();
+  std::vector<Pose> shifted = poses;
+  for (Pose& p : shifted) p.m[2][3] += 10;
+  gpu.slice_into_device(shifted.data(), shifted.size(), target.data);
+  std::vector<float> into(expected.size());
+  DeviceImages view = target;
+  view.stream = images.stream;  // queued on the slicer's own stream
+  view.copy_to_host(into.data());
+  EXPECT_LE(compare(cpu.slice<float>(shifted), into).max_abs, 0.05);
+
+  EXPECT_THROW(cpu.slice_on_device(poses.data(), 1), InputError);
+}
+
+// A batch far larger than one GPU chunk streams through in pieces, copies overlapping kernels.
+TEST_F(Cuda, LargeBatchStreamsInChunks) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const auto poses = phantom_random_poses(3000, 12);
+  const ProbeGeometry probe = workload_w2_linear_probe();  // 800 kB per image: 3000 = 2.4 GB
+  const Slicer gpu(ph.ct, probe, {}, kCuda);
+  std::vector<float> out(poses.size() * size_t(probe.image.pixel_count()));
+  gpu.slice(poses.data(), poses.size(), out.data());
+  // Check the first, a middle and the last images against the CPU.
+  const Slicer cpu(ph.ct, probe);
+  for (size_t n : {size_t(0), size_t(1499), size_t(2999)}) {
+    const auto one = cpu.slice<float>({poses[n]});
+    const std::vector<float> got(out.begin() + std::ptrdiff_t(n * one.size()),
+                                 out.begin() + std::ptrdiff_t((n + 1) * one.size()));
+    EXPECT_LE(compare(one, got).max_abs, 0.05) << "image " << n;
+  }
+}
+
+// A CUDA build on a machine without a GPU: says so, and slices on the CPU as ever.
+TEST(CudaAvailability, CpuOnlyMachineSaysNotAvailable) {
+  std::string why;
+  if (gpu_available(&why)) GTEST_SKIP() << "a GPU is present";
+  EXPECT_NE(describe_devices().find("cuda: not available"), std::string::npos) << describe_devices();
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  try {
+    Slicer(ph.ct, half_w1(), {}, kCuda);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_TRUE(m.find("cuda:0: not available") != std::string::npos ||
+                m.find("built without CUDA") != std::string::npos)
+        << m;
+  }
+  EXPECT_EQ(Slicer(ph.ct, half_w1()).slice<float>(phantom_random_poses(2)).size(),
+            size_t(2 * half_w1().image.pixel_count()));
+}
+
+}  // namespace
+}  // namespace sonoslice
