@@ -2,8 +2,8 @@
 # Installs the Debian (bookworm) packages sonoslice builds and tests with. Idempotent: packages
 # already present are not fetched again. Needs root (or sudo).
 #   scripts/install-deps.sh          build + test dependencies
-#   scripts/install-deps.sh --bench  also the peers of bench/peers.py (Debian's python3-torch,
-#                                    python3-vtk9, python3-scipy, python3-nibabel for /usr/bin/python3)
+#   scripts/install-deps.sh --bench  also the peers of bench/peers.py (Debian's python3-vtk9,
+#                                    python3-scipy, python3-nibabel for /usr/bin/python3)
 set -euo pipefail
 
 packages=(
@@ -13,9 +13,10 @@ packages=(
   zlib1g-dev
   nlohmann-json3-dev libcli11-dev
   googletest libgtest-dev libbenchmark-dev
+  python3-venv python3-numpy python3-pytest python3-tqdm python3-torch   # the Python package's tests
 )
 if [[ "${1:-}" == "--bench" ]]; then
-  packages+=(python3-numpy python3-torch python3-vtk9 python3-scipy python3-nibabel)
+  packages+=(python3-vtk9 python3-scipy python3-nibabel)
 fi
 
 missing=()

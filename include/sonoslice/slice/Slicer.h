@@ -54,6 +54,7 @@ class Slicer {
   const Volume& volume() const { return volume_; }
   const ProbeGeometry& probe() const { return probe_; }
   const SliceSettings& settings() const { return settings_; }
+  const Device& device() const { return device_; }
   int width() const { return probe_.image.width; }
   int height() const { return probe_.image.height; }
   /// The H×W fan mask (1 inside the probe shape), row-major.

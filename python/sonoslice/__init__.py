@@ -1,0 +1,409 @@
+"""sonoslice: fast ultrasound-shaped images from 3D medical volumes, on CPU threads or CUDA.
+
+Conventions (the repository's SPEC.md):
+
+* World frame: the physical space of the volume as ITK defines it (LPS: x towards the patient's
+  left, y posterior, z superior), millimetres. ``world="RAS"`` accepts poses from 3D Slicer or
+  nibabel.
+* A pose is a 4×4 matrix mapping probe millimetres to world millimetres: column 0 the lateral
+  axis (image columns), column 1 the axial/depth axis (image rows), column 3 the probe origin.
+* Pixel ``(u, v)`` (column, row) of an image sits at probe ``(x0 + u·sx, y0 + v·sy, 0)``.
+* Arrays are C-order: a volume is ``(nz, ny, nx)``, a batch of images ``(N, H, W)``.
+
+Importing this package never touches a GPU; a slicer on ``"cuda"`` starts it.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _sonoslice as _ext
+
+__all__ = [
+    "Volume", "Probe", "Slicer", "devices", "cuda_available", "set_threads", "threads",
+    "read_poses", "write_poses", "validate_poses", "write_stack", "phantom", "phantom_poses",
+    "surface_poses", "PHANTOM_LABELS", "__version__",
+]
+__version__ = "0.1.0"
+
+_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
+_OUTPUT_DTYPES = ("float32", "int16", "uint8", "uint16")
+
+
+def _is_torch(x) -> bool:
+    return type(x).__module__.startswith("torch")
+
+
+def _as_pose_array(poses, world: str = "LPS") -> np.ndarray:
+    """(N, 4, 4) float64 C-contiguous probe→world matrices in LPS, from NumPy or torch."""
+    if _is_torch(poses):
+        poses = poses.detach().cpu().numpy()
+    a = np.asarray(poses, dtype=np.float64)
+    if a.shape == (4, 4):
+        a = a[None]
+    if a.ndim != 3 or a.shape[1:] != (4, 4):
+        raise ValueError(f"poses: expected shape (N, 4, 4) or (4, 4), got {a.shape}")
+    world = world.upper()
+    if world == "RAS":
+        a = a * np.array([-1.0, -1.0, 1.0, 1.0])[None, :, None]  # diag(-1, -1, 1, 1) · T
+    elif world != "LPS":
+        raise ValueError(f"world frame {world!r}: expected 'LPS' or 'RAS'")
+    return np.ascontiguousarray(a)
+
+
+class Volume:
+    """A 3D volume in its stored pixel type with its world geometry.
+
+    ``Volume(array, spacing, origin, direction)`` wraps a C-contiguous ``(nz, ny, nx)`` array of
+    uint8, int8, uint16, int16, uint32, int32, float32 or float64 **without copying it** (NumPy
+    arrays, or CPU torch tensors through DLPack): the volume keeps the array alive and sees
+    changes made to it. A non-contiguous array raises ``ValueError``; pass
+    ``numpy.ascontiguousarray(a)`` to copy it on purpose.
+
+    Geometry (SPEC §1): voxel ``(i, j, k)`` = ``array[k, j, i]`` has its centre at
+    ``origin + direction @ (spacing * (i, j, k))`` (mm, LPS); ``direction`` holds the index axes
+    as columns.
+    """
+
+    def __init__(self, array, spacing: Sequence[float] = (1.0, 1.0, 1.0),
+                 origin: Sequence[float] = (0.0, 0.0, 0.0), direction=None):
+        d = np.eye(3) if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3)
+        self._cpp = _ext.Volume.from_array(array, tuple(map(float, spacing)), tuple(map(float, origin)),
+                                           tuple(d.ravel().tolist()))
+
+    @classmethod
+    def _wrap(cls, cpp) -> "Volume":
+        v = cls.__new__(cls)
+        v._cpp = cpp
+        return v
+
+    @classmethod
+    def from_file(cls, path, *, spacing=None, origin=None, direction=None, series: Optional[str] = None,
+                  npy_config=None) -> "Volume":
+        """Reads NIfTI (.nii, .nii.gz), MetaImage (.mha, .mhd), NRRD (.nrrd, .nhdr), a DICOM
+        series (a directory; ``series`` picks one by SeriesInstanceUID, default the largest) or
+        NumPy .npy (geometry from ``spacing``/``origin``/``direction``, else a sidecar
+        ``<name>.json``; ``npy_config``: fan-slicer's volume config). Voxels keep their stored
+        type. Missing or corrupt files raise ``OSError``; bad values ``ValueError``."""
+        d = None if direction is None else tuple(np.asarray(direction, dtype=np.float64).ravel().tolist())
+        return cls._wrap(_ext.Volume.from_file(
+            str(path), None if spacing is None else tuple(map(float, spacing)),
+            None if origin is None else tuple(map(float, origin)), d, series or "",
+            "" if npy_config is None else str(npy_config)))
+
+    @property
+    def array(self) -> np.ndarray:
+        """The voxels as a ``(nz, ny, nx)`` NumPy view (no copy)."""
+        return self._cpp.array()
+
+    @property
+    def spacing(self) -> Tuple[float, float, float]:
+        """Voxel size along i, j, k (mm)."""
+        return tuple(self._cpp.spacing)
+
+    @property
+    def origin(self) -> Tuple[float, float, float]:
+        """World position of voxel (0, 0, 0)'s centre (mm, LPS)."""
+        return tuple(self._cpp.origin)
+
+    @property
+    def direction(self) -> np.ndarray:
+        """3×3 matrix whose columns are the index axes in world coordinates."""
+        return np.array(self._cpp.direction, dtype=np.float64).reshape(3, 3)
+
+    @property
+    def shape(self) -> Tuple[int, int, int]:
+        """(nz, ny, nx)."""
+        return tuple(self._cpp.shape)
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype(self._cpp.dtype)
+
+    @property
+    def nbytes(self) -> int:
+        return self._cpp.nbytes
+
+    def value_range(self) -> Tuple[float, float]:
+        """(min, max) of the voxels, NaN ignored."""
+        return tuple(self._cpp.value_range())
+
+    def astype(self, dtype) -> "Volume":
+        """A converted copy (integers round and saturate)."""
+        return Volume._wrap(self._cpp.converted(np.dtype(dtype).name))
+
+    def save(self, path) -> None:
+        """Writes .nii[.gz], .mha, .nrrd... through ITK, or .npy with a sidecar .json; atomically."""
+        self._cpp.save(str(path))
+
+    def world_to_index(self, point_mm: Sequence[float]) -> np.ndarray:
+        """Continuous voxel index (i, j, k) of a world point (mm, LPS)."""
+        return np.array(self._cpp.world_to_index(tuple(map(float, point_mm))))
+
+    def index_to_world(self, index: Sequence[float]) -> np.ndarray:
+        """World position (mm, LPS) of a continuous voxel index (i, j, k)."""
+        return np.array(self._cpp.index_to_world(tuple(map(float, index))))
+
+    def __repr__(self) -> str:
+        nz, ny, nx = self.shape
+        return (f"Volume({nx}x{ny}x{nz} {self._cpp.dtype}, spacing={self.spacing} mm, "
+                f"origin={self.origin} mm)")
+
+
+class Probe:
+    """A probe shape and its image grid (SPEC §3). Build one with :meth:`curvilinear`,
+    :meth:`linear`, :meth:`from_json` or :meth:`from_fanslicer`."""
+
+    def __init__(self, cpp):
+        self._cpp = cpp
+
+    @classmethod
+    def curvilinear(cls, radius_mm: float, depth_mm: float, sector_deg: float, width: int, height: int,
+                    spacing_mm: Union[float, Sequence[float]], face_y_mm: float = 0.0,
+                    origin_mm: Optional[Sequence[float]] = None) -> "Probe":
+        """A convex fan: apex at ``(0, face_y_mm - radius_mm)``; a pixel is inside when its
+        distance r from the apex is in [R, R + depth] and its angle within ±sector/2.
+        ``origin_mm`` = probe coordinates of pixel (0, 0) (default: centred laterally, y = 0)."""
+        s = (float(spacing_mm),) * 2 if np.isscalar(spacing_mm) else tuple(map(float, spacing_mm))
+        return cls(_ext.Probe.curvilinear(float(radius_mm), float(depth_mm), float(sector_deg), int(width),
+                                          int(height), s, float(face_y_mm),
+                                          None if origin_mm is None else tuple(map(float, origin_mm))))
+
+    @classmethod
+    def linear(cls, width: int, height: int, spacing_mm: Union[float, Sequence[float]],
+               width_mm: Optional[float] = None, depth_mm: Optional[float] = None, face_y_mm: float = 0.0,
+               origin_mm: Optional[Sequence[float]] = None) -> "Probe":
+        """A linear array: inside where ``|x| <= width_mm/2`` and ``0 <= y - face_y_mm <= depth_mm``
+        (either limit optional; without them the whole image is inside)."""
+        s = (float(spacing_mm),) * 2 if np.isscalar(spacing_mm) else tuple(map(float, spacing_mm))
+        return cls(_ext.Probe.linear(int(width), int(height), s, width_mm, depth_mm, float(face_y_mm),
+                                     None if origin_mm is None else tuple(map(float, origin_mm))))
+
+    @classmethod
+    def from_json(cls, path, downsampling: int = 1) -> "Probe":
+        """A native probe JSON or a fan-slicer configuration (recognised by its "simulation" key)."""
+        return cls(_ext.Probe.from_file(str(path), int(downsampling)))
+
+    @classmethod
+    def from_fanslicer(cls, path, downsampling: int = 1) -> "Probe":
+        """A fan-slicer configuration file, unchanged (SPEC §4): image size divided by
+        ``downsampling`` (floor), pixel size multiplied by it."""
+        import json
+        with open(path) as f:
+            if "simulation" not in json.load(f):
+                raise ValueError(f"fan-slicer config '{path}': no \"simulation\" block")
+        return cls(_ext.Probe.from_file(str(path), int(downsampling)))
+
+    @classmethod
+    def workload(cls, name: str) -> "Probe":
+        """The benchmark probes: "W1" (fan-slicer's LUS fan at downsampling 2, 334×272) or
+        "W2" (fan-slicer's linear probe, 400×500)."""
+        return cls(_ext.Probe.workload(name))
+
+    def to_json(self) -> str:
+        return self._cpp.to_json()
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) uint8: 1 where the pixel centre is inside the probe shape."""
+        return self._cpp.mask()
+
+    type = property(lambda self: self._cpp.type, doc='"curvilinear" or "linear"')
+    width = property(lambda self: self._cpp.width, doc="image columns W")
+    height = property(lambda self: self._cpp.height, doc="image rows H")
+    spacing_mm = property(lambda self: tuple(self._cpp.spacing_mm), doc="(sx, sy) mm")
+    origin_mm = property(lambda self: tuple(self._cpp.origin_mm), doc="probe (x, y) of pixel (0, 0), mm")
+    radius_mm = property(lambda self: self._cpp.radius_mm)
+    depth_mm = property(lambda self: self._cpp.depth_mm)
+    sector_deg = property(lambda self: self._cpp.sector_deg)
+    face_y_mm = property(lambda self: self._cpp.face_y_mm)
+
+    def __repr__(self) -> str:
+        return f"Probe({self._cpp.describe()})"
+
+
+def _torch_dtype(name: str):
+    import torch
+    t = {"float32": torch.float32, "int16": torch.int16, "uint8": torch.uint8,
+         "uint16": getattr(torch, "uint16", None)}[name]
+    if t is None:
+        raise ValueError(f"dtype {name}: this torch has no such tensor type; use int16 or float32")
+    return t
+
+
+def _tqdm_callback(total: int):
+    try:
+        from tqdm.auto import tqdm
+    except ImportError as e:
+        raise RuntimeError("progress=True needs tqdm (pip install tqdm); or pass a callable") from e
+    bar = tqdm(total=total, unit="img", desc="slicing")
+
+    def update(done, _total):
+        bar.update(done - bar.n)
+        if done >= _total:
+            bar.close()
+    return update
+
+
+class Slicer:
+    """Slices a volume with a probe on one device ("cpu", "cuda", "cuda:K").
+
+    On CUDA the volume is uploaded once, in its own pixel type, and stays on the GPU for the
+    slicer's life. ``interp``: "linear" (trilinear) or "nearest" (labels); ``fill``: value outside
+    the probe shape or the volume; ``dtype``: "float32", "int16", "uint8" or "uint16" (integers
+    round and saturate). The GIL is released while slicing.
+    """
+
+    def __init__(self, volume: Volume, probe: Probe, device: str = "cpu", interp: str = "linear",
+                 fill: float = 0.0, dtype: str = "float32"):
+        if not isinstance(volume, Volume):
+            raise TypeError("volume: expected a sonoslice.Volume")
+        if not isinstance(probe, Probe):
+            raise TypeError("probe: expected a sonoslice.Probe")
+        self.volume, self.probe = volume, probe
+        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), interp, float(fill), str(dtype))
+
+    device = property(lambda self: self._cpp.device, doc='"cpu" or "cuda:K"')
+    dtype = property(lambda self: self._cpp.dtype)
+    width = property(lambda self: self._cpp.width)
+    height = property(lambda self: self._cpp.height)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) uint8 probe mask."""
+        return self._cpp.mask()
+
+    def slice(self, poses, out=None, *, mask: bool = False,
+              progress: Union[None, bool, Callable[[int, int], None]] = None, world: str = "LPS",
+              stream: Optional[int] = None, chunk: Optional[int] = None):
+        """Images of the probe at ``poses``: (N, 4, 4) or (4, 4) probe→world matrices (mm), NumPy or
+        torch. Returns an (N, H, W) array of the slicer's dtype (and the (H, W) mask when
+        ``mask=True``):
+
+        * ``out`` given (NumPy array, torch tensor, or any CUDA array with DLPack): filled in place,
+          no copy, and returned. CUDA arrays must sit on the slicer's GPU.
+        * otherwise on the CPU: a new NumPy array (a torch tensor if ``poses`` is one);
+          on CUDA: a new torch tensor on the slicer's GPU (torch required).
+
+        CUDA work is queued on ``stream`` (a raw cudaStream_t), by default torch's current stream
+        for torch tensors, so later torch operations see the images without a synchronisation.
+        ``progress``: True for a tqdm bar, or a callable ``(done, total)``.
+        """
+        p = _as_pose_array(poses, world)
+        n = p.shape[0]
+        on_gpu = self.device.startswith("cuda")
+        if out is None:
+            if on_gpu:
+                try:
+                    import torch
+                except ImportError as e:
+                    raise RuntimeError("CUDA output needs PyTorch; or pass out= a CUDA array (DLPack)") from e
+                out = torch.empty((n, self.height, self.width), dtype=_torch_dtype(self.dtype), device=self.device)
+            elif _is_torch(poses):
+                import torch
+                out = torch.empty((n, self.height, self.width), dtype=_torch_dtype(self.dtype))
+            else:
+                out = np.empty((n, self.height, self.width), dtype=self.dtype)
+        if stream is None:
+            stream = 0
+            if _is_torch(out) and out.is_cuda:
+                import torch
+                stream = torch.cuda.current_stream(out.device).cuda_stream
+        callback = None
+        if progress is True:
+            callback = _tqdm_callback(n)
+        elif callable(progress):
+            callback = progress
+        if chunk is None:
+            chunk = max(64, math.ceil(n / 100)) if callback else 0
+        self._cpp.slice_into(p, out, stream, callback, int(chunk))
+        if not mask:
+            return out
+        m = self.mask
+        if _is_torch(out):
+            import torch
+            m = torch.from_numpy(m).to(out.device)
+        return out, m
+
+    def __call__(self, poses, **kwargs):
+        return self.slice(poses, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"Slicer({self.probe!r} on {self.device}, {self._cpp.interp}, {self.dtype})"
+
+
+# ---- devices, threads ------------------------------------------------------------------------
+def devices() -> str:
+    """One line per compute device (CPU threads and kernels; CUDA GPUs or why there are none)."""
+    return _ext.describe_devices()
+
+
+def cuda_available(device: str = "cuda:0") -> bool:
+    """True when this build has CUDA and ``device`` is a usable GPU (starts the CUDA runtime)."""
+    try:
+        _ext.require_device(device)
+        return True
+    except (RuntimeError, ValueError):
+        return False
+
+
+def set_threads(n: int) -> None:
+    """CPU threads for slicing (0: all hardware threads)."""
+    _ext.set_cpu_threads(int(n))
+
+
+def threads() -> int:
+    return _ext.cpu_threads()
+
+
+# ---- poses, files ----------------------------------------------------------------------------
+def read_poses(path, world: str = "LPS") -> np.ndarray:
+    """(N, 4, 4) float64 poses from .npy ((N,4,4) or fan-slicer's (4,4N)), .txt/.csv (16 or 12
+    numbers a line) or .json; validated, converted to LPS."""
+    return _ext.read_poses(str(path), world)
+
+
+def write_poses(path, poses) -> None:
+    """Writes (N, 4, 4) poses as .npy or text (16 numbers a line), atomically."""
+    _ext.write_poses(str(path), _as_pose_array(poses))
+
+
+def validate_poses(poses, source: str = "poses") -> None:
+    """Raises ValueError naming the first bad pose (SPEC §2); warns once for non-orthonormal ones."""
+    _ext.validate_poses(_as_pose_array(poses), source)
+
+
+def write_stack(path, images, spacing_mm: Sequence[float], window: Optional[Sequence[float]] = None,
+                poses=None, mask=None) -> None:
+    """Writes an (N, H, W) batch (SPEC §6): .nii[.gz]/.mha/.nrrd (W×H×N, spacing (sx, sy, 1)),
+    .npy, or a directory of PNGs (``window`` = (level, width), default robust auto) + poses.txt."""
+    if _is_torch(images):
+        images = images.detach().cpu().numpy()
+    images = np.ascontiguousarray(images)
+    _ext.write_stack(str(path), images, tuple(map(float, spacing_mm)),
+                     None if window is None else tuple(map(float, window)),
+                     None if poses is None else _as_pose_array(poses),
+                     None if mask is None else np.ascontiguousarray(mask, dtype=np.uint8))
+
+
+# ---- the built-in phantom ----------------------------------------------------------------------
+PHANTOM_LABELS = tuple(_ext.phantom_label_names())
+
+
+def phantom(size: str = "small") -> Tuple[Volume, Volume]:
+    """The deterministic CT-like abdominal phantom: (CT in HU as int16, labels as uint8; see
+    PHANTOM_LABELS). "small": 128×128×100 at 3.2×3.2×4 mm; "full": 512×512×400 at 0.8×0.8×1 mm."""
+    ct, labels = _ext.make_phantom(size)
+    return Volume._wrap(ct), Volume._wrap(labels)
+
+
+def phantom_poses(count: int, seed: int = 2024) -> np.ndarray:
+    """(count, 4, 4) random poses inside the phantom's body (the benchmarks' poses)."""
+    return _ext.phantom_random_poses(int(count), int(seed))
+
+
+def surface_poses(count: int, face_y_mm: float = 0.0) -> np.ndarray:
+    """(count, 4, 4) poses with the probe face on the phantom's skin, aimed at the liver."""
+    return _ext.phantom_surface_poses(int(count), float(face_y_mm))

@@ -1,0 +1,47 @@
+import os
+
+import numpy as np
+import pytest
+
+import sonoslice
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SHARED = os.path.join(ROOT, "..", "shared", "data")
+
+
+@pytest.fixture(scope="session")
+def phantom():
+    return sonoslice.phantom("small")
+
+
+@pytest.fixture(scope="session")
+def poses():
+    return sonoslice.phantom_poses(12, seed=3)
+
+
+@pytest.fixture(scope="session")
+def shared():
+    path = os.path.join(SHARED, "fanslicer")
+    if not os.path.isdir(path):
+        pytest.skip("../shared/data not found next to the repository")
+    return path
+
+
+@pytest.fixture(scope="session")
+def cli():
+    path = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonoslice"))
+    if not os.access(path, os.X_OK):
+        pytest.skip(f"the sonoslice CLI is not built at {path} (set SONOSLICE_CLI)")
+    return path
+
+
+@pytest.fixture
+def cuda():
+    if not sonoslice.cuda_available():
+        pytest.skip("cuda: not available (" + sonoslice.devices().strip().splitlines()[-1] + ")")
+    return "cuda:0"
+
+
+def small_probe():
+    return sonoslice.Probe.curvilinear(radius_mm=20, depth_mm=60, sector_deg=60, width=96, height=80,
+                                       spacing_mm=0.8)

@@ -1,0 +1,189 @@
+"""The Python API over the C++ objects: round trips, dtypes, layouts, zero copies, errors."""
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import sonoslice
+from conftest import small_probe
+
+DTYPES = ["uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64"]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_volume_from_array_is_a_zero_copy_view(dtype):
+    a = (np.arange(4 * 5 * 6) % 100).astype(dtype).reshape(4, 5, 6)
+    v = sonoslice.Volume(a, spacing=(0.5, 0.6, 0.7), origin=(1, 2, 3))
+    assert v.shape == (4, 5, 6) and v.dtype == np.dtype(dtype)
+    assert np.shares_memory(v.array, a)
+    a[1, 2, 3] = 42
+    assert v.array[1, 2, 3] == 42  # the volume sees the caller's array
+    assert v.spacing == (0.5, 0.6, 0.7) and v.origin == (1.0, 2.0, 3.0)
+    assert np.array_equal(v.direction, np.eye(3))
+
+
+def test_volume_layout_and_dtype_errors():
+    a = np.zeros((4, 5, 6), np.float32)
+    with pytest.raises(ValueError, match="not C-contiguous"):
+        sonoslice.Volume(a[:, :, ::2])
+    with pytest.raises(ValueError, match="not C-contiguous"):
+        sonoslice.Volume(np.asfortranarray(a))
+    with pytest.raises(ValueError, match="3 dimensions"):
+        sonoslice.Volume(a[0])
+    with pytest.raises(ValueError, match="unsupported dtype"):
+        sonoslice.Volume(a.astype(np.complex64))
+    with pytest.raises(ValueError, match="spacing"):
+        sonoslice.Volume(a, spacing=(1, 0, 1))
+    # An explicit copy is the documented way round.
+    v = sonoslice.Volume(np.ascontiguousarray(a[:, :, ::2]))
+    assert v.shape == (4, 5, 3)
+
+
+def test_volume_file_round_trip_keeps_geometry(tmp_path, phantom):
+    ct, _ = phantom
+    d = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], float)
+    v = sonoslice.Volume(np.ascontiguousarray(ct.array[:20]), spacing=(0.9, 1.1, 2.5), origin=(-5, 6, 7), direction=d)
+    for name in ("v.nii.gz", "v.mha", "v.npy"):
+        v.save(tmp_path / name)
+        back = sonoslice.Volume.from_file(tmp_path / name)
+        assert back.dtype == np.int16 and back.shape == v.shape
+        assert np.allclose(back.spacing, v.spacing) and np.allclose(back.origin, v.origin, atol=1e-4)
+        assert np.allclose(back.direction, d, atol=1e-6)
+        assert np.array_equal(back.array, v.array)
+    assert np.allclose(v.index_to_world(v.world_to_index([1, 2, 3])), [1, 2, 3])
+
+
+def test_errors_map_to_python_exceptions(tmp_path, phantom, poses):
+    ct, _ = phantom
+    with pytest.raises(OSError, match="no such file"):
+        sonoslice.Volume.from_file(tmp_path / "missing.nii.gz")
+    (tmp_path / "bad.json").write_text('{"type": "linear", "image": {"width": 5, "height": 5, "spacing": [1, 1]}}')
+    with pytest.raises(ValueError, match="unknown key 'spacing'"):
+        sonoslice.Probe.from_json(tmp_path / "bad.json")
+    bad = poses.copy()
+    bad[3, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="pose 3"):
+        sonoslice.Slicer(ct, small_probe()).slice(bad)
+    with pytest.raises(ValueError, match="interpolation 'cubic'"):
+        sonoslice.Slicer(ct, small_probe(), interp="cubic")
+    with pytest.raises(ValueError, match="expected shape"):
+        sonoslice.Slicer(ct, small_probe()).slice(np.zeros((3, 3)))
+    if not sonoslice.cuda_available():
+        with pytest.raises(RuntimeError, match="cuda:0: not available"):
+            sonoslice.Slicer(ct, small_probe(), device="cuda")
+
+
+def test_probes(shared):
+    w1 = sonoslice.Probe.from_fanslicer(os.path.join(shared, "models_intensity_LUS_config.json"), downsampling=2)
+    assert (w1.width, w1.height, w1.type) == (334, 272, "curvilinear")
+    assert w1.spacing_mm == pytest.approx((0.247, 0.247))
+    assert np.array_equal(w1.mask, sonoslice.Probe.workload("W1").mask)
+    lin = sonoslice.Probe.from_json(os.path.join(shared, "linear_config.json"))
+    assert lin.type == "linear" and lin.mask.all()
+    fan = sonoslice.Probe.curvilinear(46.93, 64.96, 36, 334, 272, 0.247, face_y_mm=2.1, origin_mm=(-41.25, 0))
+    assert fan.origin_mm == (-41.25, 0.0)
+    again = sonoslice.Probe.from_json  # native JSON round trip
+    assert fan.to_json().startswith("{")
+    with pytest.raises(ValueError, match="no \"simulation\" block"):
+        import tempfile
+        with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as f:
+            f.write(fan.to_json())
+        sonoslice.Probe.from_fanslicer(f.name)
+    del again
+
+
+def test_slicing_matches_the_cli_library_path_and_dtypes(phantom, poses):
+    ct, labels = phantom
+    probe = sonoslice.Probe.workload("W1")
+    images, mask = sonoslice.Slicer(ct, probe).slice(poses, mask=True)
+    assert images.shape == (12, 272, 334) and images.dtype == np.float32
+    assert mask.shape == (272, 334) and mask.dtype == np.uint8
+    assert (images[:, mask == 0] == 0).all()  # fill outside the fan
+    inside = images[:, mask == 1]
+    assert inside.min() < -500 and inside.max() > 0  # real CT values: air and tissue
+    for dtype in ("int16", "uint8", "uint16"):
+        out = sonoslice.Slicer(ct, probe, dtype=dtype, fill=-1).slice(poses)
+        assert out.dtype == np.dtype(dtype)
+    lab = sonoslice.Slicer(labels, probe, interp="nearest", dtype="uint8").slice(poses)
+    assert set(np.unique(lab)) <= set(range(len(sonoslice.PHANTOM_LABELS)))
+    # One pose as a 4x4, RAS poses, torch poses.
+    one = sonoslice.Slicer(ct, probe).slice(poses[0])
+    assert np.array_equal(one[0], images[0])
+    ras = poses.copy()
+    ras[:, :2, :] *= -1
+    assert np.array_equal(sonoslice.Slicer(ct, probe).slice(ras, world="RAS"), images)
+
+
+def test_out_arrays_are_filled_without_copies(phantom, poses):
+    ct, _ = phantom
+    s = sonoslice.Slicer(ct, small_probe())
+    out = np.full((12, 80, 96), 7.0, np.float32)
+    address = out.__array_interface__["data"][0]
+    r = s.slice(poses, out=out)
+    assert r is out and out.__array_interface__["data"][0] == address
+    assert np.array_equal(out, s.slice(poses))
+    with pytest.raises(ValueError, match="expected shape"):
+        s.slice(poses, out=np.empty((11, 80, 96), np.float32))
+    with pytest.raises(ValueError, match="dtype must be float32"):
+        s.slice(poses, out=np.empty((12, 80, 96), np.float64))
+    with pytest.raises(ValueError, match="C-contiguous"):
+        s.slice(poses, out=np.empty((12, 80, 192), np.float32)[:, :, ::2])
+
+
+def test_progress_callback_and_chunks(phantom):
+    ct, _ = phantom
+    s = sonoslice.Slicer(ct, small_probe())
+    seen = []
+    poses = sonoslice.phantom_poses(300)
+    images = s.slice(poses, progress=lambda done, total: seen.append((done, total)), chunk=64)
+    assert seen == [(64, 300), (128, 300), (192, 300), (256, 300), (300, 300)]
+    assert np.array_equal(images, s.slice(poses))
+
+
+def test_progress_bar_with_tqdm(phantom, capsys):
+    pytest.importorskip("tqdm")
+    ct, _ = phantom
+    sonoslice.Slicer(ct, small_probe()).slice(sonoslice.phantom_poses(200), progress=True)
+    assert "200/200" in capsys.readouterr().err
+
+
+def test_gil_is_released_while_slicing():
+    ct, _ = sonoslice.phantom("full")
+    s = sonoslice.Slicer(ct, sonoslice.Probe.workload("W2"))
+    poses = sonoslice.phantom_poses(600)
+    ticks = []
+    worker = threading.Thread(target=lambda: s.slice(poses))
+    worker.start()
+    while worker.is_alive():
+        ticks.append(time.perf_counter())
+        time.sleep(0.005)
+    worker.join()
+    # The main thread kept running Python code during the C++ call.
+    assert len(ticks) > 10
+
+
+def test_write_stack_and_poses(tmp_path, phantom, poses):
+    ct, _ = phantom
+    s = sonoslice.Slicer(ct, small_probe())
+    images = s.slice(poses)
+    sonoslice.write_stack(tmp_path / "s.nii.gz", images, (0.8, 0.8))
+    back = sonoslice.Volume.from_file(tmp_path / "s.nii.gz")
+    assert back.shape == (12, 80, 96) and np.array_equal(back.array, images)
+    sonoslice.write_stack(tmp_path / "pngs", images, (0.8, 0.8), window=(40, 400), poses=poses)
+    assert (tmp_path / "pngs" / "img_00011.png").exists()
+    sonoslice.write_poses(tmp_path / "p.txt", poses)
+    assert np.allclose(sonoslice.read_poses(tmp_path / "p.txt"), poses)
+    with pytest.warns(UserWarning, match="not orthonormal"):
+        stretched = poses.copy()
+        stretched[:, :3, 0] *= 1.01
+        sonoslice.validate_poses(stretched)
+
+
+def test_devices_report():
+    text = sonoslice.devices()
+    assert text.startswith("cpu: ") and "cuda" in text
+    sonoslice.set_threads(1)
+    assert sonoslice.threads() == 1
+    sonoslice.set_threads(0)
