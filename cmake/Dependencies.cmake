@@ -43,6 +43,21 @@ if(NOT SONOSLICE_WITH_ITK STREQUAL "OFF")
   endif()
 endif()
 
+# VTK: surface meshes. AUTO = use it when found.
+set(SONOSLICE_HAVE_VTK OFF)
+if(NOT SONOSLICE_WITH_VTK STREQUAL "OFF")
+  set(_vtk_components CommonCore CommonDataModel CommonExecutionModel IOLegacy IOXML IOGeometry IOPLY
+                      FiltersCore)
+  if(SONOSLICE_WITH_VTK STREQUAL "AUTO")
+    find_package(VTK QUIET COMPONENTS ${_vtk_components})
+  else()
+    find_package(VTK REQUIRED COMPONENTS ${_vtk_components})
+  endif()
+  if(VTK_FOUND)
+    set(SONOSLICE_HAVE_VTK ON)
+  endif()
+endif()
+
 # GoogleTest: an installed package, else the sources Debian's googletest package puts in
 # /usr/src/googletest (or any copy named by SONOSLICE_GTEST_SOURCE_DIR, e.g. carried to the GPU
 # machine).

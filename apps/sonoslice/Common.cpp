@@ -101,25 +101,6 @@ int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes) {
       1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
 }
 
-double slice_into(const Slicer& slicer, const std::vector<Pose>& poses, StackWriter& writer,
-                  int64_t chunk, ProgressBar& progress, double* write_seconds) {
-  const int64_t n = int64_t(poses.size());
-  double slicing = 0, writing = 0;
-  for (int64_t first = 0; first < n; first += chunk) {
-    const int64_t count = std::min(chunk, n - first);
-    void* out = writer.buffer(first, count);
-    Stopwatch s;
-    slicer.slice(poses.data() + first, size_t(count), out, size_t(first));
-    slicing += s.seconds();
-    Stopwatch w;
-    writer.write(first, count);
-    writing += w.seconds();
-    progress.update(first + count);
-  }
-  if (write_seconds) *write_seconds = writing;
-  return slicing;
-}
-
 void write_mask(const std::string& path, const ProbeGeometry& probe,
                 const std::vector<uint8_t>& mask) {
   std::vector<uint8_t> out(mask);

@@ -65,11 +65,6 @@ class ProgressBar {
 /// Images per chunk so that one chunk of output stays under `bytes`.
 int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes = size_t(64) << 20);
 
-/// Slices `poses` through `slicer` chunk by chunk into `writer` (which provides the buffers),
-/// advancing `progress`. Returns the seconds spent slicing (writing excluded).
-double slice_into(const Slicer& slicer, const std::vector<Pose>& poses, StackWriter& writer,
-                  int64_t chunk, ProgressBar& progress, double* write_seconds);
-
 /// Writes the H×W probe mask: .png scaled to 0/255, other formats as 0/1 uint8.
 void write_mask(const std::string& path, const ProbeGeometry& probe,
                 const std::vector<uint8_t>& mask);

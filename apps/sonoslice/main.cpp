@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   sonoslice::cli::add_info_command(app);
   sonoslice::cli::add_phantom_command(app);
   sonoslice::cli::add_demo_command(app);
+  sonoslice::cli::add_voxelize_command(app);
   sonoslice::cli::add_bench_command(app);
   sonoslice::set_warning_handler(&print_warning);
   try {

@@ -20,6 +20,7 @@
 #include <itkNiftiImageIOFactory.h>
 #include <itkNrrdImageIOFactory.h>
 #include <itkPNGImageIOFactory.h>
+#include <itkRGBPixel.h>
 
 #include <itkOutputWindow.h>
 
@@ -293,9 +294,19 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
 
 void write_image(const std::string& path, const void* data, PixelType type,
                  const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                 const std::vector<double>& origin, const std::vector<double>& direction) {
+                 const std::vector<double>& origin, const std::vector<double>& direction,
+                 int components) {
   register_factories();
   try {
+    if (components == 3) {  // RGB colour images
+      if (type != PixelType::UInt8) throw InputError("'" + path + "': colour images are uint8");
+      using Rgb = itk::RGBPixel<uint8_t>;
+      if (dims.size() == 2)
+        write_typed<Rgb, 2>(path, data, dims, spacing, origin, direction);
+      else
+        write_typed<Rgb, 3>(path, data, dims, spacing, origin, direction);
+      return;
+    }
     visit_pixel_type(type, [&](auto zero) {
       using T = decltype(zero);
       if (dims.size() == 2)

@@ -14,7 +14,8 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
 /// Writes to exactly `path` (the caller handles temporary names).
 void write_image(const std::string& path, const void* data, PixelType type,
                  const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                 const std::vector<double>& origin, const std::vector<double>& direction);
+                 const std::vector<double>& origin, const std::vector<double>& direction,
+                 int components = 1);
 
 }  // namespace itk_io
 }  // namespace sonoslice

@@ -18,7 +18,7 @@ namespace sonoslice {
 namespace {
 
 size_t image_bytes(const StackSpec& s) {
-  return size_t(s.width) * size_t(s.height) * pixel_size(s.type);
+  return size_t(s.width) * size_t(s.height) * size_t(s.components) * pixel_size(s.type);
 }
 
 template <typename F>
@@ -34,7 +34,12 @@ void for_each_value(const void* data, PixelType type, size_t n, F&& f) {
 class NpyStackWriter : public StackWriter {
  public:
   NpyStackWriter(const std::string& path, const StackSpec& spec)
-      : spec_(spec), writer_(path, spec.type, {spec.count, spec.height, spec.width}) {}
+      : spec_(spec), writer_(path, spec.type, shape_of(spec)) {}
+  static std::vector<int64_t> shape_of(const StackSpec& s) {
+    std::vector<int64_t> shape{s.count, s.height, s.width};
+    if (s.components == 3) shape.push_back(3);  // (N, H, W, 3) RGB
+    return shape;
+  }
   bool streams() const override { return true; }
   void* buffer(int64_t, int64_t n) override {
     chunk_.resize(size_t(n) * image_bytes(spec_));
@@ -71,7 +76,7 @@ class ItkStackWriter : public StackWriter {
   void write(int64_t, int64_t) override {}
   void commit() override {
     write_image(path_, stack_.data(), spec_.type, {spec_.width, spec_.height, spec_.count},
-                {spec_.spacing_mm[0], spec_.spacing_mm[1], 1.0});
+                {spec_.spacing_mm[0], spec_.spacing_mm[1], 1.0}, spec_.components);
   }
 
  private:
@@ -96,16 +101,18 @@ class PngStackWriter : public StackWriter {
   }
   void write(int64_t first, int64_t n) override {
     const size_t pixels = size_t(spec_.width) * size_t(spec_.height);
-    if (!window_) window_ = auto_window(chunk_.data(), spec_.type, n, pixels, spec_.mask);
-    std::vector<uint8_t> png(pixels);
+    const bool rgb = spec_.components == 3;  // colour images go out as they are
+    if (!rgb && !window_) window_ = auto_window(chunk_.data(), spec_.type, n, pixels, spec_.mask);
+    std::vector<uint8_t> png(rgb ? 0 : pixels);
     for (int64_t i = 0; i < n; ++i) {
-      apply_window(chunk_.data() + size_t(i) * image_bytes(spec_), spec_.type, pixels,
-                   window_->first, window_->second, png.data());
+      const unsigned char* image = chunk_.data() + size_t(i) * image_bytes(spec_);
+      if (!rgb) apply_window(image, spec_.type, pixels, window_->first, window_->second, png.data());
       char name[32];
       std::snprintf(name, sizeof name, "img_%0*lld.png", digits_,
                     static_cast<long long>(first + i));
-      write_image((fs::path(dir_.temp_path()) / name).string(), png.data(), PixelType::UInt8,
-                  {spec_.width, spec_.height}, {spec_.spacing_mm[0], spec_.spacing_mm[1]});
+      write_image((fs::path(dir_.temp_path()) / name).string(), rgb ? image : png.data(),
+                  PixelType::UInt8, {spec_.width, spec_.height},
+                  {spec_.spacing_mm[0], spec_.spacing_mm[1]}, spec_.components);
     }
   }
   void commit() override {

@@ -181,10 +181,11 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
 // ITK writes under a temporary name that is renamed into place; errors name the user's path.
 void write_itk_atomic(const std::string& path, const void* data, PixelType type,
                       const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                      const std::vector<double>& origin, const std::vector<double>& direction) {
+                      const std::vector<double>& origin, const std::vector<double>& direction,
+                      int components = 1) {
   AtomicFile file(path);
   try {
-    itk_io::write_image(file.temp_path(), data, type, dims, spacing, origin, direction);
+    itk_io::write_image(file.temp_path(), data, type, dims, spacing, origin, direction, components);
   } catch (const FileError& e) {
     std::string msg = e.what();
     const size_t at = msg.find(file.temp_path());
@@ -249,10 +250,14 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
 }
 
 void write_image(const std::string& path, const void* data, PixelType type,
-                 const std::vector<int64_t>& dims, const std::vector<double>& spacing) {
+                 const std::vector<int64_t>& dims, const std::vector<double>& spacing,
+                 int components) {
+  if (components != 1 && components != 3)
+    throw InputError("'" + path + "': images have 1 or 3 (RGB) components");
   const std::string ext = file_extension(path);
   if (ext == ".npy") {
     std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
+    if (components == 3) shape.push_back(3);
     write_npy(path, type, shape, data);
     return;
   }
@@ -260,7 +265,7 @@ void write_image(const std::string& path, const void* data, PixelType type,
   const size_t n = dims.size();
   std::vector<double> origin(n, 0.0), direction(n * n, 0.0);
   for (size_t i = 0; i < n; ++i) direction[i * n + i] = 1.0;
-  write_itk_atomic(path, data, type, dims, spacing, origin, direction);
+  write_itk_atomic(path, data, type, dims, spacing, origin, direction, components);
 #else
   (void)type, (void)spacing, (void)data;
   no_itk(path);

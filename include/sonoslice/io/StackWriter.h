@@ -24,6 +24,7 @@ struct StackSpec {
   std::optional<std::pair<double, double>> window;
   const uint8_t* mask = nullptr;  ///< H×W probe mask for the auto-window (may be null)
   std::vector<Pose> poses;        ///< PNG only: written to poses.txt
+  int components = 1;             ///< 3: RGB colour images (uint8), written without a window
 };
 
 enum class StackFormat { Npy, ItkImage, PngDirectory };

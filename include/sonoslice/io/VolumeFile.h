@@ -39,10 +39,12 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
 /// ITK format chosen by extension.
 void write_volume(const std::string& path, const Volume& volume);
 
-/// Writes an N-D (2 or 3) image through ITK atomically: dims/spacing/origin per axis, direction
-/// identity. Used for output stacks, masks and PNGs.
+/// Writes an N-D (2 or 3) image atomically, through ITK or as .npy (C order, slowest axis
+/// first): dims/spacing per axis, zero origin, identity direction. `components` = 3 writes RGB
+/// (uint8; .npy gets a trailing axis of 3). Used for output stacks, masks and PNGs.
 void write_image(const std::string& path, const void* data, PixelType type,
-                 const std::vector<int64_t>& dims, const std::vector<double>& spacing);
+                 const std::vector<int64_t>& dims, const std::vector<double>& spacing,
+                 int components = 1);
 
 /// True when this build reads and writes ITK formats (otherwise only .npy).
 bool built_with_itk();

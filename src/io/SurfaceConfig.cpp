@@ -1,0 +1,71 @@
+#include "sonoslice/io/SurfaceConfig.h"
+
+#include <filesystem>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+std::array<uint8_t, 3> default_label_color(int label) {
+  // fan-slicer's LUS palette first, then well-separated hues.
+  static const std::array<uint8_t, 3> palette[] = {
+      {150, 0, 0},   {0, 200, 0},   {0, 120, 180}, {200, 0, 0},   {230, 160, 0}, {160, 0, 200},
+      {0, 200, 200}, {255, 110, 180}, {120, 120, 0}, {90, 60, 30}, {255, 255, 255}, {80, 80, 255}};
+  const int n = int(sizeof(palette) / sizeof(palette[0]));
+  return palette[(std::max(label, 1) - 1) % n];
+}
+
+std::vector<SurfaceModel> read_fanslicer_models(const std::string& config_path,
+                                                const std::string& mesh_dir) {
+  std::ifstream in(config_path);
+  if (!in) throw FileError("cannot open fan-slicer config '" + config_path + "'");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::parse_error& e) {
+    throw FileError("fan-slicer config '" + config_path + "': invalid JSON (" + e.what() + ")");
+  }
+  const std::string where = "fan-slicer config '" + config_path + "'";
+  if (!j.is_object() || !j.contains("models") || !j["models"].is_object() ||
+      !j["models"].contains("files") || !j["models"]["files"].is_array())
+    throw InputError(where + ": no \"models\": {\"files\": [...]} (a surface configuration)");
+  const auto& files = j["models"]["files"];
+  const auto sim = j.value("simulation", nlohmann::json::object());
+  std::vector<bool> enabled(files.size(), true);
+  if (sim.contains("simulation_models")) {
+    const auto& flags = sim["simulation_models"];
+    if (!flags.is_array() || flags.size() != files.size())
+      throw InputError(where + ": \"simulation_models\" must have one flag per model file (" +
+                       std::to_string(files.size()) + ")");
+    for (size_t k = 0; k < files.size(); ++k) enabled[k] = flags[k].is_number() && flags[k].get<double>() != 0;
+  }
+  if (sim.contains("colors") && (!sim["colors"].is_array() || sim["colors"].size() != files.size()))
+    throw InputError(where + ": \"colors\" must have one [r, g, b] per model file");
+  std::vector<SurfaceModel> models;
+  for (size_t k = 0; k < files.size(); ++k) {
+    if (!files[k].is_string()) throw InputError(where + ": \"files\" must be names (strings)");
+    if (!enabled[k]) continue;
+    SurfaceModel m;
+    m.name = files[k].get<std::string>();
+    m.path = (std::filesystem::path(mesh_dir) / (m.name + ".vtk")).string();
+    m.label = uint16_t(models.size() + 1);
+    m.color = default_label_color(m.label);
+    if (sim.contains("colors")) {
+      const auto& c = sim["colors"][k];
+      if (!c.is_array() || c.size() != 3)
+        throw InputError(where + ": colour of '" + m.name + "' must be [r, g, b]");
+      for (int i = 0; i < 3; ++i) m.color[size_t(i)] = uint8_t(std::clamp(c[size_t(i)].get<double>(), 0.0, 255.0));
+    }
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(m.path, ec))
+      throw FileError(where + ": mesh '" + m.path + "' not found (from --mesh-dir)");
+    models.push_back(m);
+  }
+  if (models.empty()) throw InputError(where + ": no model is enabled in \"simulation_models\"");
+  return models;
+}
+
+}  // namespace sonoslice
