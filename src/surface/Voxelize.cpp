@@ -95,13 +95,12 @@ void cast_rays(const std::vector<Vec3>& c, const std::vector<std::array<int32_t,
         }
         if (!inside) continue;
         const double sum = w[0] + w[1] + w[2];
-        double t_hit;
-        if (sum > 0) {
-          t_hit = (w[0] * c[size_t(tri[0])][size_t(a)] + w[1] * c[size_t(tri[1])][size_t(a)] +
-                   w[2] * c[size_t(tri[2])][size_t(a)]) / sum;
-        } else {
-          t_hit = c[size_t(tri[0])][size_t(a)];
-        }
+        const double ta = c[size_t(tri[0])][size_t(a)], tb = c[size_t(tri[1])][size_t(a)],
+                     tc = c[size_t(tri[2])][size_t(a)];
+        double t_hit = sum > 0 ? (w[0] * ta + w[1] * tb + w[2] * tc) / sum : ta;
+        // Rounding must not carry the crossing outside the triangle: a face at x = 12 exactly
+        // crosses at 12, not at 12 + 1 ulp (which would add a voxel).
+        t_hit = std::min(std::max(t_hit, std::min({ta, tb, tc})), std::max({ta, tb, tc}));
         hits.push_back({int32_t(j), t_hit});
       }
     }
