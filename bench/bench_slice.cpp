@@ -24,6 +24,7 @@ const Phantom& phantom() {
 
 const Volume& volume(PixelType t) {
   static const Volume f32 = phantom().ct.converted(PixelType::Float32);
+  if (t == PixelType::UInt8) return phantom().labels;  // the phantom's label map
   return t == PixelType::Float32 ? f32 : phantom().ct;
 }
 
@@ -88,6 +89,22 @@ BENCHMARK_CAPTURE(BM_Slice, W1_int16_linear, 1, PixelType::Int16, Interpolation:
     ->Apply(threads_and_kernels);
 BENCHMARK_CAPTURE(BM_Slice, W1_int16_nearest, 1, PixelType::Int16, Interpolation::Nearest)
     ->Apply(threads_and_kernels);
+// Label slicing (uint8 labels, nearest, uint8 out) against intensity slicing above.
+void BM_SliceLabels(benchmark::State& state) {
+  set_cpu_threads(int(state.range(0)));
+  const auto poses = phantom_random_poses(1000);
+  SliceSettings s;
+  s.interpolation = Interpolation::Nearest;
+  s.output_type = PixelType::UInt8;
+  const Slicer slicer(volume(PixelType::UInt8), workload_w1_fan_probe(), s);
+  std::vector<uint8_t> out(poses.size() * size_t(slicer.width()) * size_t(slicer.height()));
+  for (auto _ : state) slicer.slice(poses.data(), poses.size(), out.data());
+  state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
+  set_cpu_threads(0);
+}
+BENCHMARK(BM_SliceLabels)->Name("BM_Slice/W1_uint8_labels_nearest")->ArgName("threads")->Arg(1)->Arg(2)
+    ->Unit(benchmark::kMillisecond)->UseRealTime();
+
 BENCHMARK_CAPTURE(BM_Slice, W2_float32_linear, 2, PixelType::Float32, Interpolation::Linear)
     ->Apply(threads_and_kernels);
 BENCHMARK_CAPTURE(BM_Slice, W2_int16_linear, 2, PixelType::Int16, Interpolation::Linear)

@@ -9,6 +9,7 @@
 #include <immintrin.h>
 
 #include <cstdint>
+#include <limits>
 #include <type_traits>
 
 #include "sonoslice/backend/HostDevice.h"
@@ -107,6 +108,56 @@ inline void gather_pair<int8_t>(const int8_t* base, Vec8i i, Vec8f& lo, Vec8f& h
   const __m256i p = _mm256_i32gather_epi32(reinterpret_cast<const int*>(base), i.v, 1);
   lo = _mm256_cvtepi32_ps(_mm256_srai_epi32(_mm256_slli_epi32(p, 24), 24));
   hi = _mm256_cvtepi32_ps(_mm256_srai_epi32(_mm256_slli_epi32(p, 16), 24));
+}
+
+/// The voxel at each offset, as int32 (sign- or zero-extended), for nearest sampling of integer
+/// volumes: no float round trip.
+template <typename T>
+inline Vec8i gather_value(const T* base, Vec8i i) {
+  const __m256i p = _mm256_i32gather_epi32(reinterpret_cast<const int*>(base), i.v, int(sizeof(T)));
+  constexpr int shift = 32 - 8 * int(sizeof(T));
+  if (std::is_signed<T>::value) return {_mm256_srai_epi32(_mm256_slli_epi32(p, shift), shift)};
+  return {_mm256_srli_epi32(_mm256_slli_epi32(p, shift), shift)};
+}
+
+/// Stores eight int32 lanes as T, saturating (the scalar saturate_cast's rule for integers).
+template <typename T>
+inline void store_saturated(Vec8i v, T* out);
+template <>
+inline void store_saturated<float>(Vec8i v, float* out) {
+  _mm256_storeu_ps(out, _mm256_cvtepi32_ps(v.v));
+}
+template <>
+inline void store_saturated<int16_t>(Vec8i v, int16_t* out) {
+  // packs works per 128-bit half; the permute brings lanes 0..7 together in the low half.
+  const __m256i p = _mm256_permute4x64_epi64(_mm256_packs_epi32(v.v, v.v), 0x08);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(out), _mm256_castsi256_si128(p));
+}
+template <>
+inline void store_saturated<uint16_t>(Vec8i v, uint16_t* out) {
+  const __m256i p = _mm256_permute4x64_epi64(_mm256_packus_epi32(v.v, v.v), 0x08);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(out), _mm256_castsi256_si128(p));
+}
+template <>
+inline void store_saturated<uint8_t>(Vec8i v, uint8_t* out) {
+  const __m256i p = _mm256_permute4x64_epi64(_mm256_packus_epi32(v.v, v.v), 0x08);
+  const __m128i bytes = _mm_packus_epi16(_mm256_castsi256_si128(p), _mm256_castsi256_si128(p));
+  _mm_storel_epi64(reinterpret_cast<__m128i*>(out), bytes);
+}
+
+/// Stores eight float lanes as T: float as is; integers rounded half up (floor(v + 0.5)),
+/// saturated, NaN → 0, like the scalar saturate_cast.
+template <typename T>
+inline void store_rounded(Vec8f v, T* out) {
+  if constexpr (std::is_same<T, float>::value) {
+    _mm256_storeu_ps(out, v.v);
+  } else {
+    __m256 r = _mm256_floor_ps(_mm256_add_ps(v.v, _mm256_set1_ps(0.5f)));
+    r = _mm256_max_ps(r, _mm256_set1_ps(float(std::numeric_limits<T>::lowest())));
+    r = _mm256_min_ps(r, _mm256_set1_ps(float(std::numeric_limits<T>::max())));
+    r = _mm256_and_ps(r, _mm256_cmp_ps(v.v, v.v, _CMP_ORD_Q));  // NaN lanes → 0
+    store_saturated<T>({_mm256_cvttps_epi32(r)}, out);
+  }
 }
 
 /// Which voxel types have an AVX2 pair gather (others take the scalar path).

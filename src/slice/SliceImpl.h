@@ -165,6 +165,14 @@ struct SliceKernel {
           for (int k = 0; k < 8; ++k) pixel(s, u + k);
           continue;
         }
+        if constexpr (!Linear && !std::is_same<TIn, float>::value) {
+          // Nearest on an integer volume: voxel values straight to the output, no float.
+          const Vec8f half(0.5f);
+          const Vec8i o = offsets(floor_to_int(cx + half), floor_to_int(cy + half),
+                                  floor_to_int(cz + half), sy, sz);
+          store_saturated(gather_value(volume, o), s.out + u);
+          continue;
+        }
         Vec8f value;
         if (Linear) {
           const Vec8i ix = floor_to_int(cx), iy = floor_to_int(cy), iz = floor_to_int(cz);
@@ -183,13 +191,7 @@ struct SliceKernel {
           Vec8f upper;
           gather_pair(volume, o, value, upper);
         }
-        if constexpr (std::is_same<TOut, float>::value) {
-          value.store(s.out + u);
-        } else {
-          alignas(32) float lanes[8];
-          value.store(lanes);
-          for (int k = 0; k < 8; ++k) s.out[u + k] = saturate_cast<TOut>(lanes[k]);
-        }
+        store_rounded(value, s.out + u);
       }
       for (; u < end; ++u) pixel(s, u);
     }

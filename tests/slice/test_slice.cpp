@@ -326,6 +326,32 @@ TEST(SliceKernels, Avx2MatchesGeneric) {
         EXPECT_LE(worst, 1e-5 * (range.second - range.first));
     }
   }
+  // Integer outputs: the vector rounding/saturation matches the scalar one (exactly for nearest;
+  // within one unit for linear, where the fused lerps may land across a .5).
+  const Volume labels = phantom.labels;
+  for (const Volume* v : {&phantom.ct, &labels})
+    for (PixelType out : {PixelType::UInt8, PixelType::Int16, PixelType::UInt16})
+      for (Interpolation interp : {Interpolation::Linear, Interpolation::Nearest}) {
+        SliceSettings s;
+        s.interpolation = interp;
+        s.output_type = out;
+        s.fill_value = 7;
+        std::vector<unsigned char> a(30 * 120 * 100 * pixel_size(out)), g(a.size());
+        set_cpu_kernel_isa("avx2");
+        Slicer(*v, fan_probe(120, 100, 0.7), s).slice(poses.data(), poses.size(), a.data());
+        set_cpu_kernel_isa("generic");
+        Slicer(*v, fan_probe(120, 100, 0.7), s).slice(poses.data(), poses.size(), g.data());
+        int worst = 0;
+        visit_pixel_type(out, [&](auto zero) {
+          using T = decltype(zero);
+          const T* x = reinterpret_cast<const T*>(a.data());
+          const T* y = reinterpret_cast<const T*>(g.data());
+          for (size_t i = 0; i < a.size() / sizeof(T); ++i) worst = std::max(worst, std::abs(int(x[i]) - int(y[i])));
+        });
+        SCOPED_TRACE(pixel_type_name(v->pixel_type()) + " -> " + pixel_type_name(out) + " " +
+                     interpolation_name(interp));
+        EXPECT_LE(worst, interp == Interpolation::Nearest ? 0 : 1);
+      }
   set_cpu_kernel_isa("auto");
 }
 
