@@ -12,6 +12,7 @@
 #include <vtkCellArray.h>
 #include <vtkCleanPolyData.h>
 #include <vtkIdList.h>
+#include <vtkLogger.h>
 #include <vtkNew.h>
 #include <vtkOBJReader.h>
 #include <vtkOBJWriter.h>
@@ -70,12 +71,27 @@ class CollectingWindow : public vtkOutputWindow {
 };
 vtkStandardNewMacro(CollectingWindow);
 
+// Some VTK 9 readers log through vtkLogger (to stderr) instead: silence that and collect it too.
+void collect_log(void* user, const vtkLogger::Message& m) {
+  static_cast<CollectingWindow*>(user)->warnings += std::string(m.message ? m.message : "") + "; ";
+}
+
 struct WindowScope {
   vtkSmartPointer<vtkOutputWindow> previous;
   vtkNew<CollectingWindow> window;
-  WindowScope() : previous(vtkOutputWindow::GetInstance()) { vtkOutputWindow::SetInstance(window); }
-  ~WindowScope() { vtkOutputWindow::SetInstance(previous); }
+  WindowScope() : previous(vtkOutputWindow::GetInstance()) {
+    vtkOutputWindow::SetInstance(window);
+    vtkLogger::SetStderrVerbosity(vtkLogger::VERBOSITY_OFF);
+    vtkLogger::AddCallback("sonoslice-mesh-read", &collect_log, window.GetPointer(),
+                           vtkLogger::VERBOSITY_WARNING);
+  }
+  ~WindowScope() {
+    vtkLogger::RemoveCallback("sonoslice-mesh-read");
+    vtkOutputWindow::SetInstance(previous);
+  }
 };
+
+std::string trimmed(const std::string& s) { return s.size() > 2 ? s.substr(0, s.size() - 2) : s; }
 
 vtkSmartPointer<vtkAlgorithm> reader_for(const std::string& path, const std::string& ext) {
   if (ext == ".vtk") {
@@ -131,7 +147,7 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
   clean->SetTolerance(0.0);
   clean->Update();
   if (!scope.window->errors.empty())
-    throw FileError("cannot read mesh '" + path + "': " + scope.window->errors.substr(0, scope.window->errors.size() - 2));
+    throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->errors));
   vtkPolyData* poly = clean->GetOutput();
   TriangleMesh mesh;
   mesh.name = std::filesystem::path(path).filename().string();
@@ -149,7 +165,12 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
     if (ids->GetNumberOfIds() != 3) continue;
     mesh.triangles.push_back({int32_t(ids->GetId(0)), int32_t(ids->GetId(1)), int32_t(ids->GetId(2))});
   }
-  if (mesh.triangles.empty()) throw InputError("mesh '" + path + "': no triangles");
+  if (mesh.triangles.empty()) {
+    if (!scope.window->warnings.empty())  // what VTK said is the likelier story
+      throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->warnings));
+    throw InputError("mesh '" + path + "': no triangles");
+  }
+  if (!scope.window->warnings.empty()) warn("mesh '" + path + "': VTK: " + trimmed(scope.window->warnings));
   if (frame == WorldFrame::RAS) mesh.transform(pose_to_lps(Pose::identity(), WorldFrame::RAS));
   mesh.validate();
   return mesh;

@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 
 #include "../common/TestUtil.h"
+#include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/Npy.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
@@ -172,6 +173,65 @@ TEST_F(Cli, DemoAndBenchRun) {
   for (const auto& row : j) EXPECT_GT(row["images_per_second"].get<double>(), 0);
 }
 
+TEST_F(Cli, VoxelizeAndSliceMeshesInBothModesWithColours) {
+  SONOSLICE_REQUIRE_SHARED_DATA();
+  test::TempDir out;
+  const std::string d = test::shared_data_dir() + "/fanslicer";
+  const std::string veins = quote(d + "/hepatic veins.vtk"), portal = quote(d + "/portal vein.vtk");
+  // voxelize: two meshes (names with spaces) into one label volume, fan-slicer's grid.
+  CliRun r = run("voxelize " + veins + " " + portal + " --spacing 0.5 --margin 20 --out " +
+                     quote(out.file("labels.nii.gz")),
+                 out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Volume labels = read_volume(out.file("labels.nii.gz"));
+  EXPECT_EQ(labels.pixel_type(), PixelType::UInt8);
+  EXPECT_EQ(labels.value_range().second, 2);
+  // Poses through the vessels' region, probe = fan-slicer's surface config.
+  std::vector<Pose> poses = phantom_random_poses(20, 3);
+  for (Pose& p : poses) {
+    p.m[0][3] = -30 + 0.15 * p.m[0][3];
+    p.m[1][3] = 0 + 0.15 * p.m[1][3];
+    p.m[2][3] = -310 + 0.15 * p.m[2][3];
+  }
+  write_poses_npy(out.file("in_poses.npy"), poses);
+  const std::string cfg = quote(d + "/models_binary_LUS_config.json");
+  const std::string common = " --probe " + cfg + " --downsampling 2 --poses " + quote(out.file("in_poses.npy"));
+  r = run("slice --labels " + quote(out.file("labels.nii.gz")) + common + " --out " +
+              quote(out.file("from_labels.npy")) + " --colors " + quote(out.file("colors.npy")),
+          out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run("slice --mesh-dir " + quote(d) + common + " --surface-mode exact --out " +
+              quote(out.file("exact.npy")) + " --colors " + quote(out.file("colors_png")),
+          out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = run("slice --mesh-dir " + quote(d) + common + " --voxel-size 0.5 --out " + quote(out.file("voxel.nii.gz")), out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const NpyArray a = read_npy(out.file("from_labels.npy")), e = read_npy(out.file("exact.npy"));
+  EXPECT_EQ(a.type, PixelType::UInt8);
+  EXPECT_EQ(a.shape, (std::vector<int64_t>{20, 272, 334}));
+  const NpyArray c = read_npy(out.file("colors.npy"));
+  EXPECT_EQ(c.shape, (std::vector<int64_t>{20, 272, 334, 3}));
+  // Colours: grey 210 outside the fan (top-left corner), black background, label 1 in the
+  // default palette's first colour (150, 0, 0).
+  const auto* rgb = static_cast<const uint8_t*>(c.data.get());
+  EXPECT_EQ(rgb[0], 210);
+  const auto* lab = static_cast<const uint8_t*>(a.data.get());
+  int64_t ones = 0, agree = 0, exact_ones = 0;
+  const auto* ex = static_cast<const uint8_t*>(e.data.get());
+  for (int64_t i = 0; i < a.element_count(); ++i) {
+    if (lab[i] == 1) {
+      ++ones;
+      EXPECT_EQ(rgb[3 * i], 150);
+    }
+    exact_ones += ex[i] == 1;
+    agree += lab[i] == 1 && ex[i] == 1;
+  }
+  ASSERT_GT(ones, 500);
+  EXPECT_GT(2.0 * double(agree) / double(ones + exact_ones), 0.9);  // 0.5 mm voxels vs exact
+  EXPECT_TRUE(fs::exists(out.file("colors_png/img_00019.png")));
+  EXPECT_EQ(read_volume(out.file("voxel.nii.gz")).grid().dims[2], 20);
+}
+
 // --- bad input: one line on stderr naming the input, exit 1, nothing written -----------------
 
 struct BadCase {
@@ -217,6 +277,12 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
   std::vector<float> vol(4 * 4 * 4, 1.0f);
   write_npy(dir.file("in_vol.npy"), PixelType::Float32, {4, 4, 4}, vol.data());
   fs::create_directory(dir.file("in_dir.npy"));
+  write_text(dir.file("in_junk.vtk"),
+             "# vtk DataFile Version 3.0\nbroken\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n1 2\n");
+  TriangleMesh tet;
+  tet.vertices = {{0, 0, 0}, {10, 0, 0}, {0, 10, 0}, {0, 0, 10}};
+  tet.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  write_mesh(dir.file("in_tet.stl"), tet);
 }
 
 TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
@@ -302,6 +368,27 @@ std::vector<BadCase> bad_cases() {
       {"UnknownOutputFormat",
        "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/x.tiff",
        "unknown format '.tiff'"},
+      {"TwoSources", std::string(kSlice) + "--labels {CT}", "exactly one of"},
+      {"LabelsNotInteger", "slice --labels {CT} --probe {FAN} --poses {POSES} --out {OUT}",
+       "a label volume is uint8 or uint16"},
+      {"LinearOnLabels",
+       "slice --meshes {DIR}/in_tet.stl --probe {FAN} --poses {POSES} --out {OUT} --interp linear",
+       "label images are nearest"},
+      {"MissingMesh", "slice --meshes {DIR}/nope.vtk --probe {FAN} --poses {POSES} --out {OUT}",
+       "nope.vtk': no such file"},
+      {"CorruptMesh", "slice --meshes {DIR}/in_junk.vtk --probe {FAN} --poses {POSES} --out {OUT}",
+       "in_junk.vtk"},
+      {"ColorsWithoutLabels", std::string(kSlice) + "--colors {DIR}/c.npy", "--colors"},
+      {"MeshDirNeedsSurfaceConfig",
+       "slice --mesh-dir {DIR} --probe {FAN} --poses {POSES} --out {OUT}", "no \"models\""},
+      {"ExactOnCuda",
+       "slice --meshes {DIR}/in_tet.stl --surface-mode exact --probe {FAN} --poses {POSES} "
+       "--out {OUT} --device cuda",
+       "cuda"},
+      {"VoxelizeZeroSpacing", "voxelize {DIR}/in_tet.stl --spacing 0 --out {OUT}",
+       "voxelize: give --spacing"},
+      {"VoxelizeNoMesh", "voxelize {DIR}/nope.stl --spacing 1 --out {OUT}",
+       "nope.stl': no such file"},
   };
   return cases;
 }
