@@ -11,6 +11,7 @@ packages=(
   libinsighttoolkit5-dev libgdcm-tools   # ITK 5.2 (NIfTI, MetaImage, NRRD, DICOM, PNG); gdcm tools
                                          # only so GDCM's CMake config finds the files it lists
   zlib1g-dev
+  libvtk9-dev                            # VTK 9.1: surface meshes (.vtk, .vtp, .stl, .obj, .ply)
   nlohmann-json3-dev libcli11-dev
   googletest libgtest-dev libbenchmark-dev
   python3-venv python3-numpy python3-pytest python3-tqdm python3-torch   # the Python package's tests

@@ -24,7 +24,8 @@ from . import _sonoslice as _ext
 __all__ = [
     "Volume", "Probe", "Slicer", "devices", "cuda_available", "set_threads", "threads",
     "read_poses", "write_poses", "validate_poses", "write_stack", "phantom", "phantom_poses",
-    "surface_poses", "PHANTOM_LABELS", "__version__",
+    "surface_poses", "PHANTOM_LABELS", "Mesh", "voxelize", "SurfaceSlicer", "colorize", "cut_polygons",
+    "fanslicer_models", "__version__",
 ]
 __version__ = "0.1.0"
 
@@ -386,6 +387,124 @@ def write_stack(path, images, spacing_mm: Sequence[float], window: Optional[Sequ
                      None if window is None else tuple(map(float, window)),
                      None if poses is None else _as_pose_array(poses),
                      None if mask is None else np.ascontiguousarray(mask, dtype=np.uint8))
+
+
+# ---- surfaces -----------------------------------------------------------------------------------
+class Mesh:
+    """A triangle mesh in world millimetres (same frame as volumes). ``Mesh.from_file`` reads
+    .vtk (legacy ASCII/binary POLYDATA), .vtp, .stl, .obj and .ply through VTK (polygons
+    triangulated, coincident points merged); ``Mesh(vertices (V, 3), triangles (T, 3))`` builds one."""
+
+    def __init__(self, vertices, triangles, name: str = "mesh"):
+        self._cpp = _ext.Mesh.from_arrays(np.ascontiguousarray(vertices, dtype=np.float64),
+                                          np.ascontiguousarray(triangles, dtype=np.int32), name)
+
+    @classmethod
+    def _wrap(cls, cpp) -> "Mesh":
+        m = cls.__new__(cls)
+        m._cpp = cpp
+        return m
+
+    @classmethod
+    def from_file(cls, path, world: str = "LPS") -> "Mesh":
+        return cls._wrap(_ext.Mesh.from_file(str(path), world))
+
+    def save(self, path) -> None:
+        self._cpp.save(str(path))
+
+    name = property(lambda self: self._cpp.name)
+    vertices = property(lambda self: self._cpp.vertices(), doc="(V, 3) float64 mm (a copy)")
+    triangles = property(lambda self: self._cpp.triangles(), doc="(T, 3) int32 vertex indices (a copy)")
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """[[xmin, ymin, zmin], [xmax, ymax, zmax]] (mm)."""
+        return np.array(self._cpp.bounds())
+
+    @property
+    def closed(self) -> bool:
+        """Every edge shared by exactly two triangles."""
+        return self._cpp.closed()
+
+    def __repr__(self) -> str:
+        return f"Mesh({self.name!r}, {len(self.triangles)} triangles, {self._cpp.topology()})"
+
+
+def voxelize(meshes, spacing: Optional[float] = None, margin: Optional[float] = None,
+             reference: Optional[Volume] = None, labels: Optional[Sequence[int]] = None) -> Volume:
+    """Meshes → one label volume: label k+1 (or ``labels[k]``) for the k-th mesh, later meshes
+    winning where they overlap; uint8, or uint16 past 255. The grid is ``reference``'s, or an
+    isotropic ``spacing`` (mm) around the meshes plus ``margin`` (default one voxel). Voxel centres
+    are inside when the mesh contains them (SPEC §1); open meshes warn and are voted best-effort."""
+    meshes = [meshes] if isinstance(meshes, Mesh) else list(meshes)
+    if reference is None and spacing is None:
+        raise ValueError("voxelize: give spacing (mm) or a reference volume")
+    if reference is not None and (spacing is not None or margin is not None):
+        raise ValueError("voxelize: the reference volume sets the grid; spacing and margin do not apply")
+    spacing = 0.0 if spacing is None else float(spacing)
+    margin = spacing if margin is None else float(margin)
+    return Volume._wrap(_ext.voxelize([m._cpp for m in meshes], spacing, margin,
+                                      None if reference is None else reference._cpp,
+                                      [] if labels is None else [int(x) for x in labels]))
+
+
+class SurfaceSlicer:
+    """Exact label images: each image plane cuts the meshes' triangles and the cross-sections are
+    filled (even-odd), with no voxelisation: exact at any pixel size. Mesh k paints label k+1 (or
+    ``labels[k]``), later meshes over earlier ones; outside the probe shape 0. CPU threads."""
+
+    def __init__(self, meshes, probe: Probe, labels: Optional[Sequence[int]] = None, dtype: str = "uint8"):
+        meshes = [meshes] if isinstance(meshes, Mesh) else list(meshes)
+        self.meshes, self.probe = meshes, probe
+        self._cpp = _ext.SurfaceSlicer([m._cpp for m in meshes], probe._cpp,
+                                       [] if labels is None else [int(x) for x in labels], dtype)
+
+    width = property(lambda self: self._cpp.width)
+    height = property(lambda self: self._cpp.height)
+    dtype = property(lambda self: self._cpp.dtype)
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self._cpp.mask()
+
+    def slice(self, poses, out=None, *, progress=None, world: str = "LPS", chunk: Optional[int] = None):
+        """(N, H, W) label images for (N, 4, 4) poses (NumPy or torch); ``out`` as in Slicer.slice
+        (host memory)."""
+        p = _as_pose_array(poses, world)
+        n = p.shape[0]
+        if out is None:
+            out = np.empty((n, self.height, self.width), dtype=self.dtype)
+        callback = _tqdm_callback(n) if progress is True else (progress if callable(progress) else None)
+        if chunk is None:
+            chunk = max(64, math.ceil(n / 100)) if callback else 0
+        self._cpp.slice_into(p, out, callback, int(chunk))
+        return out
+
+    __call__ = slice
+
+
+def colorize(labels, mask, colors: Optional[Sequence[Sequence[int]]] = None) -> np.ndarray:
+    """(N, H, W) labels → (N, H, W, 3) uint8 RGB, fan-slicer style: label k in ``colors[k-1]``
+    (default palette otherwise), 0 black, outside the (H, W) probe mask grey 210."""
+    if _is_torch(labels):
+        labels = labels.detach().cpu().numpy()
+    labels = np.ascontiguousarray(labels)
+    if colors is None:
+        top = int(labels.max()) if labels.size else 0
+        colors = [_ext.default_label_color(k) for k in range(1, max(top, 1) + 1)]
+    return _ext.colorize(labels, np.ascontiguousarray(mask, dtype=np.uint8), [tuple(int(v) for v in c) for c in colors])
+
+
+def cut_polygons(mesh: Mesh, pose) -> list:
+    """The cut of ``mesh`` by the image plane of ``pose``: a list of (K, 2) arrays of probe (x, y)
+    mm, one per closed loop (open meshes may give open chains)."""
+    return [np.array(points) for points, _closed in _ext.cut_polygons(mesh._cpp, _as_pose_array(pose))]
+
+
+def fanslicer_models(config, mesh_dir) -> list:
+    """The enabled models of a fan-slicer surface config: dicts of name, path (mesh_dir/<name>.vtk),
+    label (k-th enabled = k) and color."""
+    return [dict(name=n, path=p, label=l, color=tuple(c)) for n, p, l, c in _ext.fanslicer_models(str(config), str(mesh_dir))]
 
 
 # ---- the built-in phantom ----------------------------------------------------------------------

@@ -17,6 +17,8 @@
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/MeshFile.h"
+#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/StackWriter.h"
@@ -24,6 +26,9 @@
 #include "sonoslice/phantom/Phantom.h"
 #include "sonoslice/phantom/Workloads.h"
 #include "sonoslice/slice/Slicer.h"
+#include "sonoslice/surface/Colorize.h"
+#include "sonoslice/surface/SurfaceSlicer.h"
+#include "sonoslice/surface/Voxelize.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -170,6 +175,50 @@ void slice_into(const Slicer& slicer,
     }
     if (!progress.is_none()) progress(first + count, n);
   }
+}
+
+// (N, H, W) label images from exact plane cuts, into a CPU array, chunk by chunk.
+void surface_slice_into(const SurfaceSlicer& slicer,
+                        nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose_array,
+                        nb::ndarray<> out, nb::object progress, int64_t chunk) {
+  const std::vector<Pose> poses = poses_from(pose_array);
+  const int64_t n = int64_t(poses.size());
+  if (out.ndim() != 3 || int64_t(out.shape(0)) != n || int64_t(out.shape(1)) != slicer.height() ||
+      int64_t(out.shape(2)) != slicer.width() || !c_contiguous(out) || out.device_type() != kCpu)
+    throw InputError("out: expected a C-contiguous (" + std::to_string(n) + ", " +
+                     std::to_string(slicer.height()) + ", " + std::to_string(slicer.width()) +
+                     ") array in host memory");
+  if (pixel_type_of(out.dtype(), "out") != slicer.output_type())
+    throw InputError("out: dtype must be " + pixel_type_name(slicer.output_type()));
+  validate_poses(poses.data(), poses.size(), "poses", 0, true);
+  const size_t image_bytes = size_t(slicer.width()) * size_t(slicer.height()) * pixel_size(slicer.output_type());
+  if (chunk <= 0) chunk = n;
+  for (int64_t first = 0; first < n; first += chunk) {
+    const int64_t count = std::min(chunk, n - first);
+    {
+      nb::gil_scoped_release release;
+      slicer.slice(poses.data() + first, size_t(count), static_cast<char*>(out.data()) + size_t(first) * image_bytes,
+                   size_t(first));
+    }
+    if (!progress.is_none()) progress(first + count, n);
+  }
+}
+
+TriangleMesh mesh_from_arrays(nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> vertices,
+                              nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> triangles,
+                              const std::string& name) {
+  if (vertices.shape(1) != 3 || triangles.shape(1) != 3)
+    throw InputError("mesh '" + name + "': vertices must be (V, 3) and triangles (T, 3)");
+  TriangleMesh m;
+  m.name = name;
+  m.vertices.resize(vertices.shape(0));
+  for (size_t i = 0; i < m.vertices.size(); ++i)
+    m.vertices[i] = {vertices(i, 0), vertices(i, 1), vertices(i, 2)};
+  m.triangles.resize(triangles.shape(0));
+  for (size_t i = 0; i < m.triangles.size(); ++i)
+    m.triangles[i] = {triangles(i, 0), triangles(i, 1), triangles(i, 2)};
+  m.validate();
+  return m;
 }
 
 }  // namespace
@@ -446,6 +495,110 @@ NB_MODULE(_sonoslice, m) {
         return numpy_view(poses->data(), {poses->size(), 4, 4}, PixelType::Float64, poses);
       },
       "count"_a, "face_y_mm"_a = 0.0);
+  // ---- surfaces
+  m.def("built_with_vtk", &built_with_vtk);
+  nb::class_<TriangleMesh>(m, "Mesh")
+      .def_static("from_arrays", &mesh_from_arrays, "vertices"_a, "triangles"_a, "name"_a = "mesh")
+      .def_static(
+          "from_file",
+          [](const std::string& path, const std::string& world) {
+            const WorldFrame f = parse_world_frame(world);
+            nb::gil_scoped_release release;
+            return read_mesh(path, f);
+          },
+          "path"_a, "world"_a = "LPS")
+      .def("save", [](const TriangleMesh& mesh, const std::string& path) { write_mesh(path, mesh); })
+      .def_prop_ro("name", [](const TriangleMesh& mesh) { return mesh.name; })
+      .def("vertices",
+           [](const TriangleMesh& mesh) {
+             auto keep = std::make_shared<std::vector<Vec3>>(mesh.vertices);
+             return numpy_view(keep->data(), {keep->size(), 3}, PixelType::Float64, keep);
+           })
+      .def("triangles",
+           [](const TriangleMesh& mesh) {
+             auto keep = std::make_shared<std::vector<std::array<int32_t, 3>>>(mesh.triangles);
+             return numpy_view(keep->data(), {keep->size(), 3}, PixelType::Int32, keep);
+           })
+      .def("bounds", &TriangleMesh::bounds)
+      .def("closed", [](const TriangleMesh& mesh) { return mesh_topology(mesh).closed(); })
+      .def("topology", [](const TriangleMesh& mesh) { return mesh_topology(mesh).describe(); });
+  m.def(
+      "voxel_grid_around",
+      [](const std::vector<TriangleMesh>& meshes, double spacing, double margin) {
+        const VolumeGrid g = voxel_grid_around(meshes, spacing, margin);
+        return std::make_tuple(g.dims, g.spacing_mm, g.origin_mm);
+      },
+      "meshes"_a, "spacing"_a, "margin"_a);
+  m.def(
+      "voxelize",
+      [](const std::vector<TriangleMesh>& meshes, double spacing, double margin, const Volume* reference,
+         const std::vector<uint16_t>& labels) {
+        nb::gil_scoped_release release;
+        const VolumeGrid g = reference ? reference->grid() : voxel_grid_around(meshes, spacing, margin);
+        return voxelize(meshes, g, labels);
+      },
+      "meshes"_a, "spacing"_a = 0.0, "margin"_a = 0.0, "reference"_a = nb::none(),
+      "labels"_a = std::vector<uint16_t>{});
+  nb::class_<SurfaceSlicer>(m, "SurfaceSlicer")
+      .def(
+          "__init__",
+          [](SurfaceSlicer* self, const std::vector<TriangleMesh>& meshes, const ProbeGeometry& probe,
+             const std::vector<uint16_t>& labels, const std::string& dtype) {
+            if (dtype != "uint8" && dtype != "uint16")
+              throw InputError("dtype '" + dtype + "': label images are uint8 or uint16");
+            const PixelType t = parse_pixel_type(dtype);
+            nb::gil_scoped_release release;
+            new (self) SurfaceSlicer(meshes, probe, labels, t);
+          },
+          "meshes"_a, "probe"_a, "labels"_a = std::vector<uint16_t>{}, "dtype"_a = "uint8")
+      .def("slice_into", &surface_slice_into, "poses"_a, "out"_a, "progress"_a = nb::none(), "chunk"_a = 0)
+      .def_prop_ro("width", &SurfaceSlicer::width)
+      .def_prop_ro("height", &SurfaceSlicer::height)
+      .def_prop_ro("dtype", [](const SurfaceSlicer& s) { return pixel_type_name(s.output_type()); })
+      .def("mask", [](const SurfaceSlicer& s) {
+        auto mk = std::make_shared<std::vector<uint8_t>>(s.mask());
+        return numpy_view(mk->data(), {size_t(s.height()), size_t(s.width())}, PixelType::UInt8, mk);
+      });
+  m.def(
+      "cut_polygons",
+      [](const TriangleMesh& mesh, nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose) {
+        const auto poses = poses_from(pose);
+        if (poses.size() != 1) throw InputError("cut_polygons: one pose");
+        std::vector<std::pair<std::vector<std::array<double, 2>>, bool>> out;
+        for (const CutPolygon& p : cut_polygons(mesh, poses[0])) out.emplace_back(p.points, p.closed);
+        return out;
+      },
+      "mesh"_a, "pose"_a);
+  m.def(
+      "colorize",
+      [](nb::ndarray<> labels, nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> mask,
+         const std::vector<std::array<uint8_t, 3>>& colors) {
+        if (labels.ndim() != 3 || !c_contiguous(labels) || labels.device_type() != kCpu)
+          throw InputError("labels: expected a C-contiguous (N, H, W) array in host memory");
+        const PixelType t = pixel_type_of(labels.dtype(), "labels");
+        if (mask.shape(0) != labels.shape(1) || mask.shape(1) != labels.shape(2))
+          throw InputError("mask: must be (H, W) like the labels");
+        auto rgb = std::make_shared<std::vector<uint8_t>>(labels.size() * 3);
+        {
+          nb::gil_scoped_release release;
+          colorize(labels.data(), t, int64_t(labels.shape(0)), int(labels.shape(2)), int(labels.shape(1)),
+                   mask.data(), colors, rgb->data());
+        }
+        return numpy_view(rgb->data(), {labels.shape(0), labels.shape(1), labels.shape(2), 3},
+                          PixelType::UInt8, rgb);
+      },
+      "labels"_a, "mask"_a, "colors"_a);
+  m.def("default_label_color", &default_label_color, "label"_a);
+  m.def(
+      "fanslicer_models",
+      [](const std::string& config, const std::string& mesh_dir) {
+        std::vector<std::tuple<std::string, std::string, uint16_t, std::array<uint8_t, 3>>> out;
+        for (const SurfaceModel& s : read_fanslicer_models(config, mesh_dir))
+          out.emplace_back(s.name, s.path, s.label, s.color);
+        return out;
+      },
+      "config"_a, "mesh_dir"_a);
+
   m.def("phantom_label_names", [] {
     std::vector<std::string> names;
     for (int l = 0; l < kPhantomLabelCount; ++l) names.push_back(phantom_label_name(l));
