@@ -231,7 +231,9 @@ def main():
                 ("vtkImageReslice int16", vtk_i16, vtk_i16),
                 ("scipy map_coordinates (1 thread)", mc_sampling, mc_e2e)]
         for peer, sampling, e2e in rows:
-            table.append((name, peer, sampling, e2e, ours["float32"] / sampling, ours["float32"] / e2e))
+            mine = peer.startswith("sonoslice")
+            table.append((name, peer, sampling, e2e, None if mine else ours["float32"] / sampling,
+                          None if mine else ours["float32"] / e2e, None if mine else ours["int16"] / e2e))
         results.append({"workload": name, "width": p["W"], "height": p["H"], "threads": args.threads,
                         "poses": len(poses), "sonoslice": ours, "sonoslice_cli_seconds": cli,
                         "grid_sample": {"sampling": gs_sampling, "end_to_end": gs_e2e},
@@ -247,10 +249,12 @@ def main():
             f"CLI end to end {cli['total']:.2f} s (load {cli['load']:.2f}, slice {cli['slice']:.2f}, "
             f"write {cli['write']:.2f})")
 
-    print(f"\nimages/s, {args.threads} threads, same run (ratios: sonoslice float32 / peer)")
-    print(f"{'workload':8} {'tool':34} {'sampling only':>14} {'end to end':>12} {'ratio':>7} {'ratio e2e':>10}")
-    for name, peer, s, e, rs, re_ in table:
-        print(f"{name:8} {peer:34} {s:14.0f} {e:12.0f} {rs:7.2f} {re_:10.2f}")
+    print(f"\nimages/s, {args.threads} threads, same run; ratios = sonoslice's images/s / the peer's")
+    print(f"{'workload':8} {'tool':34} {'sampling only':>14} {'end to end':>11} {'f32/peer':>9} "
+          f"{'f32/peer e2e':>13} {'i16/peer e2e':>13}")
+    fmt = lambda r: f"{r:.2f}" if r is not None else "-"  # noqa: E731
+    for name, peer, s, e, rs, re_, ri in table:
+        print(f"{name:8} {peer:34} {s:14.0f} {e:11.0f} {fmt(rs):>9} {fmt(re_):>13} {fmt(ri):>13}")
     if args.json:
         json.dump(results, open(args.json, "w"), indent=2)
 
