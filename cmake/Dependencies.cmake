@@ -28,6 +28,24 @@ if(NOT CLI11_FOUND)
   message(STATUS "CLI11: using third_party copy")
 endif()
 
+# pugixml: PLUS configuration XML (Debian's libpugixml-dev). Optional: without it
+# read_plus_config throws "built without pugixml". pugixml >= 1.11 names its target
+# pugixml::pugixml; older releases name it pugixml.
+set(SONOSLICE_HAVE_PUGIXML OFF)
+find_package(pugixml QUIET)
+if(pugixml_FOUND)
+  if(TARGET pugixml::pugixml)
+    set(SONOSLICE_PUGIXML_TARGET pugixml::pugixml)
+    set(SONOSLICE_HAVE_PUGIXML ON)
+  elseif(TARGET pugixml)
+    set(SONOSLICE_PUGIXML_TARGET pugixml)
+    set(SONOSLICE_HAVE_PUGIXML ON)
+  endif()
+endif()
+if(NOT SONOSLICE_HAVE_PUGIXML)
+  message(STATUS "pugixml not found: PLUS configuration files cannot be read")
+endif()
+
 # ITK: medical image formats. AUTO = use it when found.
 set(SONOSLICE_HAVE_ITK OFF)
 if(NOT SONOSLICE_WITH_ITK STREQUAL "OFF")

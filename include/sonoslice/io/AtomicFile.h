@@ -4,6 +4,8 @@
 /// good data with bad.
 #include <string>
 
+#include "sonoslice/core/Memory.h"
+
 namespace sonoslice {
 
 class AtomicFile {
@@ -37,8 +39,5 @@ void check_output_path(const std::string& path, bool directory = false);
 
 /// Free bytes on the filesystem that holds `path`'s directory.
 unsigned long long free_disk_bytes(const std::string& path);
-
-/// Memory the OS reports as available (MemAvailable), in bytes.
-unsigned long long available_memory_bytes();
 
 }  // namespace sonoslice

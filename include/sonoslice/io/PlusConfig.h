@@ -1,0 +1,42 @@
+#pragma once
+/// @file A PLUS configuration XML's volume-reconstruction settings and calibration.
+#include <array>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/io/PlusSequence.h"
+
+namespace sonoslice {
+
+/// What sonoslice uses from a PLUS configuration file.
+struct PlusReconstructionConfig {
+  std::string path;
+  /// Every `CoordinateDefinitions/Transform` (From, To, Matrix), e.g. Image → Probe.
+  TransformRepository coordinate_definitions;
+  /// `VolumeReconstruction` attributes (PLUS defaults where absent).
+  std::string image_frame = "Image", reference_frame = "Reference";
+  std::optional<Vec3> output_spacing_mm, output_origin_mm;
+  std::optional<std::array<int, 6>> output_extent;  ///< i0 i1 j0 j1 k0 k1, inclusive
+  CompoundSettings settings;                        ///< interpolation, mode, threshold, holes
+  FrameClip clip;                                   ///< clip rectangle and fan
+  int skip_interval = 1;                            ///< use frames 0, k, 2k, ...
+  /// Attributes of `VolumeReconstruction` (and its hole-filling elements) that sonoslice read
+  /// but does not act on (Optimization, NumberOfThreads: sonoslice picks its own).
+  std::vector<std::string> ignored_attributes;
+  /// Attributes PLUS does not define (typos, newer PLUS versions); the reader also warns.
+  std::vector<std::string> unknown_attributes;
+};
+
+/// Reads `path`. Errors (FileError / InputError) name the file, the element and the attribute:
+/// missing file, malformed XML, no VolumeReconstruction element, a value that does not parse, an
+/// unknown enumerated value, IMPORTANCE_MASK compounding (not supported). Enumerated values are
+/// case-insensitive as in PLUS. Where an attribute is absent PLUS's default applies:
+/// Interpolation NEAREST_NEIGHBOR; CompoundingMode from the deprecated Calculation/Compounding,
+/// else MEAN (with a warning); no clipping; no fan. Deprecated attributes, unknown ones (one
+/// warning listing them all) and unsupported options that are switched on are reported through
+/// sonoslice::warn. Throws Error in a build without pugixml.
+PlusReconstructionConfig read_plus_config(const std::string& path);
+
+}  // namespace sonoslice

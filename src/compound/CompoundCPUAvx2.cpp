@@ -1,0 +1,15 @@
+// The CPU backend of the compounding kernels for CPUs with AVX2: the same CompoundImpl.h built
+// with -mavx2 -mfma (the eight corner sums of a linear splat in one register). Chosen at run
+// time (Compounder.cpp); it gives the same bits as the generic build.
+#define SONOSLICE_KERNEL_ISA avx2
+#include "CompoundBackends.h"
+#include "CompoundImpl.h"
+
+namespace sonoslice {
+namespace compound_impl {
+void compound_cpu_avx2(const AccumulatorView& grid, const FrameBatch& batch, Mode mode, bool linear,
+                       int axis, int lo, int hi, int slabs) {
+  dispatch_compound_cpu(grid, batch, mode, linear, axis, lo, hi, slabs);
+}
+}  // namespace compound_impl
+}  // namespace sonoslice

@@ -1,0 +1,39 @@
+// The CUDA backend of the compounding kernels: CompoundImpl.h compiled by nvcc with the CUDA
+// parallel_for. Buffers and streams are host code (CompounderCUDA.cpp).
+#define SONOSLICE_KERNEL_ISA cuda
+#include "CompoundBackends.h"
+#include "CompoundImpl.h"
+
+namespace sonoslice {
+namespace compound_impl {
+
+void compound_cuda_launch(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
+                          bool linear, void* stream) {
+  visit_sample_type(batch.type, [&](auto sample_zero) {
+    using T = decltype(sample_zero);
+    visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
+      compound_batch_cuda<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(grid, batch,
+                                                                                     stream);
+    });
+  });
+}
+
+namespace {
+struct ClearAccumulators {
+  AccumulatorView grid;
+  float empty_value;
+  __device__ void operator()(int64_t i) const {
+    grid.cells[i].value = empty_value;
+    grid.cells[i].weight = 0.f;
+    if (grid.stamp) grid.stamp[i] = -1;
+  }
+};
+}  // namespace
+
+void compound_cuda_clear(const AccumulatorView& grid, Mode mode, void* stream) {
+  const int64_t n = int64_t(grid.nx) * grid.ny * grid.nz;
+  backend::parallel_for(n, ClearAccumulators{grid, mode == Mode::Max ? -INFINITY : 0.f}, stream);
+}
+
+}  // namespace compound_impl
+}  // namespace sonoslice

@@ -1,0 +1,64 @@
+#pragma once
+// Internal: the plain structs the compounding kernels (CompoundImpl.h) take, shared by the
+// dispatch layer (Compounder.cpp) and every backend. No pointers are checked below this layer.
+#include <cstdint>
+
+#include "sonoslice/volume/PixelType.h"
+
+namespace sonoslice {
+namespace compound_impl {
+
+/// One accumulator per voxel: the running value (weighted sum for mean and latest, maximum for
+/// max) and the summed splat weight (0: no sample yet). Interleaved so that a splat touches one
+/// cache line per voxel.
+struct Accumulator {
+  float value;
+  float weight;
+};
+
+/// The accumulator grid: x fastest. `stamp` (latest mode only) holds the last frame that wrote
+/// each voxel, so a newer frame replaces older samples instead of averaging with them.
+struct AccumulatorView {
+  int nx = 0, ny = 0, nz = 0;
+  Accumulator* cells = nullptr;
+  int32_t* stamp = nullptr;
+};
+
+enum class Mode : int { Mean = 0, Max = 1, Latest = 2 };
+
+/// A row of samples: a straight line in voxel-index space, sample u at c0 + u·dc. Image rows
+/// and 3-D beams are both rows.
+struct RowLine {
+  float c0[3];
+  float dc[3];
+};
+
+/// The samples of a row that go in: up to four runs [begin, end) (a fan of up to 180° cuts a
+/// row at most twice, a wider one four times); unused runs have begin == end.
+constexpr int kMaxSpans = 4;
+struct RowSpans {
+  int begin[kMaxSpans];
+  int end[kMaxSpans];
+};
+
+/// A batch of frames: rows × width samples each, rows of all frames stored frame after frame.
+struct FrameBatch {
+  int frames = 0;
+  int rows = 0;   ///< rows per frame (image height, or n_elevation × n_azimuth beams)
+  int width = 0;  ///< samples per row
+  PixelType type = PixelType::UInt8;
+  const void* samples = nullptr;         ///< frames × rows × width
+  const RowLine* lines = nullptr;        ///< frames × rows
+  const RowSpans* spans = nullptr;       ///< rows (the same for every frame)
+  int32_t first_frame_id = 0;            ///< frame ids (latest mode) are first_frame_id + f
+  float rejection_threshold = -3.4e38f;  ///< samples below it are not inserted
+};
+
+/// Where a CPU task may write: voxels whose index along `axis` is in [lo, hi).
+struct Slab {
+  int axis = 2;
+  int lo = 0, hi = 0;
+};
+
+}  // namespace compound_impl
+}  // namespace sonoslice

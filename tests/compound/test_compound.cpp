@@ -1,0 +1,813 @@
+// Compounding (SPEC §7): known answers for every splat and compounding mode, clip rectangles and
+// fans, hole filling, an independent float64 oracle, thread-count bit identity, incremental vs
+// batch, 3-D beam frames, the slicer round trip, memory limits and bad input.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <random>
+
+#include "../common/TestUtil.h"
+#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/slice/Slicer.h"
+
+namespace sonoslice {
+namespace {
+
+using test::BackendTest;
+
+VolumeGrid unit_grid(int64_t nx, int64_t ny, int64_t nz, double spacing = 1.0) {
+  VolumeGrid g;
+  g.dims = {nx, ny, nz};
+  g.spacing_mm = {spacing, spacing, spacing};
+  return g;
+}
+
+// Pixel (i, j) at origin + i·ex + j·ey.
+Mat4 frame_matrix(const Vec3& origin, const Vec3& ex, const Vec3& ey) {
+  Mat4 m;
+  const Vec3 ez = cross(ex, ey);
+  for (int r = 0; r < 3; ++r) {
+    m.m[r][0] = ex[r];
+    m.m[r][1] = ey[r];
+    m.m[r][2] = ez[r];
+    m.m[r][3] = origin[r];
+  }
+  return m;
+}
+
+Mat4 translation(double x, double y, double z) {
+  return frame_matrix({{x, y, z}}, {{1, 0, 0}}, {{0, 1, 0}});
+}
+
+CompoundSettings settings(SplatInterpolation interp, CompoundingMode mode) {
+  CompoundSettings s;
+  s.interpolation = interp;
+  s.mode = mode;
+  return s;
+}
+
+std::vector<float> as_floats(const Volume& v) {
+  const Volume f = v.pixel_type() == PixelType::Float32 ? v : v.converted(PixelType::Float32);
+  const float* p = f.data_as<float>();
+  return std::vector<float>(p, p + f.grid().voxel_count());
+}
+
+int64_t offset(const VolumeGrid& g, int64_t x, int64_t y, int64_t z) {
+  return (z * g.dims[1] + y) * g.dims[0] + x;
+}
+
+// --- Known answers ----------------------------------------------------------------------------
+
+TEST(Compound, NearestFrameOnVoxelCentresIsCopiedIntoItsSlice) {
+  const VolumeGrid g = unit_grid(8, 6, 4);
+  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean));
+  std::vector<uint8_t> frame(8 * 6);
+  for (size_t i = 0; i < frame.size(); ++i) frame[i] = uint8_t(3 * i + 1);
+  c.add_image(frame.data(), PixelType::UInt8, 8, 6, translation(0, 0, 2));
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  const auto w = as_floats(c.weights());
+  for (int z = 0; z < 4; ++z)
+    for (int y = 0; y < 6; ++y)
+      for (int x = 0; x < 8; ++x) {
+        const int64_t i = offset(g, x, y, z);
+        EXPECT_EQ(v[i], z == 2 ? frame[y * 8 + x] : 0.f) << x << "," << y << "," << z;
+        EXPECT_EQ(w[i], z == 2 ? 1.f : 0.f);
+      }
+  EXPECT_EQ(c.frames_added(), 1);
+}
+
+TEST(Compound, MeanMaxLatestOfTwoFramesAtOnePose) {
+  const VolumeGrid g = unit_grid(4, 4, 3);
+  const std::vector<uint8_t> a(16, 10), b(16, 25), low(16, 4);
+  struct Case {
+    CompoundingMode mode;
+    float expected;
+  };
+  for (const Case& k : {Case{CompoundingMode::Mean, (10.f + 25.f + 4.f) / 3.f},
+                        Case{CompoundingMode::Max, 25.f}, Case{CompoundingMode::Latest, 4.f}}) {
+    for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+      Compounder c(g, settings(interp, k.mode));
+      for (const auto* f : {&a, &b, &low})
+        c.add_image(f->data(), PixelType::UInt8, 4, 4, translation(0, 0, 1));
+      const auto v = as_floats(c.volume(PixelType::Float32));
+      for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 4; ++x) EXPECT_FLOAT_EQ(v[offset(g, x, y, 1)], k.expected);
+      EXPECT_EQ(v[offset(g, 1, 1, 0)], 0.f);
+    }
+  }
+}
+
+TEST(Compound, LinearSplatSpreadsOneSampleWithTrilinearWeights) {
+  const VolumeGrid g = unit_grid(6, 6, 6);
+  Compounder c(g, settings(SplatInterpolation::Linear, CompoundingMode::Mean));
+  const float sample = 80.f;
+  c.add_image(&sample, PixelType::Float32, 1, 1, translation(2.25, 3.5, 1.75));
+  const auto w = as_floats(c.weights());
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  const double fx = 0.25, fy = 0.5, fz = 0.75;
+  double total = 0;
+  for (int k = 0; k < 8; ++k) {
+    const int dx = k & 1, dy = (k >> 1) & 1, dz = k >> 2;
+    const double expected = (dx ? fx : 1 - fx) * (dy ? fy : 1 - fy) * (dz ? fz : 1 - fz);
+    const int64_t i = offset(g, 2 + dx, 3 + dy, 1 + dz);
+    EXPECT_NEAR(w[i], expected, 1e-6);
+    EXPECT_FLOAT_EQ(v[i], sample);
+    total += w[i];
+  }
+  EXPECT_NEAR(total, 1.0, 1e-6);
+  double all = 0;
+  for (float x : w) all += x;
+  EXPECT_NEAR(all, 1.0, 1e-6);  // nothing anywhere else
+}
+
+TEST(Compound, LinearSplatOfARampOnASymmetricSampleLatticeIsExact) {
+  // Samples every 0.25 voxel, symmetric around each voxel centre: the weighted mean of a linear
+  // function is its value at the voxel centre.
+  const VolumeGrid g = unit_grid(10, 10, 5);
+  Compounder c(g, settings(SplatInterpolation::Linear, CompoundingMode::Mean));
+  const int W = 37, H = 37;  // 0 .. 9 voxels in steps of 0.25
+  for (int s = 0; s <= 16; ++s) {
+    const double z = s * 0.25;
+    std::vector<float> frame(W * H);
+    for (int j = 0; j < H; ++j)
+      for (int i = 0; i < W; ++i) frame[j * W + i] = float(3 + 2 * (0.25 * i) - (0.25 * j) + 4 * z);
+    c.add_image(frame.data(), PixelType::Float32, W, H,
+                frame_matrix({{0, 0, z}}, {{0.25, 0, 0}}, {{0, 0.25, 0}}));
+  }
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  // Interior voxels (every neighbour sample present on both sides).
+  for (int z = 1; z < 4; ++z)
+    for (int y = 1; y < 9; ++y)
+      for (int x = 1; x < 9; ++x) EXPECT_NEAR(v[offset(g, x, y, z)], 3 + 2 * x - y + 4 * z, 1e-4);
+}
+
+TEST(Compound, LatestKeepsTheMeanOfTheNewestFrameThatReachedEachVoxel) {
+  const VolumeGrid g = unit_grid(4, 4, 1);
+  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Latest));
+  // 8×8 pixels of 0.5 mm: four pixels per voxel.
+  const std::vector<uint8_t> old(64, 100);
+  c.add_image(old.data(), PixelType::UInt8, 8, 8,
+              frame_matrix({{-0.25, -0.25, 0}}, {{0.5, 0, 0}}, {{0, 0.5, 0}}));
+  // The newer frame covers only the left half (4 columns of pixels = voxels x 0..1).
+  std::vector<uint8_t> fresh(4 * 8);
+  for (int j = 0; j < 8; ++j)
+    for (int i = 0; i < 4; ++i) fresh[j * 4 + i] = uint8_t(10 * i + j);
+  c.add_image(fresh.data(), PixelType::UInt8, 4, 8,
+              frame_matrix({{-0.25, -0.25, 0}}, {{0.5, 0, 0}}, {{0, 0.5, 0}}));
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  for (int y = 0; y < 4; ++y)
+    for (int x = 0; x < 4; ++x) {
+      double expected = 100;
+      if (x < 2) {
+        expected = 0;
+        for (int j = 2 * y; j < 2 * y + 2; ++j)
+          for (int i = 2 * x; i < 2 * x + 2; ++i) expected += fresh[j * 4 + i] / 4.0;
+      }
+      EXPECT_FLOAT_EQ(v[offset(g, x, y, 0)], float(expected)) << x << "," << y;
+    }
+}
+
+TEST(Compound, RejectionThresholdSkipsDarkerSamplesOnly) {
+  const VolumeGrid g = unit_grid(4, 1, 1);
+  CompoundSettings s = settings(SplatInterpolation::Nearest, CompoundingMode::Mean);
+  s.rejection_threshold = 20;
+  Compounder c(g, s);
+  const uint8_t frame[4] = {5, 19, 20, 200};
+  c.add_image(frame, PixelType::UInt8, 4, 1, translation(0, 0, 0));
+  const auto w = as_floats(c.weights());
+  EXPECT_EQ(w[0], 0.f);
+  EXPECT_EQ(w[1], 0.f);
+  EXPECT_EQ(w[2], 1.f);  // equal to the threshold: inserted (as in PLUS)
+  EXPECT_EQ(w[3], 1.f);
+}
+
+TEST(Compound, OutputTypesRoundAndSaturate) {
+  const VolumeGrid g = unit_grid(3, 1, 1);
+  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean), Device::cpu(), 0,
+               PixelType::Float32);
+  const float frame[3] = {-7.6f, 2.5f, 300.4f};
+  c.add_image(frame, PixelType::Float32, 3, 1, translation(0, 0, 0));
+  const Volume u8 = c.volume(PixelType::UInt8);
+  EXPECT_EQ(u8.data_as<uint8_t>()[0], 0);
+  EXPECT_EQ(u8.data_as<uint8_t>()[1], 3);
+  EXPECT_EQ(u8.data_as<uint8_t>()[2], 255);
+  const Volume i16 = c.volume(PixelType::Int16);
+  EXPECT_EQ(i16.data_as<int16_t>()[0], -8);
+  EXPECT_EQ(i16.data_as<int16_t>()[2], 300);
+}
+
+// --- Clip rectangles and fans -----------------------------------------------------------------
+
+TEST(Compound, ClipRectangleKeepsOnlyItsPixels) {
+  FrameClip clip;
+  clip.x = 2;
+  clip.y = 1;
+  clip.width = 3;
+  clip.height = 2;
+  const auto m = clip.mask(8, 6);
+  int count = 0;
+  for (int y = 0; y < 6; ++y)
+    for (int x = 0; x < 8; ++x) {
+      const bool inside = x >= 2 && x < 5 && y >= 1 && y < 3;
+      EXPECT_EQ(m[y * 8 + x], inside ? 1 : 0);
+      count += m[y * 8 + x];
+    }
+  EXPECT_EQ(count, 6);
+
+  const VolumeGrid g = unit_grid(8, 6, 1);
+  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean));
+  const std::vector<uint8_t> frame(48, 9);
+  c.add_image(frame.data(), PixelType::UInt8, 8, 6, translation(0, 0, 0), clip);
+  const auto w = as_floats(c.weights());
+  for (int i = 0; i < 48; ++i) EXPECT_EQ(w[i], m[i] ? 1.f : 0.f);
+
+  // A rectangle reaching past the frame is cut at its edge.
+  clip.x = 6;
+  clip.width = 10;
+  const auto r = clip.rectangle(8, 6);
+  EXPECT_EQ(r[0], 6);
+  EXPECT_EQ(r[2], 8);
+}
+
+TEST(Compound, FanClipFollowsPlusConventions) {
+  FrameClip clip;
+  clip.fan = true;
+  clip.fan_angles_deg[0] = -30;
+  clip.fan_angles_deg[1] = 30;
+  clip.fan_origin_px[0] = 20;
+  clip.fan_origin_px[1] = 2;
+  clip.fan_radius_px[0] = 5;
+  clip.fan_radius_px[1] = 15;
+  const int W = 41, H = 20;
+  const auto m = clip.mask(W, H);
+  const auto at = [&](int x, int y) { return m[y * W + x]; };
+  EXPECT_EQ(at(20, 12), 1);      // on the axis, radius 10
+  EXPECT_EQ(at(20, 5), 0);       // radius 3 < start
+  EXPECT_EQ(at(20, 7), 1);       // radius 5: inclusive
+  EXPECT_EQ(at(20, 17), 1);      // radius 15: inclusive
+  EXPECT_EQ(at(20, 18), 0);      // radius 16
+  EXPECT_EQ(at(20 + 6, 12), 0);  // 31° off axis
+  EXPECT_EQ(at(20 + 5, 12), 1);  // 26.6°
+  EXPECT_EQ(at(20, 0), 0);       // above the origin
+  // Symmetric about the axis.
+  for (int y = 0; y < H; ++y)
+    for (int d = 0; d <= 20; ++d) EXPECT_EQ(at(20 + d, y), at(20 - d, y));
+}
+
+// --- Hole filling -----------------------------------------------------------------------------
+
+// Inserts single samples (value at voxel) with 1×1 frames, nearest.
+Compounder with_known_voxels(const VolumeGrid& g, const std::map<std::array<int, 3>, float>& known,
+                             const std::vector<HoleFillingKernel>& kernels) {
+  CompoundSettings s = settings(SplatInterpolation::Nearest, CompoundingMode::Mean);
+  s.fill_holes = true;
+  s.hole_filling = kernels;
+  Compounder c(g, s);
+  for (const auto& [p, value] : known)
+    c.add_image(&value, PixelType::Float32, 1, 1, translation(p[0], p[1], p[2]));
+  return c;
+}
+
+TEST(HoleFilling, GaussianFillsAHoleInAConstantRegionAndLeavesIsolatedHoles) {
+  const VolumeGrid g = unit_grid(7, 7, 7);
+  std::map<std::array<int, 3>, float> known;
+  for (int z = 0; z < 5; ++z)
+    for (int y = 0; y < 5; ++y)
+      for (int x = 0; x < 5; ++x)
+        if (!(x == 2 && y == 2 && z == 2)) known[{x, y, z}] = 7.f;
+  known[{6, 6, 6}] = 90.f;  // a lone sample: its neighbours are holes with 1/27 known
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::Gaussian;
+  k.size = 3;
+  k.stdev = 1;
+  k.minimum_known_ratio = 0.5;
+  const Compounder c = with_known_voxels(g, known, {k});
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  EXPECT_FLOAT_EQ(v[offset(g, 2, 2, 2)], 7.f);  // 26 of 27 known
+  EXPECT_EQ(v[offset(g, 5, 5, 5)], 0.f);        // 1 of 27 known: not filled
+  EXPECT_EQ(v[offset(g, 6, 6, 6)], 90.f);       // known voxels unchanged
+  // Edge of the block: (5, 2, 2) has 9 of 27 known (1/3 < 0.5): not filled.
+  EXPECT_EQ(v[offset(g, 5, 2, 2)], 0.f);
+}
+
+TEST(HoleFilling, GaussianWeightsFavourCloserVoxels) {
+  const VolumeGrid g = unit_grid(3, 3, 3);
+  std::map<std::array<int, 3>, float> known;
+  for (int z = 0; z < 3; ++z)
+    for (int y = 0; y < 3; ++y)
+      for (int x = 0; x < 3; ++x)
+        if (!(x == 1 && y == 1 && z == 1)) known[{x, y, z}] = x == 2 ? 100.f : 0.f;
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::Gaussian;
+  k.stdev = 0.8;
+  k.minimum_known_ratio = 0.5;
+  const Compounder c = with_known_voxels(g, known, {k});
+  // Known answer: sum over the x = 2 face of 100·w(d) / sum over all 26 of w(d).
+  double num = 0, den = 0;
+  for (int z = -1; z <= 1; ++z)
+    for (int y = -1; y <= 1; ++y)
+      for (int x = -1; x <= 1; ++x) {
+        if (!x && !y && !z) continue;
+        const double w = std::exp(-(x * x + y * y + z * z) / (2 * 0.8 * 0.8));
+        den += w;
+        if (x == 1) num += 100 * w;
+      }
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  EXPECT_NEAR(v[offset(g, 1, 1, 1)], num / den, 1e-4);
+}
+
+TEST(HoleFilling, NearestNeighborUsesTheSmallestCubeWithKnownVoxels) {
+  const VolumeGrid g = unit_grid(9, 9, 9);
+  std::map<std::array<int, 3>, float> known;
+  // A shell at distance 2 around (4, 4, 4), two voxels at distance 1.
+  for (int z = 2; z <= 6; ++z)
+    for (int y = 2; y <= 6; ++y)
+      for (int x = 2; x <= 6; ++x)
+        if (std::max({std::abs(x - 4), std::abs(y - 4), std::abs(z - 4)}) == 2)
+          known[{x, y, z}] = 50.f;
+  known[{5, 4, 4}] = 10.f;
+  known[{3, 4, 4}] = 20.f;
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::NearestNeighbor;
+  k.size = 5;
+  k.minimum_known_ratio = 0.0;
+  const Compounder c = with_known_voxels(g, known, {k});
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  EXPECT_FLOAT_EQ(v[offset(g, 4, 4, 4)], 15.f);  // radius 1: the two inner voxels
+  // (4, 5, 4) sees both inner voxels and the shell at radius 1: the mean of the 9 + 2 known.
+  double sum = 10 + 20;
+  int n = 2;
+  for (int z = 3; z <= 5; ++z)
+    for (int x = 3; x <= 5; ++x) {
+      sum += 50;
+      ++n;
+    }
+  EXPECT_NEAR(v[offset(g, 4, 5, 4)], sum / n, 1e-4);
+}
+
+TEST(HoleFilling, StickInterpolatesAlongTheShortestLine) {
+  const VolumeGrid g = unit_grid(9, 3, 3);
+  std::map<std::array<int, 3>, float> known{{{0, 1, 1}, 10.f}, {{4, 1, 1}, 50.f}};
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::Stick;
+  k.stick_length_limit = 9;
+  k.sticks_to_use = 1;
+  const Compounder c = with_known_voxels(g, known, {k});
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  EXPECT_FLOAT_EQ(v[offset(g, 1, 1, 1)], 20.f);
+  EXPECT_FLOAT_EQ(v[offset(g, 2, 1, 1)], 30.f);
+  EXPECT_FLOAT_EQ(v[offset(g, 3, 1, 1)], 40.f);
+  EXPECT_EQ(v[offset(g, 5, 1, 1)], 0.f);  // only one known end
+  // A stick longer than the limit is not used.
+  k.stick_length_limit = 4;
+  const Compounder shorter = with_known_voxels(g, known, {k});
+  EXPECT_EQ(as_floats(shorter.volume(PixelType::Float32))[offset(g, 2, 1, 1)], 0.f);
+}
+
+TEST(HoleFilling, ElementsApplyInOrder) {
+  const VolumeGrid g = unit_grid(9, 3, 3);
+  std::map<std::array<int, 3>, float> known{{{0, 1, 1}, 10.f}, {{4, 1, 1}, 50.f}};
+  HoleFillingKernel gauss;  // cannot fill (too few known voxels)
+  gauss.minimum_known_ratio = 0.5;
+  HoleFillingKernel stick;
+  stick.type = HoleFillingKernel::Stick;
+  const Compounder c = with_known_voxels(g, known, {gauss, stick});
+  EXPECT_FLOAT_EQ(as_floats(c.volume(PixelType::Float32))[offset(g, 2, 1, 1)], 30.f);
+  HoleFillingKernel loose = gauss;  // can fill: wins over the stick
+  loose.minimum_known_ratio = 0.0;
+  const Compounder d = with_known_voxels(g, known, {loose, stick});
+  EXPECT_FLOAT_EQ(as_floats(d.volume(PixelType::Float32))[offset(g, 1, 1, 1)], 10.f);
+}
+
+// --- An independent float64 oracle -------------------------------------------------------------
+
+struct OracleFrame {
+  std::vector<float> samples;  // rows × width
+  int rows = 0, width = 0;
+  // Position (world mm) of sample u of row r.
+  std::function<Vec3(int r, int u)> position;
+};
+
+// Splats in double precision. Nearest: voxels a sample could reach with float32 coordinates
+// (within 1e-3 voxel of a rounding decision) are marked uncertain. Linear weights are continuous,
+// so float32 and float64 differ only by rounding.
+struct Oracle {
+  std::vector<double> sum, weight;
+  std::vector<uint8_t> uncertain;
+};
+
+Oracle oracle(const VolumeGrid& g, const std::vector<OracleFrame>& frames, bool linear) {
+  Oracle o;
+  const size_t n = size_t(g.voxel_count());
+  o.sum.assign(n, 0);
+  o.weight.assign(n, 0);
+  o.uncertain.assign(n, 0);
+  for (const auto& f : frames)
+    for (int r = 0; r < f.rows; ++r)
+      for (int u = 0; u < f.width; ++u) {
+        const Vec3 c = g.world_to_index(f.position(r, u));
+        const double s = f.samples[size_t(r) * f.width + u];
+        if (!linear) {
+          int64_t i[3], other[3];  // other: the index across a boundary closer than 1e-3
+          bool inside = true;
+          for (int a = 0; a < 3; ++a) {
+            const double t = c[a] + 0.5;
+            i[a] = int64_t(std::floor(t));
+            const double frac = t - double(i[a]);
+            other[a] = frac < 1e-3 ? i[a] - 1 : (frac > 1 - 1e-3 ? i[a] + 1 : i[a]);
+            inside = inside && i[a] >= 0 && i[a] < g.dims[a];
+          }
+          // float32 coordinates may round the other way: every candidate voxel is uncertain.
+          const bool tie = other[0] != i[0] || other[1] != i[1] || other[2] != i[2];
+          if (tie)
+            for (int k = 0; k < 8; ++k) {
+              const int64_t x = (k & 1) ? other[0] : i[0], y = (k & 2) ? other[1] : i[1],
+                            z = (k & 4) ? other[2] : i[2];
+              if (x >= 0 && y >= 0 && z >= 0 && x < g.dims[0] && y < g.dims[1] && z < g.dims[2])
+                o.uncertain[size_t(offset(g, x, y, z))] = 1;
+            }
+          if (!inside) continue;
+          o.sum[size_t(offset(g, i[0], i[1], i[2]))] += s;
+          o.weight[size_t(offset(g, i[0], i[1], i[2]))] += 1;
+          continue;
+        }
+        int64_t i[3];
+        double fr[3];
+        for (int a = 0; a < 3; ++a) {
+          i[a] = int64_t(std::floor(c[a]));
+          fr[a] = c[a] - double(i[a]);
+        }
+        for (int k = 0; k < 8; ++k) {
+          const int64_t x = i[0] + (k & 1), y = i[1] + ((k >> 1) & 1), z = i[2] + (k >> 2);
+          if (x < 0 || y < 0 || z < 0 || x >= g.dims[0] || y >= g.dims[1] || z >= g.dims[2])
+            continue;
+          const double w = ((k & 1) ? fr[0] : 1 - fr[0]) * ((k & 2) ? fr[1] : 1 - fr[1]) *
+                           ((k & 4) ? fr[2] : 1 - fr[2]);
+          const size_t v = size_t(offset(g, x, y, z));
+          o.sum[v] += w * s;
+          o.weight[v] += w;
+        }
+      }
+  return o;
+}
+
+// A slow sweep of oblique frames through an oblique grid, random pixel values.
+struct Sweep {
+  VolumeGrid grid;
+  int width = 48, height = 40;
+  std::vector<Mat4> poses;
+  std::vector<uint8_t> pixels;
+};
+
+Sweep make_sweep(int frames, uint32_t seed) {
+  Sweep s;
+  s.grid = test::oblique_grid({40, 36, 30});
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> value(0, 255);
+  s.pixels.resize(size_t(frames) * s.width * s.height);
+  for (auto& p : s.pixels) p = uint8_t(value(rng));
+  const Vec3 centre = s.grid.index_to_world({{20, 18, 15}});
+  for (int f = 0; f < frames; ++f) {
+    const Mat3 r = test::rotation({{0.3, 1, 0.2}}, 10 + 1.5 * f);
+    const Vec3 ex = r * Vec3{{0.45, 0, 0}}, ey = r * Vec3{{0, 0.5, 0}}, ez = r * Vec3{{0, 0, 1}};
+    const Vec3 origin = centre - 24 * ex - 20 * ey + (0.3 * (f - frames / 2.0)) * ez;
+    s.poses.push_back(frame_matrix(origin, ex, ey));
+  }
+  return s;
+}
+
+std::vector<OracleFrame> oracle_frames(const Sweep& s) {
+  std::vector<OracleFrame> out;
+  for (size_t f = 0; f < s.poses.size(); ++f) {
+    OracleFrame o;
+    o.rows = s.height;
+    o.width = s.width;
+    const uint8_t* p = s.pixels.data() + f * s.width * s.height;
+    o.samples.assign(p, p + s.width * s.height);
+    const Mat4 m = s.poses[f];
+    o.position = [m](int r, int u) { return m.transform_point({{double(u), double(r), 0.0}}); };
+    out.push_back(std::move(o));
+  }
+  return out;
+}
+
+class CompoundBackendTest : public BackendTest {};
+
+TEST_P(CompoundBackendTest, MatchesTheFloat64Oracle) {
+  const Sweep s = make_sweep(24, 7);
+  for (bool linear : {false, true}) {
+    const Oracle o = oracle(s.grid, oracle_frames(s), linear);
+    Compounder c(s.grid,
+                 settings(linear ? SplatInterpolation::Linear : SplatInterpolation::Nearest,
+                          CompoundingMode::Mean),
+                 device());
+    c.add_images(s.pixels.data(), PixelType::UInt8, s.width, s.height, int64_t(s.poses.size()),
+                 s.poses.data());
+    const auto v = as_floats(c.volume(PixelType::Float32));
+    const auto w = as_floats(c.weights());
+    int64_t reached_total = 0, reached = 0;
+    double max_value_error = 0, max_weight_error = 0;
+    for (size_t i = 0; i < v.size(); ++i) {
+      reached_total += o.weight[i] > 1e-3;
+      if (o.uncertain[i]) continue;
+      max_weight_error = std::max(max_weight_error, std::fabs(w[i] - o.weight[i]));
+      if (o.weight[i] > 1e-3) {
+        ++reached;
+        max_value_error = std::max(max_value_error, std::fabs(v[i] - o.sum[i] / o.weight[i]));
+      }
+    }
+    SCOPED_TRACE(linear ? "linear" : "nearest");
+    EXPECT_GT(reached, 1500);
+    EXPECT_GT(reached, reached_total * 3 / 4);  // few voxels left out as uncertain
+    EXPECT_LT(max_weight_error, linear ? 1e-3 : 1e-9);
+    EXPECT_LT(max_value_error, linear ? 2e-2 : 1e-3);
+  }
+}
+
+SONOSLICE_INSTANTIATE_BACKENDS(CompoundBackendTest);
+
+// --- Determinism ------------------------------------------------------------------------------
+
+TEST(Compound, BitIdenticalFor1_2And16Threads) {
+  const Sweep s = make_sweep(30, 11);
+  for (auto mode : {CompoundingMode::Mean, CompoundingMode::Max, CompoundingMode::Latest}) {
+    for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+      std::vector<std::vector<uint8_t>> results;
+      for (int threads : {1, 2, 16}) {
+        set_cpu_threads(threads);
+        Compounder c(s.grid, settings(interp, mode));
+        c.add_images(s.pixels.data(), PixelType::UInt8, s.width, s.height, int64_t(s.poses.size()),
+                     s.poses.data());
+        const Volume v = c.volume(PixelType::Float32), w = c.weights();
+        std::vector<uint8_t> bytes(v.byte_size() + w.byte_size());
+        std::memcpy(bytes.data(), v.data(), v.byte_size());
+        std::memcpy(bytes.data() + v.byte_size(), w.data(), w.byte_size());
+        results.push_back(std::move(bytes));
+      }
+      set_cpu_threads(0);
+      EXPECT_TRUE(results[0] == results[1]) << "1 vs 2 threads";
+      EXPECT_TRUE(results[0] == results[2]) << "1 vs 16 threads";
+    }
+  }
+}
+
+TEST(Compound, GenericAndAvx2KernelsGiveTheSameBits) {
+  try {
+    set_cpu_kernel_isa("avx2");
+  } catch (const InputError&) {
+    GTEST_SKIP() << "no AVX2 kernels on this machine";
+  }
+  const Sweep s = make_sweep(20, 13);
+  for (auto mode : {CompoundingMode::Mean, CompoundingMode::Max, CompoundingMode::Latest}) {
+    for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+      std::vector<float> results[2];
+      for (const char* isa : {"avx2", "generic"}) {
+        set_cpu_kernel_isa(isa);
+        Compounder c(s.grid, settings(interp, mode));
+        c.add_images(s.pixels.data(), PixelType::UInt8, s.width, s.height, int64_t(s.poses.size()),
+                     s.poses.data());
+        results[isa[0] == 'g'] = as_floats(c.volume(PixelType::Float32));
+        const auto w = as_floats(c.weights());
+        results[isa[0] == 'g'].insert(results[isa[0] == 'g'].end(), w.begin(), w.end());
+      }
+      EXPECT_EQ(std::memcmp(results[0].data(), results[1].data(), results[0].size() * 4), 0);
+    }
+  }
+  set_cpu_kernel_isa("auto");
+}
+
+TEST(Compound, IncrementalFramesGiveTheBatchResult) {
+  const Sweep s = make_sweep(20, 5);
+  for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+    CompoundSettings st = settings(interp, CompoundingMode::Mean);
+    st.fill_holes = true;
+    Compounder batch(s.grid, st), live(s.grid, st);
+    batch.add_images(s.pixels.data(), PixelType::UInt8, s.width, s.height, int64_t(s.poses.size()),
+                     s.poses.data());
+    const size_t frame = size_t(s.width) * s.height;
+    for (size_t f = 0; f < s.poses.size(); ++f) {
+      live.add_image(s.pixels.data() + f * frame, PixelType::UInt8, s.width, s.height, s.poses[f]);
+      if (f == 9) {  // the volume can be read at any point
+        EXPECT_EQ(live.frames_added(), 10);
+        (void)live.volume();
+      }
+    }
+    const Volume a = batch.volume(PixelType::Float32), b = live.volume(PixelType::Float32);
+    EXPECT_EQ(std::memcmp(a.data(), b.data(), a.byte_size()), 0);
+  }
+}
+
+// --- 3-D beam-space frames
+// ------------------------------------------------------------------------
+
+TEST_P(CompoundBackendTest, BeamFramesLandWhereSpec7PutsTheirSamples) {
+  BeamGeometry bg;
+  bg.n_elevation = 5;
+  bg.n_azimuth = 9;
+  bg.n_samples = 40;
+  bg.r0_mm = 3;
+  bg.dr_mm = 0.4;
+  bg.azimuth0_deg = -20;
+  bg.dazimuth_deg = 5;
+  bg.elevation0_deg = -8;
+  bg.delevation_deg = 4;
+  bg.apex_offset_mm = 2;
+  const Mat4 pose = frame_matrix({{1, 2, 3}}, test::rotation({{1, 0.2, 0.1}}, 25) * Vec3{{1, 0, 0}},
+                                 test::rotation({{1, 0.2, 0.1}}, 25) * Vec3{{0, 1, 0}});
+  const VolumeGrid grid = Compounder::grid_around_beams({pose}, bg, 0.7);
+  std::vector<float> samples(size_t(bg.n_elevation) * bg.n_azimuth * bg.n_samples);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> value(0, 100);
+  for (auto& x : samples) x = value(rng);
+  OracleFrame of;
+  of.rows = bg.n_elevation * bg.n_azimuth;
+  of.width = bg.n_samples;
+  of.samples = samples;
+  of.position = [&](int r, int s) {
+    const double a = (bg.azimuth0_deg + (r % bg.n_azimuth) * bg.dazimuth_deg) * M_PI / 180;
+    const double e = (bg.elevation0_deg + (r / bg.n_azimuth) * bg.delevation_deg) * M_PI / 180;
+    const double d = bg.r0_mm + s * bg.dr_mm;
+    const Vec3 p{{d * std::sin(a), -bg.apex_offset_mm + d * std::cos(a) * std::cos(e),
+                  d * std::cos(a) * std::sin(e)}};
+    return pose.transform_point(p);
+  };
+  // The grid encloses every sample.
+  for (int r = 0; r < of.rows; ++r)
+    for (int s : {0, bg.n_samples - 1}) {
+      const Vec3 c = grid.world_to_index(of.position(r, s));
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_GE(c[a], -1e-6);
+        EXPECT_LE(c[a], grid.dims[a] - 1 + 0.5 + 1e-6);
+      }
+    }
+  const Oracle o = oracle(grid, {of}, false);
+  Compounder c(grid, settings(SplatInterpolation::Nearest, CompoundingMode::Mean), device());
+  c.add_beams(samples.data(), PixelType::Float32, bg, pose);
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  const auto w = as_floats(c.weights());
+  int64_t reached = 0;
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (o.uncertain[i]) continue;
+    EXPECT_EQ(w[i], o.weight[i]);
+    if (o.weight[i] > 0) {
+      ++reached;
+      EXPECT_NEAR(v[i], o.sum[i] / o.weight[i], 1e-3);
+    }
+  }
+  EXPECT_GT(reached, 500);
+}
+
+// --- Round trip through the slicer -------------------------------------------------------------
+
+TEST(Compound, RoundTripThroughTheSlicerRecoversTheVolume) {
+  // A smooth volume, sliced by a linear probe along a dense sweep and compounded back.
+  VolumeGrid grid = unit_grid(60, 50, 40, 0.8);
+  grid.origin_mm = {{-24, -5, -16}};
+  const auto f = [](const Vec3& p) {
+    return 100 + 40 * std::sin(p[0] / 7.0) * std::cos(p[1] / 9.0) + 0.8 * p[2];
+  };
+  const Volume volume = test::make_volume<float>(grid, f);
+  ProbeGeometry probe;
+  probe.type = ProbeType::Linear;
+  probe.image.width = 120;
+  probe.image.height = 90;
+  probe.image.spacing_mm[0] = probe.image.spacing_mm[1] = 0.3;
+  probe.image.set_default_origin();
+  std::vector<Pose> poses;
+  for (int k = 0; k < 100; ++k) {
+    const Mat3 tilt = test::rotation({{1, 0, 0}}, 5.0 * std::sin(k * 0.05));
+    poses.push_back(test::make_pose(tilt, {{0.0, 2.0, -13.0 + 0.26 * k}}));
+  }
+  Slicer slicer(volume, probe);
+  const std::vector<float> images = slicer.slice<float>(poses);
+  std::vector<Mat4> image_to_reference;
+  for (const Pose& p : poses)
+    image_to_reference.push_back(
+        p * frame_matrix({{probe.image.origin_mm[0], probe.image.origin_mm[1], 0}}, {{0.3, 0, 0}},
+                         {{0, 0.3, 0}}));
+  Compounder c(grid, settings(SplatInterpolation::Linear, CompoundingMode::Mean), Device::cpu(), 0,
+               PixelType::Float32);
+  c.add_images(images.data(), PixelType::Float32, probe.image.width, probe.image.height,
+               int64_t(poses.size()), image_to_reference.data());
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  const auto w = as_floats(c.weights());
+  const float* original = volume.data_as<float>();
+  double max_error = 0, sum_error = 0;
+  int64_t covered = 0;
+  // Interior voxels: samples on every side (at the edge of the covered region the splat's mean
+  // leans towards the side the samples came from).
+  const auto interior = [&](int64_t x, int64_t y, int64_t z) {
+    for (int64_t dz = -1; dz <= 1; ++dz)
+      for (int64_t dy = -1; dy <= 1; ++dy)
+        for (int64_t dx = -1; dx <= 1; ++dx) {
+          const int64_t px = x + dx, py = y + dy, pz = z + dz;
+          if (px < 0 || py < 0 || pz < 0 || px >= grid.dims[0] || py >= grid.dims[1] ||
+              pz >= grid.dims[2] || w[size_t(offset(grid, px, py, pz))] < 1)
+            return false;
+        }
+    return true;
+  };
+  for (size_t i = 0; i < v.size(); ++i) {
+    if (!interior(int64_t(i) % 60, int64_t(i) / 60 % 50, int64_t(i) / 3000)) continue;
+    ++covered;
+    const double e = std::fabs(v[i] - original[i]);
+    max_error = std::max(max_error, e);
+    sum_error += e;
+  }
+  // Range of f is about 80; the splat blurs by under a voxel.
+  EXPECT_GT(covered, 20000);
+  EXPECT_LT(sum_error / double(covered), 0.25);
+  EXPECT_LT(max_error, 2.0);
+}
+
+// --- Grids, memory and bad input ---------------------------------------------------------------
+
+TEST(Compound, GridAroundFollowsPlusRule) {
+  // Pixels of 0.1 mm; the clip rectangle's corner pixel centres set the box.
+  const Mat4 a = frame_matrix({{5, 6, 7}}, {{0.1, 0, 0}}, {{0, 0.1, 0}});
+  const Mat4 b = frame_matrix({{5, 6, 9.6}}, {{0.1, 0, 0}}, {{0, 0.1, 0}});
+  const VolumeGrid g = Compounder::grid_around({a, b}, 101, 51, FrameClip{}, 0.5);
+  EXPECT_NEAR(g.origin_mm[0], 5, 1e-12);
+  EXPECT_NEAR(g.origin_mm[1], 6, 1e-12);
+  EXPECT_NEAR(g.origin_mm[2], 7, 1e-12);
+  EXPECT_EQ(g.dims[0], 21);  // round(10 / 0.5) + 1
+  EXPECT_EQ(g.dims[1], 11);
+  EXPECT_EQ(g.dims[2], 6);  // round(2.6 / 0.5) + 1 = round(5.2) + 1
+  FrameClip clip;
+  clip.x = 10;
+  clip.y = 20;
+  clip.width = 51;   // pixels 10 .. 60
+  clip.height = 11;  // rows 20 .. 30
+  const VolumeGrid c = Compounder::grid_around({a}, 101, 51, clip, 0.5);
+  EXPECT_NEAR(c.origin_mm[0], 6, 1e-12);
+  EXPECT_NEAR(c.origin_mm[1], 8, 1e-12);
+  EXPECT_EQ(c.dims[0], 11);
+  EXPECT_EQ(c.dims[1], 3);
+}
+
+TEST(Compound, TooBigAGridStopsWithASizeAndASpacingThatFits) {
+  VolumeGrid g = unit_grid(2000, 2000, 1000, 0.1);
+  try {
+    Compounder c(g, CompoundSettings{}, Device::cpu(), uint64_t(1) << 30);
+    FAIL() << "no error";
+  } catch (const ResourceError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("2000x2000x1000"), std::string::npos) << m;
+    EXPECT_NE(m.find("GiB"), std::string::npos) << m;
+    EXPECT_NE(m.find("a spacing of"), std::string::npos) << m;
+    EXPECT_EQ(m.find('\n'), std::string::npos);
+    // The suggested spacing does fit.
+    const double s = std::stod(m.substr(m.find("a spacing of") + 13));
+    VolumeGrid h = g;
+    for (int a = 0; a < 3; ++a) {
+      h.dims[a] = int64_t(std::round((g.dims[a] - 1) * 0.1 / s)) + 1;
+      h.spacing_mm[a] = s;
+    }
+    EXPECT_LE(compounding_memory_bytes(h, CompoundSettings{}, PixelType::UInt8), uint64_t(1) << 30);
+  }
+}
+
+TEST(Compound, BadInputIsRejectedWithAClearMessage) {
+  const VolumeGrid g = unit_grid(4, 4, 4);
+  Compounder c(g, CompoundSettings{});
+  const uint8_t px[4] = {1, 2, 3, 4};
+  Mat4 nan = translation(0, 0, 0);
+  nan.m[1][2] = std::nan("");
+  EXPECT_THROW(c.add_image(px, PixelType::UInt8, 2, 2, nan), InputError);
+  Mat4 projective = translation(0, 0, 0);
+  projective.m[3][0] = 1;
+  EXPECT_THROW(c.add_image(px, PixelType::UInt8, 2, 2, projective), InputError);
+  EXPECT_THROW(c.add_image(px, PixelType::UInt8, 0, 2, translation(0, 0, 0)), InputError);
+  BeamGeometry bg;  // zero sizes
+  EXPECT_THROW(c.add_beams(px, PixelType::UInt8, bg, translation(0, 0, 0)), InputError);
+  FrameClip fan;
+  fan.fan = true;
+  fan.fan_angles_deg[0] = -95;
+  EXPECT_THROW(c.add_image(px, PixelType::UInt8, 2, 2, translation(0, 0, 0), fan), InputError);
+  CompoundSettings bad;
+  bad.hole_filling[0].size = 4;
+  EXPECT_THROW(Compounder(g, bad), InputError);
+  EXPECT_THROW(parse_compounding_mode("median"), InputError);
+  EXPECT_THROW(parse_splat_interpolation("cubic"), InputError);
+  EXPECT_EQ(c.frames_added(), 0);  // nothing went in
+  // Frames entirely outside the grid are accepted and change nothing.
+  c.add_image(px, PixelType::UInt8, 2, 2, translation(100, 100, 100));
+  const auto w = as_floats(c.weights());
+  for (float x : w) EXPECT_EQ(x, 0.f);
+}
+
+TEST(Compound, OtherSampleTypesAreConvertedNotRejected) {
+  const VolumeGrid g = unit_grid(2, 1, 1);
+  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean));
+  const double px[2] = {1.5, -2.25};
+  c.add_image(px, PixelType::Float64, 2, 1, translation(0, 0, 0));
+  const auto v = as_floats(c.volume(PixelType::Float32));
+  EXPECT_FLOAT_EQ(v[0], 1.5f);
+  EXPECT_FLOAT_EQ(v[1], -2.25f);
+}
+
+}  // namespace
+}  // namespace sonoslice
