@@ -9,7 +9,13 @@
 //   build/bin/bench_compound --benchmark_filter=Jauer
 #include <benchmark/benchmark.h>
 
+#include <cstring>
+#include <map>
+#include <memory>
+
 #include "sonoslice/compound/Compounder.h"
+#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/phantom/Workloads.h"
 
 namespace sonoslice {
@@ -103,6 +109,87 @@ void BM_Sweep2D(benchmark::State& state) {
   set_cpu_threads(0);
 }
 
+// The real PLUS sweeps of ../shared/data/plus with their XML settings (clip rectangle, spacing);
+// the valid frames copied next to each other once, outside the timing.
+struct RealSweep {
+  std::vector<uint8_t> pixels;
+  std::vector<Mat4> image_to_reference;
+  int width = 0, height = 0;
+  PlusReconstructionConfig config;
+  VolumeGrid grid;
+  std::string error;
+};
+
+const RealSweep& real_sweep(const std::string& name) {
+  static std::map<std::string, std::unique_ptr<RealSweep>> cache;
+  auto& entry = cache[name];
+  if (entry) return *entry;
+  entry = std::make_unique<RealSweep>();
+  RealSweep& r = *entry;
+  try {
+    const std::string dir = SONOSLICE_SHARED_DATA_DIR "/plus/";
+    const bool nwire = name == "Nwire";
+    const PlusSequence s = read_plus_sequence(
+        dir + (nwire ? "NwirePhantomFreehand.igs.mha" : "BoneUltrasound_L14.igs.mha"));
+    r.config = read_plus_config(
+        dir + (nwire ? "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml"
+                     : "BoneUltrasound_L14_config.xml"));
+    r.width = s.width;
+    r.height = s.height;
+    for (int f = 0; f < s.frame_count; ++f) {
+      TransformRepository repo = r.config.coordinate_definitions;
+      repo.set_frame(s, f);
+      const auto m = repo.get(r.config.image_frame, r.config.reference_frame);
+      if (!m || !s.image_ok(f)) continue;
+      r.image_to_reference.push_back(*m);
+      const auto* p = static_cast<const uint8_t*>(s.frame_pixels(f));
+      r.pixels.insert(r.pixels.end(), p, p + s.frame_bytes());
+    }
+    r.grid = Compounder::grid_around(r.image_to_reference, r.width, r.height, r.config.clip,
+                                     *r.config.output_spacing_mm);
+  } catch (const std::exception& e) {
+    r.error = e.what();
+  }
+  return r;
+}
+
+// args: linear, threads
+void BM_PlusSweep(benchmark::State& state, const std::string& name) {
+  const RealSweep& r = real_sweep(name);
+  if (!r.error.empty()) {
+    state.SkipWithError(r.error.c_str());
+    return;
+  }
+  set_cpu_threads(int(state.range(1)));
+  CompoundSettings s = r.config.settings;
+  s.interpolation = state.range(0) ? SplatInterpolation::Linear : SplatInterpolation::Nearest;
+  s.fill_holes = false;
+  const int64_t n = int64_t(r.image_to_reference.size());
+  for (auto _ : state) {
+    Compounder c(r.grid, s);
+    c.add_images(r.pixels.data(), PixelType::UInt8, r.width, r.height, n,
+                 r.image_to_reference.data(), r.config.clip);
+    benchmark::DoNotOptimize(&c);
+  }
+  const auto rect = r.config.clip.rectangle(r.width, r.height);
+  const double inserted = double(rect[2] - rect[0]) * (rect[3] - rect[1]);
+  state.SetItemsProcessed(int64_t(state.iterations()) * n * r.width * r.height);  // frame pixels
+  state.counters["frames_per_s"] =
+      benchmark::Counter(double(n) * double(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["inserted_px_per_s"] = benchmark::Counter(
+      double(n) * inserted * double(state.iterations()), benchmark::Counter::kIsRate);
+  set_cpu_threads(0);
+}
+
+void real_cases(benchmark::internal::Benchmark* b) {
+  b->ArgNames({"linear", "threads"})->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+  for (int linear : {0, 1})
+    for (int threads : {1, 2}) b->Args({linear, threads});
+}
+
+BENCHMARK_CAPTURE(BM_PlusSweep, Nwire, std::string("Nwire"))->Apply(real_cases);
+BENCHMARK_CAPTURE(BM_PlusSweep, BoneL14, std::string("Bone"))->Apply(real_cases);
+
 // holes: -1 = splatting only (no volume()), 0 = + finish, 1 = + finish with hole filling.
 void cases(benchmark::internal::Benchmark* b) {
   b->ArgNames({"linear", "threads", "holes", "cuda"})->Unit(benchmark::kMillisecond)->UseRealTime();
@@ -112,8 +199,8 @@ void cases(benchmark::internal::Benchmark* b) {
   for (int linear : {0, 1}) b->Args({linear, 0, -1, 1})->Args({linear, 0, 0, 1});
 }
 
-BENCHMARK(BM_Jauer)->Apply(cases)->Iterations(1)->Repetitions(1);
-BENCHMARK(BM_Sweep2D)->Apply(cases)->Iterations(1)->Repetitions(1);
+BENCHMARK(BM_Jauer)->Apply(cases)->Iterations(1)->Repetitions(3)->ReportAggregatesOnly(true);
+BENCHMARK(BM_Sweep2D)->Apply(cases)->Iterations(1)->Repetitions(3)->ReportAggregatesOnly(true);
 
 }  // namespace
 }  // namespace sonoslice

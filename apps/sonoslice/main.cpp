@@ -13,7 +13,7 @@ void print_warning(const std::string& message) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"sonoslice: fast ultrasound-shaped slicing of CT/MRI volumes (CPU)", "sonoslice"};
+  CLI::App app{"sonoslice: fast ultrasound-shaped slicing of CT/MRI volumes and freehand 3D reconstruction (CPU and CUDA)", "sonoslice"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("sonoslice ") + SONOSLICE_VERSION);
   sonoslice::cli::add_slice_command(app);
@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   sonoslice::cli::add_phantom_command(app);
   sonoslice::cli::add_demo_command(app);
   sonoslice::cli::add_voxelize_command(app);
+  sonoslice::cli::add_compound_command(app);
   sonoslice::cli::add_bench_command(app);
   sonoslice::set_warning_handler(&print_warning);
   try {

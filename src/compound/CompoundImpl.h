@@ -200,6 +200,25 @@ SONOSLICE_INLINE void walk_row(int ub, int ue, int ib, int ie, const Step& step)
   for (int u = ie; u < ue; ++u) step(u, std::true_type{});
 }
 
+#if defined(SONOSLICE_COMPOUND_AVX2)
+/// Eight samples as floats.
+inline __m256 load8(const uint8_t* p) {
+  return _mm256_cvtepi32_ps(
+      _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p))));
+}
+inline __m256 load8(const uint16_t* p) {
+  return _mm256_cvtepi32_ps(
+      _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p))));
+}
+inline __m256 load8(const int16_t* p) {
+  return _mm256_cvtepi32_ps(
+      _mm256_cvtepi16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p))));
+}
+inline __m256 load8(const float* p) {
+  return _mm256_loadu_ps(p);
+}
+#endif
+
 /// One row's samples [ub, ue) into the slab (voxels with index in [lo, hi) along Axis), nearest
 /// voxel (the row's c0 carries the +0.5 of floor(c + 0.5)). Runs of samples in the same voxel
 /// are gathered first.
@@ -214,7 +233,16 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
   float value = gather_start<M>(), weight = 0.f;
   const float fnx = float(g.nx), fny = float(g.ny), fnz = float(g.nz);
   const int64_t nx = g.nx, ny = g.ny;
-  walk_row(ub, ue, ib, ie, [&](int u, auto checked) {
+  const auto take = [&](int64_t v, float s) {
+    if (v != current) {
+      if (current >= 0) apply<M>(g, current, value, weight, frame);
+      current = v;
+      value = gather_start<M>();
+      weight = 0.f;
+    }
+    gather<M>(value, weight, s, 1.f);
+  };
+  const auto step = [&](int u, auto checked) {
     const float s = sample_value(row, u);
     if (s < threshold) return;
     const float fu = float(u);
@@ -229,15 +257,41 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
       const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
       if (ia < slab.lo || ia >= slab.hi) return;
     }
-    const int64_t v = (iz * ny + iy) * nx + ix;
-    if (v != current) {
-      if (current >= 0) apply<M>(g, current, value, weight, frame);
-      current = v;
-      value = gather_start<M>();
-      weight = 0.f;
+    take((iz * ny + iy) * nx + ix, s);
+  };
+  ib = ib < ub ? ub : ib;
+  ie = ie > ue ? ue : ie;
+  if (ib >= ie) ib = ie = ue;
+  for (int u = ub; u < ib; ++u) step(u, std::true_type{});
+  int u = ib;
+#if defined(SONOSLICE_COMPOUND_AVX2)
+  // Eight samples' voxels at a time (the same float operations as step(), so the same bits);
+  // the runs are then gathered lane by lane.
+  if (int64_t(g.nx) * g.ny * g.nz < (int64_t(1) << 31)) {
+    const __m256 c0x = _mm256_set1_ps(L.c0[0]), c0y = _mm256_set1_ps(L.c0[1]),
+                 c0z = _mm256_set1_ps(L.c0[2]);
+    const __m256 dx = _mm256_set1_ps(L.dc[0]), dy = _mm256_set1_ps(L.dc[1]),
+                 dz = _mm256_set1_ps(L.dc[2]);
+    const __m256i vnx = _mm256_set1_epi32(g.nx), vny = _mm256_set1_epi32(g.ny);
+    alignas(32) int32_t offsets[8];
+    alignas(32) float samples[8];
+    for (; u + 8 <= ie; u += 8) {
+      const __m256 fu =
+          _mm256_add_ps(_mm256_set1_ps(float(u)), _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7));
+      const __m256i ix = _mm256_cvttps_epi32(_mm256_add_ps(c0x, _mm256_mul_ps(fu, dx)));
+      const __m256i iy = _mm256_cvttps_epi32(_mm256_add_ps(c0y, _mm256_mul_ps(fu, dy)));
+      const __m256i iz = _mm256_cvttps_epi32(_mm256_add_ps(c0z, _mm256_mul_ps(fu, dz)));
+      const __m256i off = _mm256_add_epi32(
+          _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(iz, vny), iy), vnx), ix);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(offsets), off);
+      _mm256_store_ps(samples, load8(row + u));
+      for (int l = 0; l < 8; ++l)
+        if (!(samples[l] < threshold)) take(offsets[l], samples[l]);
     }
-    gather<M>(value, weight, s, 1.f);
-  });
+  }
+#endif
+  for (; u < ie; ++u) step(u, std::false_type{});
+  for (u = ie; u < ue; ++u) step(u, std::true_type{});
   if (current >= 0) apply<M>(g, current, value, weight, frame);
 }
 
@@ -362,8 +416,18 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
       apply<M>(g, voxel_offset(g, x, y, z), value[k], weight[k], frame);
     }
   };
+  const auto take = [&](int ix, int iy, int iz, float fx, float fy, float fz, float s) {
+    if (ix != cell[0] || iy != cell[1] || iz != cell[2]) {
+      flush();
+      cell[0] = ix;
+      cell[1] = iy;
+      cell[2] = iz;
+      sums.reset();
+    }
+    sums.add(fx, fy, fz, s);
+  };
   const float fnx = float(g.nx), fny = float(g.ny), fnz = float(g.nz);
-  walk_row(ub, ue, ib, ie, [&](int u, auto checked) {
+  const auto step = [&](int u, auto checked) {
     const float s = sample_value(row, u);
     if (s < threshold) return;
     const float fu = float(u);
@@ -377,15 +441,42 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
       const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
       if (ia + 1 < slab.lo || ia >= slab.hi) return;
     }
-    if (ix != cell[0] || iy != cell[1] || iz != cell[2]) {
-      flush();
-      cell[0] = ix;
-      cell[1] = iy;
-      cell[2] = iz;
-      sums.reset();
+    take(ix, iy, iz, cx - float(ix), cy - float(iy), cz - float(iz), s);
+  };
+  ib = ib < ub ? ub : ib;
+  ie = ie > ue ? ue : ie;
+  if (ib >= ie) ib = ie = ue;
+  for (int u = ub; u < ib; ++u) step(u, std::true_type{});
+  int u = ib;
+#if defined(SONOSLICE_COMPOUND_AVX2)
+  {
+    // Eight samples' cells and fractions at a time (step()'s float operations, so its bits).
+    const __m256 c0[3] = {_mm256_set1_ps(L.c0[0]), _mm256_set1_ps(L.c0[1]),
+                          _mm256_set1_ps(L.c0[2])};
+    const __m256 d[3] = {_mm256_set1_ps(L.dc[0]), _mm256_set1_ps(L.dc[1]), _mm256_set1_ps(L.dc[2])};
+    alignas(32) int32_t idx[3][8];
+    alignas(32) float frac[3][8], samples[8];
+    for (; u + 8 <= ie; u += 8) {
+      const __m256 fu =
+          _mm256_add_ps(_mm256_set1_ps(float(u)), _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7));
+      for (int a = 0; a < 3; ++a) {
+        const __m256 c = _mm256_add_ps(c0[a], _mm256_mul_ps(fu, d[a]));
+        // floor_to_int: truncate, then one less where truncation went up.
+        __m256i i = _mm256_cvttps_epi32(c);
+        const __m256 up = _mm256_cmp_ps(c, _mm256_cvtepi32_ps(i), _CMP_LT_OQ);
+        i = _mm256_add_epi32(i, _mm256_castps_si256(up));  // mask lanes are -1
+        _mm256_store_si256(reinterpret_cast<__m256i*>(idx[a]), i);
+        _mm256_store_ps(frac[a], _mm256_sub_ps(c, _mm256_cvtepi32_ps(i)));
+      }
+      _mm256_store_ps(samples, load8(row + u));
+      for (int l = 0; l < 8; ++l)
+        if (!(samples[l] < threshold))
+          take(idx[0][l], idx[1][l], idx[2][l], frac[0][l], frac[1][l], frac[2][l], samples[l]);
     }
-    sums.add(cx - float(ix), cy - float(iy), cz - float(iz), s);
-  });
+  }
+#endif
+  for (; u < ie; ++u) step(u, std::false_type{});
+  for (u = ie; u < ue; ++u) step(u, std::true_type{});
   flush();
 }
 

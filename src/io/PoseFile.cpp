@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
@@ -154,19 +155,52 @@ std::vector<Pose> poses_from_json(const std::string& path) {
 
 }  // namespace
 
-std::vector<Pose> read_poses(const std::string& path, WorldFrame frame) {
+std::vector<Mat4> read_matrices(const std::string& path) {
   const std::string ext = lower_extension(path);
-  std::vector<Pose> poses;
+  std::vector<Mat4> matrices;
   if (ext == ".npy")
-    poses = poses_from_npy(path);
+    matrices = poses_from_npy(path);
   else if (ext == ".txt" || ext == ".csv")
-    poses = poses_from_text(path);
+    matrices = poses_from_text(path);
   else if (ext == ".json")
-    poses = poses_from_json(path);
+    matrices = poses_from_json(path);
   else
     throw InputError("poses '" + path +
                      "': unknown extension (expected .npy, .txt, .csv or .json)");
-  if (poses.empty()) throw InputError("poses '" + path + "': no poses in the file");
+  if (matrices.empty()) throw InputError("poses '" + path + "': no poses in the file");
+  return matrices;
+}
+
+Mat4 read_matrix(const std::string& text, const std::string& what) {
+  // 16 (or 12) numbers separated by commas or spaces, else a file holding one matrix.
+  std::string t = text;
+  std::replace_if(
+      t.begin(), t.end(), [](char c) { return c == ',' || c == ';' || c == '\t'; }, ' ');
+  std::istringstream in(t);
+  std::vector<double> values;
+  double v;
+  while (in >> v) values.push_back(v);
+  if (in.eof() && (values.size() == 16 || values.size() == 12)) {
+    Mat4 m;
+    for (size_t i = 0; i < values.size(); ++i) m.m[i / 4][i % 4] = values[i];
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c)
+        if (!std::isfinite(m.m[r][c])) throw InputError(what + ": non-finite matrix element");
+    return m;
+  }
+  const std::vector<Mat4> m = read_matrices(text);
+  if (m.size() != 1)
+    throw InputError(what + " '" + text + "': expected one 4x4 matrix, the file has " +
+                     std::to_string(m.size()));
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c)
+      if (!std::isfinite(m[0].m[r][c]))
+        throw InputError(what + " '" + text + "': non-finite matrix element");
+  return m[0];
+}
+
+std::vector<Pose> read_poses(const std::string& path, WorldFrame frame) {
+  std::vector<Pose> poses = read_matrices(path);
   for (Pose& p : poses) p = pose_to_lps(p, frame);
   validate_poses(poses.data(), poses.size(), "poses '" + path + "'");
   return poses;

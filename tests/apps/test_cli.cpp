@@ -4,8 +4,10 @@
 
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 
@@ -195,7 +197,8 @@ TEST_F(Cli, VoxelizeAndSliceMeshesInBothModesWithColours) {
   }
   write_poses_npy(out.file("in_poses.npy"), poses);
   const std::string cfg = quote(d + "/models_binary_LUS_config.json");
-  const std::string common = " --probe " + cfg + " --downsampling 2 --poses " + quote(out.file("in_poses.npy"));
+  const std::string common =
+      " --probe " + cfg + " --downsampling 2 --poses " + quote(out.file("in_poses.npy"));
   r = run("slice --labels " + quote(out.file("labels.nii.gz")) + common + " --out " +
               quote(out.file("from_labels.npy")) + " --colors " + quote(out.file("colors.npy")),
           out);
@@ -204,7 +207,9 @@ TEST_F(Cli, VoxelizeAndSliceMeshesInBothModesWithColours) {
               quote(out.file("exact.npy")) + " --colors " + quote(out.file("colors_png")),
           out);
   ASSERT_EQ(r.code, 0) << r.err;
-  r = run("slice --mesh-dir " + quote(d) + common + " --voxel-size 0.5 --out " + quote(out.file("voxel.nii.gz")), out);
+  r = run("slice --mesh-dir " + quote(d) + common + " --voxel-size 0.5 --out " +
+              quote(out.file("voxel.nii.gz")),
+          out);
   ASSERT_EQ(r.code, 0) << r.err;
   const NpyArray a = read_npy(out.file("from_labels.npy")), e = read_npy(out.file("exact.npy"));
   EXPECT_EQ(a.type, PixelType::UInt8);
@@ -230,6 +235,103 @@ TEST_F(Cli, VoxelizeAndSliceMeshesInBothModesWithColours) {
   EXPECT_GT(2.0 * double(agree) / double(ones + exact_ones), 0.9);  // 0.5 mm voxels vs exact
   EXPECT_TRUE(fs::exists(out.file("colors_png/img_00019.png")));
   EXPECT_EQ(read_volume(out.file("voxel.nii.gz")).grid().dims[2], 20);
+}
+
+TEST_F(Cli, CompoundPlusSequencesBothFormatsAgree) {
+  SONOSLICE_REQUIRE_SHARED_DATA();
+  test::TempDir out;
+  const std::string plus = test::shared_data_dir() + "/plus/";
+  const std::string xml =
+      quote(plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml");
+  const CliRun a = run("compound --sequence " + quote(plus + "NwirePhantomFreehand.igs.mha") +
+                           " --config " + xml + " --out " + quote(out.file("a.nii.gz")) +
+                           " --weights " + quote(out.file("w.nrrd")) + " -q",
+                       out);
+  ASSERT_EQ(a.code, 0) << a.err;
+  const CliRun b = run("compound --sequence " + quote(plus + "NwirePhantomFreehand.igs.nrrd") +
+                           " --config " + xml + " --out " + quote(out.file("b.mha")) + " -q",
+                       out);
+  ASSERT_EQ(b.code, 0) << b.err;
+  const Volume va = read_volume(out.file("a.nii.gz")), vb = read_volume(out.file("b.mha"));
+  EXPECT_EQ(va.pixel_type(), PixelType::UInt8);
+  EXPECT_EQ(va.grid().dims, (std::array<int64_t, 3>{101, 105, 74}));
+  EXPECT_NEAR(va.grid().origin_mm[0], -22.2573, 1e-3);  // PLUS's reference origin
+  ASSERT_EQ(va.byte_size(), vb.byte_size());
+  EXPECT_EQ(std::memcmp(va.data(), vb.data(), va.byte_size()), 0);
+  const Volume w = read_volume(out.file("w.nrrd"));
+  EXPECT_EQ(w.pixel_type(), PixelType::Float32);
+  // Flags override the XML: nearest, max, hole filling, a clip rectangle.
+  const CliRun c = run("compound --sequence " + quote(plus + "NwirePhantomFreehand.igs.mha") +
+                           " --config " + xml +
+                           " --interp nearest --compounding max --fill-holes on"
+                           " --clip-rect 200,100,300,300 --spacing 1 --out " +
+                           quote(out.file("c.nii")) + " -v",
+                       out);
+  ASSERT_EQ(c.code, 0) << c.err;
+  EXPECT_NE(c.err.find("nearest splats, max compounding, hole filling on"), std::string::npos)
+      << c.err;
+  EXPECT_NE(c.err.find("97 of 97 frames"), std::string::npos) << c.err;
+  EXPECT_LT(read_volume(out.file("c.nii")).grid().dims[0], 60);  // 1 mm, smaller clip
+}
+
+TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
+  test::TempDir out;
+  // A sweep of the phantom sliced by `slice`, compounded back with the same probe and poses.
+  std::vector<Pose> sweep;
+  for (int k = 0; k < 40; ++k)
+    sweep.push_back(Mat4::from_rotation_translation(test::rotation({{1, 0, 0}}, 90),
+                                                    {{0.0, -20.0 + 1.0 * k, -40.0}}));
+  write_poses_text(out.file("sweep.txt"), sweep);
+  ASSERT_EQ(
+      run("slice --volume " + ct() + " --probe " + fan() + " --poses " +
+              quote(out.file("sweep.txt")) + " --out " + quote(out.file("frames.nii")) + " -q",
+          out)
+          .code,
+      0);
+  const CliRun r =
+      run("compound --frames " + quote(out.file("frames.nii")) + " --poses " +
+              quote(out.file("sweep.txt")) + " --probe " + fan() + " --spacing 1.5 --out " +
+              quote(out.file("v.nii.gz")) + " --weights " + quote(out.file("w.nii.gz")) + " -q",
+          out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Volume v = read_volume(out.file("v.nii.gz")), w = read_volume(out.file("w.nii.gz"));
+  const Volume ct_volume = read_volume(data_->file("ph/ct.nii.gz"));
+  EXPECT_EQ(v.pixel_type(), PixelType::Float32);  // the frames' type
+  // Covered voxels hold the CT values at their centres (within the blur of two resamplings).
+  std::vector<double> errors;
+  for (int64_t i = 0; i < v.grid().voxel_count(); i += 7) {
+    if (w.data_as<float>()[i] < 1) continue;
+    const int64_t x = i % v.grid().dims[0], y = i / v.grid().dims[0] % v.grid().dims[1],
+                  z = i / (v.grid().dims[0] * v.grid().dims[1]);
+    double expected = 0, margin = 0;
+    if (!test::reference_sample(ct_volume,
+                                v.grid().index_to_world({{double(x), double(y), double(z)}}),
+                                Interpolation::Linear, 0, &expected, &margin))
+      continue;
+    errors.push_back(std::fabs(v.data_as<float>()[i] - expected));
+  }
+  ASSERT_GT(errors.size(), 1000u);
+  std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+  EXPECT_LT(errors[errors.size() / 2], 20.0);  // HU; tissue contrasts are hundreds of HU
+
+  // Beam-space frames with their geometry file.
+  std::vector<uint8_t> beams(3 * 4 * 6 * 30, 100);
+  write_npy(out.file("beams.npy"), PixelType::UInt8, {3, 4, 6, 30}, beams.data());
+  std::ofstream(out.file("geom.json"))
+      << R"({"r0_mm": 2, "dr_mm": 0.5, "azimuth0_deg": -10, "dazimuth_deg": 4,
+            "elevation0_deg": -6, "delevation_deg": 4, "apex_offset_mm": 1})";
+  write_poses_text(out.file("bp.txt"), {Pose{}, Pose{}, Pose{}});
+  const CliRun b =
+      run("compound --beam-frames " + quote(out.file("beams.npy")) + " --beam-geometry " +
+              quote(out.file("geom.json")) + " --poses " + quote(out.file("bp.txt")) +
+              " --spacing 0.5 --out " + quote(out.file("b.nii")) + " -q",
+          out);
+  ASSERT_EQ(b.code, 0) << b.err;
+  const Volume bv = read_volume(out.file("b.nii"));
+  EXPECT_EQ(bv.pixel_type(), PixelType::UInt8);
+  int64_t hundred = 0;
+  for (int64_t i = 0; i < bv.grid().voxel_count(); ++i) hundred += bv.data_as<uint8_t>()[i] == 100;
+  EXPECT_GT(hundred, 100);
 }
 
 // --- bad input: one line on stderr naming the input, exit 1, nothing written -----------------
@@ -283,6 +385,24 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
   tet.vertices = {{0, 0, 0}, {10, 0, 0}, {0, 10, 0}, {0, 0, 10}};
   tet.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
   write_mesh(dir.file("in_tet.stl"), tet);
+  // Compounding inputs: a truncated PLUS sequence, a bad PLUS XML, beam frames with a typo.
+  const std::string seq = test::shared_data_dir() + "/plus/NwirePhantomFreehand.igs.mha";
+  if (fs::exists(seq)) {
+    fs::copy_file(seq, dir.file("in_seq.igs.mha"));
+    fs::resize_file(dir.file("in_seq.igs.mha"), fs::file_size(seq) / 2);
+  }
+  write_text(dir.file("in_plus.xml"),
+             "<PlusConfiguration><VolumeReconstruction OutputSpacing=\"0.5 x 0.5\"/>"
+             "</PlusConfiguration>");
+  std::vector<float> beams(2 * 3 * 4 * 5, 10.0f);
+  write_npy(dir.file("in_beams.npy"), PixelType::Float32, {2, 3, 4, 5}, beams.data());
+  write_text(dir.file("in_geom.json"),
+             R"({"r0_mm": 1, "dr_mm": 0.5, "azimuth0_deg": -5, "dazimuth_deg": 2.5,
+                 "elevation0_deg": -4, "delevation_deg": 4, "apex": 0})");
+  write_text(dir.file("in_geom_ok.json"),
+             R"({"r0_mm": 1, "dr_mm": 0.5, "azimuth0_deg": -5, "dazimuth_deg": 2.5,
+                 "elevation0_deg": -4, "delevation_deg": 4})");
+  write_text(dir.file("in_two.txt"), eye + eye);
 }
 
 TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
@@ -317,6 +437,12 @@ TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
 }
 
 const char* kSlice = "slice --volume {CT} --probe {FAN} --poses {POSES} --out {OUT} ";
+const char* kNwire = "{SHARED}/plus/NwirePhantomFreehand.igs.mha";
+const char* kNwireXml =
+    "{SHARED}/plus/PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml";
+const char* kCompound =
+    "compound --sequence {SHARED}/plus/NwirePhantomFreehand.igs.mha --config "
+    "{SHARED}/plus/PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml --out {OUT} ";
 
 std::vector<BadCase> bad_cases() {
   std::vector<BadCase> cases = {
@@ -389,6 +515,43 @@ std::vector<BadCase> bad_cases() {
        "voxelize: give --spacing"},
       {"VoxelizeNoMesh", "voxelize {DIR}/nope.stl --spacing 1 --out {OUT}",
        "nope.stl': no such file"},
+      {"CompoundMissingSequence", "compound --sequence {DIR}/nope.igs.mha --spacing 1 --out {OUT}",
+       "nope.igs.mha"},
+      {"CompoundTruncatedSequence",
+       "compound --sequence {DIR}/in_seq.igs.mha --config " + std::string(kNwireXml) +
+           " --out {OUT}",
+       "in_seq.igs.mha"},
+      {"CompoundNoCalibration",
+       "compound --sequence " + std::string(kNwire) + " --spacing 1 --out {OUT}", "Image"},
+      {"CompoundBadXml",
+       "compound --sequence " + std::string(kNwire) + " --config {DIR}/in_plus.xml --out {OUT}",
+       "OutputSpacing"},
+      {"CompoundMissingXml",
+       "compound --sequence " + std::string(kNwire) + " --config {DIR}/nope.xml --out {OUT}",
+       "nope.xml"},
+      {"CompoundUnknownInterp", std::string(kCompound) + "--interp cubic", "interpolation 'cubic'"},
+      {"CompoundUnknownMode", std::string(kCompound) + "--compounding median", "'median'"},
+      {"CompoundBadFillHoles", std::string(kCompound) + "--fill-holes maybe", "--fill-holes maybe"},
+      {"CompoundBadClipRect", std::string(kCompound) + "--clip-rect 1,2,3", "--clip-rect"},
+      {"CompoundTooBig", std::string(kCompound) + "--spacing 0.01 --max-memory 1G", "a spacing of"},
+      {"CompoundBadMaxMemory", std::string(kCompound) + "--max-memory lots", "--max-memory lots"},
+      {"CompoundCudaUnavailable", std::string(kCompound) + "--device cuda", "cuda"},
+      {"CompoundOutputFormat",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --out {DIR}/v.png",
+       "expected .nii"},
+      {"CompoundTwoInputs", std::string(kCompound) + "--frames {CT}", "exactly one of"},
+      {"CompoundFramesPoseCount",
+       "compound --frames {CT} --poses {POSES} --probe {FAN} --spacing 1 --out {OUT}",
+       "has 12 poses"},
+      {"CompoundBeamGeometryTypo",
+       "compound --beam-frames {DIR}/in_beams.npy --beam-geometry {DIR}/in_geom.json "
+       "--poses {DIR}/in_two.txt --spacing 1 --out {OUT}",
+       "unknown key 'apex'"},
+      {"CompoundNanPose",
+       "compound --beam-frames {DIR}/in_beams.npy --beam-geometry {DIR}/in_geom_ok.json "
+       "--poses {DIR}/in_nan.txt --spacing 1 --out {OUT}",
+       "in_nan.txt"},
   };
   return cases;
 }

@@ -12,6 +12,14 @@ namespace sonoslice {
 /// the file and, where it applies, the line or pose index.
 std::vector<Pose> read_poses(const std::string& path, WorldFrame frame = WorldFrame::LPS);
 
+/// The 4×4 matrices in a pose file, as written: no frame conversion, no pose checks (for
+/// calibrations such as a pixel-to-probe matrix, whose axes are scaled).
+std::vector<Mat4> read_matrices(const std::string& path);
+
+/// One matrix: 16 (or 12) numbers separated by commas or spaces, or a pose file holding
+/// exactly one. InputError naming `what` otherwise.
+Mat4 read_matrix(const std::string& text_or_path, const std::string& what);
+
 /// Writes poses as text, one row-major 4×4 per line (16 numbers), atomically.
 void write_poses_text(const std::string& path, const std::vector<Pose>& poses);
 
