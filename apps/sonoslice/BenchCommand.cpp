@@ -1,5 +1,6 @@
 // sonoslice bench: images per second of the slicing kernel on the benchmark workloads
-// (W1: fan on the full phantom, W2: linear probe), or on a volume/probe/poses of your own.
+// (W1: fan on the full phantom, W2: linear probe), or on a volume/probe/poses of your own;
+// with --compound, frames per second of compounding (Jauer's workload and a 2D sweep).
 // bench/peers.py runs the same workloads through torch, VTK and SciPy and calls this with
 // --json to put sonoslice's figure in the same run.
 #include <algorithm>
@@ -10,6 +11,7 @@
 
 #include "Commands.h"
 #include "Common.h"
+#include "sonoslice/compound/Compounder.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
@@ -23,8 +25,65 @@ struct BenchFlags {
   VolumeFlags volume;
   std::string probe, poses, as = "", interp = "linear", size = "full", device = "cpu";
   int downsampling = 1, count = 1000, repeat = 3, threads = 0;
-  bool json = false;
+  bool json = false, compound = false;
 };
+
+// Compounding (issue 6): the Jauer beam-space workload and a 1000-frame 2D sweep, nearest and
+// linear splats into float accumulators (Workloads.h), splatting plus volume() (no hole filling).
+void run_compound_bench(const BenchFlags& f, const Device& device) {
+  struct Case {
+    std::string name;
+    bool beams;
+  };
+  const BeamSweepWorkload jauer = workload_jauer_beam_sweep();
+  const ImageSweepWorkload sweep = workload_2d_sweep();
+  const BeamGeometry& g = jauer.geometry;
+  const int64_t beam_samples = int64_t(g.n_elevation) * g.n_azimuth * g.n_samples;
+  const int64_t image_samples = int64_t(sweep.width) * sweep.height;
+  const std::vector<uint8_t> beam_frames =
+      workload_frames(int64_t(jauer.probe_to_reference.size()), beam_samples);
+  const std::vector<uint8_t> image_frames =
+      workload_frames(int64_t(sweep.image_to_reference.size()), image_samples);
+  nlohmann::json j = nlohmann::json::array();
+  if (!f.json)
+    std::printf("sonoslice bench --compound: %s, best of %d\n%-44s %-8s %9s %10s %12s\n",
+                device.type == DeviceType::CUDA ? device.to_string().c_str()
+                                                : (std::to_string(cpu_threads()) + " threads").c_str(),
+                f.repeat, "workload", "splats", "seconds", "frames/s", "Msamples/s");
+  for (const Case& c : {Case{"Jauer 814 x 185x84x22 -> 300x1000x600", true},
+                        Case{"2D sweep 1000 x 820x616 -> grid at 0.5 mm", false}})
+    for (const bool linear : {false, true}) {
+      CompoundSettings s;
+      s.interpolation = linear ? SplatInterpolation::Linear : SplatInterpolation::Nearest;
+      double best = 1e300;
+      for (int r = 0; r < f.repeat; ++r) {
+        Stopwatch clock;
+        if (c.beams) {
+          Compounder comp(jauer.grid, s, device);
+          comp.add_beams(beam_frames.data(), PixelType::UInt8, g,
+                         int64_t(jauer.probe_to_reference.size()), jauer.probe_to_reference.data());
+          (void)comp.volume(PixelType::UInt8);
+        } else {
+          Compounder comp(sweep.grid, s, device);
+          comp.add_images(image_frames.data(), PixelType::UInt8, sweep.width, sweep.height,
+                          int64_t(sweep.image_to_reference.size()), sweep.image_to_reference.data());
+          (void)comp.volume(PixelType::UInt8);
+        }
+        best = std::min(best, clock.seconds());
+      }
+      const double frames = double(c.beams ? jauer.probe_to_reference.size() : sweep.image_to_reference.size());
+      const double samples = frames * double(c.beams ? beam_samples : image_samples);
+      if (f.json)
+        j.push_back({{"workload", c.name}, {"splats", linear ? "linear" : "nearest"},
+                     {"device", device.to_string()}, {"threads", cpu_threads()},
+                     {"best_seconds", best}, {"frames_per_second", frames / best},
+                     {"samples_per_second", samples / best}});
+      else
+        std::printf("%-44s %-8s %9.3f %10.0f %12.0f\n", c.name.c_str(), linear ? "linear" : "nearest",
+                    best, frames / best, samples / best / 1e6);
+    }
+  if (f.json) std::printf("%s\n", j.dump(2).c_str());
+}
 
 struct Workload {
   std::string name;
@@ -72,6 +131,10 @@ void run_bench(const BenchFlags& f) {
   set_cpu_threads(f.threads);
   if (f.count < 1 || f.repeat < 1) throw InputError("--count and --repeat must be >= 1");
   const Device device = Device::parse(f.device);
+  if (f.compound) {
+    require_device(device);
+    return run_compound_bench(f, device);
+  }
   const Interpolation interp = parse_interpolation(f.interp);
 
   std::vector<Workload> workloads;
@@ -153,6 +216,8 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
   cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");
   cmd->add_flag("--json", flags->json, "Machine-readable output");
+  cmd->add_flag("--compound", flags->compound,
+                "Measure compounding instead: the Jauer beam-space workload and a 2D sweep");
   cmd->callback([flags] { run_bench(*flags); });
 }
 

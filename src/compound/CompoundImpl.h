@@ -25,6 +25,7 @@
 #include <utility>
 #include <vector>
 
+#include "../backend/Convert.h"
 #include "CompoundTypes.h"
 #include "sonoslice/backend/HostDevice.h"
 
@@ -582,21 +583,23 @@ template <typename T, Mode M, bool Linear>
 struct SplatSamples {
   AccumulatorView g;
   FrameBatch b;
-  int frame;  // within the batch
+  int64_t first_row;  // rows first_row, first_row + 1, ... of the batch (all frames' rows)
   bool reset_latest;
 
   struct Row {
     const RowLine* line;
     const T* samples;
     const RowSpans* spans;
+    int32_t frame_id;
   };
   __device__ Row row(int64_t r) const {
-    const int64_t fr = int64_t(frame) * b.rows + r;
-    return Row{b.lines + fr, static_cast<const T*>(b.samples) + fr * b.width, b.spans + r};
+    const int64_t fr = first_row + r;
+    return Row{b.lines + fr, static_cast<const T*>(b.samples) + fr * b.width, b.spans + fr % b.rows,
+               b.first_frame_id + int32_t(fr / b.rows)};
   }
-  __device__ void touch(int64_t i, float s, float w) const {
+  __device__ void touch(const Row& row, int64_t i, float s, float w) const {
     if (reset_latest) {
-      const int32_t id = b.first_frame_id + frame;
+      const int32_t id = row.frame_id;
       if (g.stamp[i] != id) {
         g.stamp[i] = id;
         g.cells[i].value = 0.f;
@@ -615,11 +618,13 @@ struct SplatSamples {
     if (s < b.rejection_threshold) return;
     const RowLine& L = *row.line;
     const float fu = float(u);
-    const float cx = L.c0[0] + fu * L.dc[0], cy = L.c0[1] + fu * L.dc[1],
-                cz = L.c0[2] + fu * L.dc[2];
+    // Unfused, as on the CPU: the same coordinates, so the same voxels.
+    const float cx = backend::add_product(L.c0[0], fu, L.dc[0]),
+                cy = backend::add_product(L.c0[1], fu, L.dc[1]),
+                cz = backend::add_product(L.c0[2], fu, L.dc[2]);
     int i[3];
     if (!Linear) {
-      if (nearest_voxel(g, cx, cy, cz, i)) touch(voxel_offset(g, i[0], i[1], i[2]), s, 1.f);
+      if (nearest_voxel(g, cx, cy, cz, i)) touch(row, voxel_offset(g, i[0], i[1], i[2]), s, 1.f);
       return;
     }
     float f[3];
@@ -628,19 +633,25 @@ struct SplatSamples {
       const int x = i[0] + (k & 1), y = i[1] + ((k >> 1) & 1), z = i[2] + (k >> 2);
       if (x < 0 || y < 0 || z < 0 || x >= g.nx || y >= g.ny || z >= g.nz) continue;
       const float w = corner_weight(f, k);
-      if (w > 0.f) touch(voxel_offset(g, x, y, z), s, w);
+      if (w > 0.f) touch(row, voxel_offset(g, x, y, z), s, w);
     }
   }
 };
 
-/// The CUDA driver: frames in order (latest mode needs it; the others keep launches small).
+/// The CUDA driver. Mean and max do not depend on the order of the samples (to float rounding,
+/// for the mean): one launch for the whole batch. Latest goes frame by frame, each frame first
+/// clearing the voxels it reaches, then accumulating into them.
 template <typename T, Mode M, bool Linear>
 void compound_batch_cuda(const AccumulatorView& g, const FrameBatch& b, void* stream) {
-  for (int f = 0; f < b.frames; ++f) {
-    if (M == Mode::Latest)
-      backend::parallel_for_rows(b.rows, b.width, SplatSamples<T, M, Linear>{g, b, f, true},
-                                 stream);
-    backend::parallel_for_rows(b.rows, b.width, SplatSamples<T, M, Linear>{g, b, f, false}, stream);
+  using Kernel = SplatSamples<T, M, Linear>;
+  if constexpr (M != Mode::Latest) {
+    backend::parallel_for_rows(int64_t(b.frames) * b.rows, b.width, Kernel{g, b, 0, false}, stream);
+  } else {
+    for (int f = 0; f < b.frames; ++f) {
+      const int64_t first = int64_t(f) * b.rows;
+      backend::parallel_for_rows(b.rows, b.width, Kernel{g, b, first, true}, stream);
+      backend::parallel_for_rows(b.rows, b.width, Kernel{g, b, first, false}, stream);
+    }
   }
 }
 #endif  // __CUDACC__

@@ -137,9 +137,11 @@ Vec3 beam_direction(const BeamGeometry& g, int e, int a) {
       {std::sin(alpha), std::cos(alpha) * std::cos(beta), std::cos(alpha) * std::sin(beta)}};
 }
 
-// Frames go to the kernels in batches of about a million samples: one parallel pass over the
-// output each, small enough to stay in cache while every slab task reads it.
-constexpr int64_t kBatchSamples = int64_t(1) << 20;
+// Frames go to the kernels in batches. CPU: about a million samples, one parallel pass over the
+// output each, small enough to stay in cache while every slab task reads it. CUDA: 32 M samples
+// per upload and launch, so that launches and copies are few.
+constexpr int64_t kCpuBatchSamples = int64_t(1) << 20;
+constexpr int64_t kCudaBatchSamples = int64_t(1) << 25;
 
 // Turns a frame's mask rows into runs.
 std::vector<RowSpans> spans_from_mask(const std::vector<uint8_t>& mask, int width, int height) {
@@ -489,6 +491,10 @@ struct Compounder::Impl {
     return converted.data();
   }
 
+  int64_t batch_samples() const {
+    return device.type == DeviceType::CUDA ? kCudaBatchSamples : kCpuBatchSamples;
+  }
+
   double line_offset() const {
     return settings.interpolation == SplatInterpolation::Nearest ? 0.5 : 0.0;
   }
@@ -573,7 +579,7 @@ void Compounder::add_images(const void* pixels, PixelType type, int width, int h
                  "compounding: image-to-reference of frame " + std::to_string(im.frames + f));
   const std::vector<RowSpans>& spans = im.spans_for(width, height, clip);
   const size_t frame_samples = size_t(width) * height;
-  const int64_t per_batch = std::max<int64_t>(1, kBatchSamples / int64_t(frame_samples));
+  const int64_t per_batch = std::max<int64_t>(1, im.batch_samples() / int64_t(frame_samples));
   std::vector<RowLine> lines;
   std::vector<float> converted;
   for (int64_t first = 0; first < count; first += per_batch) {
@@ -627,7 +633,7 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
     for (int a = 0; a < geometry.n_azimuth; ++a)
       directions.push_back(beam_direction(geometry, e, a));
   const size_t frame_samples = size_t(rows) * width;
-  const int64_t per_batch = std::max<int64_t>(1, kBatchSamples / int64_t(frame_samples));
+  const int64_t per_batch = std::max<int64_t>(1, im.batch_samples() / int64_t(frame_samples));
   std::vector<RowLine> lines;
   std::vector<float> converted;
   for (int64_t first = 0; first < count; first += per_batch) {

@@ -79,7 +79,9 @@ TEST(Compound, NearestFrameOnVoxelCentresIsCopiedIntoItsSlice) {
   EXPECT_EQ(c.frames_added(), 1);
 }
 
-TEST(Compound, MeanMaxLatestOfTwoFramesAtOnePose) {
+class CompoundBackendTest : public BackendTest {};
+
+TEST_P(CompoundBackendTest, MeanMaxLatestOfThreeFramesAtOnePose) {
   const VolumeGrid g = unit_grid(4, 4, 3);
   const std::vector<uint8_t> a(16, 10), b(16, 25), low(16, 4);
   struct Case {
@@ -89,7 +91,7 @@ TEST(Compound, MeanMaxLatestOfTwoFramesAtOnePose) {
   for (const Case& k : {Case{CompoundingMode::Mean, (10.f + 25.f + 4.f) / 3.f},
                         Case{CompoundingMode::Max, 25.f}, Case{CompoundingMode::Latest, 4.f}}) {
     for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
-      Compounder c(g, settings(interp, k.mode));
+      Compounder c(g, settings(interp, k.mode), device());
       for (const auto* f : {&a, &b, &low})
         c.add_image(f->data(), PixelType::UInt8, 4, 4, translation(0, 0, 1));
       const auto v = as_floats(c.volume(PixelType::Float32));
@@ -493,8 +495,6 @@ std::vector<OracleFrame> oracle_frames(const Sweep& s) {
   }
   return out;
 }
-
-class CompoundBackendTest : public BackendTest {};
 
 TEST_P(CompoundBackendTest, MatchesTheFloat64Oracle) {
   const Sweep s = make_sweep(24, 7);
