@@ -54,59 +54,51 @@ Device device_for(const benchmark::State& state) {
   return state.range(3) ? Device::parse("cuda") : Device::cpu();
 }
 
-// args: linear, threads, holes (finish + hole filling), cuda
-void BM_Jauer(benchmark::State& state) {
-  set_cpu_threads(int(state.range(1)));
-  const BeamSweepWorkload& w = jauer();
-  const auto& frames = jauer_frames();
-  const int64_t n = int64_t(w.probe_to_reference.size());
+// One synthetic workload: `add(compounder)` inserts every frame. args: linear, threads, holes
+// (-1 splatting only, 0 + volume(), 1 + volume() with hole filling), cuda.
+template <typename Add>
+void run_synthetic(benchmark::State& state, const VolumeGrid& grid, int64_t frames,
+                   int64_t samples_per_frame, const Add& add) {
   try {
-    device_for(state);
     require_device(device_for(state));
   } catch (const std::exception& e) {
     state.SkipWithError(e.what());
     return;
   }
+  set_cpu_threads(int(state.range(1)));
   for (auto _ : state) {
-    Compounder c(w.grid, settings_for(state), device_for(state));
-    c.add_beams(frames.data(), PixelType::UInt8, w.geometry, n, w.probe_to_reference.data());
+    Compounder c(grid, settings_for(state), device_for(state));
+    add(c);
     if (state.range(2) >= 0) {
       const Volume v = c.volume(PixelType::UInt8);
       benchmark::DoNotOptimize(v.data());
     }
   }
-  const int64_t samples =
-      int64_t(w.geometry.n_elevation) * w.geometry.n_azimuth * w.geometry.n_samples;
-  state.SetItemsProcessed(int64_t(state.iterations()) * n * samples);
+  state.SetItemsProcessed(int64_t(state.iterations()) * frames * samples_per_frame);
   state.counters["frames_per_s"] =
-      benchmark::Counter(double(n) * double(state.iterations()), benchmark::Counter::kIsRate);
+      benchmark::Counter(double(frames) * double(state.iterations()), benchmark::Counter::kIsRate);
   set_cpu_threads(0);
 }
 
+void BM_Jauer(benchmark::State& state) {
+  const BeamSweepWorkload& w = jauer();
+  const auto& frames = jauer_frames();
+  const int64_t n = int64_t(w.probe_to_reference.size());
+  const int64_t samples =
+      int64_t(w.geometry.n_elevation) * w.geometry.n_azimuth * w.geometry.n_samples;
+  run_synthetic(state, w.grid, n, samples, [&](Compounder& c) {
+    c.add_beams(frames.data(), PixelType::UInt8, w.geometry, n, w.probe_to_reference.data());
+  });
+}
+
 void BM_Sweep2D(benchmark::State& state) {
-  set_cpu_threads(int(state.range(1)));
   const ImageSweepWorkload& w = sweep();
   const auto& frames = sweep_frames();
   const int64_t n = int64_t(w.image_to_reference.size());
-  try {
-    require_device(device_for(state));
-  } catch (const std::exception& e) {
-    state.SkipWithError(e.what());
-    return;
-  }
-  for (auto _ : state) {
-    Compounder c(w.grid, settings_for(state), device_for(state));
+  run_synthetic(state, w.grid, n, int64_t(w.width) * w.height, [&](Compounder& c) {
     c.add_images(frames.data(), PixelType::UInt8, w.width, w.height, n,
                  w.image_to_reference.data());
-    if (state.range(2) >= 0) {
-      const Volume v = c.volume(PixelType::UInt8);
-      benchmark::DoNotOptimize(v.data());
-    }
-  }
-  state.SetItemsProcessed(int64_t(state.iterations()) * n * w.width * w.height);
-  state.counters["frames_per_s"] =
-      benchmark::Counter(double(n) * double(state.iterations()), benchmark::Counter::kIsRate);
-  set_cpu_threads(0);
+  });
 }
 
 // The real PLUS sweeps of ../shared/data/plus with their XML settings (clip rectangle, spacing);

@@ -189,15 +189,17 @@ struct RowClip {
   double c0, inv_d;  ///< along the slab axis
 };
 
-/// Calls step(u, checked) for u in [ub, ue) in order: checked = false inside [ib, ie), where
-/// every sample is certainly inside the grid and the slab.
-template <typename Step>
-SONOSLICE_INLINE void walk_row(int ub, int ue, int ib, int ie, const Step& step) {
+/// Visits the samples u in [ub, ue) in order: step(u, checked) one at a time, with
+/// checked = false inside [ib, ie), where every sample is certainly inside the grid and the slab;
+/// there blocks(u, ie) may first take whole blocks of samples (SIMD) and return where it stopped.
+template <typename Step, typename Blocks>
+SONOSLICE_INLINE void walk_row(int ub, int ue, int ib, int ie, const Step& step,
+                               const Blocks& blocks) {
   ib = ib < ub ? ub : ib;
   ie = ie > ue ? ue : ie;
   if (ib >= ie) ib = ie = ue;
   for (int u = ub; u < ib; ++u) step(u, std::true_type{});
-  for (int u = ib; u < ie; ++u) step(u, std::false_type{});
+  for (int u = blocks(ib, ie); u < ie; ++u) step(u, std::false_type{});
   for (int u = ie; u < ue; ++u) step(u, std::true_type{});
 }
 
@@ -260,15 +262,11 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
     }
     take((iz * ny + iy) * nx + ix, s);
   };
-  ib = ib < ub ? ub : ib;
-  ie = ie > ue ? ue : ie;
-  if (ib >= ie) ib = ie = ue;
-  for (int u = ub; u < ib; ++u) step(u, std::true_type{});
-  int u = ib;
+  walk_row(ub, ue, ib, ie, step, [&](int u, [[maybe_unused]] int end) {
 #if defined(SONOSLICE_COMPOUND_AVX2)
-  // Eight samples' voxels at a time (the same float operations as step(), so the same bits);
-  // the runs are then gathered lane by lane.
-  if (int64_t(g.nx) * g.ny * g.nz < (int64_t(1) << 31)) {
+    // Eight samples' voxels at a time (the same float operations as step(), so the same bits);
+    // the runs are then gathered lane by lane.
+    if (int64_t(g.nx) * g.ny * g.nz >= (int64_t(1) << 31)) return u;
     const __m256 c0x = _mm256_set1_ps(L.c0[0]), c0y = _mm256_set1_ps(L.c0[1]),
                  c0z = _mm256_set1_ps(L.c0[2]);
     const __m256 dx = _mm256_set1_ps(L.dc[0]), dy = _mm256_set1_ps(L.dc[1]),
@@ -276,7 +274,7 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
     const __m256i vnx = _mm256_set1_epi32(g.nx), vny = _mm256_set1_epi32(g.ny);
     alignas(32) int32_t offsets[8];
     alignas(32) float samples[8];
-    for (; u + 8 <= ie; u += 8) {
+    for (; u + 8 <= end; u += 8) {
       const __m256 fu =
           _mm256_add_ps(_mm256_set1_ps(float(u)), _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7));
       const __m256i ix = _mm256_cvttps_epi32(_mm256_add_ps(c0x, _mm256_mul_ps(fu, dx)));
@@ -289,10 +287,9 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
       for (int l = 0; l < 8; ++l)
         if (!(samples[l] < threshold)) take(offsets[l], samples[l]);
     }
-  }
 #endif
-  for (; u < ie; ++u) step(u, std::false_type{});
-  for (u = ie; u < ue; ++u) step(u, std::true_type{});
+    return u;
+  });
   if (current >= 0) apply<M>(g, current, value, weight, frame);
 }
 
@@ -444,20 +441,15 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
     }
     take(ix, iy, iz, cx - float(ix), cy - float(iy), cz - float(iz), s);
   };
-  ib = ib < ub ? ub : ib;
-  ie = ie > ue ? ue : ie;
-  if (ib >= ie) ib = ie = ue;
-  for (int u = ub; u < ib; ++u) step(u, std::true_type{});
-  int u = ib;
+  walk_row(ub, ue, ib, ie, step, [&](int u, [[maybe_unused]] int end) {
 #if defined(SONOSLICE_COMPOUND_AVX2)
-  {
     // Eight samples' cells and fractions at a time (step()'s float operations, so its bits).
     const __m256 c0[3] = {_mm256_set1_ps(L.c0[0]), _mm256_set1_ps(L.c0[1]),
                           _mm256_set1_ps(L.c0[2])};
     const __m256 d[3] = {_mm256_set1_ps(L.dc[0]), _mm256_set1_ps(L.dc[1]), _mm256_set1_ps(L.dc[2])};
     alignas(32) int32_t idx[3][8];
     alignas(32) float frac[3][8], samples[8];
-    for (; u + 8 <= ie; u += 8) {
+    for (; u + 8 <= end; u += 8) {
       const __m256 fu =
           _mm256_add_ps(_mm256_set1_ps(float(u)), _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7));
       for (int a = 0; a < 3; ++a) {
@@ -474,10 +466,9 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
         if (!(samples[l] < threshold))
           take(idx[0][l], idx[1][l], idx[2][l], frac[0][l], frac[1][l], frac[2][l], samples[l]);
     }
-  }
 #endif
-  for (; u < ie; ++u) step(u, std::false_type{});
-  for (u = ie; u < ue; ++u) step(u, std::true_type{});
+    return u;
+  });
   flush();
 }
 

@@ -491,6 +491,16 @@ struct Compounder::Impl {
     return converted.data();
   }
 
+  // CUDA: copies the accumulators into host memory, where volume() finishes them.
+  void accumulators_to_host() {
+#ifdef SONOSLICE_HAVE_CUDA
+    if (cuda) {
+      ensure_host_accumulators();
+      cuda->download(cells.get(), stamp.get());
+    }
+#endif
+  }
+
   int64_t batch_samples() const {
     return device.type == DeviceType::CUDA ? kCudaBatchSamples : kCpuBatchSamples;
   }
@@ -499,14 +509,43 @@ struct Compounder::Impl {
     return settings.interpolation == SplatInterpolation::Nearest ? 0.5 : 0.0;
   }
 
-  FrameBatch batch_template(PixelType type) const {
-    FrameBatch b;
-    b.type = type;
-    b.first_frame_id = int32_t(frames);
-    b.rejection_threshold = std::isfinite(settings.rejection_threshold)
-                                ? float(settings.rejection_threshold)
-                                : -std::numeric_limits<float>::infinity();
-    return b;
+  void check_frames(const void* data, int64_t count, const Mat4* matrices, const char* what) const {
+    if (count < 0) throw InputError("compounding: negative frame count");
+    if (count > 0 && (!data || !matrices)) throw InputError("compounding: null frame data");
+    for (int64_t f = 0; f < count; ++f)
+      check_matrix(matrices[f],
+                   std::string("compounding: ") + what + " of frame " + std::to_string(frames + f));
+  }
+
+  // `count` frames of rows × width samples, in batches: make_lines(f, lines) writes frame f's
+  // rows in voxel-index space.
+  template <typename MakeLines>
+  void add_frames(const void* data, PixelType type, int64_t count, int rows, int width,
+                  const std::vector<RowSpans>& spans, const MakeLines& make_lines) {
+    const size_t frame_samples = size_t(rows) * width;
+    const int64_t per_batch = std::max<int64_t>(1, batch_samples() / int64_t(frame_samples));
+    std::vector<RowLine> lines;
+    std::vector<float> converted;
+    for (int64_t first = 0; first < count; first += per_batch) {
+      const int64_t n = std::min(per_batch, count - first);
+      lines.resize(size_t(n) * rows);
+      for (int64_t f = 0; f < n; ++f) make_lines(first + f, lines.data() + size_t(f) * rows);
+      FrameBatch b;
+      b.first_frame_id = int32_t(frames);
+      b.rejection_threshold = std::isfinite(settings.rejection_threshold)
+                                  ? float(settings.rejection_threshold)
+                                  : -std::numeric_limits<float>::infinity();
+      const char* batch =
+          static_cast<const char*>(data) + size_t(first) * frame_samples * pixel_size(type);
+      b.samples = kernel_samples(batch, type, size_t(n) * frame_samples, converted, &b.type);
+      b.frames = int(n);
+      b.rows = rows;
+      b.width = width;
+      b.lines = lines.data();
+      b.spans = spans.data();
+      run(b);
+      frames += n;
+    }
   }
 };
 
@@ -571,40 +610,16 @@ void Compounder::add_images(const void* pixels, PixelType type, int width, int h
   if (width <= 0 || height <= 0 || int64_t(width) * height > (int64_t(1) << 28))
     throw InputError("compounding: frame size " + std::to_string(width) + "x" +
                      std::to_string(height) + " is not usable");
-  if (count < 0) throw InputError("compounding: negative frame count");
+  im.check_frames(pixels, count, image_to_reference, "image-to-reference");
   if (count == 0) return;
-  if (!pixels || !image_to_reference) throw InputError("compounding: null frame data");
-  for (int64_t f = 0; f < count; ++f)
-    check_matrix(image_to_reference[f],
-                 "compounding: image-to-reference of frame " + std::to_string(im.frames + f));
-  const std::vector<RowSpans>& spans = im.spans_for(width, height, clip);
-  const size_t frame_samples = size_t(width) * height;
-  const int64_t per_batch = std::max<int64_t>(1, im.batch_samples() / int64_t(frame_samples));
-  std::vector<RowLine> lines;
-  std::vector<float> converted;
-  for (int64_t first = 0; first < count; first += per_batch) {
-    const int64_t n = std::min(per_batch, count - first);
-    lines.resize(size_t(n) * height);
-    for (int64_t f = 0; f < n; ++f) {
-      const Affine A = frame_to_index(im.grid, image_to_reference[first + f]);
-      const Vec3 dc = A.direction(1, 0, 0);
-      for (int v = 0; v < height; ++v)
-        lines[size_t(f) * height + v] = make_line(A.apply(0, v, 0), dc, im.line_offset());
-    }
-    PixelType kernel_type;
-    const char* data =
-        static_cast<const char*>(pixels) + size_t(first) * frame_samples * pixel_size(type);
-    FrameBatch b = im.batch_template(type);
-    b.samples = im.kernel_samples(data, type, size_t(n) * frame_samples, converted, &kernel_type);
-    b.type = kernel_type;
-    b.frames = int(n);
-    b.rows = height;
-    b.width = width;
-    b.lines = lines.data();
-    b.spans = spans.data();
-    im.run(b);
-    im.frames += n;
-  }
+  // Row v of a frame: pixel (u, v) at A·(u, v, 0).
+  im.add_frames(pixels, type, count, height, width, im.spans_for(width, height, clip),
+                [&](int64_t f, RowLine* lines) {
+                  const Affine A = frame_to_index(im.grid, image_to_reference[f]);
+                  const Vec3 dc = A.direction(1, 0, 0);
+                  for (int v = 0; v < height; ++v)
+                    lines[v] = make_line(A.apply(0, v, 0), dc, im.line_offset());
+                });
 }
 
 void Compounder::add_beams(const void* samples, PixelType type, const BeamGeometry& geometry,
@@ -616,12 +631,8 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
                            int64_t count, const Mat4* probe_to_reference) {
   Impl& im = *impl_;
   geometry.validate("compounding: beam geometry");
-  if (count < 0) throw InputError("compounding: negative frame count");
+  im.check_frames(samples, count, probe_to_reference, "probe-to-reference");
   if (count == 0) return;
-  if (!samples || !probe_to_reference) throw InputError("compounding: null frame data");
-  for (int64_t f = 0; f < count; ++f)
-    check_matrix(probe_to_reference[f],
-                 "compounding: probe-to-reference of frame " + std::to_string(im.frames + f));
   const int rows = geometry.n_elevation * geometry.n_azimuth, width = geometry.n_samples;
   std::vector<RowSpans> spans(static_cast<size_t>(rows));
   for (auto& s : spans) {
@@ -632,50 +643,24 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
   for (int e = 0; e < geometry.n_elevation; ++e)
     for (int a = 0; a < geometry.n_azimuth; ++a)
       directions.push_back(beam_direction(geometry, e, a));
-  const size_t frame_samples = size_t(rows) * width;
-  const int64_t per_batch = std::max<int64_t>(1, im.batch_samples() / int64_t(frame_samples));
-  std::vector<RowLine> lines;
-  std::vector<float> converted;
-  for (int64_t first = 0; first < count; first += per_batch) {
-    const int64_t n = std::min(per_batch, count - first);
-    lines.resize(size_t(n) * rows);
-    for (int64_t f = 0; f < n; ++f) {
-      const Affine A = frame_to_index(im.grid, probe_to_reference[first + f]);
-      for (int r = 0; r < rows; ++r) {
-        const Vec3& d = directions[size_t(r)];
-        // Sample s at apex + (r0 + s·dr)·d, apex = (0, -apex_offset, 0).
-        const Vec3 c0 =
-            A.apply(geometry.r0_mm * d[0], geometry.r0_mm * d[1] - geometry.apex_offset_mm,
-                    geometry.r0_mm * d[2]);
-        const Vec3 dc =
-            A.direction(geometry.dr_mm * d[0], geometry.dr_mm * d[1], geometry.dr_mm * d[2]);
-        lines[size_t(f) * rows + r] = make_line(c0, dc, im.line_offset());
-      }
+  // Beam r: sample s at apex + (r0 + s·dr)·d_r, apex = (0, -apex_offset, 0).
+  im.add_frames(samples, type, count, rows, width, spans, [&](int64_t f, RowLine* lines) {
+    const Affine A = frame_to_index(im.grid, probe_to_reference[f]);
+    for (int r = 0; r < rows; ++r) {
+      const Vec3& d = directions[size_t(r)];
+      const Vec3 c0 =
+          A.apply(geometry.r0_mm * d[0], geometry.r0_mm * d[1] - geometry.apex_offset_mm,
+                  geometry.r0_mm * d[2]);
+      const Vec3 dc =
+          A.direction(geometry.dr_mm * d[0], geometry.dr_mm * d[1], geometry.dr_mm * d[2]);
+      lines[r] = make_line(c0, dc, im.line_offset());
     }
-    PixelType kernel_type;
-    const char* data =
-        static_cast<const char*>(samples) + size_t(first) * frame_samples * pixel_size(type);
-    FrameBatch b = im.batch_template(type);
-    b.samples = im.kernel_samples(data, type, size_t(n) * frame_samples, converted, &kernel_type);
-    b.type = kernel_type;
-    b.frames = int(n);
-    b.rows = rows;
-    b.width = width;
-    b.lines = lines.data();
-    b.spans = spans.data();
-    im.run(b);
-    im.frames += n;
-  }
+  });
 }
 
 Volume Compounder::volume(PixelType type) const {
   Impl& im = *impl_;
-#ifdef SONOSLICE_HAVE_CUDA
-  if (im.cuda) {
-    im.ensure_host_accumulators();
-    im.cuda->download(im.cells.get(), im.stamp.get());
-  }
-#endif
+  im.accumulators_to_host();
   Volume out = Volume::allocate(type, im.grid);
   static const std::vector<HoleFillingKernel> no_kernels;
   compound_impl::finish_volume(im.view(), im.mode,
@@ -686,12 +671,7 @@ Volume Compounder::volume(PixelType type) const {
 
 Volume Compounder::weights() const {
   Impl& im = *impl_;
-#ifdef SONOSLICE_HAVE_CUDA
-  if (im.cuda) {
-    im.ensure_host_accumulators();
-    im.cuda->download(im.cells.get(), im.stamp.get());
-  }
-#endif
+  im.accumulators_to_host();
   Volume out = Volume::allocate(PixelType::Float32, im.grid);
   float* w = out.data_as<float>();
   const Accumulator* c = im.cells.get();

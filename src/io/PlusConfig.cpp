@@ -27,6 +27,7 @@
 #include <pugixml.hpp>
 #endif
 
+#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -42,50 +43,7 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
 
 namespace {
 
-std::string upper(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  return s;
-}
-
-std::string trim(const std::string& s) {
-  size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
-  return s.substr(b, e - b);
-}
-
-std::vector<std::string> split_ws(const std::string& s) {
-  std::vector<std::string> out;
-  std::istringstream in(s);
-  std::string token;
-  while (in >> token) out.push_back(token);
-  return out;
-}
-
-std::string quote_value(const std::string& s) {
-  return "'" + (s.size() > 120 ? s.substr(0, 117) + "..." : s) + "'";
-}
-
-bool parse_double(const std::string& token, double* out) {
-  if (token.empty()) return false;
-  errno = 0;
-  char* end = nullptr;
-  const double v = std::strtod(token.c_str(), &end);  // underflow to 0 is fine, overflow is not
-  if (end != token.c_str() + token.size() || !std::isfinite(v)) return false;
-  *out = v;
-  return true;
-}
-
-bool parse_int(const std::string& token, int* out) {
-  if (token.empty()) return false;
-  errno = 0;
-  char* end = nullptr;
-  const long v = std::strtol(token.c_str(), &end, 10);
-  if (end != token.c_str() + token.size() || errno == ERANGE || v < -2147483647L || v > 2147483647L)
-    return false;
-  *out = static_cast<int>(v);
-  return true;
-}
+using namespace text;
 
 /// Reads the attributes of one element, remembering which ones were looked at.
 class Attributes {
@@ -157,16 +115,6 @@ class Attributes {
   std::string file_, where_;
   std::set<std::string> seen_;
 };
-
-bool parse_matrix16(const std::string& text, Mat4* m) {
-  const std::vector<std::string> tokens = split_ws(text);
-  if (tokens.size() != 16) return false;
-  double v[16];
-  for (int i = 0; i < 16; ++i)
-    if (!parse_double(tokens[i], &v[i])) return false;
-  *m = Mat4::from_row_major(v);
-  return true;
-}
 
 void read_coordinate_definitions(const pugi::xml_node& root, const std::string& path,
                                  PlusReconstructionConfig* config) {

@@ -37,6 +37,7 @@
 #include <zlib.h>
 #endif
 
+#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 
@@ -49,77 +50,10 @@ namespace fs = std::filesystem;
 namespace sonoslice {
 namespace {
 
+using namespace text;
+
 // ---------------------------------------------------------------------------------------------
 // Strings and numbers
-
-std::string trim(const std::string& s) {
-  size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
-  return s.substr(b, e - b);
-}
-
-std::string lower(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
-std::string upper(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  return s;
-}
-
-bool iequals(const std::string& a, const std::string& b) {
-  return lower(a) == lower(b);
-}
-
-bool ends_with(const std::string& s, const std::string& suffix) {
-  return s.size() >= suffix.size() &&
-         s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
-std::vector<std::string> split_ws(const std::string& s) {
-  std::vector<std::string> out;
-  std::istringstream in(s);
-  std::string token;
-  while (in >> token) out.push_back(token);
-  return out;
-}
-
-/// A value quoted for an error message, shortened when long.
-std::string quote_value(const std::string& s) {
-  return "'" + (s.size() > 120 ? s.substr(0, 117) + "..." : s) + "'";
-}
-
-bool parse_double(const std::string& token, double* out) {
-  if (token.empty()) return false;
-  errno = 0;
-  char* end = nullptr;
-  const double v = std::strtod(token.c_str(), &end);  // underflow to 0 is fine, overflow is not
-  if (end != token.c_str() + token.size() || !std::isfinite(v)) return false;
-  *out = v;
-  return true;
-}
-
-bool parse_int64(const std::string& token, int64_t* out) {
-  if (token.empty()) return false;
-  errno = 0;
-  char* end = nullptr;
-  const long long v = std::strtoll(token.c_str(), &end, 10);
-  if (end != token.c_str() + token.size() || errno == ERANGE) return false;
-  *out = v;
-  return true;
-}
-
-bool parse_matrix16(const std::string& text, Mat4* m) {
-  const std::vector<std::string> tokens = split_ws(text);
-  if (tokens.size() != 16) return false;
-  double v[16];
-  for (int i = 0; i < 16; ++i)
-    if (!parse_double(tokens[i], &v[i])) return false;
-  *m = Mat4::from_row_major(v);
-  return true;
-}
 
 std::string frame_label(int frame) {
   char buf[32];
@@ -270,25 +204,10 @@ PixelType nrrd_pixel_type(const std::string& name, const std::string& where) {
 }
 
 std::string nrrd_type_name(PixelType t) {
-  switch (t) {
-    case PixelType::UInt8:
-      return "uint8";
-    case PixelType::Int8:
-      return "int8";
-    case PixelType::UInt16:
-      return "uint16";
-    case PixelType::Int16:
-      return "int16";
-    case PixelType::UInt32:
-      return "uint32";
-    case PixelType::Int32:
-      return "int32";
-    case PixelType::Float32:
-      return "float";
-    case PixelType::Float64:
-      break;
-  }
-  return "double";
+  // NRRD's names, except for the two float types.
+  if (t == PixelType::Float32) return "float";
+  if (t == PixelType::Float64) return "double";
+  return pixel_type_name(t);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -1,0 +1,97 @@
+#pragma once
+// Internal: the small string and number helpers the text-based readers share (PLUS sequence
+// headers and configuration XML attributes). Numbers must use the whole token; errors are the
+// caller's, which knows the file and the field.
+#include <cctype>
+#include <cerrno>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "sonoslice/geometry/Math.h"
+
+namespace sonoslice {
+namespace text {
+
+inline std::string trim(const std::string& s) {
+  size_t b = 0, e = s.size();
+  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
+  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
+  return s.substr(b, e - b);
+}
+
+inline std::string lower(std::string s) {
+  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return s;
+}
+
+inline std::string upper(std::string s) {
+  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return s;
+}
+
+inline bool iequals(const std::string& a, const std::string& b) {
+  return lower(a) == lower(b);
+}
+
+inline bool ends_with(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() &&
+         s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+inline std::vector<std::string> split_ws(const std::string& s) {
+  std::vector<std::string> out;
+  std::istringstream in(s);
+  std::string token;
+  while (in >> token) out.push_back(token);
+  return out;
+}
+
+/// A value quoted for an error message, shortened when long.
+inline std::string quote_value(const std::string& s) {
+  return "'" + (s.size() > 120 ? s.substr(0, 117) + "..." : s) + "'";
+}
+
+inline bool parse_double(const std::string& token, double* out) {
+  if (token.empty()) return false;
+  errno = 0;
+  char* end = nullptr;
+  const double v = std::strtod(token.c_str(), &end);  // underflow to 0 is fine, overflow is not
+  if (end != token.c_str() + token.size() || !std::isfinite(v)) return false;
+  *out = v;
+  return true;
+}
+
+inline bool parse_int64(const std::string& token, int64_t* out) {
+  if (token.empty()) return false;
+  errno = 0;
+  char* end = nullptr;
+  const long long v = std::strtoll(token.c_str(), &end, 10);
+  if (end != token.c_str() + token.size() || errno == ERANGE) return false;
+  *out = v;
+  return true;
+}
+
+inline bool parse_int(const std::string& token, int* out) {
+  int64_t v = 0;
+  if (!parse_int64(token, &v) || v < -2147483647LL || v > 2147483647LL) return false;
+  *out = static_cast<int>(v);
+  return true;
+}
+
+/// 16 whitespace-separated numbers, row-major.
+inline bool parse_matrix16(const std::string& text, Mat4* m) {
+  const std::vector<std::string> tokens = split_ws(text);
+  if (tokens.size() != 16) return false;
+  double v[16];
+  for (int i = 0; i < 16; ++i)
+    if (!parse_double(tokens[i], &v[i])) return false;
+  *m = Mat4::from_row_major(v);
+  return true;
+}
+
+}  // namespace text
+}  // namespace sonoslice
