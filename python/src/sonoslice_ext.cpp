@@ -5,19 +5,27 @@
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
+#include <nanobind/stl/map.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/pair.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
+#include <cmath>
 #include <cstring>
+#include <limits>
 #include <memory>
+#include <mutex>
 
 #include "sonoslice/backend/Device.h"
+#include "sonoslice/compound/Compounder.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/BeamGeometryFile.h"
 #include "sonoslice/io/MeshFile.h"
+#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
@@ -64,7 +72,8 @@ nb::dlpack::dtype dlpack_dtype(PixelType t) {
   return visit_pixel_type(t, [](auto zero) { return nb::dtype<decltype(zero)>(); });
 }
 
-bool c_contiguous(const nb::ndarray<>& a) {
+template <typename... Args>
+bool c_contiguous(const nb::ndarray<Args...>& a) {
   int64_t expected = 1;
   for (size_t i = a.ndim(); i-- > 0;) {
     if (a.shape(i) != 1 && a.stride(i) != expected) return false;

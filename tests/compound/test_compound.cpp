@@ -321,6 +321,33 @@ TEST(HoleFilling, GaussianWeightsFavourCloserVoxels) {
   EXPECT_NEAR(v[offset(g, 1, 1, 1)], num / den, 1e-4);
 }
 
+TEST(HoleFilling, InverseDistanceAndAccumulationWeights) {
+  // A hole at (1, 1, 1) with known voxels at distance 1 (value 10) and sqrt(3) (value 40).
+  const VolumeGrid g = unit_grid(3, 3, 3);
+  std::map<std::array<int, 3>, float> known{{{2, 1, 1}, 10.f}, {{0, 0, 0}, 40.f}};
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::DistanceWeightInverse;
+  k.minimum_known_ratio = 0;
+  const Compounder dwi = with_known_voxels(g, known, {k});
+  const double w1 = 1.0, w3 = 1.0 / std::sqrt(3.0);
+  EXPECT_NEAR(as_floats(dwi.volume(PixelType::Float32))[offset(g, 1, 1, 1)],
+              (10 * w1 + 40 * w3) / (w1 + w3), 1e-4);
+  // Gaussian weights times each voxel's splat weight: a voxel reached twice counts double.
+  CompoundSettings s = settings(SplatInterpolation::Nearest, CompoundingMode::Mean);
+  s.fill_holes = true;
+  k.type = HoleFillingKernel::GaussianAccumulation;
+  k.stdev = 1;
+  s.hole_filling = {k};
+  Compounder acc(g, s);
+  const float ten = 10.f, forty = 40.f;
+  acc.add_image(&ten, PixelType::Float32, 1, 1, translation(2, 1, 1));
+  acc.add_image(&ten, PixelType::Float32, 1, 1, translation(2, 1, 1));
+  acc.add_image(&forty, PixelType::Float32, 1, 1, translation(0, 0, 0));
+  const double g1 = 2 * std::exp(-1 / 2.0), g3 = std::exp(-3 / 2.0);
+  EXPECT_NEAR(as_floats(acc.volume(PixelType::Float32))[offset(g, 1, 1, 1)],
+              (10 * g1 + 40 * g3) / (g1 + g3), 1e-4);
+}
+
 TEST(HoleFilling, NearestNeighborUsesTheSmallestCubeWithKnownVoxels) {
   const VolumeGrid g = unit_grid(9, 9, 9);
   std::map<std::array<int, 3>, float> known;
