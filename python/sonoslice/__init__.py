@@ -9,6 +9,9 @@ Conventions (the repository's SPEC.md):
   axis (image columns), column 1 the axial/depth axis (image rows), column 3 the probe origin.
 * Pixel ``(u, v)`` (column, row) of an image sits at probe ``(x0 + u·sx, y0 + v·sy, 0)``.
 * Arrays are C-order: a volume is ``(nz, ny, nx)``, a batch of images ``(N, H, W)``.
+* Freehand 3D reconstruction (SPEC §7: ``Compounder``, ``reconstruct_plus``) and PLUS toolkit
+  files (``read_plus_sequence``, ``read_plus_config``, ...) are in ``sonoslice.compound``,
+  re-exported here.
 
 Importing this package never touches a GPU; a slicer on ``"cuda"`` starts it.
 """
@@ -26,6 +29,10 @@ __all__ = [
     "read_poses", "write_poses", "validate_poses", "write_stack", "phantom", "phantom_poses",
     "surface_poses", "PHANTOM_LABELS", "Mesh", "voxelize", "SurfaceSlicer", "colorize", "cut_polygons",
     "fanslicer_models", "__version__",
+    # freehand reconstruction and PLUS files (sonoslice.compound)
+    "Grid", "Compounder", "BeamGeometry", "grid_around", "grid_around_beams", "clip_mask", "PlusSequence",
+    "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence", "read_plus_config",
+    "plus_image_to_reference", "reconstruct_plus",
 ]
 __version__ = "0.1.0"
 
@@ -526,3 +533,11 @@ def phantom_poses(count: int, seed: int = 2024) -> np.ndarray:
 def surface_poses(count: int, face_y_mm: float = 0.0) -> np.ndarray:
     """(count, 4, 4) poses with the probe face on the phantom's skin, aimed at the liver."""
     return _ext.phantom_surface_poses(int(count), float(face_y_mm))
+
+
+# ---- freehand reconstruction (compounding) and PLUS files: sonoslice/compound.py --------------------
+from .compound import (  # noqa: E402  (it uses Volume, defined above)
+    BeamGeometry, Compounder, Grid, PlusConfig, PlusSequence, TransformRepository, clip_mask, grid_around,
+    grid_around_beams, plus_image_to_reference, read_plus_config, read_plus_sequence, reconstruct_plus,
+    write_plus_sequence,
+)

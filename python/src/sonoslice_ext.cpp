@@ -26,10 +26,10 @@
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/PlusConfig.h"
 #include "sonoslice/io/PlusSequence.h"
-#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/StackWriter.h"
+#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/io/VolumeFile.h"
 #include "sonoslice/phantom/Phantom.h"
 #include "sonoslice/phantom/Workloads.h"
@@ -64,7 +64,8 @@ PixelType pixel_type_of(nb::dlpack::dtype d, const char* what) {
       if (d.bits == 64) return PixelType::Float64;
     }
   }
-  throw InputError(std::string(what) + ": unsupported dtype (supported: uint8, int8, uint16, int16, "
+  throw InputError(std::string(what) +
+                   ": unsupported dtype (supported: uint8, int8, uint16, int16, "
                    "uint32, int32, float32, float64)");
 }
 
@@ -84,10 +85,12 @@ bool c_contiguous(const nb::ndarray<Args...>& a) {
 
 // A NumPy view of memory that `keep` keeps alive (a copy of a shared handle).
 template <typename Keep>
-nb::ndarray<nb::numpy> numpy_view(void* data, std::vector<size_t> shape, PixelType type, Keep keep) {
+nb::ndarray<nb::numpy> numpy_view(void* data, std::vector<size_t> shape, PixelType type,
+                                  Keep keep) {
   auto* holder = new Keep(std::move(keep));
   nb::capsule owner(holder, [](void* p) noexcept { delete static_cast<Keep*>(p); });
-  return nb::ndarray<nb::numpy>(data, shape.size(), shape.data(), owner, nullptr, dlpack_dtype(type));
+  return nb::ndarray<nb::numpy>(data, shape.size(), shape.data(), owner, nullptr,
+                                dlpack_dtype(type));
 }
 
 // ---- volumes ---------------------------------------------------------------------------------
@@ -102,9 +105,11 @@ VolumeGrid make_grid(const std::array<double, 3>& spacing, const std::array<doub
 
 // Zero-copy: the volume points into the caller's array, which it keeps alive.
 Volume volume_from_array(nb::ndarray<> a, const std::array<double, 3>& spacing,
-                         const std::array<double, 3>& origin, const std::array<double, 9>& direction) {
+                         const std::array<double, 3>& origin,
+                         const std::array<double, 9>& direction) {
   if (a.ndim() != 3)
-    throw InputError("volume array: expected 3 dimensions (nz, ny, nx), got " + std::to_string(a.ndim()));
+    throw InputError("volume array: expected 3 dimensions (nz, ny, nx), got " +
+                     std::to_string(a.ndim()));
   if (a.device_type() != kCpu)
     throw InputError("volume array: must be in host memory (for a GPU tensor, pass tensor.cpu())");
   if (!c_contiguous(a))
@@ -121,7 +126,9 @@ Volume volume_from_array(nb::ndarray<> a, const std::array<double, 3>& spacing,
   return Volume::wrap(a.data(), type, g, owner);
 }
 
-std::array<double, 9> direction_of(const Volume& v) { return v.grid().direction.row_major(); }
+std::array<double, 9> direction_of(const Volume& v) {
+  return v.grid().direction.row_major();
+}
 
 // ---- probes ----------------------------------------------------------------------------------
 ProbeGeometry probe_grid(ProbeGeometry p, int width, int height, std::pair<double, double> spacing,
@@ -141,9 +148,9 @@ ProbeGeometry probe_grid(ProbeGeometry p, int width, int height, std::pair<doubl
 }
 
 // ---- slicing ---------------------------------------------------------------------------------
-std::vector<Pose> poses_from(const nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>& a) {
-  if (a.shape(1) != 4 || a.shape(2) != 4)
-    throw InputError("poses: expected shape (N, 4, 4)");
+std::vector<Pose> poses_from(
+    const nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>& a) {
+  if (a.shape(1) != 4 || a.shape(2) != 4) throw InputError("poses: expected shape (N, 4, 4)");
   std::vector<Pose> poses(a.shape(0));
   for (size_t n = 0; n < poses.size(); ++n) poses[n] = Mat4::from_row_major(a.data() + 16 * n);
   return poses;
@@ -156,8 +163,8 @@ void slice_into(const Slicer& slicer,
   const int64_t n = int64_t(poses.size());
   if (out.ndim() != 3 || int64_t(out.shape(0)) != n || int64_t(out.shape(1)) != slicer.height() ||
       int64_t(out.shape(2)) != slicer.width())
-    throw InputError("out: expected shape (" + std::to_string(n) + ", " + std::to_string(slicer.height()) +
-                     ", " + std::to_string(slicer.width()) + ")");
+    throw InputError("out: expected shape (" + std::to_string(n) + ", " +
+                     std::to_string(slicer.height()) + ", " + std::to_string(slicer.width()) + ")");
   if (!c_contiguous(out)) throw InputError("out: must be C-contiguous");
   if (pixel_type_of(out.dtype(), "out") != slicer.settings().output_type)
     throw InputError("out: dtype must be " + pixel_type_name(slicer.settings().output_type));
@@ -165,8 +172,8 @@ void slice_into(const Slicer& slicer,
   if (!on_gpu && out.device_type() != kCpu) throw InputError("out: must be in host or CUDA memory");
   const Device device = slicer.device();
   if (on_gpu && (device.type != DeviceType::CUDA || device.index != out.device_id()))
-    throw InputError("out: is on cuda:" + std::to_string(out.device_id()) + " but the slicer runs on " +
-                     device.to_string());
+    throw InputError("out: is on cuda:" + std::to_string(out.device_id()) +
+                     " but the slicer runs on " + device.to_string());
   // Validate every pose before the first chunk, so nothing is written when one is bad.
   validate_poses(poses.data(), poses.size(), "poses", 0, /*warn_non_orthonormal=*/true);
   auto* base = static_cast<char*>(out.data());
@@ -177,19 +184,22 @@ void slice_into(const Slicer& slicer,
     {
       nb::gil_scoped_release release;
       if (on_gpu)
-        slicer.slice_into_device(poses.data() + first, size_t(count), base + size_t(first) * image_bytes,
+        slicer.slice_into_device(poses.data() + first, size_t(count),
+                                 base + size_t(first) * image_bytes,
                                  reinterpret_cast<void*>(stream), size_t(first));
       else
-        slicer.slice(poses.data() + first, size_t(count), base + size_t(first) * image_bytes, size_t(first));
+        slicer.slice(poses.data() + first, size_t(count), base + size_t(first) * image_bytes,
+                     size_t(first));
     }
     if (!progress.is_none()) progress(first + count, n);
   }
 }
 
 // (N, H, W) label images from exact plane cuts, into a CPU array, chunk by chunk.
-void surface_slice_into(const SurfaceSlicer& slicer,
-                        nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose_array,
-                        nb::ndarray<> out, nb::object progress, int64_t chunk) {
+void surface_slice_into(
+    const SurfaceSlicer& slicer,
+    nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose_array,
+    nb::ndarray<> out, nb::object progress, int64_t chunk) {
   const std::vector<Pose> poses = poses_from(pose_array);
   const int64_t n = int64_t(poses.size());
   if (out.ndim() != 3 || int64_t(out.shape(0)) != n || int64_t(out.shape(1)) != slicer.height() ||
@@ -200,22 +210,24 @@ void surface_slice_into(const SurfaceSlicer& slicer,
   if (pixel_type_of(out.dtype(), "out") != slicer.output_type())
     throw InputError("out: dtype must be " + pixel_type_name(slicer.output_type()));
   validate_poses(poses.data(), poses.size(), "poses", 0, true);
-  const size_t image_bytes = size_t(slicer.width()) * size_t(slicer.height()) * pixel_size(slicer.output_type());
+  const size_t image_bytes =
+      size_t(slicer.width()) * size_t(slicer.height()) * pixel_size(slicer.output_type());
   if (chunk <= 0) chunk = n;
   for (int64_t first = 0; first < n; first += chunk) {
     const int64_t count = std::min(chunk, n - first);
     {
       nb::gil_scoped_release release;
-      slicer.slice(poses.data() + first, size_t(count), static_cast<char*>(out.data()) + size_t(first) * image_bytes,
-                   size_t(first));
+      slicer.slice(poses.data() + first, size_t(count),
+                   static_cast<char*>(out.data()) + size_t(first) * image_bytes, size_t(first));
     }
     if (!progress.is_none()) progress(first + count, n);
   }
 }
 
-TriangleMesh mesh_from_arrays(nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> vertices,
-                              nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> triangles,
-                              const std::string& name) {
+TriangleMesh mesh_from_arrays(
+    nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> vertices,
+    nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> triangles,
+    const std::string& name) {
   if (vertices.shape(1) != 3 || triangles.shape(1) != 3)
     throw InputError("mesh '" + name + "': vertices must be (V, 3) and triangles (T, 3)");
   TriangleMesh m;
@@ -228,6 +240,212 @@ TriangleMesh mesh_from_arrays(nb::ndarray<const double, nb::ndim<2>, nb::c_conti
     m.triangles[i] = {triangles(i, 0), triangles(i, 1), triangles(i, 2)};
   m.validate();
   return m;
+}
+
+// ---- compounding -----------------------------------------------------------------------------
+using Matrices = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using Matrix4 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+// (dims along x, y, z; spacing x, y, z (mm); origin (mm); direction, row-major)
+using GridTuple = std::tuple<std::array<int64_t, 3>, std::array<double, 3>, std::array<double, 3>,
+                             std::array<double, 9>>;
+// (type, size, stdev, minimum known ratio, stick length limit, sticks to use); None: the default
+using HoleTuple = std::tuple<std::string, std::optional<int>, std::optional<double>,
+                             std::optional<double>, std::optional<int>, std::optional<int>>;
+// (r0_mm, dr_mm, azimuth0_deg, dazimuth_deg, elevation0_deg, delevation_deg, apex_offset_mm)
+using BeamTuple = std::array<double, 7>;
+
+std::vector<Mat4> matrices_from(const Matrices& a, const std::string& what) {
+  if (a.shape(1) != 4 || a.shape(2) != 4)
+    throw InputError(what + ": expected shape (N, 4, 4), got (" + std::to_string(a.shape(0)) +
+                     ", " + std::to_string(a.shape(1)) + ", " + std::to_string(a.shape(2)) + ")");
+  std::vector<Mat4> out(a.shape(0));
+  for (size_t n = 0; n < out.size(); ++n) out[n] = Mat4::from_row_major(a.data() + 16 * n);
+  return out;
+}
+
+Mat4 matrix_from(const Matrix4& a, const std::string& what) {
+  if (a.shape(0) != 4 || a.shape(1) != 4)
+    throw InputError(what + ": expected a 4x4 matrix, got (" + std::to_string(a.shape(0)) + ", " +
+                     std::to_string(a.shape(1)) + ")");
+  return Mat4::from_row_major(a.data());
+}
+
+using MatrixOut = nb::ndarray<nb::numpy, double, nb::shape<4, 4>>;
+using MatricesOut = nb::ndarray<nb::numpy, double, nb::shape<-1, 4, 4>>;
+
+// NumPy (N, 4, 4) float64 owning the matrices.
+MatricesOut matrices_to_numpy(std::vector<Mat4> matrices) {
+  static_assert(sizeof(Mat4) == 16 * sizeof(double), "Mat4 is 16 doubles");
+  auto* keep = new std::vector<Mat4>(std::move(matrices));
+  nb::capsule owner(keep, [](void* p) noexcept { delete static_cast<std::vector<Mat4>*>(p); });
+  const size_t shape[3] = {keep->size(), 4, 4};
+  return MatricesOut(keep->data(), 3, shape, owner);
+}
+
+std::optional<MatrixOut> matrix_or_none(const std::optional<Mat4>& m) {
+  if (!m) return std::nullopt;
+  auto* keep = new Mat4(*m);
+  nb::capsule owner(keep, [](void* p) noexcept { delete static_cast<Mat4*>(p); });
+  const size_t shape[2] = {4, 4};
+  return MatrixOut(keep->m, 2, shape, owner);
+}
+
+GridTuple grid_tuple(const VolumeGrid& g) {
+  return GridTuple{g.dims, g.spacing_mm, g.origin_mm, g.direction.row_major()};
+}
+
+std::string splat_name(SplatInterpolation i) {
+  return i == SplatInterpolation::Nearest ? "nearest" : "linear";
+}
+
+std::string mode_name(CompoundingMode m) {
+  return m == CompoundingMode::Max ? "max" : m == CompoundingMode::Latest ? "latest" : "mean";
+}
+
+std::string hole_type_name(HoleFillingKernel::Type t) {
+  switch (t) {
+    case HoleFillingKernel::NearestNeighbor:
+      return "nearest_neighbor";
+    case HoleFillingKernel::GaussianAccumulation:
+      return "gaussian_accumulation";
+    case HoleFillingKernel::DistanceWeightInverse:
+      return "distance_weight_inverse";
+    case HoleFillingKernel::Stick:
+      return "stick";
+    default:
+      return "gaussian";
+  }
+}
+
+std::vector<HoleTuple> hole_tuples(const std::vector<HoleFillingKernel>& kernels) {
+  std::vector<HoleTuple> out;
+  for (const HoleFillingKernel& k : kernels)
+    out.emplace_back(hole_type_name(k.type), k.size, k.stdev, k.minimum_known_ratio,
+                     k.stick_length_limit, k.sticks_to_use);
+  return out;
+}
+
+CompoundSettings make_settings(const std::string& interpolation, const std::string& compounding,
+                               bool fill_holes, const std::vector<HoleTuple>& hole_filling,
+                               std::optional<double> rejection_threshold) {
+  CompoundSettings s;
+  s.interpolation = parse_splat_interpolation(interpolation);
+  s.mode = parse_compounding_mode(compounding);
+  s.fill_holes = fill_holes;
+  if (rejection_threshold) {
+    if (std::isnan(*rejection_threshold))
+      throw InputError("rejection_threshold: NaN (give None for no threshold)");
+    s.rejection_threshold = *rejection_threshold;
+  }
+  if (!hole_filling.empty()) {
+    s.hole_filling.clear();
+    for (const HoleTuple& t : hole_filling) {
+      HoleFillingKernel k;
+      k.type = parse_hole_filling_type(std::get<0>(t));
+      if (std::get<1>(t)) k.size = *std::get<1>(t);
+      if (std::get<2>(t)) k.stdev = *std::get<2>(t);
+      if (std::get<3>(t)) k.minimum_known_ratio = *std::get<3>(t);
+      if (std::get<4>(t)) k.stick_length_limit = *std::get<4>(t);
+      if (std::get<5>(t)) k.sticks_to_use = *std::get<5>(t);
+      s.hole_filling.push_back(k);
+    }
+  }
+  return s;
+}
+
+BeamGeometry beam_geometry(const BeamTuple& t, int64_t n_elevation, int64_t n_azimuth,
+                           int64_t n_samples) {
+  const int64_t limit = std::numeric_limits<int>::max();
+  if (n_elevation > limit || n_azimuth > limit || n_samples > limit)
+    throw InputError("beam-space frames: " + std::to_string(n_elevation) + "x" +
+                     std::to_string(n_azimuth) + "x" + std::to_string(n_samples) +
+                     " samples is absurd");
+  BeamGeometry g;
+  g.n_elevation = int(n_elevation);
+  g.n_azimuth = int(n_azimuth);
+  g.n_samples = int(n_samples);
+  g.r0_mm = t[0];
+  g.dr_mm = t[1];
+  g.azimuth0_deg = t[2];
+  g.dazimuth_deg = t[3];
+  g.elevation0_deg = t[4];
+  g.delevation_deg = t[5];
+  g.apex_offset_mm = t[6];
+  return g;
+}
+
+BeamTuple beam_tuple(const BeamGeometry& g) {
+  return {g.r0_mm,          g.dr_mm,          g.azimuth0_deg,  g.dazimuth_deg,
+          g.elevation0_deg, g.delevation_deg, g.apex_offset_mm};
+}
+
+std::optional<std::array<double, 6>> fan_tuple(const FrameClip& c) {
+  if (!c.fan) return std::nullopt;
+  return std::array<double, 6>{c.fan_angles_deg[0], c.fan_angles_deg[1], c.fan_origin_px[0],
+                               c.fan_origin_px[1],  c.fan_radius_px[0],  c.fan_radius_px[1]};
+}
+
+// Frames (2D: (H, W) or (N, H, W); beams: (E, A, S) or (N, E, A, S)) in host memory, C-order.
+int64_t check_frames(const nb::ndarray<nb::ro>& a, size_t frame_ndim, const std::string& what,
+                     const char* layout, PixelType* type) {
+  if (a.device_type() != kCpu)
+    throw InputError(what + ": must be in host memory (for a GPU tensor, pass tensor.cpu())");
+  if (a.ndim() != frame_ndim && a.ndim() != frame_ndim + 1)
+    throw InputError(what + ": has " + std::to_string(a.ndim()) + " dimensions; expected " +
+                     layout);
+  if (!c_contiguous(a))
+    throw InputError(what + ": not C-contiguous; pass numpy.ascontiguousarray(frames) (a copy)");
+  *type = pixel_type_of(a.dtype(), what.c_str());
+  return a.ndim() == frame_ndim ? 1 : int64_t(a.shape(0));
+}
+
+// A Compounder with a lock: Python threads may share one, and its methods run without the GIL.
+// The GIL is always released before the lock is taken (a warning raised while the lock is held
+// takes the GIL).
+struct PyCompounder {
+  Compounder compounder;
+  PixelType dtype;
+  std::mutex mutex;
+  PyCompounder(const VolumeGrid& grid, CompoundSettings settings, Device device,
+               uint64_t max_memory, PixelType type)
+      : compounder(grid, std::move(settings), device, max_memory, type), dtype(type) {}
+};
+
+// The valid frames of a PLUS sequence and their `from`→`to` transforms (SPEC §7), as the CLI
+// picks them: every `skip`-th frame whose image status is OK and whose chain is valid.
+std::tuple<std::vector<int64_t>, MatricesOut, int, int> plus_frames(const PlusSequence& s,
+                                                                    const TransformRepository& base,
+                                                                    const std::string& from,
+                                                                    const std::string& to, int skip,
+                                                                    const std::string& hint) {
+  if (skip < 1) throw InputError("skip: must be >= 1, got " + std::to_string(skip));
+  std::vector<int64_t> frames;
+  std::vector<Mat4> matrices;
+  int bad_image = 0, bad_transform = 0;
+  {
+    nb::gil_scoped_release release;
+    for (int k = 0; k < s.frame_count; k += skip) {
+      if (!s.image_ok(k)) {
+        ++bad_image;
+        continue;
+      }
+      TransformRepository repo = base;
+      repo.set_frame(s, k);
+      std::optional<Mat4> m;
+      try {
+        m = repo.get(from, to);
+      } catch (const InputError& e) {
+        throw InputError(s.path + ": " + e.what() + hint);
+      }
+      if (!m) {
+        ++bad_transform;
+        continue;
+      }
+      frames.push_back(k);
+      matrices.push_back(*m);
+    }
+  }
+  return {frames, matrices_to_numpy(std::move(matrices)), bad_image, bad_transform};
 }
 
 }  // namespace
@@ -269,12 +487,14 @@ NB_MODULE(_sonoslice, m) {
 
   // ---- volumes
   nb::class_<Volume>(m, "Volume")
-      .def_static("from_array", &volume_from_array, "array"_a, "spacing"_a, "origin"_a, "direction"_a)
+      .def_static("from_array", &volume_from_array, "array"_a, "spacing"_a, "origin"_a,
+                  "direction"_a)
       .def_static(
           "from_file",
           [](const std::string& path, std::optional<std::array<double, 3>> spacing,
-             std::optional<std::array<double, 3>> origin, std::optional<std::array<double, 9>> direction,
-             const std::string& series, const std::string& npy_config) {
+             std::optional<std::array<double, 3>> origin,
+             std::optional<std::array<double, 9>> direction, const std::string& series,
+             const std::string& npy_config) {
             VolumeReadOptions o;
             o.series_uid = series;
             o.fanslicer_npy_config = npy_config;
@@ -293,10 +513,11 @@ NB_MODULE(_sonoslice, m) {
                                {size_t(d[2]), size_t(d[1]), size_t(d[0])}, v.pixel_type(), v);
            })
       .def_prop_ro("dtype", [](const Volume& v) { return pixel_type_name(v.pixel_type()); })
-      .def_prop_ro("shape", [](const Volume& v) {
-        const auto& d = v.grid().dims;
-        return std::make_tuple(d[2], d[1], d[0]);
-      })
+      .def_prop_ro("shape",
+                   [](const Volume& v) {
+                     const auto& d = v.grid().dims;
+                     return std::make_tuple(d[2], d[1], d[0]);
+                   })
       .def_prop_ro("spacing", [](const Volume& v) { return v.grid().spacing_mm; })
       .def_prop_ro("origin", [](const Volume& v) { return v.grid().origin_mm; })
       .def_prop_ro("direction", &direction_of)
@@ -344,8 +565,8 @@ NB_MODULE(_sonoslice, m) {
           "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
       .def_static(
           "linear",
-          [](int width, int height, std::pair<double, double> spacing_mm, std::optional<double> width_mm,
-             std::optional<double> depth_mm, double face_y_mm,
+          [](int width, int height, std::pair<double, double> spacing_mm,
+             std::optional<double> width_mm, std::optional<double> depth_mm, double face_y_mm,
              std::optional<std::pair<double, double>> origin_mm) {
             ProbeGeometry p;
             p.type = ProbeType::Linear;
@@ -356,16 +577,17 @@ NB_MODULE(_sonoslice, m) {
             p.face_y_mm = face_y_mm;
             return probe_grid(p, width, height, spacing_mm, origin_mm, "linear probe");
           },
-          "width"_a, "height"_a, "spacing_mm"_a, "width_mm"_a = nb::none(), "depth_mm"_a = nb::none(),
-          "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
+          "width"_a, "height"_a, "spacing_mm"_a, "width_mm"_a = nb::none(),
+          "depth_mm"_a = nb::none(), "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
       .def_static("from_file", &read_probe, "path"_a, "downsampling"_a = 1)
       .def_static("from_json_text", &parse_probe_json, "text"_a, "source"_a = "<string>",
                   "downsampling"_a = 1)
-      .def_static("workload", [](const std::string& name) {
-        if (name == "W1") return workload_w1_fan_probe();
-        if (name == "W2") return workload_w2_linear_probe();
-        throw InputError("workload '" + name + "': expected W1 or W2");
-      })
+      .def_static("workload",
+                  [](const std::string& name) {
+                    if (name == "W1") return workload_w1_fan_probe();
+                    if (name == "W2") return workload_w2_linear_probe();
+                    throw InputError("workload '" + name + "': expected W1 or W2");
+                  })
       .def("to_json", &probe_to_json)
       .def("describe", &ProbeGeometry::describe)
       .def("mask",
@@ -375,15 +597,21 @@ NB_MODULE(_sonoslice, m) {
                                PixelType::UInt8, m);
            })
       .def("inside", &ProbeGeometry::inside, "x"_a, "y"_a)
-      .def_prop_ro("type", [](const ProbeGeometry& p) {
-        return std::string(p.type == ProbeType::Curvilinear ? "curvilinear" : "linear");
-      })
+      .def_prop_ro(
+          "type",
+          [](const ProbeGeometry& p) {
+            return std::string(p.type == ProbeType::Curvilinear ? "curvilinear" : "linear");
+          })
       .def_prop_ro("width", [](const ProbeGeometry& p) { return p.image.width; })
       .def_prop_ro("height", [](const ProbeGeometry& p) { return p.image.height; })
       .def_prop_ro("spacing_mm",
-                   [](const ProbeGeometry& p) { return std::make_pair(p.image.spacing_mm[0], p.image.spacing_mm[1]); })
+                   [](const ProbeGeometry& p) {
+                     return std::make_pair(p.image.spacing_mm[0], p.image.spacing_mm[1]);
+                   })
       .def_prop_ro("origin_mm",
-                   [](const ProbeGeometry& p) { return std::make_pair(p.image.origin_mm[0], p.image.origin_mm[1]); })
+                   [](const ProbeGeometry& p) {
+                     return std::make_pair(p.image.origin_mm[0], p.image.origin_mm[1]);
+                   })
       .def_prop_ro("radius_mm", [](const ProbeGeometry& p) { return p.radius_mm; })
       .def_prop_ro("depth_mm", [](const ProbeGeometry& p) { return p.depth_mm; })
       .def_prop_ro("sector_deg", [](const ProbeGeometry& p) { return p.sector_deg; })
@@ -393,8 +621,9 @@ NB_MODULE(_sonoslice, m) {
   nb::class_<Slicer>(m, "Slicer")
       .def(
           "__init__",
-          [](Slicer* self, const Volume& volume, const ProbeGeometry& probe, const std::string& device,
-             const std::string& interp, double fill, const std::string& dtype) {
+          [](Slicer* self, const Volume& volume, const ProbeGeometry& probe,
+             const std::string& device, const std::string& interp, double fill,
+             const std::string& dtype) {
             SliceSettings s;
             s.interpolation = parse_interpolation(interp);
             s.fill_value = fill;
@@ -412,8 +641,10 @@ NB_MODULE(_sonoslice, m) {
       .def_prop_ro("width", &Slicer::width)
       .def_prop_ro("height", &Slicer::height)
       .def_prop_ro("device", [](const Slicer& s) { return s.device().to_string(); })
-      .def_prop_ro("dtype", [](const Slicer& s) { return pixel_type_name(s.settings().output_type); })
-      .def_prop_ro("interp", [](const Slicer& s) { return interpolation_name(s.settings().interpolation); })
+      .def_prop_ro("dtype",
+                   [](const Slicer& s) { return pixel_type_name(s.settings().output_type); })
+      .def_prop_ro("interp",
+                   [](const Slicer& s) { return interpolation_name(s.settings().interpolation); })
       .def_prop_ro("fill", [](const Slicer& s) { return s.settings().fill_value; })
       .def_prop_ro("probe", &Slicer::probe)
       .def_prop_ro("volume", &Slicer::volume)
@@ -426,21 +657,24 @@ NB_MODULE(_sonoslice, m) {
   m.def(
       "read_poses",
       [](const std::string& path, const std::string& world) {
-        auto poses = std::make_shared<std::vector<Pose>>(read_poses(path, parse_world_frame(world)));
+        auto poses =
+            std::make_shared<std::vector<Pose>>(read_poses(path, parse_world_frame(world)));
         static_assert(sizeof(Pose) == 16 * sizeof(double), "Pose is 16 doubles");
         return numpy_view(poses->data(), {poses->size(), 4, 4}, PixelType::Float64, poses);
       },
       "path"_a, "world"_a = "LPS");
   m.def(
       "validate_poses",
-      [](nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> a, const std::string& source) {
+      [](nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> a,
+         const std::string& source) {
         const auto poses = poses_from(a);
         validate_poses(poses.data(), poses.size(), source);
       },
       "poses"_a, "source"_a = "poses");
   m.def(
       "write_poses",
-      [](const std::string& path, nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> a) {
+      [](const std::string& path,
+         nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> a) {
         const auto poses = poses_from(a);
         if (file_extension(path) == ".npy")
           write_poses_npy(path, poses);
@@ -453,7 +687,8 @@ NB_MODULE(_sonoslice, m) {
       [](const std::string& path, nb::ndarray<> images, std::pair<double, double> spacing,
          std::optional<std::pair<double, double>> window,
          std::optional<nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>> poses,
-         std::optional<nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>> mask) {
+         std::optional<nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>>
+             mask) {
         if (images.ndim() != 3 || images.device_type() != kCpu || !c_contiguous(images))
           throw InputError("images: expected a C-contiguous (N, H, W) array in host memory");
         StackSpec spec;
@@ -464,16 +699,20 @@ NB_MODULE(_sonoslice, m) {
         spec.spacing_mm[0] = spacing.first;
         spec.spacing_mm[1] = spacing.second;
         spec.window = window;
-        if (poses) spec.poses = poses_from(*poses);
-        else spec.poses.assign(size_t(spec.count), Pose::identity());
+        if (poses)
+          spec.poses = poses_from(*poses);
+        else
+          spec.poses.assign(size_t(spec.count), Pose::identity());
         if (mask) spec.mask = mask->data();
         const size_t image_bytes = size_t(spec.width) * size_t(spec.height) * pixel_size(spec.type);
         nb::gil_scoped_release release;
         auto writer = StackWriter::create(path, spec);
-        const int64_t chunk = std::max<int64_t>(1, int64_t((size_t(64) << 20) / std::max<size_t>(image_bytes, 1)));
+        const int64_t chunk =
+            std::max<int64_t>(1, int64_t((size_t(64) << 20) / std::max<size_t>(image_bytes, 1)));
         for (int64_t first = 0; first < spec.count; first += chunk) {
           const int64_t n = std::min(chunk, spec.count - first);
-          std::memcpy(writer->buffer(first, n), static_cast<const char*>(images.data()) + size_t(first) * image_bytes,
+          std::memcpy(writer->buffer(first, n),
+                      static_cast<const char*>(images.data()) + size_t(first) * image_bytes,
                       size_t(n) * image_bytes);
           writer->write(first, n);
         }
@@ -516,7 +755,8 @@ NB_MODULE(_sonoslice, m) {
             return read_mesh(path, f);
           },
           "path"_a, "world"_a = "LPS")
-      .def("save", [](const TriangleMesh& mesh, const std::string& path) { write_mesh(path, mesh); })
+      .def("save",
+           [](const TriangleMesh& mesh, const std::string& path) { write_mesh(path, mesh); })
       .def_prop_ro("name", [](const TriangleMesh& mesh) { return mesh.name; })
       .def("vertices",
            [](const TriangleMesh& mesh) {
@@ -540,10 +780,11 @@ NB_MODULE(_sonoslice, m) {
       "meshes"_a, "spacing"_a, "margin"_a);
   m.def(
       "voxelize",
-      [](const std::vector<TriangleMesh>& meshes, double spacing, double margin, const Volume* reference,
-         const std::vector<uint16_t>& labels) {
+      [](const std::vector<TriangleMesh>& meshes, double spacing, double margin,
+         const Volume* reference, const std::vector<uint16_t>& labels) {
         nb::gil_scoped_release release;
-        const VolumeGrid g = reference ? reference->grid() : voxel_grid_around(meshes, spacing, margin);
+        const VolumeGrid g =
+            reference ? reference->grid() : voxel_grid_around(meshes, spacing, margin);
         return voxelize(meshes, g, labels);
       },
       "meshes"_a, "spacing"_a = 0.0, "margin"_a = 0.0, "reference"_a = nb::none(),
@@ -551,8 +792,9 @@ NB_MODULE(_sonoslice, m) {
   nb::class_<SurfaceSlicer>(m, "SurfaceSlicer")
       .def(
           "__init__",
-          [](SurfaceSlicer* self, const std::vector<TriangleMesh>& meshes, const ProbeGeometry& probe,
-             const std::vector<uint16_t>& labels, const std::string& dtype) {
+          [](SurfaceSlicer* self, const std::vector<TriangleMesh>& meshes,
+             const ProbeGeometry& probe, const std::vector<uint16_t>& labels,
+             const std::string& dtype) {
             if (dtype != "uint8" && dtype != "uint16")
               throw InputError("dtype '" + dtype + "': label images are uint8 or uint16");
             const PixelType t = parse_pixel_type(dtype);
@@ -560,27 +802,32 @@ NB_MODULE(_sonoslice, m) {
             new (self) SurfaceSlicer(meshes, probe, labels, t);
           },
           "meshes"_a, "probe"_a, "labels"_a = std::vector<uint16_t>{}, "dtype"_a = "uint8")
-      .def("slice_into", &surface_slice_into, "poses"_a, "out"_a, "progress"_a = nb::none(), "chunk"_a = 0)
+      .def("slice_into", &surface_slice_into, "poses"_a, "out"_a, "progress"_a = nb::none(),
+           "chunk"_a = 0)
       .def_prop_ro("width", &SurfaceSlicer::width)
       .def_prop_ro("height", &SurfaceSlicer::height)
       .def_prop_ro("dtype", [](const SurfaceSlicer& s) { return pixel_type_name(s.output_type()); })
       .def("mask", [](const SurfaceSlicer& s) {
         auto mk = std::make_shared<std::vector<uint8_t>>(s.mask());
-        return numpy_view(mk->data(), {size_t(s.height()), size_t(s.width())}, PixelType::UInt8, mk);
+        return numpy_view(mk->data(), {size_t(s.height()), size_t(s.width())}, PixelType::UInt8,
+                          mk);
       });
   m.def(
       "cut_polygons",
-      [](const TriangleMesh& mesh, nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose) {
+      [](const TriangleMesh& mesh,
+         nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose) {
         const auto poses = poses_from(pose);
         if (poses.size() != 1) throw InputError("cut_polygons: one pose");
         std::vector<std::pair<std::vector<std::array<double, 2>>, bool>> out;
-        for (const CutPolygon& p : cut_polygons(mesh, poses[0])) out.emplace_back(p.points, p.closed);
+        for (const CutPolygon& p : cut_polygons(mesh, poses[0]))
+          out.emplace_back(p.points, p.closed);
         return out;
       },
       "mesh"_a, "pose"_a);
   m.def(
       "colorize",
-      [](nb::ndarray<> labels, nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> mask,
+      [](nb::ndarray<> labels,
+         nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> mask,
          const std::vector<std::array<uint8_t, 3>>& colors) {
         if (labels.ndim() != 3 || !c_contiguous(labels) || labels.device_type() != kCpu)
           throw InputError("labels: expected a C-contiguous (N, H, W) array in host memory");
@@ -590,8 +837,8 @@ NB_MODULE(_sonoslice, m) {
         auto rgb = std::make_shared<std::vector<uint8_t>>(labels.size() * 3);
         {
           nb::gil_scoped_release release;
-          colorize(labels.data(), t, int64_t(labels.shape(0)), int(labels.shape(2)), int(labels.shape(1)),
-                   mask.data(), colors, rgb->data());
+          colorize(labels.data(), t, int64_t(labels.shape(0)), int(labels.shape(2)),
+                   int(labels.shape(1)), mask.data(), colors, rgb->data());
         }
         return numpy_view(rgb->data(), {labels.shape(0), labels.shape(1), labels.shape(2), 3},
                           PixelType::UInt8, rgb);
@@ -613,4 +860,374 @@ NB_MODULE(_sonoslice, m) {
     for (int l = 0; l < kPhantomLabelCount; ++l) names.push_back(phantom_label_name(l));
     return names;
   });
+
+  // ---- compounding (freehand reconstruction, SPEC §7)
+  nb::class_<FrameClip>(m, "FrameClip", "Which pixels of a 2D frame go in (MF-oriented pixels).")
+      .def(
+          "__init__",
+          [](FrameClip* self, std::optional<std::array<int, 4>> rect,
+             std::optional<std::array<double, 6>> fan,
+             std::optional<nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>>
+                 mask) {
+            FrameClip c;
+            if (rect) {
+              c.x = (*rect)[0];
+              c.y = (*rect)[1];
+              c.width = (*rect)[2];
+              c.height = (*rect)[3];
+              if (c.x < 0 || c.y < 0)
+                throw InputError("clip: rect (x, y) = (" + std::to_string(c.x) + ", " +
+                                 std::to_string(c.y) + ") must not be negative");
+            }
+            if (fan) {
+              c.fan = true;
+              const auto& f = *fan;
+              c.fan_angles_deg[0] = f[0];
+              c.fan_angles_deg[1] = f[1];
+              c.fan_origin_px[0] = f[2];
+              c.fan_origin_px[1] = f[3];
+              c.fan_radius_px[0] = f[4];
+              c.fan_radius_px[1] = f[5];
+            }
+            if (mask) {
+              if (rect || fan) throw InputError("clip: give a mask or a rect/fan, not both");
+              c.custom_mask.resize(mask->size());
+              for (size_t i = 0; i < c.custom_mask.size(); ++i)
+                c.custom_mask[i] = mask->data()[i] != 0;
+              if (c.custom_mask.empty()) throw InputError("clip: the mask is empty");
+            }
+            c.validate("clip");
+            new (self) FrameClip(std::move(c));
+          },
+          "rect"_a = nb::none(), "fan"_a = nb::none(), "mask"_a = nb::none(),
+          "rect: (x, y, width, height) pixels (width/height -1: to the frame's edge); fan: "
+          "(angle0_deg, "
+          "angle1_deg, origin_x_px, origin_y_px, radius_start_px, radius_stop_px); mask: (H, W), "
+          "non-zero "
+          "pixels go in.")
+      .def(
+          "mask",
+          [](const FrameClip& c, int width, int height) {
+            auto keep = std::make_shared<std::vector<uint8_t>>(c.mask(width, height));
+            return numpy_view(keep->data(), {size_t(height), size_t(width)}, PixelType::UInt8,
+                              keep);
+          },
+          "width"_a, "height"_a,
+          "The (H, W) uint8 mask (1: inserted) for frames of width x height pixels.")
+      .def("rectangle", &FrameClip::rectangle, "width"_a, "height"_a,
+           "Pixels [x0, x1) x [y0, y1) of the clip rectangle within the frame: (x0, y0, x1, y1).")
+      .def_prop_ro("rect",
+                   [](const FrameClip& c) {
+                     return std::array<int, 4>{c.x, c.y, c.width, c.height};
+                   })
+      .def_prop_ro("fan", &fan_tuple)
+      .def_prop_ro("mask_pixels", [](const FrameClip& c) { return c.custom_mask.size(); });
+
+  nb::class_<PyCompounder>(
+      m, "Compounder", "Tracked frames compounded into one voxel grid (use sonoslice.Compounder).")
+      .def(
+          "__init__",
+          [](PyCompounder* self, std::array<int64_t, 3> dims, std::array<double, 3> spacing,
+             std::array<double, 3> origin, std::array<double, 9> direction,
+             const std::string& interpolation, const std::string& compounding, bool fill_holes,
+             const std::vector<HoleTuple>& hole_filling, std::optional<double> rejection_threshold,
+             const std::string& device, uint64_t max_memory, const std::string& dtype) {
+            VolumeGrid g = make_grid(spacing, origin, direction);
+            g.dims = dims;
+            CompoundSettings s = make_settings(interpolation, compounding, fill_holes, hole_filling,
+                                               rejection_threshold);
+            const PixelType t = parse_pixel_type(dtype);
+            const Device d = Device::parse(device);
+            nb::gil_scoped_release release;  // allocating and clearing a large grid takes a while
+            new (self) PyCompounder(g, std::move(s), d, max_memory, t);
+          },
+          "dims"_a, "spacing"_a, "origin"_a, "direction"_a, "interpolation"_a = "linear",
+          "compounding"_a = "mean", "fill_holes"_a = false,
+          "hole_filling"_a = std::vector<HoleTuple>{}, "rejection_threshold"_a = nb::none(),
+          "device"_a = "cpu", "max_memory"_a = 0, "dtype"_a = "float32",
+          "dims: voxels along x, y, z; spacing (mm) and origin (mm, centre of voxel 0) along x, y, "
+          "z; "
+          "direction: 3x3 row-major, index axes as columns. max_memory: bytes (0: what the machine "
+          "has).")
+      .def(
+          "add_images",
+          [](PyCompounder& self, nb::ndarray<nb::ro> frames, Matrices image_to_reference,
+             const FrameClip& clip) {
+            PixelType type;
+            const int64_t n = check_frames(frames, 2, "add: frames", "(H, W) or (N, H, W)", &type);
+            const size_t nd = frames.ndim();
+            const int64_t height = int64_t(frames.shape(nd - 2)),
+                          width = int64_t(frames.shape(nd - 1));
+            if (width > (int64_t(1) << 28) || height > (int64_t(1) << 28))
+              throw InputError("add: frames of " + std::to_string(width) + "x" +
+                               std::to_string(height) + " pixels are too large");
+            const std::vector<Mat4> m =
+                matrices_from(image_to_reference, "add: image_to_reference");
+            if (int64_t(m.size()) != n)
+              throw InputError("add: " + std::to_string(n) + " frames but " +
+                               std::to_string(m.size()) + " image_to_reference matrices");
+            if (!clip.custom_mask.empty() &&
+                clip.custom_mask.size() != size_t(width) * size_t(height))
+              throw InputError("add: the clip mask has " + std::to_string(clip.custom_mask.size()) +
+                               " pixels but frames have " + std::to_string(height) + "x" +
+                               std::to_string(width));
+            nb::gil_scoped_release release;
+            std::lock_guard<std::mutex> lock(self.mutex);
+            self.compounder.add_images(frames.data(), type, int(width), int(height), n, m.data(),
+                                       clip);
+          },
+          "frames"_a, "image_to_reference"_a, "clip"_a,
+          "frames: (H, W) or (N, H, W), C-order, MF-oriented; image_to_reference: (N, 4, 4), pixel "
+          "(i, j) "
+          "at (i, j, 0) to reference mm.")
+      .def(
+          "add_beams",
+          [](PyCompounder& self, nb::ndarray<nb::ro> frames, Matrices probe_to_reference,
+             const BeamTuple& g) {
+            PixelType type;
+            const int64_t n =
+                check_frames(frames, 3, "add_beams: frames",
+                             "(n_elevation, n_azimuth, n_samples) or (N, n_elevation, n_azimuth, "
+                             "n_samples)",
+                             &type);
+            const size_t nd = frames.ndim();
+            const BeamGeometry geometry =
+                beam_geometry(g, int64_t(frames.shape(nd - 3)), int64_t(frames.shape(nd - 2)),
+                              int64_t(frames.shape(nd - 1)));
+            geometry.validate("add_beams: geometry");
+            const std::vector<Mat4> m =
+                matrices_from(probe_to_reference, "add_beams: probe_to_reference");
+            if (int64_t(m.size()) != n)
+              throw InputError("add_beams: " + std::to_string(n) + " frames but " +
+                               std::to_string(m.size()) + " probe_to_reference matrices");
+            nb::gil_scoped_release release;
+            std::lock_guard<std::mutex> lock(self.mutex);
+            self.compounder.add_beams(frames.data(), type, geometry, n, m.data());
+          },
+          "frames"_a, "probe_to_reference"_a, "geometry"_a,
+          "frames: (E, A, S) or (N, E, A, S), samples along each beam fastest; geometry: (r0_mm, "
+          "dr_mm, "
+          "azimuth0_deg, dazimuth_deg, elevation0_deg, delevation_deg, apex_offset_mm).")
+      .def(
+          "volume",
+          [](PyCompounder& self, std::optional<std::string> dtype) {
+            const PixelType t = dtype ? parse_pixel_type(*dtype) : self.dtype;
+            nb::gil_scoped_release release;
+            std::lock_guard<std::mutex> lock(self.mutex);
+            return self.compounder.volume(t);
+          },
+          "dtype"_a = nb::none(),
+          "The reconstruction so far (empty voxels 0; integers round and saturate).")
+      .def(
+          "weights",
+          [](PyCompounder& self) {
+            nb::gil_scoped_release release;
+            std::lock_guard<std::mutex> lock(self.mutex);
+            return self.compounder.weights();
+          },
+          "The summed splat weight per voxel (float32; 0 where no sample arrived).")
+      .def_prop_ro("frames_added",
+                   [](PyCompounder& self) {
+                     nb::gil_scoped_release release;
+                     std::lock_guard<std::mutex> lock(self.mutex);
+                     return self.compounder.frames_added();
+                   })
+      .def_prop_ro("grid", [](PyCompounder& self) { return grid_tuple(self.compounder.grid()); })
+      .def_prop_ro("dtype", [](PyCompounder& self) { return pixel_type_name(self.dtype); })
+      .def_prop_ro(
+          "interpolation",
+          [](PyCompounder& self) { return splat_name(self.compounder.settings().interpolation); })
+      .def_prop_ro("compounding",
+                   [](PyCompounder& self) { return mode_name(self.compounder.settings().mode); })
+      .def_prop_ro("fill_holes",
+                   [](PyCompounder& self) { return self.compounder.settings().fill_holes; })
+      .def_prop_ro(
+          "hole_filling",
+          [](PyCompounder& self) { return hole_tuples(self.compounder.settings().hole_filling); })
+      .def_prop_ro("rejection_threshold", [](PyCompounder& self) -> std::optional<double> {
+        const double t = self.compounder.settings().rejection_threshold;
+        if (std::isinf(t) && t < 0) return std::nullopt;
+        return t;
+      });
+
+  m.def(
+      "compound_grid_around",
+      [](Matrices image_to_reference, int width, int height, const FrameClip& clip,
+         std::array<double, 3> spacing) {
+        const std::vector<Mat4> mats =
+            matrices_from(image_to_reference, "grid_around: image_to_reference");
+        if (!clip.custom_mask.empty() && clip.custom_mask.size() != size_t(width) * size_t(height))
+          throw InputError("grid_around: the clip mask has " +
+                           std::to_string(clip.custom_mask.size()) + " pixels but frames have " +
+                           std::to_string(height) + "x" + std::to_string(width));
+        return grid_tuple(Compounder::grid_around(mats, width, height, clip,
+                                                  Vec3{spacing[0], spacing[1], spacing[2]}));
+      },
+      "image_to_reference"_a, "width"_a, "height"_a, "clip"_a, "spacing"_a,
+      "PLUS's output grid around clipped frames: (dims xyz, spacing, origin, direction).");
+  m.def(
+      "compound_grid_around_beams",
+      [](Matrices probe_to_reference, const BeamTuple& g, std::array<int64_t, 3> beam_shape,
+         std::array<double, 3> spacing) {
+        const std::vector<Mat4> mats =
+            matrices_from(probe_to_reference, "grid_around_beams: probe_to_reference");
+        const BeamGeometry geometry = beam_geometry(g, beam_shape[0], beam_shape[1], beam_shape[2]);
+        return grid_tuple(Compounder::grid_around_beams(mats, geometry,
+                                                        Vec3{spacing[0], spacing[1], spacing[2]}));
+      },
+      "probe_to_reference"_a, "geometry"_a, "beam_shape"_a, "spacing"_a,
+      "The grid around every beam's first and last sample: (dims xyz, spacing, origin, "
+      "direction).");
+  m.def(
+      "compounding_memory_bytes",
+      [](std::array<int64_t, 3> dims, const std::string& compounding, const std::string& dtype) {
+        VolumeGrid g;
+        g.dims = dims;
+        CompoundSettings s;
+        s.mode = parse_compounding_mode(compounding);
+        return compounding_memory_bytes(g, s, parse_pixel_type(dtype));
+      },
+      "dims"_a, "compounding"_a = "mean", "dtype"_a = "float32");
+  m.def(
+      "read_beam_geometry",
+      [](const std::string& path) { return beam_tuple(read_beam_geometry(path)); }, "path"_a,
+      "(r0_mm, dr_mm, azimuth0_deg, dazimuth_deg, elevation0_deg, delevation_deg, apex_offset_mm)");
+  m.def(
+      "write_beam_geometry",
+      [](const std::string& path, const BeamTuple& g) {
+        write_beam_geometry(path, beam_geometry(g, 0, 0, 0));
+      },
+      "path"_a, "geometry"_a);
+
+  // ---- PLUS toolkit files
+  nb::class_<PlusSequence>(m, "PlusSequence",
+                           "A PLUS tracked-frame sequence, frames in MF orientation.")
+      .def_ro("path", &PlusSequence::path)
+      .def_ro("width", &PlusSequence::width)
+      .def_ro("height", &PlusSequence::height)
+      .def_ro("frame_count", &PlusSequence::frame_count)
+      .def_ro("orientation", &PlusSequence::orientation)
+      .def_prop_ro("dtype", [](const PlusSequence& s) { return pixel_type_name(s.pixel_type); })
+      .def_ro("frame_fields", &PlusSequence::frame_fields,
+              "Per frame, every Seq_FrameNNNN_<Field> (a copy).")
+      .def(
+          "frames",
+          [](nb::handle_t<PlusSequence> self) {
+            PlusSequence& s = nb::cast<PlusSequence&>(self);
+            const size_t shape[3] = {size_t(s.frame_count), size_t(s.height), size_t(s.width)};
+            // A view of the sequence's pixels; the array keeps the sequence object alive.
+            return nb::ndarray<nb::numpy>(s.pixels.data(), 3, shape, self, nullptr,
+                                          dlpack_dtype(s.pixel_type));
+          },
+          "(N, H, W) view of the frames (no copy).")
+      .def("image_ok", &PlusSequence::image_ok, "frame"_a)
+      .def("transform_names", &PlusSequence::transform_names, "frame"_a)
+      .def(
+          "transform",
+          [](const PlusSequence& s, int frame, const std::string& name) {
+            return matrix_or_none(s.transform(frame, name));
+          },
+          "frame"_a, "name"_a,
+          "Frame's <name>Transform (4x4) or None (missing or its status not OK).")
+      .def("timestamps", [](const PlusSequence& s) {
+        std::vector<double> t(size_t(s.frame_count));
+        for (int k = 0; k < s.frame_count; ++k) t[size_t(k)] = s.timestamp(k);
+        return t;
+      });
+  m.def(
+      "read_plus_sequence",
+      [](const std::string& path) {
+        nb::gil_scoped_release release;
+        return read_plus_sequence(path);
+      },
+      "path"_a);
+  m.def(
+      "write_plus_sequence",
+      [](const std::string& path, nb::ndarray<nb::ro> frames,
+         const std::vector<std::map<std::string, std::string>>& fields,
+         const std::string& orientation, bool compress) {
+        const std::string what = "write_plus_sequence: frames";
+        if (frames.device_type() != kCpu || frames.ndim() != 3 || !c_contiguous(frames))
+          throw InputError(what + ": expected a C-contiguous (N, H, W) array in host memory");
+        PlusSequence s;
+        s.path = path;
+        s.pixel_type = pixel_type_of(frames.dtype(), what.c_str());
+        s.frame_count = int(frames.shape(0));
+        s.height = int(frames.shape(1));
+        s.width = int(frames.shape(2));
+        if (int64_t(s.frame_count) != int64_t(frames.shape(0)) ||
+            int64_t(s.height) != int64_t(frames.shape(1)) ||
+            int64_t(s.width) != int64_t(frames.shape(2)))
+          throw InputError(what + ": too many frames or pixels");
+        s.orientation = orientation;
+        s.frame_fields = fields;
+        const auto* p = static_cast<const uint8_t*>(frames.data());
+        s.pixels.assign(p, p + frames.nbytes());
+        nb::gil_scoped_release release;
+        write_plus_sequence(path, s, compress);
+      },
+      "path"_a, "frames"_a, "fields"_a, "orientation"_a = "MF", "compress"_a = true);
+
+  nb::class_<TransformRepository>(m, "TransformRepository",
+                                  "Named transforms; chains of them on request.")
+      .def(nb::init<>())
+      .def("copy", [](const TransformRepository& r) { return r; })
+      .def(
+          "set",
+          [](TransformRepository& r, const std::string& from, const std::string& to, Matrix4 matrix,
+             bool valid) {
+            r.set(from, to, matrix_from(matrix, "transform " + from + "To" + to), valid);
+          },
+          "from_frame"_a, "to_frame"_a, "matrix"_a, "valid"_a = true)
+      .def("set_frame", &TransformRepository::set_frame, "sequence"_a, "frame"_a)
+      .def(
+          "get",
+          [](const TransformRepository& r, const std::string& from, const std::string& to) {
+            return matrix_or_none(r.get(from, to));
+          },
+          "from_frame"_a, "to_frame"_a)
+      .def_static("split_name", &TransformRepository::split_name, "name"_a);
+
+  nb::class_<PlusReconstructionConfig>(m, "PlusConfig",
+                                       "A PLUS configuration's reconstruction settings.")
+      .def_ro("path", &PlusReconstructionConfig::path)
+      .def_prop_ro("coordinate_definitions",
+                   [](const PlusReconstructionConfig& c) { return c.coordinate_definitions; })
+      .def_ro("image_frame", &PlusReconstructionConfig::image_frame)
+      .def_ro("reference_frame", &PlusReconstructionConfig::reference_frame)
+      .def_ro("spacing", &PlusReconstructionConfig::output_spacing_mm)
+      .def_ro("origin", &PlusReconstructionConfig::output_origin_mm)
+      .def_ro("extent", &PlusReconstructionConfig::output_extent)
+      .def_prop_ro(
+          "interpolation",
+          [](const PlusReconstructionConfig& c) { return splat_name(c.settings.interpolation); })
+      .def_prop_ro("compounding",
+                   [](const PlusReconstructionConfig& c) { return mode_name(c.settings.mode); })
+      .def_prop_ro("fill_holes",
+                   [](const PlusReconstructionConfig& c) { return c.settings.fill_holes; })
+      .def_prop_ro(
+          "hole_filling",
+          [](const PlusReconstructionConfig& c) { return hole_tuples(c.settings.hole_filling); })
+      .def_prop_ro("rejection_threshold",
+                   [](const PlusReconstructionConfig& c) -> std::optional<double> {
+                     const double t = c.settings.rejection_threshold;
+                     if (std::isinf(t) && t < 0) return std::nullopt;
+                     return t;
+                   })
+      .def_ro("clip", &PlusReconstructionConfig::clip)
+      .def_ro("skip_interval", &PlusReconstructionConfig::skip_interval)
+      .def_ro("ignored_attributes", &PlusReconstructionConfig::ignored_attributes)
+      .def_ro("unknown_attributes", &PlusReconstructionConfig::unknown_attributes);
+  m.def(
+      "read_plus_config",
+      [](const std::string& path) {
+        nb::gil_scoped_release release;
+        return read_plus_config(path);
+      },
+      "path"_a);
+  m.def(
+      "plus_frames", &plus_frames, "sequence"_a, "repository"_a, "from_frame"_a, "to_frame"_a,
+      "skip"_a = 1, "hint"_a = "",
+      "(frame indices, (M, 4, 4) from->to matrices, frames with a bad image status, frames with an "
+      "invalid transform) for every skip-th frame.");
 }

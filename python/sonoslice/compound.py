@@ -1,0 +1,825 @@
+"""Freehand 3D reconstruction ("compounding", SPEC §7) and PLUS toolkit files.
+
+Tracked 2D frames (or 3D beam-space frames of a 3D/4D probe) are inserted into one voxel grid
+whose axes are parallel to the reference (world) frame, as PLUS toolkit's volume reconstructor
+does. The conventions are those of :class:`sonoslice.Volume`:
+
+* a grid's ``shape`` is ``(nz, ny, nx)`` (the C-order of ``Volume.array``); its ``spacing`` and
+  ``origin`` are along x, y, z (mm; ``origin`` = centre of voxel (0, 0, 0));
+* a 2D frame is an ``(H, W)`` array in MF orientation (row 0 nearest the transducer, column 0 on
+  the marked side) and ``image_to_reference`` (4×4) maps pixel ``(i, j)`` = ``frame[j, i]``
+  (column i, row j) at ``(i, j, 0)`` to reference millimetres: for a sonoslice probe it is
+  ``pose @ [[sx, 0, 0, x0], [0, sy, 0, y0], [0, 0, 1, 0], [0, 0, 0, 1]]``;
+* a beam-space frame is an ``(n_elevation, n_azimuth, n_samples)`` array (samples along each beam
+  fastest) with a :class:`BeamGeometry`; ``probe_to_reference`` maps probe mm to reference mm.
+
+Frames cross into C++ without a copy when they are C-contiguous arrays of uint8, int8, uint16,
+int16, uint32, int32, float32 or float64 (uint8/uint16/int16/float32 go to the kernels as they
+are; the others are converted to float32 batch by batch). The GIL is released while frames are
+inserted and while the volume is finished. Bad input raises ``ValueError`` naming the argument,
+unreadable files ``OSError``, a grid too large for memory ``RuntimeError`` (with a spacing that
+fits).
+"""
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Dict, List, NamedTuple, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _sonoslice as _ext
+from . import Volume, _is_torch
+
+__all__ = [
+    "Grid", "Compounder", "BeamGeometry", "grid_around", "grid_around_beams", "clip_mask",
+    "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
+    "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
+]
+
+_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
+_IDENTITY3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+Clip = Union[None, Dict[str, Any], np.ndarray, "_ext.FrameClip"]
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+# ---- grids ----------------------------------------------------------------------------------------
+class Grid(NamedTuple):
+    """A voxel grid in :class:`Volume`'s conventions: ``shape`` = (nz, ny, nx); ``spacing`` (mm)
+    and ``origin`` (mm, centre of voxel (0, 0, 0)) along x, y, z; ``direction``: the 3×3 matrix
+    (as rows) whose columns are the index axes in world coordinates."""
+    shape: Tuple[int, int, int]
+    spacing: Tuple[float, float, float]
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    direction: Tuple[Tuple[float, float, float], ...] = _IDENTITY3
+
+    @property
+    def dims(self) -> Tuple[int, int, int]:
+        """Voxels along x, y, z: (nx, ny, nz)."""
+        return tuple(reversed(self.shape))
+
+    @property
+    def size(self) -> int:
+        """Number of voxels."""
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    def index_to_world(self, index: Sequence[float]) -> np.ndarray:
+        """World position (mm) of a continuous voxel index (i, j, k) (i along x)."""
+        d = np.array(self.direction, dtype=np.float64)
+        return np.array(self.origin) + d @ (np.array(self.spacing) * np.asarray(index, dtype=np.float64))
+
+    def world_to_index(self, point_mm: Sequence[float]) -> np.ndarray:
+        """Continuous voxel index (i, j, k) of a world point (mm)."""
+        d = np.array(self.direction, dtype=np.float64)
+        offset = np.asarray(point_mm, dtype=np.float64) - np.array(self.origin)
+        return np.linalg.solve(d, offset) / np.array(self.spacing)
+
+    def memory_bytes(self, compounding: str = "mean", dtype="float32") -> int:
+        """Bytes a :class:`Compounder` on this grid holds (accumulators plus a ``dtype`` result)."""
+        return int(_ext.compounding_memory_bytes(self.dims, str(compounding), _dtype_name(dtype, "dtype")))
+
+    @classmethod
+    def _from_ext(cls, t) -> "Grid":
+        dims, spacing, origin, direction = t
+        d = tuple(tuple(float(x) for x in direction[3 * r:3 * r + 3]) for r in range(3))
+        return cls(tuple(int(n) for n in reversed(dims)), tuple(map(float, spacing)), tuple(map(float, origin)), d)
+
+    @classmethod
+    def of(cls, volume_like) -> "Grid":
+        """The grid of a :class:`Volume` (or of anything with ``shape``/``spacing``/``origin``
+        and optionally ``direction`` in these conventions)."""
+        if isinstance(volume_like, Grid):
+            return volume_like
+        try:
+            shape, spacing, origin = volume_like.shape, volume_like.spacing, volume_like.origin
+        except AttributeError:
+            raise TypeError("grid: expected a sonoslice.Grid or Volume (something with shape, spacing and "
+                            f"origin), got {type(volume_like).__name__}") from None
+        direction = getattr(volume_like, "direction", None)
+        d = _IDENTITY3 if direction is None else _direction_rows(direction)
+        return cls(tuple(int(n) for n in shape), tuple(map(float, spacing)), tuple(map(float, origin)), d)
+
+    def __repr__(self) -> str:
+        nz, ny, nx = self.shape
+        extra = "" if self.direction == _IDENTITY3 else f", direction={self.direction}"
+        return f"Grid({nx}x{ny}x{nz} voxels (x, y, z), spacing={self.spacing} mm, origin={self.origin} mm{extra})"
+
+
+def _direction_rows(direction) -> Tuple[Tuple[float, float, float], ...]:
+    return tuple(tuple(row) for row in np.asarray(direction, dtype=np.float64).reshape(3, 3).tolist())
+
+
+def _spacing3(spacing, what: str) -> Tuple[float, float, float]:
+    if spacing is None:
+        raise ValueError(f"{what}: give spacing (mm)")
+    s = (float(spacing),) * 3 if np.isscalar(spacing) else tuple(float(v) for v in spacing)
+    if len(s) != 3:
+        raise ValueError(f"{what}: spacing must be one number or three (x, y, z mm), got {spacing!r}")
+    if not all(v > 0 and math.isfinite(v) for v in s):
+        raise ValueError(f"{what}: spacing {s} must be positive mm")
+    return s
+
+
+def _dtype_name(dtype, what: str) -> str:
+    try:
+        name = np.dtype(dtype).name
+    except TypeError:
+        raise ValueError(f"{what} {dtype!r}: expected one of {', '.join(_DTYPES)}") from None
+    if name not in _DTYPES:
+        raise ValueError(f"{what} {name}: expected one of {', '.join(_DTYPES)}")
+    return name
+
+
+def _matrices(m, what: str, count: Optional[int] = None, single: bool = False) -> np.ndarray:
+    """(N, 4, 4) float64 C-contiguous; (4, 4) accepted as one matrix."""
+    if _is_torch(m):
+        m = m.detach().cpu().numpy()
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected 4x4 matrices of numbers") from None
+    if a.shape == (4, 4):
+        a = a[None]
+    elif a.ndim != 3 or a.shape[1:] != (4, 4):
+        raise ValueError(f"{what} has shape {a.shape}; expected (4, 4) or (N, 4, 4)")
+    if count is not None and a.shape[0] != count:
+        frames = "1 frame" if single else f"{count} frames"
+        raise ValueError(f"{what} has shape {a.shape} for {frames}; expected "
+                         f"{'(4, 4)' if count == 1 else f'({count}, 4, 4)'}")
+    return np.ascontiguousarray(a)
+
+
+def _frames(frames, what: str, frame_ndim: int, layout: str) -> np.ndarray:
+    if _is_torch(frames):
+        frames = frames.detach().cpu().numpy()
+    a = np.asarray(frames)
+    if a.dtype.name not in _DTYPES:
+        raise ValueError(f"{what} has dtype {a.dtype}; supported: {', '.join(_DTYPES)}")
+    if a.ndim not in (frame_ndim, frame_ndim + 1):
+        raise ValueError(f"{what} has shape {a.shape}; expected {layout}")
+    return np.ascontiguousarray(a)  # no copy when it already is
+
+
+# ---- frame clips ----------------------------------------------------------------------------------
+def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None):
+    """A clip (None, dict(rect=..., fan=...), an (H, W) mask or an _ext.FrameClip) → _ext.FrameClip."""
+    if clip is None:
+        return _ext.FrameClip()
+    if isinstance(clip, _ext.FrameClip):
+        return clip
+    if isinstance(clip, dict):
+        unknown = sorted(set(clip) - {"rect", "fan"})
+        if unknown:
+            raise ValueError(f"{what}: unknown clip key(s) {unknown}; expected 'rect' and/or 'fan' "
+                             "(or an (H, W) mask array)")
+        rect = fan = None
+        if clip.get("rect") is not None:
+            r = tuple(clip["rect"])
+            if len(r) != 4:
+                raise ValueError(f"{what}: clip rect {r} must be (x, y, width, height) pixels")
+            for v in r:
+                if v is not None and (not float(v).is_integer()):
+                    raise ValueError(f"{what}: clip rect {r} must be whole pixels")
+            x, y, w, h = r
+            rect = (int(x or 0), int(y or 0), -1 if w is None else int(w), -1 if h is None else int(h))
+            if min(rect) < -1 or rect[0] < 0 or rect[1] < 0:
+                raise ValueError(f"{what}: clip rect {r} must not be negative")
+        if clip.get("fan") is not None:
+            f = clip["fan"]
+            if not isinstance(f, dict):
+                raise ValueError(f"{what}: clip fan must be a dict(angles_deg=(a0, a1), origin_px=(x, y), "
+                                 "radius_px=(r0, r1))")
+            unknown = sorted(set(f) - {"angles_deg", "origin_px", "radius_px"})
+            if unknown:
+                raise ValueError(f"{what}: unknown clip fan key(s) {unknown}; expected angles_deg, origin_px, "
+                                 "radius_px")
+            if "angles_deg" not in f:
+                raise ValueError(f"{what}: clip fan needs angles_deg=(a0, a1) (degrees from +y, towards +x)")
+
+            def pair(key, default):
+                v = f.get(key, default)
+                v = tuple(float(t) for t in v)
+                if len(v) != 2:
+                    raise ValueError(f"{what}: clip fan {key} must be two numbers, got {f.get(key)!r}")
+                return v
+
+            fan = pair("angles_deg", None) + pair("origin_px", (0.0, 0.0)) + pair("radius_px", (0.0, math.inf))
+        return _ext.FrameClip(rect, fan, None)
+    if _is_torch(clip):
+        clip = clip.detach().cpu().numpy()
+    m = np.asarray(clip)
+    if m.ndim != 2:
+        raise ValueError(f"{what}: a clip mask must be (H, W) like the frames, got shape {m.shape} "
+                         "(or give dict(rect=..., fan=...))")
+    if m.dtype != np.bool_ and not np.issubdtype(m.dtype, np.integer):
+        raise ValueError(f"{what}: a clip mask must be boolean or integer (non-zero: inserted), got {m.dtype}")
+    if frame_shape is not None and tuple(m.shape) != tuple(frame_shape):
+        raise ValueError(f"{what}: the clip mask has shape {m.shape} but frames are {tuple(frame_shape)}")
+    return _ext.FrameClip(None, None, np.ascontiguousarray(m != 0, dtype=np.uint8))
+
+
+def _clip_dict(c) -> Optional[Dict[str, Any]]:
+    """An _ext.FrameClip (rect/fan only) as the dict Compounder takes; None when it clips nothing."""
+    out: Dict[str, Any] = {}
+    x, y, w, h = c.rect
+    if (x, y, w, h) != (0, 0, -1, -1):
+        out["rect"] = (x, y, None if w < 0 else w, None if h < 0 else h)
+    if c.fan is not None:
+        a0, a1, ox, oy, r0, r1 = c.fan
+        out["fan"] = dict(angles_deg=(a0, a1), origin_px=(ox, oy), radius_px=(r0, r1))
+    return out or None
+
+
+def clip_mask(clip: Clip, frame_shape: Tuple[int, int]) -> np.ndarray:
+    """The (H, W) uint8 mask (1: inserted) of the pixels a clip lets through for frames of
+    ``frame_shape`` = (H, W). ``clip``: ``dict(rect=(x, y, w, h), fan=dict(angles_deg=(a0, a1),
+    origin_px=(ox, oy), radius_px=(r0, r1)))`` (PLUS's conventions: the w × h pixels from (x, y);
+    fan angles from the +y (depth) axis towards +x, inclusive), or a mask."""
+    h, w = (int(v) for v in frame_shape)
+    return _frame_clip(clip, "clip_mask", (h, w)).mask(w, h)
+
+
+def grid_around(image_to_reference, frame_shape: Tuple[int, int], spacing, clip: Clip = None) -> Grid:
+    """PLUS's output grid for 2D frames of ``frame_shape`` = (H, W): axes parallel to the reference
+    frame, origin at the per-axis minimum of the clip rectangle's corner pixel centres over all
+    frames, ``round((max - min) / spacing) + 1`` voxels. ``image_to_reference``: (N, 4, 4)."""
+    h, w = (int(v) for v in frame_shape)
+    m = _matrices(image_to_reference, "grid_around: image_to_reference")
+    return Grid._from_ext(_ext.compound_grid_around(m, w, h, _frame_clip(clip, "grid_around", (h, w)),
+                                                    _spacing3(spacing, "grid_around")))
+
+
+def grid_around_beams(probe_to_reference, geometry, beam_shape: Tuple[int, int, int], spacing) -> Grid:
+    """The grid (axes parallel to the reference frame) around every beam's first and last sample of
+    beam-space frames of ``beam_shape`` = (n_elevation, n_azimuth, n_samples)."""
+    m = _matrices(probe_to_reference, "grid_around_beams: probe_to_reference")
+    g = BeamGeometry.of(geometry)
+    shape = tuple(int(v) for v in beam_shape)
+    if len(shape) != 3:
+        raise ValueError(f"grid_around_beams: beam_shape {beam_shape} must be (n_elevation, n_azimuth, n_samples)")
+    spacing = _spacing3(spacing, "grid_around_beams")
+    return Grid._from_ext(_ext.compound_grid_around_beams(m, g._tuple(), shape, spacing))
+
+
+# ---- beam-space frames ------------------------------------------------------------------------------
+@dataclass
+class BeamGeometry:
+    """Geometry of 3D beam-space frames (SPEC §7): sample s of the beam at azimuth
+    α = azimuth0_deg + a·dazimuth_deg and elevation β = elevation0_deg + e·delevation_deg lies at
+    probe coordinates apex + (r0_mm + s·dr_mm)·(sin α, cos α·cos β, cos α·sin β), with
+    apex = (0, -apex_offset_mm, 0) (0 for phased arrays). The frame sizes come from the arrays."""
+    r0_mm: float = 0.0
+    dr_mm: float = 1.0
+    azimuth0_deg: float = 0.0
+    dazimuth_deg: float = 1.0
+    elevation0_deg: float = 0.0
+    delevation_deg: float = 1.0
+    apex_offset_mm: float = 0.0
+
+    @classmethod
+    def from_file(cls, path: PathLike) -> "BeamGeometry":
+        """Reads the geometry JSON (``{"r0_mm": ..., "dr_mm": ..., ...}``)."""
+        return cls(*_ext.read_beam_geometry(os.fspath(path)))
+
+    def save(self, path: PathLike) -> None:
+        """Writes the geometry JSON atomically."""
+        _ext.write_beam_geometry(os.fspath(path), self._tuple())
+
+    @classmethod
+    def of(cls, geometry) -> "BeamGeometry":
+        """A BeamGeometry from itself, a dict of its fields, or a path to its JSON file."""
+        if isinstance(geometry, BeamGeometry):
+            return geometry
+        if isinstance(geometry, dict):
+            names = {f.name for f in fields(cls)}
+            unknown = sorted(set(geometry) - names)
+            if unknown:
+                raise ValueError(f"beam geometry: unknown key(s) {unknown}; expected {', '.join(sorted(names))}")
+            return cls(**{k: float(v) for k, v in geometry.items()})
+        if isinstance(geometry, (str, os.PathLike)):
+            return cls.from_file(geometry)
+        raise TypeError("geometry: expected a sonoslice.BeamGeometry, a dict or a path to its JSON file, got "
+                        f"{type(geometry).__name__}")
+
+    def _tuple(self) -> Tuple[float, ...]:
+        return tuple(float(v) for v in asdict(self).values())
+
+
+# ---- the compounder -------------------------------------------------------------------------------
+_HOLE_KEYS = {"type": "type", "size": "size", "stdev": "stdev", "min_ratio": "min_ratio",
+              "minimum_known_ratio": "min_ratio", "length_limit": "length_limit",
+              "stick_length_limit": "length_limit", "sticks": "sticks", "sticks_to_use": "sticks"}
+
+
+def _hole_tuples(hole_filling) -> list:
+    if hole_filling is None:
+        return []
+    if isinstance(hole_filling, dict):
+        hole_filling = [hole_filling]
+    out = []
+    for k, e in enumerate(hole_filling):
+        if not isinstance(e, dict):
+            raise ValueError(f"hole_filling[{k}]: expected a dict such as dict(type='gaussian', size=3, "
+                             f"stdev=0.667, min_ratio=0.5), got {e!r}")
+        unknown = sorted(set(e) - set(_HOLE_KEYS))
+        if unknown:
+            raise ValueError(f"hole_filling[{k}]: unknown key(s) {unknown}; expected type, size, stdev, "
+                             "min_ratio, length_limit, sticks")
+        d = {_HOLE_KEYS[key]: v for key, v in e.items()}
+        if "type" not in d:
+            raise ValueError(f"hole_filling[{k}]: needs a type (gaussian, gaussian_accumulation, "
+                             "distance_weight_inverse, nearest_neighbor or stick)")
+        opt_int = lambda v: None if v is None else int(v)  # noqa: E731
+        opt_float = lambda v: None if v is None else float(v)  # noqa: E731
+        out.append((str(d["type"]), opt_int(d.get("size")), opt_float(d.get("stdev")),
+                    opt_float(d.get("min_ratio")), opt_int(d.get("length_limit")), opt_int(d.get("sticks"))))
+    return out
+
+
+def _hole_dicts(tuples) -> List[Dict[str, Any]]:
+    out = []
+    for t, size, stdev, ratio, length, sticks in tuples:
+        if t == "stick":
+            out.append(dict(type=t, length_limit=length, sticks=sticks))
+        else:
+            d = dict(type=t, size=size)
+            if t in ("gaussian", "gaussian_accumulation"):
+                d["stdev"] = stdev
+            d["min_ratio"] = ratio
+            out.append(d)
+    return out
+
+
+def _memory_bytes(max_memory) -> int:
+    """None → 0 (what the machine has); an int of bytes; or "8G", "512M", "1.5GiB"."""
+    if max_memory is None:
+        return 0
+    if isinstance(max_memory, str):
+        text = max_memory.strip().upper()
+        units = {"": 1, "B": 1, "K": 1 << 10, "KB": 1 << 10, "KIB": 1 << 10, "M": 1 << 20, "MB": 1 << 20,
+                 "MIB": 1 << 20, "G": 1 << 30, "GB": 1 << 30, "GIB": 1 << 30, "T": 1 << 40, "TB": 1 << 40,
+                 "TIB": 1 << 40}
+        number = text.rstrip("KMGTIB")
+        try:
+            value, scale = float(number), units[text[len(number):]]
+        except (ValueError, KeyError):
+            raise ValueError(f"max_memory {max_memory!r}: expected bytes or a size such as '8G' or '512M'") from None
+    else:
+        value, scale = float(max_memory), 1
+    if not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"max_memory {max_memory!r}: must be a positive size")
+    return int(value * scale)
+
+
+class Compounder:
+    """Inserts tracked frames into a voxel grid (freehand 3D reconstruction, SPEC §7) and returns
+    the volume at any point. Incremental and batch insertion give the same bytes, for any number
+    of threads.
+
+    The grid: ``Compounder(grid)`` with a :class:`Grid` or a :class:`Volume` (its geometry), or
+    ``Compounder(shape=(nz, ny, nx), spacing=s or (sx, sy, sz), origin=(x, y, z))``;
+    :meth:`around` / :meth:`around_beams` fit it around the frames (PLUS's rule).
+
+    Settings:
+
+    * ``interpolation``: "linear" (each sample splatted into the 8 voxels around it with trilinear
+      weights) or "nearest" (into the voxel ``floor(c + 0.5)``);
+    * ``compounding``: "mean" (weighted mean of the samples), "max" (their maximum, counting
+      samples with a splat weight >= 1/8) or "latest" (the newest frame that reached the voxel);
+    * ``fill_holes`` (default: True when ``hole_filling`` is given) and ``hole_filling``: PLUS's
+      hole-filling elements, tried in order, e.g. ``[dict(type="gaussian", size=3, stdev=0.667,
+      min_ratio=0.5), dict(type="stick", length_limit=9, sticks=1)]`` (types: gaussian,
+      gaussian_accumulation, distance_weight_inverse, nearest_neighbor, stick; default one
+      Gaussian 3³, σ 0.6667 voxel, min_ratio 0.5);
+    * ``rejection_threshold``: samples below it are not inserted (None: all are);
+    * ``clip``: the default frame clip of :meth:`add` (see :func:`clip_mask`);
+    * ``device``: "cpu", "cuda" or "cuda:K"; ``max_memory``: bytes or "8G" (default: what the
+      machine has; a grid that does not fit raises RuntimeError naming a spacing that does);
+    * ``dtype``: the default type of :meth:`volume` (integers round and saturate).
+    """
+
+    def __init__(self, grid=None, *, shape: Optional[Sequence[int]] = None, spacing=None,
+                 origin: Sequence[float] = (0.0, 0.0, 0.0), direction=None, interpolation: str = "linear",
+                 compounding: str = "mean", fill_holes: Optional[bool] = None,
+                 hole_filling: Optional[Sequence[Dict[str, Any]]] = None,
+                 rejection_threshold: Optional[float] = None, clip: Clip = None, device: str = "cpu",
+                 max_memory: Union[None, int, str] = None, dtype="float32"):
+        if grid is not None:
+            if shape is not None or spacing is not None:
+                raise ValueError("Compounder: give a grid (or volume), or shape and spacing, not both")
+            g = Grid.of(grid)
+        else:
+            if shape is None or spacing is None:
+                raise ValueError("Compounder: give a grid (a sonoslice.Grid or Volume), or shape=(nz, ny, nx) "
+                                 "and spacing (mm)")
+            shape = tuple(int(n) for n in shape)
+            if len(shape) != 3:
+                raise ValueError(f"Compounder: shape {shape} must be (nz, ny, nx)")
+            o = tuple(float(v) for v in origin)
+            if len(o) != 3:
+                raise ValueError(f"Compounder: origin {origin} must be (x, y, z) mm")
+            d = _IDENTITY3 if direction is None else _direction_rows(direction)
+            g = Grid(shape, _spacing3(spacing, "Compounder"), o, d)
+        if fill_holes is None:
+            fill_holes = bool(hole_filling)
+        if clip is not None:
+            _frame_clip(clip, "Compounder")  # checked now; a mask's shape when frames arrive
+        self._clip = clip
+        self._beam_geometry: Optional[BeamGeometry] = None
+        self._cpp = _ext.Compounder(
+            g.dims, g.spacing, g.origin, tuple(float(v) for row in g.direction for v in row), str(interpolation),
+            str(compounding), bool(fill_holes), _hole_tuples(hole_filling),
+            None if rejection_threshold is None else float(rejection_threshold), str(device),
+            _memory_bytes(max_memory), _dtype_name(dtype, "dtype"))
+        self._device = str(device)
+
+    @classmethod
+    def around(cls, image_to_reference, frame_shape: Tuple[int, int], spacing, clip: Clip = None,
+               **settings) -> "Compounder":
+        """A compounder on PLUS's grid around 2D frames (:func:`grid_around`): ``frame_shape`` =
+        (H, W), ``image_to_reference`` (N, 4, 4), ``spacing`` in mm (one number or x, y, z). The
+        ``clip`` also becomes the default clip of :meth:`add`; other keywords as the constructor."""
+        return cls(grid_around(image_to_reference, frame_shape, spacing, clip), clip=clip, **settings)
+
+    @classmethod
+    def around_beams(cls, probe_to_reference, geometry, beam_shape: Tuple[int, int, int], spacing,
+                     **settings) -> "Compounder":
+        """A compounder on the grid around beam-space frames (:func:`grid_around_beams`); ``geometry``
+        becomes the default of :meth:`add_beams`."""
+        c = cls(grid_around_beams(probe_to_reference, geometry, beam_shape, spacing), **settings)
+        c._beam_geometry = BeamGeometry.of(geometry)
+        return c
+
+    # -- inserting
+    def add(self, frames, image_to_reference, clip: Clip = None) -> "Compounder":
+        """Inserts one 2D frame (H, W) with its (4, 4) ``image_to_reference``, or a stack (N, H, W)
+        with (N, 4, 4) matrices (one pass over the grid per batch: faster than one call a frame, same
+        result). Pixel (i, j) = ``frames[..., j, i]`` sits at ``image_to_reference @ (i, j, 0, 1)``
+        (reference mm). ``clip``: which pixels go in (default: the compounder's); a dict
+        ``dict(rect=(x, y, w, h), fan=dict(angles_deg=..., origin_px=..., radius_px=...))`` or an
+        (H, W) boolean/uint8 mask. Frames entirely outside the grid change nothing. Returns self."""
+        a = _frames(frames, "add: frames", 2, "(H, W) or (N, H, W)")
+        n = 1 if a.ndim == 2 else a.shape[0]
+        m = _matrices(image_to_reference, "add: image_to_reference", n, single=a.ndim == 2)
+        if clip is None:
+            clip = self._clip
+        self._cpp.add_images(a, m, _frame_clip(clip, "add", a.shape[-2:]))
+        return self
+
+    def add_beams(self, frames, probe_to_reference, geometry=None) -> "Compounder":
+        """Inserts 3D beam-space frames: (n_elevation, n_azimuth, n_samples) with a (4, 4)
+        ``probe_to_reference``, or (N, n_elevation, n_azimuth, n_samples) with (N, 4, 4). ``geometry``:
+        a :class:`BeamGeometry`, a dict of its fields or a path to its JSON (default: the one given to
+        :meth:`around_beams`). Returns self."""
+        a = _frames(frames, "add_beams: frames", 3,
+                    "(n_elevation, n_azimuth, n_samples) or (N, n_elevation, n_azimuth, n_samples)")
+        n = 1 if a.ndim == 3 else a.shape[0]
+        m = _matrices(probe_to_reference, "add_beams: probe_to_reference", n, single=a.ndim == 3)
+        if geometry is None:
+            if self._beam_geometry is None:
+                raise ValueError("add_beams: give the frames' geometry (a sonoslice.BeamGeometry)")
+            geometry = self._beam_geometry
+        self._cpp.add_beams(a, m, BeamGeometry.of(geometry)._tuple())
+        return self
+
+    # -- results
+    def volume(self, dtype=None) -> Volume:
+        """The reconstruction so far as a :class:`Volume` on the grid (``array`` is (nz, ny, nx)):
+        samples combined by the compounding mode, voxels no sample reached 0, holes filled when
+        asked. ``dtype``: default the compounder's; integers round and saturate."""
+        return Volume._wrap(self._cpp.volume(None if dtype is None else _dtype_name(dtype, "volume: dtype")))
+
+    def weights(self) -> Volume:
+        """The summed splat weight per voxel (float32 :class:`Volume`; 0 where no sample arrived).
+        Nearest splats: the number of samples; linear: the sum of their trilinear weights."""
+        return Volume._wrap(self._cpp.weights())
+
+    # -- properties
+    @property
+    def grid(self) -> Grid:
+        """The output grid: shape (nz, ny, nx), spacing and origin along x, y, z (mm)."""
+        return Grid._from_ext(self._cpp.grid)
+
+    @property
+    def frames_added(self) -> int:
+        """Frames inserted so far (2D and beam-space)."""
+        return self._cpp.frames_added
+
+    dtype = property(lambda self: np.dtype(self._cpp.dtype), doc="default dtype of volume()")
+    device = property(lambda self: self._device, doc='"cpu" or "cuda[:K]"')
+    interpolation = property(lambda self: self._cpp.interpolation, doc='"linear" or "nearest"')
+    compounding = property(lambda self: self._cpp.compounding, doc='"mean", "max" or "latest"')
+    fill_holes = property(lambda self: self._cpp.fill_holes)
+    hole_filling = property(lambda self: _hole_dicts(self._cpp.hole_filling), doc="hole-filling elements (dicts)")
+    rejection_threshold = property(lambda self: self._cpp.rejection_threshold)
+
+    def __repr__(self) -> str:
+        holes = f", hole filling {[h['type'] for h in self.hole_filling]}" if self.fill_holes else ""
+        return (f"Compounder({self.grid!r}, {self.interpolation} splats, {self.compounding}{holes}, "
+                f"{self.frames_added} frames, {self.device})")
+
+
+# ---- PLUS toolkit files -----------------------------------------------------------------------------
+def _transform_name(name: str) -> str:
+    return name[:-len("Transform")] if name.endswith("Transform") and len(name) > len("Transform") else name
+
+
+class TransformRepository:
+    """Named transforms (PLUS's transform repository; ``AToB`` maps coordinates in A to B): set some,
+    ask for any chain of them and their inverses. A transform marked invalid makes every chain
+    through it None."""
+
+    def __init__(self, _cpp=None):
+        self._cpp = _ext.TransformRepository() if _cpp is None else _cpp
+
+    def set(self, name: str, matrix, valid: bool = True) -> None:
+        """Adds or replaces ``name`` (e.g. "ImageToProbe"), a 4×4 matrix."""
+        a, b = _ext.TransformRepository.split_name(name)
+        m = _matrices(matrix, f"transform {name}", 1, single=True)[0]
+        self._cpp.set(a, b, np.ascontiguousarray(m), bool(valid))
+
+    def set_frame(self, sequence: "PlusSequence", frame: int) -> None:
+        """Adds every transform of a sequence frame (those whose status is not OK as invalid)."""
+        self._cpp.set_frame(sequence._cpp, sequence._index(frame))
+
+    def get(self, name: str) -> Optional[np.ndarray]:
+        """The 4×4 ``name`` (e.g. "ImageToReference") through the shortest chain; None when the chain
+        passes through an invalid transform; ValueError when there is no chain at all."""
+        a, b = _ext.TransformRepository.split_name(name)
+        return self._cpp.get(a, b)
+
+    def copy(self) -> "TransformRepository":
+        return TransformRepository(self._cpp.copy())
+
+
+class PlusSequence:
+    """A PLUS tracked-frame sequence (.igs.mha / .seq.mha / .mha, .igs.nrrd / .seq.nrrd / .nrrd),
+    read by :func:`read_plus_sequence`. ``frames`` is an (N, H, W) NumPy view (no copy) in MF
+    orientation (flipped from the file's ``orientation`` on reading)."""
+
+    def __init__(self, _cpp):
+        self._cpp = _cpp
+        self._fields = None
+
+    @property
+    def frames(self) -> np.ndarray:
+        """(N, H, W) frames, MF orientation; a view of the sequence's memory, which it keeps alive."""
+        return self._cpp.frames()
+
+    path = property(lambda self: self._cpp.path)
+    orientation = property(lambda self: self._cpp.orientation, doc='as written in the file (e.g. "MF", "UN")')
+    dtype = property(lambda self: np.dtype(self._cpp.dtype))
+    shape = property(lambda self: (self._cpp.frame_count, self._cpp.height, self._cpp.width), doc="(N, H, W)")
+
+    def __len__(self) -> int:
+        return self._cpp.frame_count
+
+    @property
+    def frame_fields(self) -> List[Dict[str, str]]:
+        """Per frame, every ``Seq_FrameNNNN_<Field> = value`` of the header as strings, keyed by
+        <Field> ("ProbeToTrackerTransform", "ImageStatus", "Timestamp", ...). NRRD's ``Status`` is
+        "ImageStatus" here. A list of dicts (copies)."""
+        if self._fields is None:
+            self._fields = self._cpp.frame_fields
+        return [dict(f) for f in self._fields]
+
+    def _index(self, frame: int) -> int:
+        n = len(self)
+        k = int(frame)
+        if k < 0:
+            k += n
+        if not 0 <= k < n:
+            raise IndexError(f"{self.path}: frame {frame} out of range ({n} frames)")
+        return k
+
+    def image_ok(self, frame: int) -> bool:
+        """False when the frame's image status exists and is not OK."""
+        return self._cpp.image_ok(self._index(frame))
+
+    def transform_names(self, frame: int) -> List[str]:
+        """The transforms frame ``frame`` carries ("ProbeToTracker", ...)."""
+        return self._cpp.transform_names(self._index(frame))
+
+    def transform(self, frame: int, name: str) -> Optional[np.ndarray]:
+        """Frame ``frame``'s ``<name>Transform`` as a 4×4 array ("ProbeToTracker" or
+        "ProbeToTrackerTransform"); None when missing or its status is not OK."""
+        return self._cpp.transform(self._index(frame), _transform_name(name))
+
+    @property
+    def timestamps(self) -> np.ndarray:
+        """(N,) seconds (NaN where a frame has no Timestamp)."""
+        return np.array(self._cpp.timestamps(), dtype=np.float64)
+
+    def save(self, path: PathLike, compress: bool = True) -> None:
+        """Writes the sequence (frames, fields, orientation) with :func:`write_plus_sequence`."""
+        write_plus_sequence(path, self.frames, self.frame_fields, self.orientation, compress)
+
+    def __repr__(self) -> str:
+        n, h, w = self.shape
+        return f"PlusSequence({self.path!r}: {n} frames of {w}x{h} {self.dtype}, orientation {self.orientation})"
+
+
+def read_plus_sequence(path: PathLike) -> PlusSequence:
+    """Reads a PLUS sequence (MetaImage or NRRD, zlib/gzip-compressed or raw). OSError when missing,
+    truncated or corrupt; ValueError for what sonoslice does not support (RF orientations, 3D
+    frames, several channels, a transform that is not 16 numbers)."""
+    return PlusSequence(_ext.read_plus_sequence(os.fspath(path)))
+
+
+def _field_value(value) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        return "OK" if value else "INVALID"
+    a = np.asarray(value)
+    if a.dtype.kind in "iuf":
+        return " ".join(repr(float(v)) if a.dtype.kind == "f" else str(int(v)) for v in a.ravel())
+    return str(value)
+
+
+def write_plus_sequence(path: PathLike, frames, fields: Optional[Sequence[Dict[str, Any]]] = None,
+                        orientation: str = "MF", compress: bool = True) -> None:
+    """Writes a PLUS sequence atomically: .mha (MetaImage, zlib when ``compress``) or .nrrd (gzip).
+    ``frames``: (N, H, W) in MF orientation (written flipped to ``orientation``, e.g. "UN");
+    ``fields``: per frame (at most N) a dict of ``Seq_FrameNNNN_<key> = value`` fields, e.g.
+    ``{"ProbeToTrackerTransform": m4x4, "ProbeToTrackerTransformStatus": "OK", "Timestamp": 0.1,
+    "ImageStatus": "OK"}``: arrays become their numbers (row-major, exact), True/False "OK"/"INVALID"."""
+    a = _frames(frames, "write_plus_sequence: frames", 3, "(N, H, W)")
+    if a.ndim != 3:
+        raise ValueError(f"write_plus_sequence: frames has shape {a.shape}; expected (N, H, W)")
+    out = []
+    for k, f in enumerate(fields or []):
+        if not isinstance(f, dict):
+            raise ValueError(f"write_plus_sequence: fields[{k}] must be a dict, got {type(f).__name__}")
+        out.append({str(key): _field_value(v) for key, v in f.items()})
+    _ext.write_plus_sequence(os.fspath(path), a, out, str(orientation), bool(compress))
+
+
+class PlusConfig:
+    """What sonoslice uses from a PLUS configuration XML (:func:`read_plus_config`): the
+    calibration (``coordinate_definitions``, e.g. ImageToProbe) and the VolumeReconstruction
+    settings with PLUS's defaults where absent.
+
+    ``spacing``/``origin`` (x, y, z mm) and ``extent`` (i0, i1, j0, j1, k0, k1, inclusive) or None;
+    ``interpolation``, ``compounding``, ``fill_holes``, ``hole_filling``, ``rejection_threshold``
+    as :class:`Compounder` takes them (``settings`` gathers them); ``clip`` as ``dict(rect=...,
+    fan=...)`` or None (PLUS's ClipRectangleSize w is w + 1 pixels: converted); ``skip_interval``;
+    ``image_frame`` / ``reference_frame`` (default "Image" / "Reference")."""
+
+    def __init__(self, _cpp):
+        self._cpp = _cpp
+        self.path: str = _cpp.path
+        self.image_frame: str = _cpp.image_frame
+        self.reference_frame: str = _cpp.reference_frame
+        self.spacing = None if _cpp.spacing is None else tuple(_cpp.spacing)
+        self.origin = None if _cpp.origin is None else tuple(_cpp.origin)
+        self.extent = None if _cpp.extent is None else tuple(_cpp.extent)
+        self.interpolation: str = _cpp.interpolation
+        self.compounding: str = _cpp.compounding
+        self.fill_holes: bool = _cpp.fill_holes
+        self.hole_filling = _hole_dicts(_cpp.hole_filling)
+        self.rejection_threshold: Optional[float] = _cpp.rejection_threshold
+        self.clip = _clip_dict(_cpp.clip)
+        self.skip_interval: int = _cpp.skip_interval
+        self.ignored_attributes: List[str] = list(_cpp.ignored_attributes)
+        self.unknown_attributes: List[str] = list(_cpp.unknown_attributes)
+
+    @property
+    def coordinate_definitions(self) -> TransformRepository:
+        """The configuration's CoordinateDefinitions (a copy)."""
+        return TransformRepository(self._cpp.coordinate_definitions)
+
+    @property
+    def transform(self) -> str:
+        """The transform frames are reconstructed with, e.g. "ImageToReference"."""
+        return f"{self.image_frame}To{self.reference_frame}"
+
+    @property
+    def settings(self) -> Dict[str, Any]:
+        """The reconstruction settings as :class:`Compounder` keywords."""
+        return dict(interpolation=self.interpolation, compounding=self.compounding, fill_holes=self.fill_holes,
+                    hole_filling=self.hole_filling if self.fill_holes else None,
+                    rejection_threshold=self.rejection_threshold)
+
+    @property
+    def grid(self) -> Optional[Grid]:
+        """The output grid the XML gives (OutputSpacing, OutputOrigin and OutputExtent), else None."""
+        if self.spacing is None or self.origin is None or self.extent is None:
+            return None
+        e = self.extent
+        dims = [e[2 * a + 1] - e[2 * a] + 1 for a in range(3)]
+        origin = tuple(self.origin[a] + e[2 * a] * self.spacing[a] for a in range(3))
+        return Grid(tuple(reversed(dims)), self.spacing, origin)
+
+    def __repr__(self) -> str:
+        return (f"PlusConfig({self.path!r}: {self.transform}, spacing={self.spacing}, {self.interpolation}, "
+                f"{self.compounding}, fill_holes={self.fill_holes}, clip={self.clip})")
+
+
+def read_plus_config(path: PathLike) -> PlusConfig:
+    """Reads a PLUS configuration XML. OSError for a missing or malformed file; ValueError naming
+    the element and attribute for a bad value; warnings for deprecated/unknown attributes."""
+    return PlusConfig(_ext.read_plus_config(os.fspath(path)))
+
+
+def _as_sequence(sequence) -> PlusSequence:
+    return sequence if isinstance(sequence, PlusSequence) else read_plus_sequence(sequence)
+
+
+def _as_config(config) -> Optional[PlusConfig]:
+    return None if config is None else config if isinstance(config, PlusConfig) else read_plus_config(config)
+
+
+def _plus_frames(seq: PlusSequence, cfg: Optional[PlusConfig], name: Optional[str], image_to_probe,
+                 skip: Optional[int]):
+    repo = cfg.coordinate_definitions if cfg is not None else TransformRepository()
+    if image_to_probe is not None:
+        repo.set("ImageToProbe", image_to_probe)
+    if name is None:
+        name = cfg.transform if cfg is not None else "ImageToReference"
+    a, b = _ext.TransformRepository.split_name(_transform_name(name))
+    if skip is None:
+        skip = cfg.skip_interval if cfg is not None else 1
+    hint = "" if cfg is not None or image_to_probe is not None else \
+        "; give the calibration with config= or image_to_probe="
+    frames, matrices, bad_image, bad_transform = _ext.plus_frames(seq._cpp, repo._cpp, a, b, int(skip), hint)
+    return np.array(frames, dtype=np.int64), matrices, bad_image, bad_transform, f"{a}To{b}"
+
+
+def plus_image_to_reference(sequence, config=None, name: Optional[str] = None, image_to_probe=None,
+                            skip: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
+    """The frames of a PLUS sequence that can be used and their image→reference matrices:
+    ``(frame_indices (M,), matrices (M, 4, 4))``. For each frame the transform ``name`` (default the
+    config's ``ImageToReference``) is the chain, through the config's CoordinateDefinitions
+    (calibration) and the frame's own transforms, e.g. ``(ReferenceToTracker)⁻¹ · ProbeToTracker ·
+    ImageToProbe`` (SPEC §7). Frames whose image status or transform is not OK are left out, as
+    are all but every ``skip``-th (default: the config's SkipInterval). ``sequence``/``config``:
+    objects or paths; ``image_to_probe``: a 4×4 calibration replacing the config's."""
+    seq = _as_sequence(sequence)
+    frames, matrices, _, _, _ = _plus_frames(seq, _as_config(config), name, image_to_probe, skip)
+    return frames, matrices
+
+
+def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Optional[str] = None,
+                     compounding: Optional[str] = None, fill_holes: Optional[bool] = None,
+                     hole_filling: Optional[Sequence[Dict[str, Any]]] = None,
+                     rejection_threshold: Optional[float] = None, clip: Clip = None, skip: Optional[int] = None,
+                     transform: Optional[str] = None, image_to_probe=None, dtype=None, device: str = "cpu",
+                     max_memory: Union[None, int, str] = None, return_weights: bool = False):
+    """Reconstructs a PLUS sequence as ``sonoslice compound --sequence S --config X`` does and
+    returns the :class:`Volume` (with ``return_weights=True``: ``(volume, weights)``).
+
+    Settings come from the configuration XML (``config``: path or :class:`PlusConfig`), then the
+    keywords override them. The grid is the XML's when it gives OutputOrigin and OutputExtent (and
+    ``spacing`` is not overridden), else PLUS's grid around the clipped frames at ``spacing`` (mm;
+    default the XML's OutputSpacing). ``transform``: e.g. "ImageToTracker" (default the XML's
+    ImageToReference); ``image_to_probe``: a 4×4 calibration (needed without a config, unless the
+    frames carry the transform). Output ``dtype``: default the frames' (float64 and int8 frames
+    give float32). Frames skipped (image or transform not OK) are reported as a warning."""
+    seq = _as_sequence(sequence)
+    cfg = _as_config(config)
+    settings = cfg.settings if cfg is not None else {}
+    for key, value in (("interpolation", interpolation), ("compounding", compounding),
+                       ("rejection_threshold", rejection_threshold), ("hole_filling", hole_filling)):
+        if value is not None:
+            settings[key] = value
+    if fill_holes is not None:
+        settings["fill_holes"] = bool(fill_holes)
+    elif hole_filling is not None:
+        settings["fill_holes"] = True
+    if not settings.get("fill_holes"):
+        settings["hole_filling"] = None
+    sp = spacing if spacing is not None else (cfg.spacing if cfg is not None else None)
+    if sp is None:
+        raise ValueError("reconstruct_plus: give spacing (mm) or a config with OutputSpacing")
+    sp = _spacing3(sp, "reconstruct_plus")
+    if clip is None and cfg is not None:
+        clip = cfg.clip
+    frames, matrices, bad_image, bad_transform, name = _plus_frames(seq, cfg, transform, image_to_probe, skip)
+    every = skip if skip is not None else (cfg.skip_interval if cfg is not None else 1)
+    considered = (len(seq) + every - 1) // every
+    why = ", ".join(s for s in (f"{bad_transform} with an invalid {name} transform" if bad_transform else "",
+                                f"{bad_image} with an image status not OK" if bad_image else "") if s)
+    if why:
+        warnings.warn(f"reconstruct_plus: skipped {considered - len(frames)} of {considered} frames: {why}",
+                      stacklevel=2)
+    if len(frames) == 0:
+        raise ValueError(f"reconstruct_plus: no frame of {seq.path} can be used ({why or 'no frames'})")
+    n, h, w = seq.shape
+    grid = cfg.grid if cfg is not None and spacing is None else None
+    if grid is None:
+        grid = grid_around(matrices, (h, w), sp, clip)
+    out = _dtype_name(dtype, "dtype") if dtype is not None else seq.dtype.name
+    if dtype is None and out in ("float64", "int8"):
+        out = "float32"
+    c = Compounder(grid, clip=clip, device=device, max_memory=max_memory, dtype=out, **settings)
+    pixels = seq.frames
+    # Runs of consecutive frames go in together, as views of the sequence (no copies).
+    breaks = np.flatnonzero(np.diff(frames) != 1) + 1
+    for run in np.split(np.arange(len(frames)), breaks):
+        first, last = int(frames[run[0]]), int(frames[run[-1]])
+        c.add(pixels[first:last + 1], matrices[run[0]:run[-1] + 1])
+    volume = c.volume()
+    return (volume, c.weights()) if return_weights else volume
