@@ -9,7 +9,8 @@ configuration XML (calibration ImageToProbe, clip rectangle, 0.5 mm voxels, line
 compounding), chains each frame's ImageToReference = (ReferenceToTracker)^-1 · ProbeToTracker ·
 ImageToProbe (SPEC §7), fits PLUS's output grid around the clipped frames, compounds them, prints
 the timings and the difference from PLUS's own reconstruction, and saves three orthogonal slices
-as a PNG (with matplotlib; without it, with Pillow; without either, no picture).
+as a PNG (top: sonoslice; bottom: PLUS's reconstruction of the same sweep, when it is there;
+with matplotlib, else Pillow, else no picture).
 """
 import argparse
 import os
@@ -37,10 +38,12 @@ def three_slices(volume: np.ndarray, weights: np.ndarray):
     return [("z", z, volume[z]), ("y", y, volume[:, y]), ("x", x, volume[:, :, x])]
 
 
-def save_montage(path: str, slices, spacing, title: str) -> bool:
+def save_montage(path: str, rows, spacing, title: str) -> bool:
+    """rows: [(label, slices)], one row of three slices each (sonoslice; PLUS's when present)."""
     sx, sy, sz = spacing
     # Window: 0 to the 99.5th percentile of the non-zero voxels shown.
-    shown = np.concatenate([image[image > 0].ravel() for _, _, image in slices] + [np.ones(1)])
+    shown = np.concatenate([image[image > 0].ravel() for _, slices in rows for _, _, image in slices] +
+                           [np.ones(1)])
     top = max(float(np.percentile(shown, 99.5)), 1.0)
     try:
         import matplotlib
@@ -49,16 +52,17 @@ def save_montage(path: str, slices, spacing, title: str) -> bool:
     except ImportError:
         plt = None
     if plt is not None:
-        fig, axes = plt.subplots(1, 3, figsize=(13, 4.6))
+        fig, axes = plt.subplots(len(rows), 3, figsize=(13, 4.6 * len(rows)), squeeze=False)
         labels = {"z": ("x (mm)", "y (mm)", sx, sy), "y": ("x (mm)", "z (mm)", sx, sz),
                   "x": ("y (mm)", "z (mm)", sy, sz)}
-        for ax, (axis, index, image) in zip(axes, slices):
-            xl, yl, dx, dy = labels[axis]
-            ax.imshow(image, cmap="gray", vmin=0, vmax=top, origin="lower",
-                      extent=[0, image.shape[1] * dx, 0, image.shape[0] * dy])
-            ax.set_title(f"{axis} = voxel {index}")
-            ax.set_xlabel(xl)
-            ax.set_ylabel(yl)
+        for row_axes, (label, slices) in zip(axes, rows):
+            for ax, (axis, index, image) in zip(row_axes, slices):
+                xl, yl, dx, dy = labels[axis]
+                ax.imshow(image, cmap="gray", vmin=0, vmax=top, origin="lower",
+                          extent=[0, image.shape[1] * dx, 0, image.shape[0] * dy])
+                ax.set_title(f"{label}: {axis} = voxel {index}")
+                ax.set_xlabel(xl)
+                ax.set_ylabel(yl)
         fig.suptitle(title)
         fig.tight_layout()
         fig.savefig(path, dpi=110)
@@ -68,12 +72,17 @@ def save_montage(path: str, slices, spacing, title: str) -> bool:
     except ImportError:
         print("matplotlib (and Pillow) not available: no picture written (pip install matplotlib)")
         return False
-    # A plain montage: the three slices side by side (bottom row of each at the bottom, as with
-    # origin="lower"), windowed, three times enlarged.
-    height = max(image.shape[0] for _, _, image in slices)
-    tiles = [np.pad(np.flipud(image.astype(np.float64)), ((height - image.shape[0], 0), (0, 8)))
-             for _, _, image in slices]
-    montage = np.clip(np.hstack(tiles) * (255.0 / top), 0, 255).astype(np.uint8)
+    # A plain montage: each row's three slices side by side (bottom row of each at the bottom, as
+    # with origin="lower"), windowed, three times enlarged; rows one above the other.
+    strips = []
+    for _, slices in rows:
+        height = max(image.shape[0] for _, _, image in slices)
+        tiles = [np.pad(np.flipud(image.astype(np.float64)), ((height - image.shape[0], 8), (0, 8)))
+                 for _, _, image in slices]
+        strips.append(np.hstack(tiles))
+    width = max(s.shape[1] for s in strips)
+    strips = [np.pad(s, ((0, 0), (0, width - s.shape[1]))) for s in strips]
+    montage = np.clip(np.vstack(strips) * (255.0 / top), 0, 255).astype(np.uint8)
     Image.fromarray(np.kron(montage, np.ones((3, 3), np.uint8))).save(path)
     print("matplotlib not available: wrote a plain montage with Pillow")
     return True
@@ -119,6 +128,8 @@ def main():
     print(f"reconstruct_plus: {time.perf_counter() - t5:.3f} s, identical: "
           f"{again.array.tobytes() == volume.array.tobytes()}")
 
+    slices = three_slices(volume.array, weights.array)
+    rows = [("sonoslice", slices)]
     reference_path = os.path.join(args.data, REFERENCE)
     if args.spacing is None and os.path.exists(reference_path):
         reference = sonoslice.Volume.from_file(reference_path)
@@ -129,12 +140,18 @@ def main():
         diff = np.abs(ours - theirs)[common]
         print(f"vs PLUS's reconstruction ({reference.shape[::-1]} voxels x, y, z): mean |difference| "
               f"{diff.mean():.3f} over {common.sum()} voxels, identical {100 * np.mean(diff == 0):.1f} %")
+        # The same slices of PLUS's volume (one voxel shorter along y), for the picture.
+        ref = np.zeros(volume.shape, reference.array.dtype)
+        ref[:nz, :ny, :nx] = reference.array[:nz, :ny, :nx]
+        rows.append(("PLUS", [(axis, index, ref[index] if axis == "z" else
+                               (ref[:, index] if axis == "y" else ref[:, :, index]))
+                              for axis, index, _ in slices]))
 
     if args.save:
         volume.save(args.save)
         print(f"wrote {args.save}")
     title = f"{SEQUENCE}: {len(frames)} frames, {volume.shape[::-1]} voxels of {volume.spacing[0]} mm"
-    if save_montage(args.out, three_slices(volume.array, weights.array), volume.spacing, title):
+    if save_montage(args.out, rows, volume.spacing, title):
         print(f"wrote {args.out}")
 
 
