@@ -38,7 +38,8 @@ def cli():
 @pytest.fixture
 def cuda():
     if not sonoslice.cuda_available():
-        pytest.skip("cuda: not available (" + sonoslice.devices().strip().splitlines()[-1] + ")")
+        # devices() ends with the CUDA line, e.g. "cuda: not available (no NVIDIA driver found ...)".
+        pytest.skip(sonoslice.devices().strip().splitlines()[-1])
     return "cuda:0"
 
 
