@@ -112,37 +112,15 @@ Frames read_sequence(const CompoundFlags& f, const PlusReconstructionConfig* con
     std::tie(from, to) = TransformRepository::split_name(f.image_to_reference);
   if (!f.image_to_probe.empty())
     base.set("Image", "Probe", read_matrix(f.image_to_probe, "--image-to-probe"));
-  int bad_image = 0, bad_transform = 0, skipped_by_interval = 0;
-  for (int k = 0; k < s.frame_count; ++k) {
-    if (k % skip != 0) {
-      ++skipped_by_interval;
-      continue;
-    }
-    if (!s.image_ok(k)) {
-      ++bad_image;
-      continue;
-    }
-    TransformRepository repo = base;
-    repo.set_frame(s, k);
-    std::optional<Mat4> m;
-    try {
-      m = repo.get(from, to);
-    } catch (const InputError& e) {
-      throw InputError(f.sequence + ": " + e.what() +
-                       (config ? "" : "; give the calibration with --config or --image-to-probe"));
-    }
-    if (!m) {
-      ++bad_transform;
-      continue;
-    }
-    fr.data.push_back(s.frame_pixels(k));
-    fr.to_reference.push_back(*m);
+  const PlusFrameSelection sel =
+      select_plus_frames(s, base, from, to, skip,
+                         config ? "" : "; give the calibration with --config or --image-to-probe");
+  for (size_t k = 0; k < sel.frames.size(); ++k) {
+    fr.data.push_back(s.frame_pixels(sel.frames[k]));
+    fr.to_reference.push_back(sel.to_reference[k]);
   }
-  std::ostringstream why;
-  if (bad_transform)
-    why << bad_transform << " with an invalid " << from << "To" << to << " transform";
-  if (bad_image) why << (bad_transform ? ", " : "") << bad_image << " with an image status not OK";
-  fr.skipped = why.str();
+  fr.skipped = sel.skipped_reason(from, to);
+  const bool skipped_by_interval = skip > 1 && s.frame_count > 1;
   fr.description = f.sequence + ": " + std::to_string(s.frame_count) + " frames of " +
                    std::to_string(s.width) + "x" + std::to_string(s.height) + " " +
                    pixel_type_name(s.pixel_type) + " (orientation " + s.orientation + ")" +

@@ -418,34 +418,13 @@ std::tuple<std::vector<int64_t>, MatricesOut, int, int> plus_frames(const PlusSe
                                                                     const std::string& from,
                                                                     const std::string& to, int skip,
                                                                     const std::string& hint) {
-  if (skip < 1) throw InputError("skip: must be >= 1, got " + std::to_string(skip));
-  std::vector<int64_t> frames;
-  std::vector<Mat4> matrices;
-  int bad_image = 0, bad_transform = 0;
+  PlusFrameSelection sel;
   {
     nb::gil_scoped_release release;
-    for (int k = 0; k < s.frame_count; k += skip) {
-      if (!s.image_ok(k)) {
-        ++bad_image;
-        continue;
-      }
-      TransformRepository repo = base;
-      repo.set_frame(s, k);
-      std::optional<Mat4> m;
-      try {
-        m = repo.get(from, to);
-      } catch (const InputError& e) {
-        throw InputError(s.path + ": " + e.what() + hint);
-      }
-      if (!m) {
-        ++bad_transform;
-        continue;
-      }
-      frames.push_back(k);
-      matrices.push_back(*m);
-    }
+    sel = select_plus_frames(s, base, from, to, skip, hint);
   }
-  return {frames, matrices_to_numpy(std::move(matrices)), bad_image, bad_transform};
+  std::vector<int64_t> frames(sel.frames.begin(), sel.frames.end());
+  return {frames, matrices_to_numpy(std::move(sel.to_reference)), sel.bad_image, sel.bad_transform};
 }
 
 }  // namespace

@@ -1126,4 +1126,43 @@ std::optional<Mat4> TransformRepository::get(const std::string& from, const std:
   return result;
 }
 
+std::string PlusFrameSelection::skipped_reason(const std::string& from,
+                                               const std::string& to) const {
+  std::string why;
+  if (bad_transform)
+    why += std::to_string(bad_transform) + " with an invalid " + from + "To" + to + " transform";
+  if (bad_image)
+    why += (why.empty() ? "" : ", ") + std::to_string(bad_image) + " with an image status not OK";
+  return why;
+}
+
+PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
+                                      const TransformRepository& calibration,
+                                      const std::string& from, const std::string& to, int skip,
+                                      const std::string& hint) {
+  if (skip < 1) throw InputError("skip interval " + std::to_string(skip) + ": must be >= 1");
+  PlusFrameSelection sel;
+  for (int k = 0; k < sequence.frame_count; k += skip) {
+    if (!sequence.image_ok(k)) {
+      ++sel.bad_image;
+      continue;
+    }
+    TransformRepository repo = calibration;
+    repo.set_frame(sequence, k);
+    std::optional<Mat4> m;
+    try {
+      m = repo.get(from, to);
+    } catch (const InputError& e) {
+      throw InputError(sequence.path + ": " + e.what() + hint);
+    }
+    if (!m) {
+      ++sel.bad_transform;
+      continue;
+    }
+    sel.frames.push_back(k);
+    sel.to_reference.push_back(*m);
+  }
+  return sel;
+}
+
 }  // namespace sonoslice

@@ -86,4 +86,23 @@ class TransformRepository {
   std::map<std::pair<std::string, std::string>, Entry> transforms_;
 };
 
+/// The frames of a sequence that go into a reconstruction, as PLUS picks them.
+struct PlusFrameSelection {
+  std::vector<int> frames;         ///< indices into the sequence
+  std::vector<Mat4> to_reference;  ///< their `from`→`to` transforms
+  int bad_image = 0;               ///< frames whose image status is not OK
+  int bad_transform = 0;           ///< frames whose chain passes through an invalid transform
+  /// "2 with an invalid ImageToReference transform, 1 with an image status not OK" ("" if none).
+  std::string skipped_reason(const std::string& from, const std::string& to) const;
+};
+
+/// Every `skip`-th frame (0, skip, 2·skip, ...) whose image status is OK and whose `from`→`to`
+/// chain, through the frame's transforms and `calibration` (e.g. a configuration's
+/// CoordinateDefinitions), has no invalid link. InputError (prefixed with the sequence's path,
+/// followed by `hint`) when no chain exists at all.
+PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
+                                      const TransformRepository& calibration,
+                                      const std::string& from, const std::string& to, int skip = 1,
+                                      const std::string& hint = "");
+
 }  // namespace sonoslice
