@@ -75,25 +75,40 @@ def index_coordinates(p, poses, origin, spacing):
 
 
 # ---- peers ---------------------------------------------------------------------------------------
-def bench_grid_sample(vol, p, poses, origin, spacing, threads, batch=50):
+def grid_sample_setup(vol, p, poses, origin, spacing, device="cpu"):
+    """torch.nn.functional.grid_sample slicing ``vol`` with probe ``p`` at ``poses``, its tensors on
+    ``device``: returns ``grid_for(b0, b1)``, the sampling grid of poses[b0:b1] (built in torch, as a
+    training pipeline would), and ``sample(grid)``, the (b1 - b0, H, W) images (trilinear, zero
+    outside the volume and the fan)."""
     import torch
     import torch.nn.functional as F
-    torch.set_num_threads(threads)
-    v = torch.from_numpy(vol.astype(np.float32))[None, None]
+    dev = torch.device(device)
+    v = torch.from_numpy(vol.astype(np.float32)).to(dev)[None, None]
     n = np.array(vol.shape[::-1], np.float64)  # (nx, ny, nz)
-    mask = torch.from_numpy(probe_mask(p))
-    x = torch.tensor(p["x0"] + np.arange(p["W"]) * p["sx"], dtype=torch.float32)
-    y = torch.tensor(np.arange(p["H"]) * p["sy"], dtype=torch.float32)
-    scale = torch.tensor(2 / ((n - 1) * spacing), dtype=torch.float32)
-    offset = torch.tensor(-2 * origin / ((n - 1) * spacing) - 1, dtype=torch.float32)
-    T = torch.tensor(poses, dtype=torch.float32)
+    mask = torch.from_numpy(probe_mask(p)).to(dev)
+    x = torch.tensor(p["x0"] + np.arange(p["W"]) * p["sx"], dtype=torch.float32, device=dev)
+    y = torch.tensor(np.arange(p["H"]) * p["sy"], dtype=torch.float32, device=dev)
+    scale = torch.tensor(2 / ((n - 1) * spacing), dtype=torch.float32, device=dev)
+    offset = torch.tensor(-2 * origin / ((n - 1) * spacing) - 1, dtype=torch.float32, device=dev)
+    T = torch.tensor(poses, dtype=torch.float32, device=dev)
 
-    def grid_for(b0, b1):  # built in torch, as a training pipeline would
+    def grid_for(b0, b1):
         Rx, Ry, t = T[b0:b1, :3, 0], T[b0:b1, :3, 1], T[b0:b1, :3, 3]
         world = (Rx[:, None, None, :] * x[None, None, :, None] + Ry[:, None, None, :] * y[None, :, None, None]
                  + t[:, None, None, :])
         return (world * scale + offset)[None]  # normalised, align_corners=True
 
+    def sample(grid):
+        out = F.grid_sample(v, grid, mode="bilinear", padding_mode="zeros", align_corners=True)[0, 0]
+        return torch.where(mask, out, torch.zeros((), dtype=out.dtype, device=dev))
+
+    return grid_for, sample
+
+
+def bench_grid_sample(vol, p, poses, origin, spacing, threads, batch=50):
+    import torch
+    torch.set_num_threads(threads)
+    grid_for, sample = grid_sample_setup(vol, p, poses, origin, spacing)
     sampling = end_to_end = 0.0
     first = None
     for b0 in range(0, len(poses), batch):
@@ -101,8 +116,7 @@ def bench_grid_sample(vol, p, poses, origin, spacing, threads, batch=50):
         t0 = time.perf_counter()
         g = grid_for(b0, b1)
         t1 = time.perf_counter()
-        out = F.grid_sample(v, g, mode="bilinear", padding_mode="zeros", align_corners=True)[0, 0]
-        out = torch.where(mask, out, torch.zeros((), dtype=out.dtype))
+        out = sample(g)
         t2 = time.perf_counter()
         sampling += t2 - t1
         end_to_end += t2 - t0
@@ -157,11 +171,18 @@ def bench_map_coordinates(vol, p, poses, origin, spacing, count):
 
 
 # ---- sonoslice -----------------------------------------------------------------------------------
-def sonoslice_bench(exe, volume, probe_file, ds, poses_file, as_type, threads, repeat):
+def sonoslice_bench_record(exe, volume, probe_file, ds, poses_file, as_type, repeat, options=()):
+    """What ``sonoslice bench --json`` reports for one volume, probe and output type; ``options``:
+    more of its options (("--threads", "8"), ("--device", "cuda:0"))."""
     out = subprocess.run([exe, "bench", "--volume", volume, "--probe", probe_file, "--downsampling", str(ds),
-                          "--poses", poses_file, "--as", as_type, "--threads", str(threads), "--repeat",
-                          str(repeat), "--json"], check=True, capture_output=True, text=True).stdout
-    return json.loads(out)[0]["images_per_second"]
+                          "--poses", poses_file, "--as", as_type, *options, "--repeat", str(repeat), "--json"],
+                         check=True, capture_output=True, text=True).stdout
+    return json.loads(out)[0]
+
+
+def sonoslice_bench(exe, volume, probe_file, ds, poses_file, as_type, threads, repeat):
+    return sonoslice_bench_record(exe, volume, probe_file, ds, poses_file, as_type, repeat,
+                                  ("--threads", str(threads)))["images_per_second"]
 
 
 def sonoslice_slice(exe, volume, probe_file, ds, poses_file, threads, out):
@@ -172,39 +193,62 @@ def sonoslice_slice(exe, volume, probe_file, ds, poses_file, threads, out):
     return {k: float(v) for k, v in zip(("load", "slice", "write", "total"), m.groups())}
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+# ---- the run ------------------------------------------------------------------------------------
+def argument_parser(doc):
+    """The options every peer benchmark takes first: the sonoslice binary and fan-slicer's configs."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sonoslice", default=os.path.join(ROOT, "build", "bin", "sonoslice"))
     ap.add_argument("--shared", default=os.path.join(ROOT, "..", "shared", "data", "fanslicer"))
-    ap.add_argument("--threads", type=int, default=os.cpu_count())
-    ap.add_argument("--count", type=int, default=1000, help="poses per workload")
-    ap.add_argument("--slow-count", type=int, default=100,
-                    help="images for the slow peers (vtkImageReslice, map_coordinates)")
-    ap.add_argument("--repeat", type=int, default=3)
+    return ap
+
+
+def add_output_arguments(ap):
+    """The options every peer benchmark takes last: where its phantom and results go."""
     ap.add_argument("--workdir", help="keep the phantom and outputs here (default: a temp dir)")
     ap.add_argument("--json", help="also write the results here")
-    args = ap.parse_args()
 
-    work = args.workdir or tempfile.mkdtemp(prefix="sonoslice-peers-")
+
+def workloads(shared):
+    """(name, fan-slicer config, downsampling) of W1 and W2."""
+    return [("W1", os.path.join(shared, "models_intensity_LUS_config.json"), 2),
+            ("W2", os.path.join(shared, "linear_config.json"), 1)]
+
+
+def prepare_phantom(exe, workdir, count, prefix):
+    """The full phantom and ``count`` random poses in ``workdir`` (default: a new temp dir named
+    ``prefix``...), made by ``sonoslice phantom`` unless already there. Returns (work dir, ct.npy's
+    path, the CT as a C-contiguous array, origin, spacing, poses.npy's path, the poses)."""
+    work = workdir or tempfile.mkdtemp(prefix=prefix)
     os.makedirs(work, exist_ok=True)
     ct = os.path.join(work, "ct.npy")
     if not os.path.exists(ct):
         log("generating the full phantom ...")
-        subprocess.run([args.sonoslice, "phantom", work, "--size", "full", "--format", "npy", "--poses",
-                        str(args.count), "-q"], check=True)
+        subprocess.run([exe, "phantom", work, "--size", "full", "--format", "npy", "--poses", str(count), "-q"],
+                       check=True)
     vol = np.load(ct, mmap_mode="r")
     geo = json.load(open(os.path.join(work, "ct.json")))
     assert np.allclose(np.array(geo["direction"]).reshape(3, 3), np.eye(3)), "phantom direction is identity"
     origin, spacing = np.array(geo["origin"]), np.array(geo["spacing"])
     poses_file = os.path.join(work, "poses.npy")
-    poses = np.load(poses_file)[: args.count]
-    vol = np.ascontiguousarray(vol)
+    poses = np.load(poses_file)[:count]
+    return work, ct, np.ascontiguousarray(vol), origin, spacing, poses_file, poses
 
-    workloads = [("W1", os.path.join(args.shared, "models_intensity_LUS_config.json"), 2),
-                 ("W2", os.path.join(args.shared, "linear_config.json"), 1)]
+
+def main():
+    ap = argument_parser(__doc__)
+    ap.add_argument("--threads", type=int, default=os.cpu_count())
+    ap.add_argument("--count", type=int, default=1000, help="poses per workload")
+    ap.add_argument("--slow-count", type=int, default=100,
+                    help="images for the slow peers (vtkImageReslice, map_coordinates)")
+    ap.add_argument("--repeat", type=int, default=3)
+    add_output_arguments(ap)
+    args = ap.parse_args()
+
+    work, ct, vol, origin, spacing, poses_file, poses = prepare_phantom(args.sonoslice, args.workdir, args.count,
+                                                                        "sonoslice-peers-")
     results = []
     table = []
-    for name, cfg, ds in workloads:
+    for name, cfg, ds in workloads(args.shared):
         p = fanslicer_probe(cfg, ds)
         log(f"{name}: {p['W']}x{p['H']} {p['type']}, {len(poses)} poses, {args.threads} threads")
         ours = {t: sonoslice_bench(args.sonoslice, ct, cfg, ds, poses_file, t, args.threads, args.repeat)

@@ -46,35 +46,31 @@ if(NOT SONOSLICE_HAVE_PUGIXML)
   message(STATUS "pugixml not found: PLUS configuration files cannot be read")
 endif()
 
-# ITK: medical image formats. AUTO = use it when found.
-set(SONOSLICE_HAVE_ITK OFF)
-if(NOT SONOSLICE_WITH_ITK STREQUAL "OFF")
-  set(_itk_components ITKCommon ITKIOImageBase ITKIONIFTI ITKIOMeta ITKIONRRD ITKIOGDCM ITKIOPNG
-                      ITKImageGrid ITKImageFunction)
-  if(SONOSLICE_WITH_ITK STREQUAL "AUTO")
-    find_package(ITK QUIET COMPONENTS ${_itk_components})
-  else()
-    find_package(ITK REQUIRED COMPONENTS ${_itk_components})
+# find_package(<name> COMPONENTS ...) as the option <switch> asks: OFF skips it, AUTO uses it
+# when found, ON requires it. Sets <result> ON when found. (A macro: the package's variables must
+# land in the caller's scope.)
+macro(sonoslice_find_optional name switch result)
+  set(${result} OFF)
+  if(NOT ${switch} STREQUAL "OFF")
+    if(${switch} STREQUAL "AUTO")
+      find_package(${name} QUIET COMPONENTS ${ARGN})
+    else()
+      find_package(${name} REQUIRED COMPONENTS ${ARGN})
+    endif()
+    if(${name}_FOUND)
+      set(${result} ON)
+    endif()
   endif()
-  if(ITK_FOUND)
-    set(SONOSLICE_HAVE_ITK ON)
-  endif()
-endif()
+endmacro()
 
-# VTK: surface meshes. AUTO = use it when found.
-set(SONOSLICE_HAVE_VTK OFF)
-if(NOT SONOSLICE_WITH_VTK STREQUAL "OFF")
-  set(_vtk_components CommonCore CommonDataModel CommonExecutionModel IOLegacy IOXML IOGeometry IOPLY
-                      FiltersCore)
-  if(SONOSLICE_WITH_VTK STREQUAL "AUTO")
-    find_package(VTK QUIET COMPONENTS ${_vtk_components})
-  else()
-    find_package(VTK REQUIRED COMPONENTS ${_vtk_components})
-  endif()
-  if(VTK_FOUND)
-    set(SONOSLICE_HAVE_VTK ON)
-  endif()
-endif()
+# ITK: medical image formats.
+sonoslice_find_optional(ITK SONOSLICE_WITH_ITK SONOSLICE_HAVE_ITK
+  ITKCommon ITKIOImageBase ITKIONIFTI ITKIOMeta ITKIONRRD ITKIOGDCM ITKIOPNG ITKImageGrid
+  ITKImageFunction)
+
+# VTK: surface meshes.
+sonoslice_find_optional(VTK SONOSLICE_WITH_VTK SONOSLICE_HAVE_VTK
+  CommonCore CommonDataModel CommonExecutionModel IOLegacy IOXML IOGeometry IOPLY FiltersCore)
 
 # GoogleTest: an installed package, else the sources Debian's googletest package puts in
 # /usr/src/googletest (or any copy named by SONOSLICE_GTEST_SOURCE_DIR, e.g. carried to the GPU

@@ -2,12 +2,12 @@
 
 #include <unistd.h>
 
-#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <sstream>
 
 #include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
 
 namespace sonoslice {
 namespace cli {
@@ -65,6 +65,22 @@ std::vector<double> parse_numbers(const std::string& text, size_t count, const s
   return out;
 }
 
+Device setup_device(const std::string& device, int threads) {
+  set_cpu_threads(threads);
+  const Device d = Device::parse(device);
+  require_device(d);
+  return d;
+}
+
+void check_output_file(const std::string& flag, const std::string& path,
+                       std::initializer_list<const char*> extensions, const std::string& expected) {
+  const std::string ext = file_extension(path);
+  bool known = false;
+  for (const char* e : extensions) known = known || ext == e;
+  if (!known) throw InputError(flag + " '" + path + "': " + expected);
+  check_output_path(path);
+}
+
 ProgressBar::ProgressBar(std::string label, int64_t total, bool enabled)
     : label_(std::move(label)), total_(total), enabled_(enabled && ::isatty(STDERR_FILENO)) {}
 
@@ -94,11 +110,6 @@ void ProgressBar::finish() {
   if (last_done_ != total_) update(total_);
   std::fputc('\n', stderr);
   finished_ = true;
-}
-
-int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes) {
-  return std::max<int64_t>(
-      1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
 }
 
 void write_mask(const std::string& path, const ProbeGeometry& probe,

@@ -3,12 +3,14 @@
 // the built-in probes and the chunked slice-and-write loop.
 #include <chrono>
 #include <cstdio>
+#include <initializer_list>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include <CLI/CLI.hpp>
 
+#include "sonoslice/backend/Device.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/io/StackWriter.h"
@@ -32,6 +34,15 @@ struct VolumeFlags {
 
 /// Parses "a,b,c" into exactly `count` finite numbers; InputError naming `flag` otherwise.
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag);
+
+/// Sets the CPU thread count (--threads, 0: all), then parses --device and checks that it can
+/// be used (InputError / Error otherwise).
+Device setup_device(const std::string& device, int threads);
+
+/// Checks an output file given with `flag`: InputError "<flag> '<path>': <expected>" unless its
+/// file_extension() is one of `extensions`, then check_output_path(path).
+void check_output_file(const std::string& flag, const std::string& path,
+                       std::initializer_list<const char*> extensions, const std::string& expected);
 
 /// Wall-clock seconds since construction.
 class Stopwatch {
@@ -61,9 +72,6 @@ class ProgressBar {
   double last_draw_ = -1;
   int64_t last_done_ = -1;
 };
-
-/// Images per chunk so that one chunk of output stays under `bytes`.
-int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes = size_t(64) << 20);
 
 /// Writes the H×W probe mask: .png scaled to 0/255, other formats as 0/1 uint8.
 void write_mask(const std::string& path, const ProbeGeometry& probe,

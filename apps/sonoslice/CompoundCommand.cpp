@@ -3,7 +3,6 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
-#include <sstream>
 
 #include "Commands.h"
 #include "Common.h"
@@ -58,11 +57,8 @@ uint64_t parse_bytes(const std::string& text) {
 }
 
 void check_volume_path(const std::string& flag, const std::string& path) {
-  const std::string ext = file_extension(path);
-  if (ext != ".nii" && ext != ".nii.gz" && ext != ".mha" && ext != ".mhd" && ext != ".nrrd" &&
-      ext != ".npy")
-    throw InputError(flag + " '" + path + "': expected .nii, .nii.gz, .mha, .nrrd or .npy");
-  check_output_path(path);
+  check_output_file(flag, path, {".nii", ".nii.gz", ".mha", ".mhd", ".nrrd", ".npy"},
+                    "expected .nii, .nii.gz, .mha, .nrrd or .npy");
 }
 
 // Pixel (u, v) → probe mm for a sonoslice or fan-slicer probe's image grid.
@@ -95,7 +91,27 @@ struct Frames {
     return beams ? size_t(geometry.n_elevation) * geometry.n_azimuth * geometry.n_samples
                  : size_t(width) * height;
   }
+  size_t frame_bytes() const { return samples_per_frame() * pixel_size(type); }
 };
+
+// Reads --poses (one per frame of `frames_path`, given with `frames_flag`) and adds the
+// fr->total frames stored one after the other at `pixels`, each with its pose followed by
+// `*image_to_probe` (2D frames) or its pose alone (null: beam-space frames).
+void add_posed_frames(const CompoundFlags& f, const std::string& frames_flag,
+                      const std::string& frames_path, const void* pixels,
+                      const Mat4* image_to_probe, Frames* fr) {
+  const std::vector<Pose> poses = read_poses(f.poses, parse_world_frame(f.world));
+  if (int64_t(poses.size()) != fr->total)
+    throw InputError("--poses '" + f.poses + "' has " + std::to_string(poses.size()) +
+                     " poses but " + frames_flag + " '" + frames_path + "' has " +
+                     std::to_string(fr->total) + " frames");
+  const size_t frame_bytes = fr->frame_bytes();
+  for (int64_t k = 0; k < fr->total; ++k) {
+    fr->data.push_back(static_cast<const char*>(pixels) + size_t(k) * frame_bytes);
+    fr->to_reference.push_back(image_to_probe ? poses[size_t(k)] * *image_to_probe
+                                              : poses[size_t(k)]);
+  }
+}
 
 Frames read_sequence(const CompoundFlags& f, const PlusReconstructionConfig* config, int skip) {
   Frames fr;
@@ -136,16 +152,7 @@ Frames read_frame_stack(const CompoundFlags& f, Mat4* image_to_probe) {
   fr.height = int(d[1]);
   fr.type = fr.stack.pixel_type();
   fr.total = d[2];
-  const std::vector<Pose> poses = read_poses(f.poses, parse_world_frame(f.world));
-  if (int64_t(poses.size()) != d[2])
-    throw InputError("--poses '" + f.poses + "' has " + std::to_string(poses.size()) +
-                     " poses but --frames '" + f.frames + "' has " + std::to_string(d[2]) +
-                     " frames");
-  const size_t frame_bytes = size_t(d[0]) * size_t(d[1]) * pixel_size(fr.type);
-  for (int64_t k = 0; k < d[2]; ++k) {
-    fr.data.push_back(static_cast<const char*>(fr.stack.data()) + size_t(k) * frame_bytes);
-    fr.to_reference.push_back(poses[size_t(k)] * *image_to_probe);
-  }
+  add_posed_frames(f, "--frames", f.frames, fr.stack.data(), image_to_probe, &fr);
   fr.description = f.frames + ": " + std::to_string(d[2]) + " frames of " + std::to_string(d[0]) +
                    "x" + std::to_string(d[1]) + " " + pixel_type_name(fr.type);
   return fr;
@@ -170,16 +177,7 @@ Frames read_beam_frames(const CompoundFlags& f) {
   fr.geometry.validate("--beam-geometry '" + f.beam_geometry + "'");
   fr.type = fr.beam_array.type;
   fr.total = sh.size() == 4 ? sh[0] : 1;
-  const std::vector<Pose> poses = read_poses(f.poses, parse_world_frame(f.world));
-  if (int64_t(poses.size()) != fr.total)
-    throw InputError("--poses '" + f.poses + "' has " + std::to_string(poses.size()) +
-                     " poses but --beam-frames '" + f.beam_frames + "' has " +
-                     std::to_string(fr.total) + " frames");
-  const size_t frame_bytes = fr.samples_per_frame() * pixel_size(fr.type);
-  for (int64_t k = 0; k < fr.total; ++k) {
-    fr.data.push_back(static_cast<const char*>(fr.beam_array.data.get()) + size_t(k) * frame_bytes);
-    fr.to_reference.push_back(poses[size_t(k)]);
-  }
+  add_posed_frames(f, "--beam-frames", f.beam_frames, fr.beam_array.data.get(), nullptr, &fr);
   fr.description = f.beam_frames + ": " + std::to_string(fr.total) + " beam-space frames of " +
                    std::to_string(sh[o]) + "x" + std::to_string(sh[o + 1]) + "x" +
                    std::to_string(sh[o + 2]) + " " + pixel_type_name(fr.type);
@@ -188,9 +186,7 @@ Frames read_beam_frames(const CompoundFlags& f) {
 
 void run_compound(const CompoundFlags& f) {
   Stopwatch total;
-  set_cpu_threads(f.threads);
-  const Device device = Device::parse(f.device);
-  require_device(device);
+  const Device device = setup_device(f.device, f.threads);
   const int inputs = !f.sequence.empty() + !f.frames.empty() + !f.beam_frames.empty();
   if (inputs != 1)
     throw InputError("compound: give exactly one of --sequence, --frames, --beam-frames");
@@ -274,15 +270,13 @@ void run_compound(const CompoundFlags& f) {
   if (frames.data.empty())
     throw InputError("compound: no frame can be used (" + frames.skipped + ")");
 
-  // Output grid: the PLUS XML's when it gives origin and extent, else around the frames.
+  // Output grid: the PLUS XML's when it gives origin and extent (and, without --spacing, its
+  // spacing is the one in use), else around the frames.
+  const std::optional<VolumeGrid> config_grid =
+      config && f.spacing.empty() ? config->output_grid() : std::nullopt;
   VolumeGrid grid;
-  if (config && config->output_origin_mm && config->output_extent && f.spacing.empty()) {
-    const auto& e = *config->output_extent;
-    for (int a = 0; a < 3; ++a) {
-      grid.spacing_mm[a] = (*spacing)[a];
-      grid.origin_mm[a] = (*config->output_origin_mm)[a] + e[2 * a] * (*spacing)[a];
-      grid.dims[a] = int64_t(e[2 * a + 1]) - e[2 * a] + 1;
-    }
+  if (config_grid) {
+    grid = *config_grid;
   } else if (frames.beams) {
     grid = Compounder::grid_around_beams(frames.to_reference, frames.geometry, *spacing);
   } else {
@@ -311,9 +305,9 @@ void run_compound(const CompoundFlags& f) {
 
   // Frames in chunks of about 64 MiB (frames of a sequence are not contiguous once some are
   // skipped: runs of consecutive frames go together).
-  const size_t frame_bytes = frames.samples_per_frame() * pixel_size(frames.type);
-  const int64_t chunk = std::max<int64_t>(1, int64_t((size_t(64) << 20) / frame_bytes));
+  const size_t frame_bytes = frames.frame_bytes();
   const int64_t n = int64_t(frames.data.size());
+  const int64_t chunk = chunk_images(frame_bytes, n);
   ProgressBar progress("compounding", n, !f.quiet);
   Stopwatch splat_clock;
   for (int64_t first = 0; first < n;) {

@@ -1,7 +1,6 @@
 // sonoslice slice: a volume (or labels, or surface meshes), a probe and a pose file → a stack of
 // ultrasound-shaped images (and, for labels, colour images).
 #include <cstdio>
-#include <functional>
 #include <memory>
 #include <sstream>
 
@@ -41,19 +40,11 @@ std::string gib(uint64_t bytes) {
   return s.str();
 }
 
-void check_image_path(const std::string& flag, const std::string& path) {
-  const std::string ext = file_extension(path);
-  if (ext != ".png" && ext != ".npy" && ext != ".nii" && ext != ".nii.gz" && ext != ".mha" &&
-      ext != ".nrrd")
-    throw InputError(flag + " '" + path + "': expected .png, .npy, .nii, .nii.gz, .mha or .nrrd");
-  check_output_path(path);
-}
-
 // Where the images come from: a volume (intensities or labels) or surface meshes.
 struct Source {
-  std::unique_ptr<Slicer> slicer;                  // volumes, and voxelised meshes
-  std::unique_ptr<SurfaceSlicer> surfaces;         // exact cuts
-  std::vector<std::array<uint8_t, 3>> colors;      // label k → colors[k - 1]
+  std::unique_ptr<Slicer> slicer;              // volumes, and voxelised meshes
+  std::unique_ptr<SurfaceSlicer> surfaces;     // exact cuts
+  std::vector<std::array<uint8_t, 3>> colors;  // label k → colors[k - 1]
   std::string description;
   void slice(const Pose* poses, size_t count, void* out, size_t first) const {
     if (surfaces)
@@ -76,7 +67,8 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
     src.description = path + ": " + std::to_string(v.grid().dims[0]) + "x" +
                       std::to_string(v.grid().dims[1]) + "x" + std::to_string(v.grid().dims[2]) +
                       " " + pixel_type_name(v.pixel_type());
-    if (!f.labels.empty() && v.pixel_type() != PixelType::UInt8 && v.pixel_type() != PixelType::UInt16)
+    if (!f.labels.empty() && v.pixel_type() != PixelType::UInt8 &&
+        v.pixel_type() != PixelType::UInt16)
       throw InputError("--labels '" + path + "': a label volume is uint8 or uint16, this one is " +
                        pixel_type_name(v.pixel_type()));
     for (int k = 1; k <= 255; ++k) src.colors.push_back(default_label_color(k));
@@ -105,9 +97,11 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
     if (device.type != DeviceType::CPU)
       throw InputError("--surface-mode exact runs on the CPU (voxel mode runs on " +
                        device.to_string() + ")");
-    src.surfaces = std::make_unique<SurfaceSlicer>(std::move(meshes), probe, labels, settings.output_type);
+    src.surfaces =
+        std::make_unique<SurfaceSlicer>(std::move(meshes), probe, labels, settings.output_type);
   } else {
-    const Volume v = voxelize(meshes, voxel_grid_around(meshes, f.voxel_size, f.voxel_size), labels);
+    const Volume v =
+        voxelize(meshes, voxel_grid_around(meshes, f.voxel_size, f.voxel_size), labels);
     src.description += " at " + std::to_string(f.voxel_size) + " mm";
     src.slicer = std::make_unique<Slicer>(v, probe, settings, device);
   }
@@ -116,11 +110,10 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
 
 void run_slice(const SliceFlags& f) {
   Stopwatch total;
-  set_cpu_threads(f.threads);
-  const Device device = Device::parse(f.device);
-  require_device(device);
+  const Device device = setup_device(f.device, f.threads);
 
-  const int sources = !f.volume.path.empty() + !f.labels.empty() + !f.meshes.empty() + !f.mesh_dir.empty();
+  const int sources =
+      !f.volume.path.empty() + !f.labels.empty() + !f.meshes.empty() + !f.mesh_dir.empty();
   if (sources != 1)
     throw InputError("slice: give exactly one of --volume, --labels, --meshes, --mesh-dir");
   const bool label_mode = f.volume.path.empty();
@@ -159,8 +152,11 @@ void run_slice(const SliceFlags& f) {
   if (window && format != StackFormat::PngDirectory)
     warn("--window applies to PNG output only; ignored for '" + f.out + "'");
   check_output_path(f.out, format == StackFormat::PngDirectory);
-  if (!f.mask.empty()) check_image_path("--mask", f.mask);
-  if (!f.colors.empty()) check_output_path(f.colors, stack_format(f.colors) == StackFormat::PngDirectory);
+  if (!f.mask.empty())
+    check_output_file("--mask", f.mask, {".png", ".npy", ".nii", ".nii.gz", ".mha", ".nrrd"},
+                      "expected .png, .npy, .nii, .nii.gz, .mha or .nrrd");
+  if (!f.colors.empty())
+    check_output_path(f.colors, stack_format(f.colors) == StackFormat::PngDirectory);
 
   StackSpec spec;
   spec.type = settings.output_type;
@@ -176,8 +172,8 @@ void run_slice(const SliceFlags& f) {
   color_spec.components = 3;
   color_spec.window.reset();
   const size_t image_bytes = size_t(probe.image.pixel_count()) * pixel_size(spec.type);
-  const int64_t chunk = chunk_images(image_bytes + (f.colors.empty() ? 0 : 3 * size_t(probe.image.pixel_count())),
-                                     spec.count);
+  const int64_t chunk = chunk_images(
+      image_bytes + (f.colors.empty() ? 0 : 3 * size_t(probe.image.pixel_count())), spec.count);
   const uint64_t total_bytes = uint64_t(image_bytes) * uint64_t(spec.count);
   uint64_t held = stack_memory_bytes(f.out, spec, chunk);
   if (!f.colors.empty()) held += stack_memory_bytes(f.colors, color_spec, chunk);
@@ -188,9 +184,12 @@ void run_slice(const SliceFlags& f) {
                         "x" + std::to_string(spec.height) + " " + dtype + ") but only " +
                         gib(available) +
                         " is available; write .npy or a PNG directory (streamed) instead");
-  if (format == StackFormat::Npy && total_bytes > free_disk_bytes(f.out))
-    throw ResourceError("output '" + f.out + "' needs " + gib(total_bytes) + " on disk but only " +
-                        gib(free_disk_bytes(f.out)) + " is free");
+  if (format == StackFormat::Npy) {
+    const uint64_t free_bytes = free_disk_bytes(f.out);
+    if (total_bytes > free_bytes)
+      throw ResourceError("output '" + f.out + "' needs " + gib(total_bytes) +
+                          " on disk but only " + gib(free_bytes) + " is free");
+  }
 
   double load_seconds = 0;
   const Source source = make_source(f, probe, settings, device, &load_seconds);
@@ -243,15 +242,19 @@ void run_slice(const SliceFlags& f) {
 
 void add_slice_command(CLI::App& app) {
   auto flags = std::make_shared<SliceFlags>();
-  CLI::App* cmd = app.add_subcommand("slice", "Slice a batch of probe poses through a volume or meshes");
+  CLI::App* cmd =
+      app.add_subcommand("slice", "Slice a batch of probe poses through a volume or meshes");
   flags->volume.add_to(*cmd, /*path_required=*/false);
-  cmd->add_option("--labels", flags->labels, "A label volume (uint8/uint16): label images, nearest");
+  cmd->add_option("--labels", flags->labels,
+                  "A label volume (uint8/uint16): label images, nearest");
   cmd->add_option("--meshes", flags->meshes, "Surface meshes (label k for the k-th): label images");
   cmd->add_option("--mesh-dir", flags->mesh_dir,
                   "Folder of the meshes a fan-slicer surface config (--probe) names: <name>.vtk");
-  cmd->add_option("--surface-mode", flags->surface_mode,
-                  "Meshes: voxel (voxelise at --voxel-size, then slice; default) or exact (plane cuts)");
-  cmd->add_option("--voxel-size", flags->voxel_size, "Meshes, voxel mode: voxel size (mm, default 0.5)");
+  cmd->add_option(
+      "--surface-mode", flags->surface_mode,
+      "Meshes: voxel (voxelise at --voxel-size, then slice; default) or exact (plane cuts)");
+  cmd->add_option("--voxel-size", flags->voxel_size,
+                  "Meshes, voxel mode: voxel size (mm, default 0.5)");
   cmd->add_option("--colors", flags->colors, "Also write colour images of the labels (RGB) here");
   cmd->add_option("--probe", flags->probe, "Probe JSON (native or fan-slicer config)")->required();
   cmd->add_option("--poses", flags->poses, "Pose file: .npy, .txt/.csv, .json")->required();

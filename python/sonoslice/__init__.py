@@ -36,21 +36,25 @@ __all__ = [
 ]
 __version__ = "0.1.0"
 
-_DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
-_OUTPUT_DTYPES = ("float32", "int16", "uint8", "uint16")
-
 
 def _is_torch(x) -> bool:
     return type(x).__module__.startswith("torch")
 
 
+def _numpy(x):
+    """A torch tensor as a NumPy array in host memory; anything else as it is."""
+    return x.detach().cpu().numpy() if _is_torch(x) else x
+
+
+def _matrix_stack(m) -> np.ndarray:
+    """``m`` (array-like, not torch) as float64, a (4, 4) matrix as a stack of one; shape unchecked."""
+    a = np.asarray(m, dtype=np.float64)
+    return a[None] if a.shape == (4, 4) else a
+
+
 def _as_pose_array(poses, world: str = "LPS") -> np.ndarray:
     """(N, 4, 4) float64 C-contiguous probe→world matrices in LPS, from NumPy or torch."""
-    if _is_torch(poses):
-        poses = poses.detach().cpu().numpy()
-    a = np.asarray(poses, dtype=np.float64)
-    if a.shape == (4, 4):
-        a = a[None]
+    a = _matrix_stack(_numpy(poses))
     if a.ndim != 3 or a.shape[1:] != (4, 4):
         raise ValueError(f"poses: expected shape (N, 4, 4) or (4, 4), got {a.shape}")
     world = world.upper()
@@ -255,7 +259,30 @@ def _tqdm_callback(total: int):
     return update
 
 
-class Slicer:
+def _progress_and_chunk(progress, n: int, chunk: Optional[int]):
+    """The C++ side's progress callback for ``n`` images (``progress``: True for a tqdm bar, a
+    callable ``(done, total)``, else none) and chunk size (default: about 1% of the images, at least
+    64, when reporting progress; else 0, all at once)."""
+    callback = _tqdm_callback(n) if progress is True else (progress if callable(progress) else None)
+    if chunk is None:
+        chunk = max(64, math.ceil(n / 100)) if callback else 0
+    return callback, int(chunk)
+
+
+class _ImageSlicer:
+    """What Slicer and SurfaceSlicer share: their images' size and dtype and the probe mask."""
+
+    width = property(lambda self: self._cpp.width)
+    height = property(lambda self: self._cpp.height)
+    dtype = property(lambda self: self._cpp.dtype)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) uint8 probe mask."""
+        return self._cpp.mask()
+
+
+class Slicer(_ImageSlicer):
     """Slices a volume with a probe on one device ("cpu", "cuda", "cuda:K").
 
     On CUDA the volume is uploaded once, in its own pixel type, and stays on the GPU for the
@@ -274,14 +301,6 @@ class Slicer:
         self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), interp, float(fill), str(dtype))
 
     device = property(lambda self: self._cpp.device, doc='"cpu" or "cuda:K"')
-    dtype = property(lambda self: self._cpp.dtype)
-    width = property(lambda self: self._cpp.width)
-    height = property(lambda self: self._cpp.height)
-
-    @property
-    def mask(self) -> np.ndarray:
-        """(H, W) uint8 probe mask."""
-        return self._cpp.mask()
 
     def slice(self, poses, out=None, *, mask: bool = False,
               progress: Union[None, bool, Callable[[int, int], None]] = None, world: str = "LPS",
@@ -319,14 +338,8 @@ class Slicer:
             if _is_torch(out) and out.is_cuda:
                 import torch
                 stream = torch.cuda.current_stream(out.device).cuda_stream
-        callback = None
-        if progress is True:
-            callback = _tqdm_callback(n)
-        elif callable(progress):
-            callback = progress
-        if chunk is None:
-            chunk = max(64, math.ceil(n / 100)) if callback else 0
-        self._cpp.slice_into(p, out, stream, callback, int(chunk))
+        callback, chunk = _progress_and_chunk(progress, n, chunk)
+        self._cpp.slice_into(p, out, stream, callback, chunk)
         if not mask:
             return out
         m = self.mask
@@ -387,9 +400,7 @@ def write_stack(path, images, spacing_mm: Sequence[float], window: Optional[Sequ
                 poses=None, mask=None) -> None:
     """Writes an (N, H, W) batch (SPEC §6): .nii[.gz]/.mha/.nrrd (W×H×N, spacing (sx, sy, 1)),
     .npy, or a directory of PNGs (``window`` = (level, width), default robust auto) + poses.txt."""
-    if _is_torch(images):
-        images = images.detach().cpu().numpy()
-    images = np.ascontiguousarray(images)
+    images = np.ascontiguousarray(_numpy(images))
     _ext.write_stack(str(path), images, tuple(map(float, spacing_mm)),
                      None if window is None else tuple(map(float, window)),
                      None if poses is None else _as_pose_array(poses),
@@ -455,7 +466,7 @@ def voxelize(meshes, spacing: Optional[float] = None, margin: Optional[float] = 
                                       [] if labels is None else [int(x) for x in labels]))
 
 
-class SurfaceSlicer:
+class SurfaceSlicer(_ImageSlicer):
     """Exact label images: each image plane cuts the meshes' triangles and the cross-sections are
     filled (even-odd), with no voxelisation: exact at any pixel size. Mesh k paints label k+1 (or
     ``labels[k]``), later meshes over earlier ones; outside the probe shape 0. CPU threads."""
@@ -466,14 +477,6 @@ class SurfaceSlicer:
         self._cpp = _ext.SurfaceSlicer([m._cpp for m in meshes], probe._cpp,
                                        [] if labels is None else [int(x) for x in labels], dtype)
 
-    width = property(lambda self: self._cpp.width)
-    height = property(lambda self: self._cpp.height)
-    dtype = property(lambda self: self._cpp.dtype)
-
-    @property
-    def mask(self) -> np.ndarray:
-        return self._cpp.mask()
-
     def slice(self, poses, out=None, *, progress=None, world: str = "LPS", chunk: Optional[int] = None):
         """(N, H, W) label images for (N, 4, 4) poses (NumPy or torch); ``out`` as in Slicer.slice
         (host memory)."""
@@ -481,10 +484,8 @@ class SurfaceSlicer:
         n = p.shape[0]
         if out is None:
             out = np.empty((n, self.height, self.width), dtype=self.dtype)
-        callback = _tqdm_callback(n) if progress is True else (progress if callable(progress) else None)
-        if chunk is None:
-            chunk = max(64, math.ceil(n / 100)) if callback else 0
-        self._cpp.slice_into(p, out, callback, int(chunk))
+        callback, chunk = _progress_and_chunk(progress, n, chunk)
+        self._cpp.slice_into(p, out, callback, chunk)
         return out
 
     __call__ = slice
@@ -493,9 +494,7 @@ class SurfaceSlicer:
 def colorize(labels, mask, colors: Optional[Sequence[Sequence[int]]] = None) -> np.ndarray:
     """(N, H, W) labels → (N, H, W, 3) uint8 RGB, fan-slicer style: label k in ``colors[k-1]``
     (default palette otherwise), 0 black, outside the (H, W) probe mask grey 210."""
-    if _is_torch(labels):
-        labels = labels.detach().cpu().numpy()
-    labels = np.ascontiguousarray(labels)
+    labels = np.ascontiguousarray(_numpy(labels))
     if colors is None:
         top = int(labels.max()) if labels.size else 0
         colors = [_ext.default_label_color(k) for k in range(1, max(top, 1) + 1)]

@@ -31,7 +31,7 @@ from typing import Any, Dict, List, NamedTuple, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from . import _sonoslice as _ext
-from . import Volume, _is_torch
+from . import Volume, _matrix_stack, _numpy
 
 __all__ = [
     "Grid", "Compounder", "BeamGeometry", "grid_around", "grid_around_beams", "clip_mask",
@@ -134,15 +134,12 @@ def _dtype_name(dtype, what: str) -> str:
 
 def _matrices(m, what: str, count: Optional[int] = None, single: bool = False) -> np.ndarray:
     """(N, 4, 4) float64 C-contiguous; (4, 4) accepted as one matrix."""
-    if _is_torch(m):
-        m = m.detach().cpu().numpy()
+    m = _numpy(m)
     try:
-        a = np.asarray(m, dtype=np.float64)
+        a = _matrix_stack(m)
     except (TypeError, ValueError):
         raise ValueError(f"{what}: expected 4x4 matrices of numbers") from None
-    if a.shape == (4, 4):
-        a = a[None]
-    elif a.ndim != 3 or a.shape[1:] != (4, 4):
+    if a.ndim != 3 or a.shape[1:] != (4, 4):
         raise ValueError(f"{what} has shape {a.shape}; expected (4, 4) or (N, 4, 4)")
     if count is not None and a.shape[0] != count:
         frames = "1 frame" if single else f"{count} frames"
@@ -152,9 +149,7 @@ def _matrices(m, what: str, count: Optional[int] = None, single: bool = False) -
 
 
 def _frames(frames, what: str, frame_ndim: int, layout: str) -> np.ndarray:
-    if _is_torch(frames):
-        frames = frames.detach().cpu().numpy()
-    a = np.asarray(frames)
+    a = np.asarray(_numpy(frames))
     if a.dtype.name not in _DTYPES:
         raise ValueError(f"{what} has dtype {a.dtype}; supported: {', '.join(_DTYPES)}")
     if a.ndim not in (frame_ndim, frame_ndim + 1):
@@ -207,9 +202,7 @@ def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None):
 
             fan = pair("angles_deg", None) + pair("origin_px", (0.0, 0.0)) + pair("radius_px", (0.0, math.inf))
         return _ext.FrameClip(rect, fan, None)
-    if _is_torch(clip):
-        clip = clip.detach().cpu().numpy()
-    m = np.asarray(clip)
+    m = np.asarray(_numpy(clip))
     if m.ndim != 2:
         raise ValueError(f"{what}: a clip mask must be (H, W) like the frames, got shape {m.shape} "
                          "(or give dict(rect=..., fan=...))")
@@ -734,6 +727,8 @@ def _as_config(config) -> Optional[PlusConfig]:
 
 def _plus_frames(seq: PlusSequence, cfg: Optional[PlusConfig], name: Optional[str], image_to_probe,
                  skip: Optional[int]):
+    """(frame indices, matrices, frames with a bad image status, frames with an invalid transform,
+    the transform's name, the skip interval used)."""
     repo = cfg.coordinate_definitions if cfg is not None else TransformRepository()
     if image_to_probe is not None:
         repo.set("ImageToProbe", image_to_probe)
@@ -745,7 +740,7 @@ def _plus_frames(seq: PlusSequence, cfg: Optional[PlusConfig], name: Optional[st
     hint = "" if cfg is not None or image_to_probe is not None else \
         "; give the calibration with config= or image_to_probe="
     frames, matrices, bad_image, bad_transform = _ext.plus_frames(seq._cpp, repo._cpp, a, b, int(skip), hint)
-    return np.array(frames, dtype=np.int64), matrices, bad_image, bad_transform, f"{a}To{b}"
+    return np.array(frames, dtype=np.int64), matrices, bad_image, bad_transform, f"{a}To{b}", skip
 
 
 def plus_image_to_reference(sequence, config=None, name: Optional[str] = None, image_to_probe=None,
@@ -758,7 +753,7 @@ def plus_image_to_reference(sequence, config=None, name: Optional[str] = None, i
     are all but every ``skip``-th (default: the config's SkipInterval). ``sequence``/``config``:
     objects or paths; ``image_to_probe``: a 4×4 calibration replacing the config's."""
     seq = _as_sequence(sequence)
-    frames, matrices, _, _, _ = _plus_frames(seq, _as_config(config), name, image_to_probe, skip)
+    frames, matrices, *_ = _plus_frames(seq, _as_config(config), name, image_to_probe, skip)
     return frames, matrices
 
 
@@ -797,8 +792,8 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
     sp = _spacing3(sp, "reconstruct_plus")
     if clip is None and cfg is not None:
         clip = cfg.clip
-    frames, matrices, bad_image, bad_transform, name = _plus_frames(seq, cfg, transform, image_to_probe, skip)
-    every = skip if skip is not None else (cfg.skip_interval if cfg is not None else 1)
+    frames, matrices, bad_image, bad_transform, name, every = _plus_frames(
+        seq, cfg, transform, image_to_probe, skip)
     considered = (len(seq) + every - 1) // every
     why = ", ".join(s for s in (f"{bad_transform} with an invalid {name} transform" if bad_transform else "",
                                 f"{bad_image} with an image status not OK" if bad_image else "") if s)

@@ -34,7 +34,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from . import Probe, Slicer, Volume, cuda_available
+from . import Probe, Slicer, Volume, _numpy, cuda_available
 
 __all__ = ["IntensityVolume", "SegmentedVolume"]
 
@@ -51,6 +51,27 @@ def _strip_to_poses(poses: np.ndarray, image_num: int) -> np.ndarray:
     if poses.ndim != 2 or poses.shape[0] != 4 or poses.shape[1] / 4 != image_num:
         raise ValueError("Input poses do not match image number!")
     return np.ascontiguousarray(poses.reshape(4, image_num, 4).transpose(1, 0, 2))
+
+
+def _check_counts(image_num, downsampling) -> None:
+    """fan-slicer's checks of ``image_num`` and ``downsampling``, with its messages."""
+    if not isinstance(image_num, int) or image_num <= 0:
+        raise ValueError("image_num must be positive integer")
+    if downsampling < 1:
+        raise ValueError("Downsampling must be greater than 1")
+
+
+def _simulate(sim, poses, image_num: int) -> Tuple[np.ndarray, np.ndarray]:
+    """The start of both classes' ``simulate_image`` (``sim``: the object), as fan-slicer's: check
+    the (4, 4·image_num) strip, note a changed ``image_num``, slice. Returns the (N, 4, 4) poses
+    and the (N, H, W) images as NumPy."""
+    if np.asarray(poses).shape[1] / 4 != image_num:
+        raise ValueError("Input poses do not match image number!")
+    if image_num != sim.image_num:
+        print("Number of images was changed from " + str(sim.image_num) + " to " + str(image_num))
+        sim.image_num = image_num
+    p = _strip_to_poses(poses, image_num)
+    return p, _numpy(sim.slicer.slice(p))  # a CUDA slicer gives a torch tensor
 
 
 def _pixel_points(probe: Probe, poses: np.ndarray) -> np.ndarray:
@@ -83,10 +104,7 @@ class IntensityVolume:
             raise ValueError("No valid config file!")
         with open(config_dir) as f:
             self.config = json.load(f)
-        if not isinstance(image_num, int) or image_num <= 0:
-            raise ValueError("image_num must be positive integer")
-        if downsampling < 1:
-            raise ValueError("Downsampling must be greater than 1")
+        _check_counts(image_num, downsampling)
         if file_type == "npy":
             if npy_config is None or not os.path.isfile(npy_config):
                 raise ValueError("No valid config for npy file!")
@@ -119,15 +137,7 @@ class IntensityVolume:
         """Slices ``image_num`` poses given as fan-slicer's (4, 4·image_num) strip of probe→world
         matrices (mm). Returns ``(points, images)`` with images (H, W, image_num) float32, the
         outside of the fan set to each image's minimum."""
-        if np.asarray(poses).shape[1] / 4 != image_num:
-            raise ValueError("Input poses do not match image number!")
-        if image_num != self.image_num:
-            print("Number of images was changed from " + str(self.image_num) + " to " + str(image_num))
-            self.image_num = image_num
-        p = _strip_to_poses(poses, image_num)
-        images = self.slicer.slice(p)
-        if hasattr(images, "cpu"):  # a torch tensor from a CUDA slicer
-            images = images.cpu().numpy()
+        p, images = _simulate(self, poses, image_num)
         inside = self.slicer.mask.astype(bool)
         if not inside.all():
             for img in images:
@@ -160,10 +170,7 @@ class SegmentedVolume:
             raise ValueError("No valid config file!")
         if not os.path.isdir(mesh_dir):
             raise ValueError("No valid mesh directory")
-        if not isinstance(image_num, int) or image_num <= 0:
-            raise ValueError("image_num must be positive integer")
-        if downsampling < 1:
-            raise ValueError("Downsampling must be greater than 1")
+        _check_counts(image_num, downsampling)
         with open(config_dir) as f:
             self.config = json.load(f)
         from . import Mesh, SurfaceSlicer, fanslicer_models, voxelize
@@ -189,15 +196,7 @@ class SegmentedVolume:
         """Returns ``(points, simulation_images, visual_images)`` like fan-slicer: labels (H, W, N)
         float64 (the k-th enabled model is k), colour images (H, W, 3, N) float64 in [0, 1]
         (outside a fan: grey 210/255)."""
-        if np.asarray(poses).shape[1] / 4 != image_num:
-            raise ValueError("Input poses do not match image number!")
-        if image_num != self.image_num:
-            print("Number of images was changed from " + str(self.image_num) + " to " + str(image_num))
-            self.image_num = image_num
-        p = _strip_to_poses(poses, image_num)
-        labels = self.slicer.slice(p)
-        if hasattr(labels, "cpu"):
-            labels = labels.cpu().numpy()
+        p, labels = _simulate(self, poses, image_num)
         from . import colorize
         mask = self.slicer.mask
         rgb = colorize(labels, mask, self.colors).astype(np.float64) / 255.0

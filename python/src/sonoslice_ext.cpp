@@ -147,112 +147,9 @@ ProbeGeometry probe_grid(ProbeGeometry p, int width, int height, std::pair<doubl
   return p;
 }
 
-// ---- slicing ---------------------------------------------------------------------------------
-std::vector<Pose> poses_from(
-    const nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>& a) {
-  if (a.shape(1) != 4 || a.shape(2) != 4) throw InputError("poses: expected shape (N, 4, 4)");
-  std::vector<Pose> poses(a.shape(0));
-  for (size_t n = 0; n < poses.size(); ++n) poses[n] = Mat4::from_row_major(a.data() + 16 * n);
-  return poses;
-}
-
-void slice_into(const Slicer& slicer,
-                nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose_array,
-                nb::ndarray<> out, uintptr_t stream, nb::object progress, int64_t chunk) {
-  const std::vector<Pose> poses = poses_from(pose_array);
-  const int64_t n = int64_t(poses.size());
-  if (out.ndim() != 3 || int64_t(out.shape(0)) != n || int64_t(out.shape(1)) != slicer.height() ||
-      int64_t(out.shape(2)) != slicer.width())
-    throw InputError("out: expected shape (" + std::to_string(n) + ", " +
-                     std::to_string(slicer.height()) + ", " + std::to_string(slicer.width()) + ")");
-  if (!c_contiguous(out)) throw InputError("out: must be C-contiguous");
-  if (pixel_type_of(out.dtype(), "out") != slicer.settings().output_type)
-    throw InputError("out: dtype must be " + pixel_type_name(slicer.settings().output_type));
-  const bool on_gpu = out.device_type() == kCuda;
-  if (!on_gpu && out.device_type() != kCpu) throw InputError("out: must be in host or CUDA memory");
-  const Device device = slicer.device();
-  if (on_gpu && (device.type != DeviceType::CUDA || device.index != out.device_id()))
-    throw InputError("out: is on cuda:" + std::to_string(out.device_id()) +
-                     " but the slicer runs on " + device.to_string());
-  // Validate every pose before the first chunk, so nothing is written when one is bad.
-  validate_poses(poses.data(), poses.size(), "poses", 0, /*warn_non_orthonormal=*/true);
-  auto* base = static_cast<char*>(out.data());
-  const size_t image_bytes = slicer.image_bytes();
-  if (chunk <= 0) chunk = n;
-  for (int64_t first = 0; first < n; first += chunk) {
-    const int64_t count = std::min(chunk, n - first);
-    {
-      nb::gil_scoped_release release;
-      if (on_gpu)
-        slicer.slice_into_device(poses.data() + first, size_t(count),
-                                 base + size_t(first) * image_bytes,
-                                 reinterpret_cast<void*>(stream), size_t(first));
-      else
-        slicer.slice(poses.data() + first, size_t(count), base + size_t(first) * image_bytes,
-                     size_t(first));
-    }
-    if (!progress.is_none()) progress(first + count, n);
-  }
-}
-
-// (N, H, W) label images from exact plane cuts, into a CPU array, chunk by chunk.
-void surface_slice_into(
-    const SurfaceSlicer& slicer,
-    nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose_array,
-    nb::ndarray<> out, nb::object progress, int64_t chunk) {
-  const std::vector<Pose> poses = poses_from(pose_array);
-  const int64_t n = int64_t(poses.size());
-  if (out.ndim() != 3 || int64_t(out.shape(0)) != n || int64_t(out.shape(1)) != slicer.height() ||
-      int64_t(out.shape(2)) != slicer.width() || !c_contiguous(out) || out.device_type() != kCpu)
-    throw InputError("out: expected a C-contiguous (" + std::to_string(n) + ", " +
-                     std::to_string(slicer.height()) + ", " + std::to_string(slicer.width()) +
-                     ") array in host memory");
-  if (pixel_type_of(out.dtype(), "out") != slicer.output_type())
-    throw InputError("out: dtype must be " + pixel_type_name(slicer.output_type()));
-  validate_poses(poses.data(), poses.size(), "poses", 0, true);
-  const size_t image_bytes =
-      size_t(slicer.width()) * size_t(slicer.height()) * pixel_size(slicer.output_type());
-  if (chunk <= 0) chunk = n;
-  for (int64_t first = 0; first < n; first += chunk) {
-    const int64_t count = std::min(chunk, n - first);
-    {
-      nb::gil_scoped_release release;
-      slicer.slice(poses.data() + first, size_t(count),
-                   static_cast<char*>(out.data()) + size_t(first) * image_bytes, size_t(first));
-    }
-    if (!progress.is_none()) progress(first + count, n);
-  }
-}
-
-TriangleMesh mesh_from_arrays(
-    nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> vertices,
-    nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> triangles,
-    const std::string& name) {
-  if (vertices.shape(1) != 3 || triangles.shape(1) != 3)
-    throw InputError("mesh '" + name + "': vertices must be (V, 3) and triangles (T, 3)");
-  TriangleMesh m;
-  m.name = name;
-  m.vertices.resize(vertices.shape(0));
-  for (size_t i = 0; i < m.vertices.size(); ++i)
-    m.vertices[i] = {vertices(i, 0), vertices(i, 1), vertices(i, 2)};
-  m.triangles.resize(triangles.shape(0));
-  for (size_t i = 0; i < m.triangles.size(); ++i)
-    m.triangles[i] = {triangles(i, 0), triangles(i, 1), triangles(i, 2)};
-  m.validate();
-  return m;
-}
-
-// ---- compounding -----------------------------------------------------------------------------
+// ---- matrices --------------------------------------------------------------------------------
 using Matrices = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
 using Matrix4 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-// (dims along x, y, z; spacing x, y, z (mm); origin (mm); direction, row-major)
-using GridTuple = std::tuple<std::array<int64_t, 3>, std::array<double, 3>, std::array<double, 3>,
-                             std::array<double, 9>>;
-// (type, size, stdev, minimum known ratio, stick length limit, sticks to use); None: the default
-using HoleTuple = std::tuple<std::string, std::optional<int>, std::optional<double>,
-                             std::optional<double>, std::optional<int>, std::optional<int>>;
-// (r0_mm, dr_mm, azimuth0_deg, dazimuth_deg, elevation0_deg, delevation_deg, apex_offset_mm)
-using BeamTuple = std::array<double, 7>;
 
 std::vector<Mat4> matrices_from(const Matrices& a, const std::string& what) {
   if (a.shape(1) != 4 || a.shape(2) != 4)
@@ -261,6 +158,10 @@ std::vector<Mat4> matrices_from(const Matrices& a, const std::string& what) {
   std::vector<Mat4> out(a.shape(0));
   for (size_t n = 0; n < out.size(); ++n) out[n] = Mat4::from_row_major(a.data() + 16 * n);
   return out;
+}
+
+std::vector<Pose> poses_from(const Matrices& a) {
+  return matrices_from(a, "poses");
 }
 
 Mat4 matrix_from(const Matrix4& a, const std::string& what) {
@@ -289,6 +190,116 @@ std::optional<MatrixOut> matrix_or_none(const std::optional<Mat4>& m) {
   const size_t shape[2] = {4, 4};
   return MatrixOut(keep->m, 2, shape, owner);
 }
+
+// ---- slicing ---------------------------------------------------------------------------------
+// Whether `out` is (n, height, width), and that shape as text.
+bool has_shape(const nb::ndarray<>& out, int64_t n, int64_t height, int64_t width) {
+  return out.ndim() == 3 && int64_t(out.shape(0)) == n && int64_t(out.shape(1)) == height &&
+         int64_t(out.shape(2)) == width;
+}
+
+std::string shape_text(int64_t n, int64_t height, int64_t width) {
+  return "(" + std::to_string(n) + ", " + std::to_string(height) + ", " + std::to_string(width) +
+         ")";
+}
+
+void check_out_dtype(const nb::ndarray<>& out, PixelType type) {
+  if (pixel_type_of(out.dtype(), "out") != type)
+    throw InputError("out: dtype must be " + pixel_type_name(type));
+}
+
+// Validates every pose before the first chunk (so nothing is written when one is bad), then
+// calls slice_chunk(first, count) without the GIL for `chunk` poses at a time (all of them when
+// chunk <= 0), reporting progress(done, total) after each chunk.
+template <typename SliceChunk>
+void slice_in_chunks(const std::vector<Pose>& poses, const nb::object& progress, int64_t chunk,
+                     SliceChunk slice_chunk) {
+  validate_poses(poses.data(), poses.size(), "poses", 0, /*warn_non_orthonormal=*/true);
+  const int64_t n = int64_t(poses.size());
+  if (chunk <= 0) chunk = n;
+  for (int64_t first = 0; first < n; first += chunk) {
+    const int64_t count = std::min(chunk, n - first);
+    {
+      nb::gil_scoped_release release;
+      slice_chunk(first, count);
+    }
+    if (!progress.is_none()) progress(first + count, n);
+  }
+}
+
+void slice_into(const Slicer& slicer, Matrices pose_array, nb::ndarray<> out, uintptr_t stream,
+                nb::object progress, int64_t chunk) {
+  const std::vector<Pose> poses = poses_from(pose_array);
+  const int64_t n = int64_t(poses.size());
+  if (!has_shape(out, n, slicer.height(), slicer.width()))
+    throw InputError("out: expected shape " + shape_text(n, slicer.height(), slicer.width()));
+  if (!c_contiguous(out)) throw InputError("out: must be C-contiguous");
+  check_out_dtype(out, slicer.settings().output_type);
+  const bool on_gpu = out.device_type() == kCuda;
+  if (!on_gpu && out.device_type() != kCpu) throw InputError("out: must be in host or CUDA memory");
+  const Device device = slicer.device();
+  if (on_gpu && (device.type != DeviceType::CUDA || device.index != out.device_id()))
+    throw InputError("out: is on cuda:" + std::to_string(out.device_id()) +
+                     " but the slicer runs on " + device.to_string());
+  auto* base = static_cast<char*>(out.data());
+  const size_t image_bytes = slicer.image_bytes();
+  slice_in_chunks(poses, progress, chunk, [&](int64_t first, int64_t count) {
+    if (on_gpu)
+      slicer.slice_into_device(poses.data() + first, size_t(count),
+                               base + size_t(first) * image_bytes, reinterpret_cast<void*>(stream),
+                               size_t(first));
+    else
+      slicer.slice(poses.data() + first, size_t(count), base + size_t(first) * image_bytes,
+                   size_t(first));
+  });
+}
+
+// (N, H, W) label images from exact plane cuts, into a CPU array, chunk by chunk.
+void surface_slice_into(const SurfaceSlicer& slicer, Matrices pose_array, nb::ndarray<> out,
+                        nb::object progress, int64_t chunk) {
+  const std::vector<Pose> poses = poses_from(pose_array);
+  const int64_t n = int64_t(poses.size());
+  if (!has_shape(out, n, slicer.height(), slicer.width()) || !c_contiguous(out) ||
+      out.device_type() != kCpu)
+    throw InputError("out: expected a C-contiguous " +
+                     shape_text(n, slicer.height(), slicer.width()) + " array in host memory");
+  check_out_dtype(out, slicer.output_type());
+  auto* base = static_cast<char*>(out.data());
+  const size_t image_bytes =
+      size_t(slicer.width()) * size_t(slicer.height()) * pixel_size(slicer.output_type());
+  slice_in_chunks(poses, progress, chunk, [&](int64_t first, int64_t count) {
+    slicer.slice(poses.data() + first, size_t(count), base + size_t(first) * image_bytes,
+                 size_t(first));
+  });
+}
+
+TriangleMesh mesh_from_arrays(
+    nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> vertices,
+    nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> triangles,
+    const std::string& name) {
+  if (vertices.shape(1) != 3 || triangles.shape(1) != 3)
+    throw InputError("mesh '" + name + "': vertices must be (V, 3) and triangles (T, 3)");
+  TriangleMesh m;
+  m.name = name;
+  m.vertices.resize(vertices.shape(0));
+  for (size_t i = 0; i < m.vertices.size(); ++i)
+    m.vertices[i] = {vertices(i, 0), vertices(i, 1), vertices(i, 2)};
+  m.triangles.resize(triangles.shape(0));
+  for (size_t i = 0; i < m.triangles.size(); ++i)
+    m.triangles[i] = {triangles(i, 0), triangles(i, 1), triangles(i, 2)};
+  m.validate();
+  return m;
+}
+
+// ---- compounding -----------------------------------------------------------------------------
+// (dims along x, y, z; spacing x, y, z (mm); origin (mm); direction, row-major)
+using GridTuple = std::tuple<std::array<int64_t, 3>, std::array<double, 3>, std::array<double, 3>,
+                             std::array<double, 9>>;
+// (type, size, stdev, minimum known ratio, stick length limit, sticks to use); None: the default
+using HoleTuple = std::tuple<std::string, std::optional<int>, std::optional<double>,
+                             std::optional<double>, std::optional<int>, std::optional<int>>;
+// (r0_mm, dr_mm, azimuth0_deg, dazimuth_deg, elevation0_deg, delevation_deg, apex_offset_mm)
+using BeamTuple = std::array<double, 7>;
 
 GridTuple grid_tuple(const VolumeGrid& g) {
   return GridTuple{g.dims, g.spacing_mm, g.origin_mm, g.direction.row_major()};
@@ -323,6 +334,27 @@ std::vector<HoleTuple> hole_tuples(const std::vector<HoleFillingKernel>& kernels
     out.emplace_back(hole_type_name(k.type), k.size, k.stdev, k.minimum_known_ratio,
                      k.stick_length_limit, k.sticks_to_use);
   return out;
+}
+
+// The compounding settings settings_of(self) gives, as read-only properties of `cls`:
+// interpolation, compounding, fill_holes, hole_filling and rejection_threshold (None for -inf).
+template <typename T, typename SettingsOf>
+void def_settings_properties(nb::class_<T>& cls, SettingsOf settings_of) {
+  cls.def_prop_ro(
+         "interpolation",
+         [settings_of](const T& self) { return splat_name(settings_of(self).interpolation); })
+      .def_prop_ro("compounding",
+                   [settings_of](const T& self) { return mode_name(settings_of(self).mode); })
+      .def_prop_ro("fill_holes",
+                   [settings_of](const T& self) { return settings_of(self).fill_holes; })
+      .def_prop_ro(
+          "hole_filling",
+          [settings_of](const T& self) { return hole_tuples(settings_of(self).hole_filling); })
+      .def_prop_ro("rejection_threshold", [settings_of](const T& self) -> std::optional<double> {
+        const double t = settings_of(self).rejection_threshold;
+        if (std::isinf(t) && t < 0) return std::nullopt;
+        return t;
+      });
 }
 
 CompoundSettings make_settings(const std::string& interpolation, const std::string& compounding,
@@ -636,24 +668,19 @@ NB_MODULE(_sonoslice, m) {
   m.def(
       "read_poses",
       [](const std::string& path, const std::string& world) {
-        auto poses =
-            std::make_shared<std::vector<Pose>>(read_poses(path, parse_world_frame(world)));
-        static_assert(sizeof(Pose) == 16 * sizeof(double), "Pose is 16 doubles");
-        return numpy_view(poses->data(), {poses->size(), 4, 4}, PixelType::Float64, poses);
+        return matrices_to_numpy(read_poses(path, parse_world_frame(world)));
       },
       "path"_a, "world"_a = "LPS");
   m.def(
       "validate_poses",
-      [](nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> a,
-         const std::string& source) {
+      [](Matrices a, const std::string& source) {
         const auto poses = poses_from(a);
         validate_poses(poses.data(), poses.size(), source);
       },
       "poses"_a, "source"_a = "poses");
   m.def(
       "write_poses",
-      [](const std::string& path,
-         nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> a) {
+      [](const std::string& path, Matrices a) {
         const auto poses = poses_from(a);
         if (file_extension(path) == ".npy")
           write_poses_npy(path, poses);
@@ -664,8 +691,7 @@ NB_MODULE(_sonoslice, m) {
   m.def(
       "write_stack",
       [](const std::string& path, nb::ndarray<> images, std::pair<double, double> spacing,
-         std::optional<std::pair<double, double>> window,
-         std::optional<nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>> poses,
+         std::optional<std::pair<double, double>> window, std::optional<Matrices> poses,
          std::optional<nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>>
              mask) {
         if (images.ndim() != 3 || images.device_type() != kCpu || !c_contiguous(images))
@@ -686,8 +712,7 @@ NB_MODULE(_sonoslice, m) {
         const size_t image_bytes = size_t(spec.width) * size_t(spec.height) * pixel_size(spec.type);
         nb::gil_scoped_release release;
         auto writer = StackWriter::create(path, spec);
-        const int64_t chunk =
-            std::max<int64_t>(1, int64_t((size_t(64) << 20) / std::max<size_t>(image_bytes, 1)));
+        const int64_t chunk = chunk_images(image_bytes, spec.count);
         for (int64_t first = 0; first < spec.count; first += chunk) {
           const int64_t n = std::min(chunk, spec.count - first);
           std::memcpy(writer->buffer(first, n),
@@ -711,15 +736,13 @@ NB_MODULE(_sonoslice, m) {
   m.def(
       "phantom_random_poses",
       [](size_t count, uint64_t seed) {
-        auto poses = std::make_shared<std::vector<Pose>>(phantom_random_poses(count, seed));
-        return numpy_view(poses->data(), {poses->size(), 4, 4}, PixelType::Float64, poses);
+        return matrices_to_numpy(phantom_random_poses(count, seed));
       },
       "count"_a, "seed"_a = 2024);
   m.def(
       "phantom_surface_poses",
       [](size_t count, double face_y_mm) {
-        auto poses = std::make_shared<std::vector<Pose>>(phantom_surface_poses(count, face_y_mm));
-        return numpy_view(poses->data(), {poses->size(), 4, 4}, PixelType::Float64, poses);
+        return matrices_to_numpy(phantom_surface_poses(count, face_y_mm));
       },
       "count"_a, "face_y_mm"_a = 0.0);
   // ---- surfaces
@@ -793,8 +816,7 @@ NB_MODULE(_sonoslice, m) {
       });
   m.def(
       "cut_polygons",
-      [](const TriangleMesh& mesh,
-         nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu> pose) {
+      [](const TriangleMesh& mesh, Matrices pose) {
         const auto poses = poses_from(pose);
         if (poses.size() != 1) throw InputError("cut_polygons: one pose");
         std::vector<std::pair<std::vector<std::array<double, 2>>, bool>> out;
@@ -902,8 +924,9 @@ NB_MODULE(_sonoslice, m) {
       .def_prop_ro("fan", &fan_tuple)
       .def_prop_ro("mask_pixels", [](const FrameClip& c) { return c.custom_mask.size(); });
 
-  nb::class_<PyCompounder>(
-      m, "Compounder", "Tracked frames compounded into one voxel grid (use sonoslice.Compounder).")
+  nb::class_<PyCompounder> compounder(
+      m, "Compounder", "Tracked frames compounded into one voxel grid (use sonoslice.Compounder).");
+  compounder
       .def(
           "__init__",
           [](PyCompounder* self, std::array<int64_t, 3> dims, std::array<double, 3> spacing,
@@ -945,11 +968,6 @@ NB_MODULE(_sonoslice, m) {
             if (int64_t(m.size()) != n)
               throw InputError("add: " + std::to_string(n) + " frames but " +
                                std::to_string(m.size()) + " image_to_reference matrices");
-            if (!clip.custom_mask.empty() &&
-                clip.custom_mask.size() != size_t(width) * size_t(height))
-              throw InputError("add: the clip mask has " + std::to_string(clip.custom_mask.size()) +
-                               " pixels but frames have " + std::to_string(height) + "x" +
-                               std::to_string(width));
             nb::gil_scoped_release release;
             std::lock_guard<std::mutex> lock(self.mutex);
             self.compounder.add_images(frames.data(), type, int(width), int(height), n, m.data(),
@@ -1012,22 +1030,10 @@ NB_MODULE(_sonoslice, m) {
                      return self.compounder.frames_added();
                    })
       .def_prop_ro("grid", [](PyCompounder& self) { return grid_tuple(self.compounder.grid()); })
-      .def_prop_ro("dtype", [](PyCompounder& self) { return pixel_type_name(self.dtype); })
-      .def_prop_ro(
-          "interpolation",
-          [](PyCompounder& self) { return splat_name(self.compounder.settings().interpolation); })
-      .def_prop_ro("compounding",
-                   [](PyCompounder& self) { return mode_name(self.compounder.settings().mode); })
-      .def_prop_ro("fill_holes",
-                   [](PyCompounder& self) { return self.compounder.settings().fill_holes; })
-      .def_prop_ro(
-          "hole_filling",
-          [](PyCompounder& self) { return hole_tuples(self.compounder.settings().hole_filling); })
-      .def_prop_ro("rejection_threshold", [](PyCompounder& self) -> std::optional<double> {
-        const double t = self.compounder.settings().rejection_threshold;
-        if (std::isinf(t) && t < 0) return std::nullopt;
-        return t;
-      });
+      .def_prop_ro("dtype", [](PyCompounder& self) { return pixel_type_name(self.dtype); });
+  def_settings_properties(compounder, [](const PyCompounder& self) -> const CompoundSettings& {
+    return self.compounder.settings();
+  });
 
   m.def(
       "compound_grid_around",
@@ -1167,9 +1173,9 @@ NB_MODULE(_sonoslice, m) {
           "from_frame"_a, "to_frame"_a)
       .def_static("split_name", &TransformRepository::split_name, "name"_a);
 
-  nb::class_<PlusReconstructionConfig>(m, "PlusConfig",
-                                       "A PLUS configuration's reconstruction settings.")
-      .def_ro("path", &PlusReconstructionConfig::path)
+  nb::class_<PlusReconstructionConfig> plus_config(
+      m, "PlusConfig", "A PLUS configuration's reconstruction settings.");
+  plus_config.def_ro("path", &PlusReconstructionConfig::path)
       .def_prop_ro("coordinate_definitions",
                    [](const PlusReconstructionConfig& c) { return c.coordinate_definitions; })
       .def_ro("image_frame", &PlusReconstructionConfig::image_frame)
@@ -1177,26 +1183,13 @@ NB_MODULE(_sonoslice, m) {
       .def_ro("spacing", &PlusReconstructionConfig::output_spacing_mm)
       .def_ro("origin", &PlusReconstructionConfig::output_origin_mm)
       .def_ro("extent", &PlusReconstructionConfig::output_extent)
-      .def_prop_ro(
-          "interpolation",
-          [](const PlusReconstructionConfig& c) { return splat_name(c.settings.interpolation); })
-      .def_prop_ro("compounding",
-                   [](const PlusReconstructionConfig& c) { return mode_name(c.settings.mode); })
-      .def_prop_ro("fill_holes",
-                   [](const PlusReconstructionConfig& c) { return c.settings.fill_holes; })
-      .def_prop_ro(
-          "hole_filling",
-          [](const PlusReconstructionConfig& c) { return hole_tuples(c.settings.hole_filling); })
-      .def_prop_ro("rejection_threshold",
-                   [](const PlusReconstructionConfig& c) -> std::optional<double> {
-                     const double t = c.settings.rejection_threshold;
-                     if (std::isinf(t) && t < 0) return std::nullopt;
-                     return t;
-                   })
       .def_ro("clip", &PlusReconstructionConfig::clip)
       .def_ro("skip_interval", &PlusReconstructionConfig::skip_interval)
       .def_ro("ignored_attributes", &PlusReconstructionConfig::ignored_attributes)
       .def_ro("unknown_attributes", &PlusReconstructionConfig::unknown_attributes);
+  def_settings_properties(
+      plus_config,
+      [](const PlusReconstructionConfig& c) -> const CompoundSettings& { return c.settings; });
   m.def(
       "read_plus_config",
       [](const std::string& path) {

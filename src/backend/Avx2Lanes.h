@@ -110,6 +110,11 @@ inline void gather_pair<int8_t>(const int8_t* base, Vec8i i, Vec8f& lo, Vec8f& h
   hi = _mm256_cvtepi32_ps(_mm256_srai_epi32(_mm256_slli_epi32(p, 16), 24));
 }
 
+/// The voxel at each offset of a float volume (nearest sampling).
+inline Vec8f gather_float(const float* base, Vec8i i) {
+  return _mm256_i32gather_ps(base, i.v, 4);
+}
+
 /// The voxel at each offset, as int32 (sign- or zero-extended), for nearest sampling of integer
 /// volumes: no float round trip.
 template <typename T>

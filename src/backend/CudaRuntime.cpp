@@ -52,9 +52,13 @@ const Availability& availability() {
 
 }  // namespace
 
-int device_count() { return availability().count; }
+int device_count() {
+  return availability().count;
+}
 
-std::string unavailable_reason() { return availability().reason; }
+std::string unavailable_reason() {
+  return availability().reason;
+}
 
 std::string describe_devices() {
   if (device_count() == 0) return "cuda: not available (" + unavailable_reason() + ")\n";
@@ -72,8 +76,7 @@ void check(int error, const std::string& what) {
   const auto err = static_cast<cudaError_t>(error);
   if (err == cudaSuccess) return;
   cudaGetLastError();
-  if (err == cudaErrorMemoryAllocation)
-    throw ResourceError(what + ": out of GPU memory");
+  if (err == cudaErrorMemoryAllocation) throw ResourceError(what + ": out of GPU memory");
   throw Error(what + ": " + cudaGetErrorString(err));
 }
 
@@ -134,7 +137,9 @@ Stream::~Stream() {
   if (stream_) cudaStreamDestroy(static_cast<cudaStream_t>(stream_));
 }
 
-void Stream::synchronize(const std::string& what) const { cuda::synchronize(stream_, what); }
+void Stream::synchronize(const std::string& what) const {
+  cuda::synchronize(stream_, what);
+}
 
 void synchronize(void* stream, const std::string& what) {
   check(cudaStreamSynchronize(static_cast<cudaStream_t>(stream)), what);
@@ -150,7 +155,8 @@ void free_async(void* data, void* stream) {
   if (data) cudaFreeAsync(data, static_cast<cudaStream_t>(stream));
 }
 
-void copy_to_device(void* dst, const void* src, size_t bytes, void* stream, const std::string& what) {
+void copy_to_device(void* dst, const void* src, size_t bytes, void* stream,
+                    const std::string& what) {
   check(cudaMemcpyAsync(dst, src, bytes, cudaMemcpyHostToDevice, static_cast<cudaStream_t>(stream)),
         what);
 }

@@ -32,7 +32,6 @@ class DeviceBuffer {
   DeviceBuffer& operator=(const DeviceBuffer&) = delete;
   void reserve(size_t bytes, const std::string& what);
   void* data() const { return data_; }
-  size_t capacity() const { return capacity_; }
 
  private:
   void* data_ = nullptr;
@@ -77,7 +76,8 @@ void free_async(void* data, void* stream);
 void synchronize(void* stream, const std::string& what);
 
 /// Asynchronous copies on `stream`.
-void copy_to_device(void* dst, const void* src, size_t bytes, void* stream, const std::string& what);
+void copy_to_device(void* dst, const void* src, size_t bytes, void* stream,
+                    const std::string& what);
 void copy_to_host(void* dst, const void* src, size_t bytes, void* stream, const std::string& what);
 
 }  // namespace cuda

@@ -6,6 +6,7 @@
 #include <sstream>
 #include <thread>
 
+#include "../core/Text.h"
 #include "sonoslice/core/Error.h"
 #ifdef SONOSLICE_HAVE_CUDA
 #include "CudaRuntime.h"
@@ -18,9 +19,7 @@
 namespace sonoslice {
 
 Device Device::parse(const std::string& text) {
-  std::string t = text;
-  std::transform(t.begin(), t.end(), t.begin(),
-                 [](unsigned char c) { return char(std::tolower(c)); });
+  const std::string t = text::lower(text);
   if (t == "cpu") return Device::cpu();
   if (t == "cuda" || t == "gpu") return Device{DeviceType::CUDA, 0};
   if (t.rfind("cuda:", 0) == 0 && t.size() > 5 &&

@@ -21,6 +21,16 @@ void parallel_for(int64_t n, const F& f) {
   for (int64_t i = 0; i < n; ++i) f(i);
 }
 
+/// The range [0, n) cut into chunks of `chunk` elements, spread over the CPU threads:
+/// f(c, begin, end) for chunk c = [begin, end).
+template <typename F>
+void parallel_for_chunks(int64_t n, int64_t chunk, const F& f) {
+  parallel_for((n + chunk - 1) / chunk, [&](int64_t c) {
+    const int64_t begin = c * chunk, end = begin + chunk < n ? begin + chunk : n;
+    f(c, begin, end);
+  });
+}
+
 namespace detail {
 template <typename F, typename S, typename = void>
 struct has_pixels : std::false_type {};

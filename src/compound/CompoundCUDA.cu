@@ -21,9 +21,9 @@ void compound_cuda_launch(const AccumulatorView& grid, const FrameBatch& batch, 
 namespace {
 struct ClearAccumulators {
   AccumulatorView grid;
-  float empty_value;
+  float empty;
   __device__ void operator()(int64_t i) const {
-    grid.cells[i].value = empty_value;
+    grid.cells[i].value = empty;
     grid.cells[i].weight = 0.f;
     if (grid.stamp) grid.stamp[i] = -1;
   }
@@ -32,7 +32,7 @@ struct ClearAccumulators {
 
 void compound_cuda_clear(const AccumulatorView& grid, Mode mode, void* stream) {
   const int64_t n = int64_t(grid.nx) * grid.ny * grid.nz;
-  backend::parallel_for(n, ClearAccumulators{grid, mode == Mode::Max ? -INFINITY : 0.f}, stream);
+  backend::parallel_for(n, ClearAccumulators{grid, empty_value(mode)}, stream);
 }
 
 }  // namespace compound_impl

@@ -49,14 +49,26 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int floor_to_int(float x) {
   return i - (x < float(i) ? 1 : 0);
 }
 
+/// Whether a nearest splat at t = c + 0.5 lands in the grid (NaN: no).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool inside_nearest(const AccumulatorView& g, float tx,
+                                                           float ty, float tz) {
+  return tx >= 0.f && ty >= 0.f && tz >= 0.f && tx < float(g.nx) && ty < float(g.ny) &&
+         tz < float(g.nz);
+}
+
+/// Whether a linear splat at c has a corner in the grid (NaN: no).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool inside_linear(const AccumulatorView& g, float cx,
+                                                          float cy, float cz) {
+  return cx > -1.f && cy > -1.f && cz > -1.f && cx < float(g.nx) && cy < float(g.ny) &&
+         cz < float(g.nz);
+}
+
 /// The voxel nearest to a sample (SPEC §5 nearest: floor(c + 0.5)), given t = c + 0.5 (rows of
 /// nearest splats carry the 0.5 in their origin); false outside the grid.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool nearest_voxel(const AccumulatorView& g, float tx,
                                                           float ty, float tz, int* i) {
-  // Written so that NaN compares false. t >= 0, so truncation is floor.
-  if (!(tx >= 0.f && ty >= 0.f && tz >= 0.f && tx < float(g.nx) && ty < float(g.ny) &&
-        tz < float(g.nz)))
-    return false;
+  if (!inside_nearest(g, tx, ty, tz)) return false;
+  // t >= 0, so truncation is floor.
   i[0] = int(tx);
   i[1] = int(ty);
   i[2] = int(tz);
@@ -67,9 +79,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool nearest_voxel(const AccumulatorView&
 /// corner of the cell is inside the grid.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool linear_cell(const AccumulatorView& g, float cx,
                                                         float cy, float cz, int* i, float* f) {
-  if (!(cx > -1.f && cy > -1.f && cz > -1.f && cx < float(g.nx) && cy < float(g.ny) &&
-        cz < float(g.nz)))
-    return false;
+  if (!inside_linear(g, cx, cy, cz)) return false;
   i[0] = floor_to_int(cx);
   i[1] = floor_to_int(cy);
   i[2] = floor_to_int(cz);
@@ -92,11 +102,6 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float sample_value(const T* row, int u) {
   return float(row[u]);
 }
 
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int64_t voxel_offset(const AccumulatorView& g, int x, int y,
-                                                            int z) {
-  return (int64_t(z) * g.ny + y) * g.nx + x;
-}
-
 /// A sample counts for a voxel's maximum only with a splat weight of at least 1/8 (PLUS's rule):
 /// a sample at the far corner of a cell says little about that voxel.
 constexpr float kMaxModeMinimumWeight = 0.125f;
@@ -115,11 +120,6 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void gather(float& value, float& weight, 
     value += w * sample;
     weight += w;
   }
-}
-
-template <Mode M>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float gather_start() {
-  return M == Mode::Max ? -std::numeric_limits<float>::infinity() : 0.f;
 }
 
 #if !defined(__CUDACC__)
@@ -233,14 +233,12 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
   if (ub >= ue) return;
   clip_axis(clip.c0, clip.inv_d, slab.lo, slab.hi, false, ib, ie);
   int64_t current = -1;
-  float value = gather_start<M>(), weight = 0.f;
-  const float fnx = float(g.nx), fny = float(g.ny), fnz = float(g.nz);
-  const int64_t nx = g.nx, ny = g.ny;
+  float value = empty_value(M), weight = 0.f;
   const auto take = [&](int64_t v, float s) {
     if (v != current) {
       if (current >= 0) apply<M>(g, current, value, weight, frame);
       current = v;
-      value = gather_start<M>();
+      value = empty_value(M);
       weight = 0.f;
     }
     gather<M>(value, weight, s, 1.f);
@@ -251,16 +249,14 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
     const float fu = float(u);
     const float tx = L.c0[0] + fu * L.dc[0], ty = L.c0[1] + fu * L.dc[1],
                 tz = L.c0[2] + fu * L.dc[2];
-    if (decltype(checked)::value &&
-        !(tx >= 0.f && ty >= 0.f && tz >= 0.f && tx < fnx && ty < fny && tz < fnz))
-      return;
+    if (decltype(checked)::value && !inside_nearest(g, tx, ty, tz)) return;
     // t >= 0: truncation is floor.
     const int ix = int(tx), iy = int(ty), iz = int(tz);
     if (decltype(checked)::value) {
       const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
       if (ia < slab.lo || ia >= slab.hi) return;
     }
-    take((iz * ny + iy) * nx + ix, s);
+    take(g.offset(ix, iy, iz), s);
   };
   walk_row(ub, ue, ib, ie, step, [&](int u, [[maybe_unused]] int end) {
 #if defined(SONOSLICE_COMPOUND_AVX2)
@@ -301,7 +297,7 @@ struct CornerSums {
   float value[8], weight[8];
   void reset() {
     for (int k = 0; k < 8; ++k) {
-      value[k] = gather_start<M>();
+      value[k] = empty_value(M);
       weight[k] = 0.f;
     }
   }
@@ -400,7 +396,7 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
     if (M == Mode::Mean && cell[0] >= 0 && cell[1] >= 0 && cell[2] >= 0 && cell[0] + 1 < g.nx &&
         cell[1] + 1 < g.ny && cell[2] + 1 < g.nz && ca >= slab.lo && ca + 1 < slab.hi) {
       // All eight corners are ours (zero weights add nothing).
-      sums.add_to(g.cells + voxel_offset(g, cell[0], cell[1], cell[2]), sy, sz);
+      sums.add_to(g.cells + g.offset(cell[0], cell[1], cell[2]), sy, sz);
       return;
     }
     float value[8], weight[8];
@@ -408,10 +404,8 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
     for (int k = 0; k < 8; ++k) {
       const int x = cell[0] + (k & 1), y = cell[1] + ((k >> 1) & 1), z = cell[2] + (k >> 2);
       const int ia = Axis == 0 ? x : (Axis == 1 ? y : z);
-      if (!(weight[k] > 0.f) || x < 0 || y < 0 || z < 0 || x >= g.nx || y >= g.ny || z >= g.nz ||
-          ia < slab.lo || ia >= slab.hi)
-        continue;
-      apply<M>(g, voxel_offset(g, x, y, z), value[k], weight[k], frame);
+      if (!(weight[k] > 0.f) || !g.contains(x, y, z) || ia < slab.lo || ia >= slab.hi) continue;
+      apply<M>(g, g.offset(x, y, z), value[k], weight[k], frame);
     }
   };
   const auto take = [&](int ix, int iy, int iz, float fx, float fy, float fz, float s) {
@@ -424,16 +418,13 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
     }
     sums.add(fx, fy, fz, s);
   };
-  const float fnx = float(g.nx), fny = float(g.ny), fnz = float(g.nz);
   const auto step = [&](int u, auto checked) {
     const float s = sample_value(row, u);
     if (s < threshold) return;
     const float fu = float(u);
     const float cx = L.c0[0] + fu * L.dc[0], cy = L.c0[1] + fu * L.dc[1],
                 cz = L.c0[2] + fu * L.dc[2];
-    if (decltype(checked)::value &&
-        !(cx > -1.f && cy > -1.f && cz > -1.f && cx < fnx && cy < fny && cz < fnz))
-      return;
+    if (decltype(checked)::value && !inside_linear(g, cx, cy, cz)) return;
     const int ix = floor_to_int(cx), iy = floor_to_int(cy), iz = floor_to_int(cz);
     if (decltype(checked)::value) {
       const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
@@ -529,7 +520,6 @@ void compound_batch_cpu(const AccumulatorView& g, const FrameBatch& b, int axis,
   clip_rows(g, b, Linear, axis, clips);
   backend::parallel_for(slabs, [&](int64_t s) {
     Slab slab;
-    slab.axis = axis;
     slab.lo = int(lo + (int64_t(hi) - lo) * s / slabs);
     slab.hi = int(lo + (int64_t(hi) - lo) * (s + 1) / slabs);
     if (slab.lo >= slab.hi) return;
@@ -615,16 +605,16 @@ struct SplatSamples {
                 cz = backend::add_product(L.c0[2], fu, L.dc[2]);
     int i[3];
     if (!Linear) {
-      if (nearest_voxel(g, cx, cy, cz, i)) touch(row, voxel_offset(g, i[0], i[1], i[2]), s, 1.f);
+      if (nearest_voxel(g, cx, cy, cz, i)) touch(row, g.offset(i[0], i[1], i[2]), s, 1.f);
       return;
     }
     float f[3];
     if (!linear_cell(g, cx, cy, cz, i, f)) return;
     for (int k = 0; k < 8; ++k) {
       const int x = i[0] + (k & 1), y = i[1] + ((k >> 1) & 1), z = i[2] + (k >> 2);
-      if (x < 0 || y < 0 || z < 0 || x >= g.nx || y >= g.ny || z >= g.nz) continue;
+      if (!g.contains(x, y, z)) continue;
       const float w = corner_weight(f, k);
-      if (w > 0.f) touch(row, voxel_offset(g, x, y, z), s, w);
+      if (w > 0.f) touch(row, g.offset(x, y, z), s, w);
     }
   }
 };

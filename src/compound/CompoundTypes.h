@@ -2,7 +2,9 @@
 // Internal: the plain structs the compounding kernels (CompoundImpl.h) take, shared by the
 // dispatch layer (Compounder.cpp) and every backend. No pointers are checked below this layer.
 #include <cstdint>
+#include <limits>
 
+#include "sonoslice/backend/HostDevice.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
@@ -22,9 +24,21 @@ struct AccumulatorView {
   int nx = 0, ny = 0, nz = 0;
   Accumulator* cells = nullptr;
   int32_t* stamp = nullptr;
+
+  SONOSLICE_HOST_DEVICE bool contains(int x, int y, int z) const {
+    return x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz;
+  }
+  SONOSLICE_HOST_DEVICE int64_t offset(int x, int y, int z) const {
+    return (int64_t(z) * ny + y) * nx + x;
+  }
 };
 
 enum class Mode : int { Mean = 0, Max = 1, Latest = 2 };
+
+/// An accumulator's value before any sample: the sum 0, or -inf for a maximum.
+SONOSLICE_HOST_DEVICE constexpr float empty_value(Mode mode) {
+  return mode == Mode::Max ? -std::numeric_limits<float>::infinity() : 0.f;
+}
 
 /// A row of samples: a straight line in voxel-index space, sample u at c0 + u·dc. Image rows
 /// and 3-D beams are both rows.
@@ -54,9 +68,9 @@ struct FrameBatch {
   float rejection_threshold = -3.4e38f;  ///< samples below it are not inserted
 };
 
-/// Where a CPU task may write: voxels whose index along `axis` is in [lo, hi).
+/// Where a CPU task may write: voxels whose index along the slab axis (the kernels' Axis) is in
+/// [lo, hi).
 struct Slab {
-  int axis = 2;
   int lo = 0, hi = 0;
 };
 

@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "../backend/ParallelFor.h"
+#include "../core/Text.h"
 #include "CompoundBackends.h"
 #include "Finish.h"
 #include "sonoslice/core/Error.h"
@@ -38,11 +39,6 @@ void compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mod
 }  // namespace compound_impl
 
 namespace {
-
-std::string lower(std::string s) {
-  for (auto& c : s) c = char(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
 
 std::string format_bytes(uint64_t bytes) {
   char text[64];
@@ -128,13 +124,26 @@ RowLine make_line(const Vec3& c0, const Vec3& dc, double offset) {
   return l;
 }
 
-// The unit direction of a beam (SPEC §7): (sin α, cos α·cos β, cos α·sin β).
-Vec3 beam_direction(const BeamGeometry& g, int e, int a) {
-  const double deg = M_PI / 180.0;
-  const double alpha = (g.azimuth0_deg + a * g.dazimuth_deg) * deg;
-  const double beta = (g.elevation0_deg + e * g.delevation_deg) * deg;
-  return Vec3{
-      {std::sin(alpha), std::cos(alpha) * std::cos(beta), std::cos(alpha) * std::sin(beta)}};
+// The unit directions of the beams (SPEC §7), elevation slowest:
+// (sin α, cos α·cos β, cos α·sin β).
+std::vector<Vec3> beam_directions(const BeamGeometry& g) {
+  const double deg = kPi / 180.0;
+  std::vector<Vec3> directions;
+  directions.reserve(size_t(g.n_elevation) * g.n_azimuth);
+  for (int e = 0; e < g.n_elevation; ++e)
+    for (int a = 0; a < g.n_azimuth; ++a) {
+      const double alpha = (g.azimuth0_deg + a * g.dazimuth_deg) * deg;
+      const double beta = (g.elevation0_deg + e * g.delevation_deg) * deg;
+      directions.push_back(
+          {std::sin(alpha), std::cos(alpha) * std::cos(beta), std::cos(alpha) * std::sin(beta)});
+    }
+  return directions;
+}
+
+// The probe-frame point at depth r along the beam of direction d: apex + r·d, with
+// apex = (0, -apex_offset, 0).
+Vec3 beam_point(const BeamGeometry& g, const Vec3& d, double r) {
+  return {r * d[0], r * d[1] - g.apex_offset_mm, r * d[2]};
 }
 
 // Frames go to the kernels in batches. CPU: about a million samples, one parallel pass over the
@@ -173,14 +182,14 @@ std::vector<RowSpans> spans_from_mask(const std::vector<uint8_t>& mask, int widt
 }  // namespace
 
 SplatInterpolation parse_splat_interpolation(const std::string& name) {
-  const std::string n = lower(name);
+  const std::string n = text::lower(name);
   if (n == "nearest" || n == "nearest_neighbor" || n == "nn") return SplatInterpolation::Nearest;
   if (n == "linear" || n == "trilinear") return SplatInterpolation::Linear;
   throw InputError("interpolation '" + name + "': expected nearest or linear");
 }
 
 CompoundingMode parse_compounding_mode(const std::string& name) {
-  const std::string n = lower(name);
+  const std::string n = text::lower(name);
   if (n == "mean") return CompoundingMode::Mean;
   if (n == "max" || n == "maximum") return CompoundingMode::Max;
   if (n == "latest") return CompoundingMode::Latest;
@@ -188,7 +197,7 @@ CompoundingMode parse_compounding_mode(const std::string& name) {
 }
 
 HoleFillingKernel::Type parse_hole_filling_type(const std::string& name) {
-  const std::string n = lower(name);
+  const std::string n = text::lower(name);
   if (n == "nearest_neighbor" || n == "nearest") return HoleFillingKernel::NearestNeighbor;
   if (n == "gaussian") return HoleFillingKernel::Gaussian;
   if (n == "gaussian_accumulation") return HoleFillingKernel::GaussianAccumulation;
@@ -270,7 +279,7 @@ std::vector<uint8_t> FrameClip::mask(int frame_width, int frame_height) const {
   const auto r = rectangle(frame_width, frame_height);
   // PLUS's fan test (unoptimised path): below the origin, tan(a0) <= dx/dy <= tan(a1), and
   // start <= distance <= stop, all inclusive.
-  const double deg = M_PI / 180.0;
+  const double deg = kPi / 180.0;
   const double tan0 = std::tan(fan_angles_deg[0] * deg), tan1 = std::tan(fan_angles_deg[1] * deg);
   for (int v = r[1]; v < r[3]; ++v)
     for (int u = r[0]; u < r[2]; ++u) {
@@ -376,14 +385,12 @@ struct Compounder::Impl {
       cells.reset(new Accumulator[n]);
       if (mode == Mode::Latest) stamp.reset(new int32_t[n]);
       cell_count = n;
-      const Accumulator empty{mode == Mode::Max ? -std::numeric_limits<float>::infinity() : 0.f,
-                              0.f};
-      const int64_t chunk = int64_t(1) << 18;
-      backend::parallel_for((int64_t(n) + chunk - 1) / chunk, [&](int64_t c) {
-        const size_t b = size_t(c * chunk), e = std::min(n, size_t((c + 1) * chunk));
-        std::fill(cells.get() + b, cells.get() + e, empty);
-        if (stamp) std::fill(stamp.get() + b, stamp.get() + e, -1);
-      });
+      const Accumulator empty{compound_impl::empty_value(mode), 0.f};
+      backend::parallel_for_chunks(int64_t(n), int64_t(1) << 18,
+                                   [&](int64_t, int64_t b, int64_t e) {
+                                     std::fill(cells.get() + b, cells.get() + e, empty);
+                                     if (stamp) std::fill(stamp.get() + b, stamp.get() + e, -1);
+                                   });
     } catch (const std::bad_alloc&) {
       throw ResourceError("compounding: out of memory allocating the accumulators (" +
                           format_bytes(uint64_t(n) * accumulator_bytes_per_voxel(settings)) + ")");
@@ -639,18 +646,14 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
     for (int k = 0; k < kMaxSpans; ++k) s.begin[k] = s.end[k] = 0;
     s.end[0] = width;
   }
-  std::vector<Vec3> directions;
-  for (int e = 0; e < geometry.n_elevation; ++e)
-    for (int a = 0; a < geometry.n_azimuth; ++a)
-      directions.push_back(beam_direction(geometry, e, a));
-  // Beam r: sample s at apex + (r0 + s·dr)·d_r, apex = (0, -apex_offset, 0).
+  const std::vector<Vec3> directions = beam_directions(geometry);
+  // Beam r: sample s at beam_point(r0 + s·dr).
   im.add_frames(samples, type, count, rows, width, spans, [&](int64_t f, RowLine* lines) {
     const Affine A = frame_to_index(im.grid, probe_to_reference[f]);
     for (int r = 0; r < rows; ++r) {
       const Vec3& d = directions[size_t(r)];
-      const Vec3 c0 =
-          A.apply(geometry.r0_mm * d[0], geometry.r0_mm * d[1] - geometry.apex_offset_mm,
-                  geometry.r0_mm * d[2]);
+      const Vec3 p0 = beam_point(geometry, d, geometry.r0_mm);
+      const Vec3 c0 = A.apply(p0[0], p0[1], p0[2]);
       const Vec3 dc =
           A.direction(geometry.dr_mm * d[0], geometry.dr_mm * d[1], geometry.dr_mm * d[2]);
       lines[r] = make_line(c0, dc, im.line_offset());
@@ -682,27 +685,33 @@ Volume Compounder::weights() const {
 
 namespace {
 
-VolumeGrid grid_around_points(const std::vector<Vec3>& lo_hi, const Vec3& spacing_mm,
-                              const char* what) {
-  for (double s : spacing_mm)
-    if (!(s > 0 && std::isfinite(s)))
-      throw InputError(std::string(what) + ": output spacing must be a positive number of mm");
-  if (lo_hi.empty())
-    throw InputError(std::string(what) + ": no valid frame to compute the output extent from");
-  Vec3 lo = lo_hi[0], hi = lo_hi[0];
-  for (const Vec3& p : lo_hi)
+// The box around the points given to add(): the grid PLUS fits around the frames.
+struct Bounds {
+  Vec3 lo{{1e300, 1e300, 1e300}}, hi{{-1e300, -1e300, -1e300}};
+  bool empty = true;
+  void add(const Vec3& p) {
+    empty = false;
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], p[a]);
       hi[a] = std::max(hi[a], p[a]);
     }
-  VolumeGrid g;
-  for (int a = 0; a < 3; ++a) {
-    g.origin_mm[a] = lo[a];
-    g.spacing_mm[a] = spacing_mm[a];
-    g.dims[a] = int64_t(std::round((hi[a] - lo[a]) / spacing_mm[a])) + 1;
   }
-  return g;
-}
+  // Origin at the minimum, round((max - min) / spacing) + 1 voxels per axis.
+  VolumeGrid grid(const Vec3& spacing_mm, const char* what) const {
+    for (double s : spacing_mm)
+      if (!(s > 0 && std::isfinite(s)))
+        throw InputError(std::string(what) + ": output spacing must be a positive number of mm");
+    if (empty)
+      throw InputError(std::string(what) + ": no valid frame to compute the output extent from");
+    VolumeGrid g;
+    for (int a = 0; a < 3; ++a) {
+      g.origin_mm[a] = lo[a];
+      g.spacing_mm[a] = spacing_mm[a];
+      g.dims[a] = int64_t(std::round((hi[a] - lo[a]) / spacing_mm[a])) + 1;
+    }
+    return g;
+  }
+};
 
 }  // namespace
 
@@ -713,31 +722,29 @@ VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, 
     throw InputError("compounding: the clip rectangle leaves no pixel of the frame");
   // Corner pixel centres: first and last pixel of the clip rectangle.
   const double xs[2] = {double(r[0]), double(r[2] - 1)}, ys[2] = {double(r[1]), double(r[3] - 1)};
-  std::vector<Vec3> corners;
+  Bounds box;
   for (const Mat4& m : image_to_reference) {
     check_matrix(m, "compounding: image-to-reference");
     for (double x : xs)
-      for (double y : ys) corners.push_back(m.transform_point(Vec3{{x, y, 0.0}}));
+      for (double y : ys) box.add(m.transform_point(Vec3{{x, y, 0.0}}));
   }
-  return grid_around_points(corners, spacing_mm, "compounding");
+  return box.grid(spacing_mm, "compounding");
 }
 
 VolumeGrid Compounder::grid_around_beams(const std::vector<Mat4>& probe_to_reference,
                                          const BeamGeometry& geometry, const Vec3& spacing_mm) {
   geometry.validate("compounding: beam geometry");
-  std::vector<Vec3> ends;
+  // Every beam's first and last sample, in the probe frame once, then per pose.
   const double r1 = geometry.r0_mm + (geometry.n_samples - 1) * geometry.dr_mm;
+  std::vector<Vec3> ends;
+  for (const Vec3& d : beam_directions(geometry))
+    for (double r : {geometry.r0_mm, r1}) ends.push_back(beam_point(geometry, d, r));
+  Bounds box;
   for (const Mat4& m : probe_to_reference) {
     check_matrix(m, "compounding: probe-to-reference");
-    for (int e = 0; e < geometry.n_elevation; ++e)
-      for (int a = 0; a < geometry.n_azimuth; ++a) {
-        const Vec3 d = beam_direction(geometry, e, a);
-        for (double r : {geometry.r0_mm, r1})
-          ends.push_back(
-              m.transform_point(Vec3{{r * d[0], r * d[1] - geometry.apex_offset_mm, r * d[2]}}));
-      }
+    for (const Vec3& p : ends) box.add(m.transform_point(p));
   }
-  return grid_around_points(ends, spacing_mm, "compounding");
+  return box.grid(spacing_mm, "compounding");
 }
 
 }  // namespace sonoslice

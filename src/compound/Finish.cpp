@@ -22,10 +22,6 @@ struct Known {
     const Accumulator& a = g.cells[i];
     return mode == Mode::Max ? double(a.value) : double(a.value) / double(a.weight);
   }
-  bool inside(int x, int y, int z) const {
-    return x >= 0 && y >= 0 && z >= 0 && x < g.nx && y < g.ny && z < g.nz;
-  }
-  int64_t offset(int x, int y, int z) const { return (int64_t(z) * g.ny + y) * g.nx + x; }
 };
 
 /// One element, with its weights precomputed.
@@ -43,8 +39,8 @@ bool fill_weighted(const Known& kn, const Element& e, int x, int y, int z, doubl
   for (int dz = -r; dz <= r; ++dz)
     for (int dy = -r; dy <= r; ++dy)
       for (int dx = -r; dx <= r; ++dx) {
-        if (!kn.inside(x + dx, y + dy, z + dz)) continue;
-        const int64_t i = kn.offset(x + dx, y + dy, z + dz);
+        if (!kn.g.contains(x + dx, y + dy, z + dz)) continue;
+        const int64_t i = kn.g.offset(x + dx, y + dy, z + dz);
         if (!kn.is_known(i)) continue;
         ++known;
         double w = e.weight[((dz + r) * n + (dy + r)) * n + (dx + r)];
@@ -65,8 +61,8 @@ bool fill_nearest(const Known& kn, const Element& e, int x, int y, int z, double
     for (int dz = -radius; dz <= radius; ++dz)
       for (int dy = -radius; dy <= radius; ++dy)
         for (int dx = -radius; dx <= radius; ++dx) {
-          if (!kn.inside(x + dx, y + dy, z + dz)) continue;
-          const int64_t i = kn.offset(x + dx, y + dy, z + dz);
+          if (!kn.g.contains(x + dx, y + dy, z + dz)) continue;
+          const int64_t i = kn.g.offset(x + dx, y + dy, z + dz);
           if (kn.is_known(i)) {
             ++known;
             sum += kn.value(i);
@@ -90,8 +86,8 @@ constexpr int kStickDirections[13][3] = {{1, 0, 0},  {0, 1, 0},  {0, 0, 1},  {1,
 int walk_to_known(const Known& kn, int x, int y, int z, const int* d, int limit, int64_t* found) {
   for (int j = 1; j <= limit; ++j) {
     const int px = x + j * d[0], py = y + j * d[1], pz = z + j * d[2];
-    if (!kn.inside(px, py, pz)) return 0;
-    const int64_t i = kn.offset(px, py, pz);
+    if (!kn.g.contains(px, py, pz)) return 0;
+    const int64_t i = kn.g.offset(px, py, pz);
     if (kn.is_known(i)) {
       *found = i;
       return j;
@@ -186,7 +182,7 @@ std::vector<std::pair<int, int>> reachable_ranges(const Known& kn, int reach) {
   backend::parallel_for(g.nz, [&](int64_t z) {
     for (int y = 0; y < g.ny; ++y) {
       auto& r = rows[size_t(z) * g.ny + y];
-      const int64_t base = kn.offset(0, y, int(z));
+      const int64_t base = kn.g.offset(0, y, int(z));
       for (int x = 0; x < g.nx; ++x)
         if (kn.is_known(base + x)) {
           r.first = std::min(r.first, x);
@@ -232,7 +228,7 @@ void finish_typed(const AccumulatorView& g, Mode mode,
   backend::parallel_for(g.nz, [&](int64_t z64) {
     const int z = int(z64);
     for (int y = 0; y < g.ny; ++y) {
-      const int64_t base = kn.offset(0, y, z);
+      const int64_t base = kn.g.offset(0, y, z);
       const std::pair<int, int> range =
           elements.empty() ? std::pair<int, int>{1, 0} : ranges[size_t(z) * g.ny + y];
       for (int x = 0; x < g.nx; ++x) {

@@ -1,18 +1,16 @@
 #include "sonoslice/geometry/Pose.h"
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <sstream>
 
+#include "../core/Text.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
 
 WorldFrame parse_world_frame(const std::string& name) {
-  std::string upper = name;
-  std::transform(upper.begin(), upper.end(), upper.begin(),
-                 [](unsigned char c) { return char(std::toupper(c)); });
+  const std::string upper = text::upper(name);
   if (upper == "LPS") return WorldFrame::LPS;
   if (upper == "RAS") return WorldFrame::RAS;
   throw InputError("world frame '" + name + "': expected LPS or RAS");

@@ -4,10 +4,10 @@
 #include <sstream>
 
 #include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/Math.h"
 
 namespace sonoslice {
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 // One image larger than this many pixels is a typo, not a probe (2^31: also the kernels' limit).
 constexpr int64_t kMaxPixelsPerImage = int64_t(1) << 31;
 

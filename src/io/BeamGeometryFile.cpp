@@ -1,10 +1,8 @@
 #include "sonoslice/io/BeamGeometryFile.h"
 
-#include <cerrno>
-#include <cstring>
-#include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "JsonFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 
@@ -28,14 +26,7 @@ constexpr Key kKeys[] = {
 }  // namespace
 
 BeamGeometry read_beam_geometry(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw FileError("cannot open beam geometry '" + path + "': " + std::strerror(errno));
-  nlohmann::json root;
-  try {
-    root = nlohmann::json::parse(in);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw FileError("beam geometry '" + path + "': invalid JSON (" + e.what() + ")");
-  }
+  nlohmann::json root = read_json_file(path, "beam geometry", OpenErrorReason::Append);
   if (!root.is_object()) throw InputError("beam geometry '" + path + "': expected a JSON object");
   BeamGeometry g;
   for (auto it = root.begin(); it != root.end(); ++it) {

@@ -1,7 +1,6 @@
 // The ITK edge of sonoslice: medical image formats in and out, geometry included.
 #include "ItkImageIO.h"
 
-#include <algorithm>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -25,6 +24,7 @@
 #include <itkOutputWindow.h>
 
 #include "NiftiData.h"
+#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -36,12 +36,8 @@ class WarningWindow : public itk::OutputWindow {
  public:
   itkNewMacro(WarningWindow);
   void DisplayText(const char* text) override {
-    std::string t = text ? text : "";
     // "WARNING: In /path/file.cxx, line N\nClass (0x...): message" → "message"
-    const size_t colon = t.find("): ");
-    if (colon != std::string::npos) t = t.substr(colon + 3);
-    std::replace(t.begin(), t.end(), '\n', ' ');
-    while (!t.empty() && t.back() == ' ') t.pop_back();
+    const std::string t = text::one_line_message(text ? text : "", /*drop_location=*/true);
     if (!t.empty()) warn("ITK: " + t);
   }
 };
@@ -52,12 +48,7 @@ class CerrCapture {
  public:
   CerrCapture() : old_(std::cerr.rdbuf(text_.rdbuf())) {}
   ~CerrCapture() { std::cerr.rdbuf(old_); }
-  std::string text() const {
-    std::string t = text_.str();
-    std::replace(t.begin(), t.end(), '\n', ' ');
-    while (!t.empty() && t.back() == ' ') t.pop_back();
-    return t;
-  }
+  std::string text() const { return text::one_line_message(text_.str()); }
 
  private:
   std::stringstream text_;
@@ -79,10 +70,7 @@ void register_factories() {
 
 // ITK's exception text is several lines with source locations; keep its description.
 std::string describe(const itk::ExceptionObject& e) {
-  std::string d = e.GetDescription();
-  std::replace(d.begin(), d.end(), '\n', ' ');
-  while (!d.empty() && d.back() == ' ') d.pop_back();
-  return d;
+  return text::one_line_message(e.GetDescription());
 }
 
 PixelType to_pixel_type(itk::IOComponentEnum component, const std::string& path) {

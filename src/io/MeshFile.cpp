@@ -3,6 +3,7 @@
 
 #include <filesystem>
 
+#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/VolumeFile.h"
@@ -59,13 +60,8 @@ class CollectingWindow : public vtkOutputWindow {
 
  private:
   static std::string clean(const char* text) {
-    std::string s = text ? text : "";
     // "ERROR: In /path/x.cxx, line N\nvtkClass (0x...): message" → "message"
-    const size_t colon = s.find("): ");
-    if (colon != std::string::npos) s = s.substr(colon + 3);
-    for (char& c : s)
-      if (c == '\n') c = ' ';
-    while (!s.empty() && s.back() == ' ') s.pop_back();
+    const std::string s = text::one_line_message(text ? text : "", /*drop_location=*/true);
     return s.empty() ? s : s + "; ";
   }
 };
@@ -91,7 +87,9 @@ struct WindowScope {
   }
 };
 
-std::string trimmed(const std::string& s) { return s.size() > 2 ? s.substr(0, s.size() - 2) : s; }
+std::string trimmed(const std::string& s) {
+  return s.size() > 2 ? s.substr(0, s.size() - 2) : s;
+}
 
 vtkSmartPointer<vtkAlgorithm> reader_for(const std::string& path, const std::string& ext) {
   if (ext == ".vtk") {
@@ -163,14 +161,16 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
   polys->InitTraversal();
   while (polys->GetNextCell(ids)) {
     if (ids->GetNumberOfIds() != 3) continue;
-    mesh.triangles.push_back({int32_t(ids->GetId(0)), int32_t(ids->GetId(1)), int32_t(ids->GetId(2))});
+    mesh.triangles.push_back(
+        {int32_t(ids->GetId(0)), int32_t(ids->GetId(1)), int32_t(ids->GetId(2))});
   }
   if (mesh.triangles.empty()) {
     if (!scope.window->warnings.empty())  // what VTK said is the likelier story
       throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->warnings));
     throw InputError("mesh '" + path + "': no triangles");
   }
-  if (!scope.window->warnings.empty()) warn("mesh '" + path + "': VTK: " + trimmed(scope.window->warnings));
+  if (!scope.window->warnings.empty())
+    warn("mesh '" + path + "': VTK: " + trimmed(scope.window->warnings));
   if (frame == WorldFrame::RAS) mesh.transform(pose_to_lps(Pose::identity(), WorldFrame::RAS));
   mesh.validate();
   return mesh;

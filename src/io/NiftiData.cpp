@@ -7,6 +7,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "ByteOrder.h"
 #include "MappedFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/VolumeFile.h"
@@ -80,11 +81,6 @@ std::optional<PixelType> pixel_type_of(int datatype) {
     default:
       return std::nullopt;
   }
-}
-
-void byteswap(void* data, size_t count, size_t size) {
-  auto* p = static_cast<unsigned char*>(data);
-  for (size_t i = 0; i < count; ++i, p += size) std::reverse(p, p + size);
 }
 
 }  // namespace

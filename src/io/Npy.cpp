@@ -7,6 +7,7 @@
 #include <regex>
 #include <sstream>
 
+#include "ByteOrder.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 
@@ -60,13 +61,8 @@ std::string descr_of(PixelType type) {
   return "<f4";
 }
 
-struct Header {
-  NpyArray array;
-  bool swap = false;
-  size_t data_offset = 0;
-};
-
-Header parse_header(std::ifstream& in, const std::string& path) {
+// The header's dtype, shape, order, data offset and byte order (no data yet).
+NpyArray parse_header(std::ifstream& in, const std::string& path) {
   char preamble[10];
   if (!in.read(preamble, 10) || std::memcmp(preamble, kMagic, 6) != 0)
     throw FileError("'" + path + "': not a .npy file (bad magic)");
@@ -91,8 +87,8 @@ Header parse_header(std::ifstream& in, const std::string& path) {
   if (!in.read(&dict[0], std::streamsize(header_len)))
     throw FileError("'" + path + "': truncated .npy header");
 
-  Header h;
-  h.data_offset = offset + header_len;
+  NpyArray a;
+  a.data_offset = offset + header_len;
   std::smatch m;
   static const std::regex descr_re(R"('descr'\s*:\s*'([^']*)')");
   static const std::regex fortran_re(R"('fortran_order'\s*:\s*(True|False))");
@@ -102,7 +98,7 @@ Header parse_header(std::ifstream& in, const std::string& path) {
   const std::string descr = m[1];
   if (!std::regex_search(dict, m, fortran_re))
     throw FileError("'" + path + "': corrupt .npy header (no fortran_order)");
-  h.array.fortran_order = m[1] == "True";
+  a.fortran_order = m[1] == "True";
   if (!std::regex_search(dict, m, shape_re))
     throw FileError("'" + path + "': corrupt .npy header (no shape)");
   std::stringstream dims(m[1].str());
@@ -113,17 +109,10 @@ Header parse_header(std::ifstream& in, const std::string& path) {
     char* end = nullptr;
     const long long v = std::strtoll(item.c_str(), &end, 10);
     if (*end != '\0' || v < 0) throw FileError("'" + path + "': corrupt .npy shape");
-    h.array.shape.push_back(v);
+    a.shape.push_back(v);
   }
-  h.array.type = parse_descr(descr, &h.swap, path);
-  h.array.data_offset = h.data_offset;
-  h.array.swapped_on_disk = h.swap;
-  return h;
-}
-
-void byteswap(void* data, size_t count, size_t size) {
-  auto* p = static_cast<unsigned char*>(data);
-  for (size_t i = 0; i < count; ++i, p += size) std::reverse(p, p + size);
+  a.type = parse_descr(descr, &a.swapped_on_disk, path);
+  return a;
 }
 
 }  // namespace
@@ -134,32 +123,43 @@ int64_t NpyArray::element_count() const {
   return n;
 }
 
+std::vector<int64_t> npy_element_strides(const NpyArray& a) {
+  std::vector<int64_t> strides(a.shape.size());
+  int64_t stride = 1;
+  if (a.fortran_order) {
+    for (size_t i = 0; i < a.shape.size(); ++i) strides[i] = stride, stride *= a.shape[i];
+  } else {
+    for (size_t i = a.shape.size(); i-- > 0;) strides[i] = stride, stride *= a.shape[i];
+  }
+  return strides;
+}
+
 NpyArray read_npy_header(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw FileError("cannot open '" + path + "': " + std::strerror(errno));
-  return parse_header(in, path).array;
+  return parse_header(in, path);
 }
 
 NpyArray read_npy(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw FileError("cannot open '" + path + "': " + std::strerror(errno));
-  Header h = parse_header(in, path);
-  const size_t item = pixel_size(h.array.type);
-  const uint64_t bytes = uint64_t(h.array.element_count()) * item;
+  NpyArray a = parse_header(in, path);
+  const size_t item = pixel_size(a.type);
+  const uint64_t bytes = uint64_t(a.element_count()) * item;
   in.seekg(0, std::ios::end);
   const uint64_t file_size = uint64_t(in.tellg());
-  if (file_size < h.data_offset + bytes) {
+  if (file_size < a.data_offset + bytes) {
     std::ostringstream s;
-    s << "'" << path << "': truncated .npy file (" << file_size - h.data_offset
+    s << "'" << path << "': truncated .npy file (" << file_size - a.data_offset
       << " data bytes, the header announces " << bytes << ")";
     throw FileError(s.str());
   }
-  h.array.data = aligned_buffer(bytes, path);
-  in.seekg(std::streamoff(h.data_offset));
-  if (!in.read(static_cast<char*>(h.array.data.get()), std::streamsize(bytes)))
+  a.data = aligned_buffer(bytes, path);
+  in.seekg(std::streamoff(a.data_offset));
+  if (!in.read(static_cast<char*>(a.data.get()), std::streamsize(bytes)))
     throw FileError("'" + path + "': read error");
-  if (h.swap) byteswap(h.array.data.get(), size_t(h.array.element_count()), item);
-  return std::move(h.array);
+  if (a.swapped_on_disk) byteswap(a.data.get(), size_t(a.element_count()), item);
+  return a;
 }
 
 NpyWriter::NpyWriter(const std::string& path, PixelType type, const std::vector<int64_t>& shape)

@@ -15,13 +15,8 @@
 // enumerated value), we stop with an InputError naming the file, element and attribute.
 #include "sonoslice/io/PlusConfig.h"
 
-#include <cctype>
-#include <cerrno>
-#include <cmath>
-#include <cstdlib>
 #include <filesystem>
 #include <set>
-#include <sstream>
 
 #ifdef SONOSLICE_HAVE_PUGIXML
 #include <pugixml.hpp>
@@ -31,6 +26,19 @@
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
+
+std::optional<VolumeGrid> PlusReconstructionConfig::output_grid() const {
+  if (!output_spacing_mm || !output_origin_mm || !output_extent) return std::nullopt;
+  const Vec3& spacing = *output_spacing_mm;
+  const std::array<int, 6>& e = *output_extent;
+  VolumeGrid grid;
+  for (int a = 0; a < 3; ++a) {
+    grid.spacing_mm[a] = spacing[a];
+    grid.origin_mm[a] = (*output_origin_mm)[a] + e[2 * a] * spacing[a];
+    grid.dims[a] = int64_t(e[2 * a + 1]) - e[2 * a] + 1;
+  }
+  return grid;
+}
 
 #ifndef SONOSLICE_HAVE_PUGIXML
 

@@ -520,11 +520,8 @@ DataLayout read_nrrd_header(InputFile& in, PlusSequence* seq, FrameFieldSink* si
   return layout;
 }
 
+// The caller has checked that the file holds `bytes` more bytes.
 void read_raw(InputFile& in, uint8_t* dst, uint64_t bytes) {
-  const uint64_t available = in.size() > in.tell() ? in.size() - in.tell() : 0;
-  if (available < bytes)
-    throw FileError(in.path() + ": truncated: " + std::to_string(bytes) +
-                    " bytes of pixel data expected, the file has " + std::to_string(available));
   uint64_t done = 0;
   while (done < bytes) {
     const size_t want = size_t(std::min<uint64_t>(bytes - done, uint64_t(1) << 30));
@@ -862,7 +859,8 @@ PlusSequence read_plus_sequence(const std::string& path) {
   const DataLayout layout =
       nrrd ? read_nrrd_header(in, &seq, &sink) : read_meta_header(in, &seq, &sink);
 
-  orientation_flips(seq.orientation, path);  // validates before any pixel is read
+  // Validates the orientation before any pixel is read; the flips apply once they are.
+  const Flips flips = orientation_flips(seq.orientation, path);
   seq.width = layout.width;
   seq.height = layout.height;
   seq.frame_count = layout.frames;
@@ -891,7 +889,6 @@ PlusSequence read_plus_sequence(const std::string& path) {
   validate_frame_fields(seq);
 
   read_pixels(layout, in, &seq);
-  const Flips flips = orientation_flips(seq.orientation, path);
   const size_t frame_bytes = seq.frame_bytes();
   if (frame_bytes > 0)
     for (int f = 0; f < seq.frame_count; ++f)

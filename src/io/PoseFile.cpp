@@ -12,6 +12,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "../core/Text.h"
+#include "JsonFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
@@ -23,10 +25,7 @@ std::string lower_extension(const std::string& path) {
   const size_t dot = path.find_last_of('.');
   const size_t slash = path.find_last_of('/');
   if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return "";
-  std::string ext = path.substr(dot);
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return char(std::tolower(c)); });
-  return ext;
+  return text::lower(path.substr(dot));
 }
 
 std::string shape_string(const std::vector<int64_t>& shape) {
@@ -37,19 +36,20 @@ std::string shape_string(const std::vector<int64_t>& shape) {
   return s.str();
 }
 
+// A 4x4 (16 numbers) or 3x4 (12, last row 0 0 0 1) row-major matrix.
+Mat4 matrix_from_row_major(const std::vector<double>& values) {
+  Mat4 m;
+  for (size_t i = 0; i < values.size(); ++i) m.m[i / 4][i % 4] = values[i];
+  return m;
+}
+
 std::vector<Pose> poses_from_npy(const std::string& path) {
   const NpyArray a = read_npy(path);
   if (a.type != PixelType::Float32 && a.type != PixelType::Float64)
     throw InputError("poses '" + path + "': dtype " + pixel_type_name(a.type) +
                      " (expected float32 or float64)");
   // Element (r, c) of pose n, honouring C or Fortran order.
-  std::vector<int64_t> strides(a.shape.size());
-  int64_t stride = 1;
-  if (a.fortran_order) {
-    for (size_t i = 0; i < a.shape.size(); ++i) strides[i] = stride, stride *= a.shape[i];
-  } else {
-    for (size_t i = a.shape.size(); i-- > 0;) strides[i] = stride, stride *= a.shape[i];
-  }
+  const std::vector<int64_t> strides = npy_element_strides(a);
   auto value = [&](int64_t offset) {
     return a.type == PixelType::Float64 ? static_cast<const double*>(a.data.get())[offset]
                                         : double(static_cast<const float*>(a.data.get())[offset]);
@@ -111,22 +111,13 @@ std::vector<Pose> poses_from_text(const std::string& path) {
       throw InputError("poses '" + path + "': line " + std::to_string(line_number) + " has " +
                        std::to_string(values.size()) +
                        " numbers (expected 16 for a 4x4 or 12 for a 3x4 row-major matrix)");
-    Pose pose;
-    for (size_t i = 0; i < values.size(); ++i) pose.m[i / 4][i % 4] = values[i];
-    poses.push_back(pose);
+    poses.push_back(matrix_from_row_major(values));
   }
   return poses;
 }
 
 std::vector<Pose> poses_from_json(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw FileError("cannot open poses '" + path + "': " + std::strerror(errno));
-  nlohmann::json root;
-  try {
-    root = nlohmann::json::parse(in);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw FileError("poses '" + path + "': invalid JSON (" + e.what() + ")");
-  }
+  nlohmann::json root = read_json_file(path, "poses", OpenErrorReason::Append);
   if (!root.is_object() || !root.contains("poses") || !root["poses"].is_array())
     throw InputError("poses '" + path + "': expected {\"poses\": [[16 numbers], ...]}");
   for (auto it = root.begin(); it != root.end(); ++it)
@@ -180,14 +171,9 @@ Mat4 read_matrix(const std::string& text, const std::string& what) {
   std::vector<double> values;
   double v;
   while (in >> v) values.push_back(v);
-  if (in.eof() && (values.size() == 16 || values.size() == 12)) {
-    Mat4 m;
-    for (size_t i = 0; i < values.size(); ++i) m.m[i / 4][i % 4] = values[i];
-    for (int r = 0; r < 4; ++r)
-      for (int c = 0; c < 4; ++c)
-        if (!std::isfinite(m.m[r][c])) throw InputError(what + ": non-finite matrix element");
-    return m;
-  }
+  // operator>> never yields inf or nan, so these numbers are finite.
+  if (in.eof() && (values.size() == 16 || values.size() == 12))
+    return matrix_from_row_major(values);
   const std::vector<Mat4> m = read_matrices(text);
   if (m.size() != 1)
     throw InputError(what + " '" + text + "': expected one 4x4 matrix, the file has " +

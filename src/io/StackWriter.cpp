@@ -106,7 +106,8 @@ class PngStackWriter : public StackWriter {
     std::vector<uint8_t> png(rgb ? 0 : pixels);
     for (int64_t i = 0; i < n; ++i) {
       const unsigned char* image = chunk_.data() + size_t(i) * image_bytes(spec_);
-      if (!rgb) apply_window(image, spec_.type, pixels, window_->first, window_->second, png.data());
+      if (!rgb)
+        apply_window(image, spec_.type, pixels, window_->first, window_->second, png.data());
       char name[32];
       std::snprintf(name, sizeof name, "img_%0*lld.png", digits_,
                     static_cast<long long>(first + i));
@@ -162,6 +163,11 @@ uint64_t stack_memory_bytes(const std::string& path, const StackSpec& spec, int6
   const uint64_t one = image_bytes(spec);
   return stack_format(path) == StackFormat::ItkImage ? one * uint64_t(spec.count)
                                                      : one * uint64_t(std::min(chunk, spec.count));
+}
+
+int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes) {
+  return std::max<int64_t>(
+      1, std::min<int64_t>(count, int64_t(bytes / std::max<size_t>(image_bytes, 1))));
 }
 
 void apply_window(const void* images, PixelType type, size_t pixels, double level, double width,

@@ -1,10 +1,11 @@
 #include "sonoslice/io/SurfaceConfig.h"
 
+#include <algorithm>
 #include <filesystem>
-#include <fstream>
 
 #include <nlohmann/json.hpp>
 
+#include "JsonFile.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -12,7 +13,7 @@ namespace sonoslice {
 std::array<uint8_t, 3> default_label_color(int label) {
   // fan-slicer's LUS palette first, then well-separated hues.
   static const std::array<uint8_t, 3> palette[] = {
-      {150, 0, 0},   {0, 200, 0},   {0, 120, 180}, {200, 0, 0},   {230, 160, 0}, {160, 0, 200},
+      {150, 0, 0},   {0, 200, 0},     {0, 120, 180}, {200, 0, 0},  {230, 160, 0},   {160, 0, 200},
       {0, 200, 200}, {255, 110, 180}, {120, 120, 0}, {90, 60, 30}, {255, 255, 255}, {80, 80, 255}};
   const int n = int(sizeof(palette) / sizeof(palette[0]));
   return palette[(std::max(label, 1) - 1) % n];
@@ -20,14 +21,7 @@ std::array<uint8_t, 3> default_label_color(int label) {
 
 std::vector<SurfaceModel> read_fanslicer_models(const std::string& config_path,
                                                 const std::string& mesh_dir) {
-  std::ifstream in(config_path);
-  if (!in) throw FileError("cannot open fan-slicer config '" + config_path + "'");
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(in);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw FileError("fan-slicer config '" + config_path + "': invalid JSON (" + e.what() + ")");
-  }
+  nlohmann::json j = read_json_file(config_path, "fan-slicer config");
   const std::string where = "fan-slicer config '" + config_path + "'";
   if (!j.is_object() || !j.contains("models") || !j["models"].is_object() ||
       !j["models"].contains("files") || !j["models"]["files"].is_array())
@@ -40,7 +34,8 @@ std::vector<SurfaceModel> read_fanslicer_models(const std::string& config_path,
     if (!flags.is_array() || flags.size() != files.size())
       throw InputError(where + ": \"simulation_models\" must have one flag per model file (" +
                        std::to_string(files.size()) + ")");
-    for (size_t k = 0; k < files.size(); ++k) enabled[k] = flags[k].is_number() && flags[k].get<double>() != 0;
+    for (size_t k = 0; k < files.size(); ++k)
+      enabled[k] = flags[k].is_number() && flags[k].get<double>() != 0;
   }
   if (sim.contains("colors") && (!sim["colors"].is_array() || sim["colors"].size() != files.size()))
     throw InputError(where + ": \"colors\" must have one [r, g, b] per model file");
@@ -57,7 +52,8 @@ std::vector<SurfaceModel> read_fanslicer_models(const std::string& config_path,
       const auto& c = sim["colors"][k];
       if (!c.is_array() || c.size() != 3)
         throw InputError(where + ": colour of '" + m.name + "' must be [r, g, b]");
-      for (int i = 0; i < 3; ++i) m.color[size_t(i)] = uint8_t(std::clamp(c[size_t(i)].get<double>(), 0.0, 255.0));
+      for (int i = 0; i < 3; ++i)
+        m.color[size_t(i)] = uint8_t(std::clamp(c[size_t(i)].get<double>(), 0.0, 255.0));
     }
     std::error_code ec;
     if (!std::filesystem::is_regular_file(m.path, ec))

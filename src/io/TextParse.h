@@ -1,7 +1,7 @@
 #pragma once
 // Internal: the small string and number helpers the text-based readers share (PLUS sequence
-// headers and configuration XML attributes). Numbers must use the whole token; errors are the
-// caller's, which knows the file and the field.
+// headers and configuration XML attributes), and the tidying of ITK/VTK messages. Numbers must
+// use the whole token; errors are the caller's, which knows the file and the field.
 #include <cctype>
 #include <cerrno>
 #include <cmath>
@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "../core/Text.h"
 #include "sonoslice/geometry/Math.h"
 
 namespace sonoslice {
@@ -21,16 +22,6 @@ inline std::string trim(const std::string& s) {
   while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
   while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
   return s.substr(b, e - b);
-}
-
-inline std::string lower(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
-inline std::string upper(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  return s;
 }
 
 inline bool iequals(const std::string& a, const std::string& b) {
@@ -48,6 +39,20 @@ inline std::vector<std::string> split_ws(const std::string& s) {
   std::string token;
   while (in >> token) out.push_back(token);
   return out;
+}
+
+/// A multi-line ITK/VTK message as one line: newlines become spaces, trailing spaces go. With
+/// `drop_location`, everything up to the first "): " goes first
+/// ("ERROR: In /path/x.cxx, line N\nClass (0x...): message" → "message").
+inline std::string one_line_message(std::string s, bool drop_location = false) {
+  if (drop_location) {
+    const size_t colon = s.find("): ");
+    if (colon != std::string::npos) s = s.substr(colon + 3);
+  }
+  for (char& c : s)
+    if (c == '\n') c = ' ';
+  while (!s.empty() && s.back() == ' ') s.pop_back();
+  return s;
 }
 
 /// A value quoted for an error message, shortened when long.

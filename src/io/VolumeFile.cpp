@@ -5,11 +5,12 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
+#include "../core/Text.h"
+#include "JsonFile.h"
 #include "MappedFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
@@ -30,16 +31,6 @@ namespace {
               "': this sonoslice was built without ITK; only .npy volumes are available");
 }
 #endif
-
-nlohmann::json read_json_file(const std::string& path, const std::string& what) {
-  std::ifstream in(path);
-  if (!in) throw FileError("cannot open " + what + " '" + path + "'");
-  try {
-    return nlohmann::json::parse(in);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw FileError(what + " '" + path + "': invalid JSON (" + e.what() + ")");
-  }
-}
 
 template <size_t N>
 std::array<double, N> json_numbers(const nlohmann::json& j, const std::string& where) {
@@ -62,19 +53,9 @@ Volume permuted(const NpyArray& a, const int axis_of[3], const VolumeGrid& grid_
   for (int d = 0; d < 3; ++d) g.dims[axis_of[d]] = a.shape[d];
   Volume v = Volume::allocate(a.type, g);
   // Strides of the source array per volume axis (in elements).
+  const std::vector<int64_t> strides = npy_element_strides(a);
   int64_t src_stride[3];
-  int64_t stride = 1;
-  for (int d = 2; d >= 0; --d) {
-    src_stride[axis_of[d]] = stride;
-    stride *= a.shape[d];
-  }
-  if (a.fortran_order) {
-    stride = 1;
-    for (int d = 0; d < 3; ++d) {
-      src_stride[axis_of[d]] = stride;
-      stride *= a.shape[d];
-    }
-  }
+  for (int d = 0; d < 3; ++d) src_stride[axis_of[d]] = strides[size_t(d)];
   const size_t item = pixel_size(a.type);
   const auto* src = static_cast<const unsigned char*>(a.data.get());
   auto* dst = static_cast<unsigned char*>(v.data());
@@ -207,9 +188,7 @@ bool built_with_itk() {
 }
 
 std::string file_extension(const std::string& path) {
-  std::string name = fs::path(path).filename().string();
-  std::transform(name.begin(), name.end(), name.begin(),
-                 [](unsigned char c) { return char(std::tolower(c)); });
+  const std::string name = text::lower(fs::path(path).filename().string());
   for (const char* compound : {".nii.gz", ".tar.gz"})
     if (name.size() > std::strlen(compound) &&
         name.compare(name.size() - std::strlen(compound), std::string::npos, compound) == 0)

@@ -10,8 +10,6 @@
 namespace sonoslice {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-
 // ---- deterministic noise: a hash of integer lattice coordinates, never a global RNG, so the
 // phantom is identical for any thread count.
 inline uint32_t hash3(uint32_t x, uint32_t y, uint32_t z, uint32_t seed) {
@@ -77,16 +75,20 @@ inline double dome_z(double x, double y) {
 
 enum class Clip { None, BelowDiaphragm, AboveDiaphragm };
 
-struct Shape {
-  enum Kind { Ellipsoid, Capsule, Cylinder } kind;
-  double p[3];    // ellipsoid/cylinder centre, capsule start
-  double q[3];    // ellipsoid radii; cylinder (rx, ry, unused); capsule end
-  double radius;  // capsule radius
-  double zlo, zhi;
-  double lo[3], hi[3];  // bounding box
+// What a voxel is made of: its label, mean HU, noise, and whether it gets smooth texture.
+struct Tissue {
   uint8_t label;
   double hu, noise_sd;
   bool textured;
+};
+
+struct Shape {
+  enum Kind { Ellipsoid, Capsule, Cylinder } kind;
+  double p[3];          // ellipsoid/cylinder centre, capsule start
+  double q[3];          // ellipsoid radii; cylinder (rx, ry, unused); capsule end
+  double radius;        // capsule radius
+  double lo[3], hi[3];  // bounding box
+  Tissue tissue;
   Clip clip;
   double gas_below_y = -1e9;  // content anterior of this y is gas (a supine patient's stomach)
 
@@ -129,10 +131,7 @@ Shape ellipsoid(Vec3 c, Vec3 r, uint8_t label, double hu, double sd, bool textur
     s.lo[k] = c[k] - r[k];
     s.hi[k] = c[k] + r[k];
   }
-  s.label = label;
-  s.hu = hu;
-  s.noise_sd = sd;
-  s.textured = textured;
+  s.tissue = {label, hu, sd, textured};
   s.clip = clip;
   return s;
 }
@@ -155,9 +154,7 @@ Shape capsule(Vec3 a, Vec3 b, double radius, uint8_t label, double hu, double sd
     s.hi[k] = std::max(a[k], b[k]) + radius;
   }
   s.radius = radius;
-  s.label = label;
-  s.hu = hu;
-  s.noise_sd = sd;
+  s.tissue = {label, hu, sd, false};
   s.clip = Clip::None;
   return s;
 }
@@ -177,7 +174,7 @@ bool inside_liver(const Vec3& p) {
 void add_branches(std::vector<Shape>& s) {
   std::vector<Shape> parents;
   for (const Shape& x : s)
-    if (x.kind == Shape::Capsule && x.label == kHepaticVessel) parents.push_back(x);
+    if (x.kind == Shape::Capsule && x.tissue.label == kHepaticVessel) parents.push_back(x);
   uint32_t seed = 11;
   for (int generation = 0; generation < 2; ++generation) {
     std::vector<Shape> children;
@@ -197,7 +194,7 @@ void add_branches(std::vector<Shape>& s) {
         while (l > 4 && !inside_liver(start + l * dir)) l *= 0.8;
         if (l <= 4 || !inside_liver(start)) continue;
         children.push_back(capsule(start, start + l * dir, std::max(1.2, 0.65 * parent.radius),
-                                   kHepaticVessel, parent.hu, 8));
+                                   kHepaticVessel, parent.tissue.hu, 8));
       }
     }
     s.insert(s.end(), children.begin(), children.end());
@@ -282,23 +279,19 @@ std::vector<Shape> anatomy() {
   return s;
 }
 
-// Layers every voxel starts from: air, skin, fat, muscle wall, then the cavity (visceral fat
-// below the diaphragm, lungs above it).
-struct Tissue {
-  uint8_t label;
-  double hu, noise_sd;
-  bool textured;
-};
+// Inside the muscle wall: where the organs are.
+inline bool inside_cavity(double x, double y, const BodySection& s) {
+  return ellipse_level(x, y, s.a - kWallDepth, s.b - kWallDepth * 0.85) <= 1;
+}
 
-inline Tissue base_tissue(double x, double y, double z) {
-  const BodySection s = body_at(z);
+// Layers every voxel starts from: air, skin, fat, muscle wall, then the cavity (visceral fat
+// below the diaphragm, lungs above it). `s` is the body's section at z.
+inline Tissue base_tissue(double x, double y, double z, const BodySection& s) {
   if (y > kBackY || ellipse_level(x, y, s.a, s.b) > 1) return {kAir, -1000, 4, false};
   if (ellipse_level(x, y, s.a - 2.5, s.b - 2.5) > 1) return {kSoftTissue, 30, 10, false};  // skin
   if (ellipse_level(x, y, s.a - kFatDepth, s.b - kFatDepth * 0.8) > 1)
     return {kFat, -100, 10, false};
-  const double wall_a = s.a - kWallDepth, wall_b = s.b - kWallDepth * 0.85;
-  const double level = ellipse_level(x, y, wall_a, wall_b);
-  if (level > 1) {
+  if (!inside_cavity(x, y, s)) {
     // Ribs: 9 mm slabs every 28 mm above z = 20, in the wall, except the anterior third.
     const double angle = std::atan2(y, x) * 180 / kPi;  // -90 = anterior
     if (z > 20 && std::fmod(z + 1000, 28.0) < 9 && std::fabs(angle + 90) > 50)
@@ -349,6 +342,7 @@ Phantom make_phantom(PhantomSize size) {
 
   backend::parallel_for(grid.dims[2], [&](int64_t k) {
     const double z = grid.origin_mm[2] + k * grid.spacing_mm[2];
+    const BodySection body = body_at(z);
     std::vector<const Shape*> active;  // shapes that reach this slice
     for (const Shape& s : shapes)
       if (z >= s.lo[2] && z <= s.hi[2]) active.push_back(&s);
@@ -356,21 +350,20 @@ Phantom make_phantom(PhantomSize size) {
       const double y = grid.origin_mm[1] + j * grid.spacing_mm[1];
       for (int64_t i = 0; i < nx; ++i) {
         const double x = grid.origin_mm[0] + i * grid.spacing_mm[0];
-        Tissue t = base_tissue(x, y, z);
+        Tissue t = base_tissue(x, y, z, body);
         if (t.label != kAir) {
-          const BodySection body = body_at(z);
-          const bool in_cavity =
-              ellipse_level(x, y, body.a - kWallDepth, body.b - kWallDepth * 0.85) <= 1;
+          const bool in_cavity = inside_cavity(x, y, body);
           const Shape* hit = nullptr;
           for (const Shape* s : active) {
             // Organs stay inside the cavity; the spine and paraspinal muscles may cross the wall.
-            if (s->label != kBone && s->label != kSoftTissue && !in_cavity) continue;
+            const uint8_t label = s->tissue.label;
+            if (label != kBone && label != kSoftTissue && !in_cavity) continue;
             if (s->contains(x, y, z)) hit = s;
           }
-          if (hit) t = {hit->label, hit->hu, hit->noise_sd, hit->textured};
+          if (hit) t = hit->tissue;
           // Gas rises anteriorly (towards -y) in a supine patient: a cap in the stomach, pockets
           // in the bowel.
-          if (hit && hit->label == kBowel &&
+          if (hit && hit->tissue.label == kBowel &&
               (y < hit->gas_below_y ||
                (hit->gas_below_y < -1e8 && smooth_noise(x * 2, y * 2, z * 2) > 0.3)))
             t.hu = -950;
@@ -399,7 +392,7 @@ std::vector<Pose> phantom_random_poses(size_t count, uint64_t seed) {
     const double z = uniform(-150, 150);
     const BodySection s = body_at(z);
     const double x = uniform(-s.a, s.a), y = uniform(-s.b, s.b);
-    if (ellipse_level(x, y, s.a - kWallDepth, s.b - kWallDepth * 0.85) > 1) continue;
+    if (!inside_cavity(x, y, s)) continue;
     // Uniform random rotation from a uniform unit quaternion (Shoemake).
     const double u1 = uniform(0, 1), u2 = uniform(0, 2 * kPi), u3 = uniform(0, 2 * kPi);
     const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
@@ -439,14 +432,8 @@ std::vector<Pose> phantom_surface_poses(size_t count, double face_y_mm) {
     // Even poses: transverse (x̂ in the axial plane); odd: longitudinal (x̂ along the body).
     const Vec3 x_hat = n % 2 == 0 ? tangent : along;
     const Vec3 y_hat = inward;
-    const Vec3 z_hat = cross(x_hat, y_hat);
-    Mat3 r;
-    for (int k = 0; k < 3; ++k) {
-      r.m[k][0] = x_hat[k];
-      r.m[k][1] = y_hat[k];
-      r.m[k][2] = z_hat[k];
-    }
-    poses.push_back(Mat4::from_rotation_translation(r, skin - face_y_mm * y_hat));
+    poses.push_back(
+        Mat4::from_columns(x_hat, y_hat, cross(x_hat, y_hat), skin - face_y_mm * y_hat));
   }
   return poses;
 }

@@ -33,22 +33,7 @@ ProbeGeometry workload_w2_linear_probe() {
   return p;
 }
 
-}  // namespace sonoslice
-
-namespace sonoslice {
-
 namespace {
-// Pixel (i, j) / probe point at origin + i·ex + j·ey (+ k·ez).
-Mat4 axes_matrix(const Vec3& origin, const Vec3& ex, const Vec3& ey, const Vec3& ez) {
-  Mat4 m;
-  for (int r = 0; r < 3; ++r) {
-    m.m[r][0] = ex[r];
-    m.m[r][1] = ey[r];
-    m.m[r][2] = ez[r];
-    m.m[r][3] = origin[r];
-  }
-  return m;
-}
 
 // A small rotation about world axis `a` (0 x, 1 y, 2 z) applied to v.
 Vec3 rotate(const Vec3& v, int a, double radians) {
@@ -85,7 +70,7 @@ BeamSweepWorkload workload_jauer_beam_sweep(int frames) {
     const Vec3 ey = rotate(rotate({{0, 0, 1}}, 0, rock), 1, roll);
     const Vec3 ez = rotate(rotate({{0, -1, 0}}, 0, rock), 1, roll);
     w.probe_to_reference.push_back(
-        axes_matrix({{75 + 10 * std::sin(6.283 * t), 50 + 400 * t, 40}}, ex, ey, ez));
+        Mat4::from_columns(ex, ey, ez, {{75 + 10 * std::sin(6.283 * t), 50 + 400 * t, 40}}));
   }
   return w;
 }
@@ -101,7 +86,7 @@ ImageSweepWorkload workload_2d_sweep(int frames, double spacing_mm) {
     const double tilt = 0.087 * std::sin(6.283 * t);
     const Vec3 ex = rotate({{px, 0, 0}}, 0, tilt), ey = rotate({{0, px, 0}}, 0, tilt);
     const Vec3 ez = rotate({{0, 0, 1}}, 0, tilt);
-    w.image_to_reference.push_back(axes_matrix({{-35, -10, 0.1 * f}}, ex, ey, ez));
+    w.image_to_reference.push_back(Mat4::from_columns(ex, ey, ez, {{-35, -10, 0.1 * f}}));
   }
   w.grid =
       Compounder::grid_around(w.image_to_reference, w.width, w.height, FrameClip{}, spacing_mm);

@@ -29,7 +29,8 @@ void cuda_slice_to_host(CudaSliceState& state, SliceLaunch launch,
 /// Waits for `stream` on cuda:`device`.
 void cuda_synchronize(void* stream, int device);
 /// Synchronous device → host copy of `bytes` on `stream`.
-void cuda_copy_to_host(void* host_out, const void* device_data, size_t bytes, void* stream, int device);
+void cuda_copy_to_host(void* host_out, const void* device_data, size_t bytes, void* stream,
+                       int device);
 
 }  // namespace slice_impl
 }  // namespace sonoslice

@@ -165,16 +165,15 @@ struct SliceKernel {
           for (int k = 0; k < 8; ++k) pixel(s, u + k);
           continue;
         }
-        if constexpr (!Linear && !std::is_same<TIn, float>::value) {
-          // Nearest on an integer volume: voxel values straight to the output, no float.
+        if constexpr (!Linear) {
           const Vec8f half(0.5f);
           const Vec8i o = offsets(floor_to_int(cx + half), floor_to_int(cy + half),
                                   floor_to_int(cz + half), sy, sz);
-          store_saturated(gather_value(volume, o), s.out + u);
-          continue;
-        }
-        Vec8f value;
-        if (Linear) {
+          if constexpr (std::is_same<TIn, float>::value)
+            store_rounded(gather_float(volume, o), s.out + u);
+          else  // integer volume: voxel values straight to the output, no float
+            store_saturated(gather_value(volume, o), s.out + u);
+        } else {
           const Vec8i ix = floor_to_int(cx), iy = floor_to_int(cy), iz = floor_to_int(cz);
           const Vec8i o00 = offsets(ix, iy, iz, sy, sz);
           Vec8f v000, v100, v010, v110, v001, v101, v011, v111;
@@ -182,16 +181,10 @@ struct SliceKernel {
           gather_pair(volume, o00 + sy, v010, v110);
           gather_pair(volume, o00 + sz, v001, v101);
           gather_pair(volume, o00 + (sz + sy), v011, v111);
-          value = trilinear(cx - to_float(ix), cy - to_float(iy), cz - to_float(iz), v000, v100,
-                            v010, v110, v001, v101, v011, v111);
-        } else {
-          const Vec8f half(0.5f);
-          const Vec8i o = offsets(floor_to_int(cx + half), floor_to_int(cy + half),
-                                  floor_to_int(cz + half), sy, sz);
-          Vec8f upper;
-          gather_pair(volume, o, value, upper);
+          store_rounded(trilinear(cx - to_float(ix), cy - to_float(iy), cz - to_float(iz), v000,
+                                  v100, v010, v110, v001, v101, v011, v111),
+                        s.out + u);
         }
-        store_rounded(value, s.out + u);
       }
       for (; u < end; ++u) pixel(s, u);
     }

@@ -1,6 +1,5 @@
 #include "sonoslice/slice/Slicer.h"
 
-#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -28,6 +27,11 @@ std::string interpolation_name(Interpolation interpolation) {
   return interpolation == Interpolation::Linear ? "linear" : "nearest";
 }
 
+bool is_slice_output_type(PixelType type) {
+  return type == PixelType::Float32 || type == PixelType::Int16 || type == PixelType::UInt8 ||
+         type == PixelType::UInt16;
+}
+
 Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Device device)
     : volume_(std::move(volume)), probe_(probe), settings_(settings), device_(device) {
   if (volume_.empty()) throw InputError("slicer: the volume is empty");
@@ -37,16 +41,9 @@ Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Devic
     if (volume_.grid().dims[a] > std::numeric_limits<int>::max() / 2)
       throw InputError("volume: too many voxels along axis " + std::to_string(a));
   probe_.validate("probe");
-  switch (settings_.output_type) {
-    case PixelType::Float32:
-    case PixelType::Int16:
-    case PixelType::UInt8:
-    case PixelType::UInt16:
-      break;
-    default:
-      throw InputError("output type " + pixel_type_name(settings_.output_type) +
-                       ": expected float32, int16, uint8 or uint16");
-  }
+  if (!is_slice_output_type(settings_.output_type))
+    throw InputError("output type " + pixel_type_name(settings_.output_type) +
+                     ": expected float32, int16, uint8 or uint16");
   if (std::isnan(settings_.fill_value)) {
     // NaN is a legitimate fill for float output (marks "no data"); integers cannot hold it.
     if (settings_.output_type != PixelType::Float32)
@@ -55,7 +52,8 @@ Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Devic
   require_device(device_);
   mask_ = probe_.mask();
 #ifdef SONOSLICE_HAVE_CUDA
-  if (device_.type == DeviceType::CUDA) cuda_ = slice_impl::cuda_prepare(volume_, mask_, device_.index);
+  if (device_.type == DeviceType::CUDA)
+    cuda_ = slice_impl::cuda_prepare(volume_, mask_, device_.index);
 #endif
 }
 
@@ -109,10 +107,21 @@ slice_impl::SliceLaunch Slicer::launch_template() const {
   return launch;
 }
 
+std::vector<slice_impl::PixelToIndex> Slicer::checked_affines(const Pose* poses, size_t count,
+                                                              size_t first_index) const {
+  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+  return pixel_to_index(volume_.grid(), probe_.image, poses, count);
+}
+
+void Slicer::require_cuda(const char* what) const {
+  if (device_.type != DeviceType::CUDA)
+    throw InputError(std::string(what) + ": this slicer runs on " + device_.to_string() +
+                     "; create it with a CUDA device");
+}
+
 void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_index) const {
   if (count == 0) return;
-  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
-  const auto affines = pixel_to_index(volume_.grid(), probe_.image, poses, count);
+  const auto affines = checked_affines(poses, count, first_index);
   slice_impl::SliceLaunch launch = launch_template();
 #ifdef SONOSLICE_HAVE_CUDA
   if (device_.type == DeviceType::CUDA) {
@@ -134,10 +143,8 @@ void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_inde
 }
 
 DeviceImages Slicer::slice_on_device(const Pose* poses, size_t count, size_t first_index) const {
-  if (device_.type != DeviceType::CUDA)
-    throw InputError("slice_on_device: this slicer runs on " + device_.to_string() +
-                     "; create it with a CUDA device");
-  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+  require_cuda("slice_on_device");
+  const auto affines = checked_affines(poses, count, first_index);
   DeviceImages images;
   images.count = int64_t(count);
   images.height = height();
@@ -146,27 +153,23 @@ DeviceImages Slicer::slice_on_device(const Pose* poses, size_t count, size_t fir
   images.device = device_;
 #ifdef SONOSLICE_HAVE_CUDA
   if (count > 0)
-    images.data = slice_impl::cuda_slice_to_own_buffer(
-        *cuda_, launch_template(), pixel_to_index(volume_.grid(), probe_.image, poses, count),
-        &images.stream);
+    images.data =
+        slice_impl::cuda_slice_to_own_buffer(*cuda_, launch_template(), affines, &images.stream);
 #endif
   return images;
 }
 
 void Slicer::slice_into_device(const Pose* poses, size_t count, void* device_out, void* stream,
                                size_t first_index) const {
-  if (device_.type != DeviceType::CUDA)
-    throw InputError("slice_into_device: this slicer runs on " + device_.to_string() +
-                     "; create it with a CUDA device");
+  require_cuda("slice_into_device");
   if (count == 0) return;
   if (!device_out) throw InputError("slice_into_device: the output pointer is null");
-  validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
+  const auto affines = checked_affines(poses, count, first_index);
 #ifdef SONOSLICE_HAVE_CUDA
-  slice_impl::cuda_slice_into_device(*cuda_, launch_template(),
-                                     pixel_to_index(volume_.grid(), probe_.image, poses, count),
-                                     device_out, stream);
+  slice_impl::cuda_slice_into_device(*cuda_, launch_template(), affines, device_out, stream);
 #else
   (void)stream;
+  (void)affines;
 #endif
 }
 

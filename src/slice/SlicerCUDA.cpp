@@ -16,8 +16,8 @@ struct CudaSliceState {
   int device = 0;
   std::string name;  // "cuda:K", for messages
   cuda::DeviceBuffer volume, mask;
-  cuda::DeviceBuffer out[2];         // the slicer's own output buffers (grow with the batch)
-  cuda::PinnedBuffer staging[2];     // page-locked landing zones for device → host copies
+  cuda::DeviceBuffer out[2];      // the slicer's own output buffers (grow with the batch)
+  cuda::PinnedBuffer staging[2];  // page-locked landing zones for device → host copies
   std::unique_ptr<cuda::Stream> streams[2];
 };
 
@@ -68,7 +68,8 @@ std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::ve
 }
 
 void cuda_slice_into_device(const CudaSliceState& st, SliceLaunch l,
-                            const std::vector<PixelToIndex>& affines, void* device_out, void* stream) {
+                            const std::vector<PixelToIndex>& affines, void* device_out,
+                            void* stream) {
   cuda::use_device(st.device);
   queue_slice(st, l, affines.data(), affines.size(), device_out,
               stream ? stream : st.streams[0]->get());
@@ -81,7 +82,8 @@ void* cuda_slice_to_own_buffer(CudaSliceState& st, SliceLaunch l,
   *stream = st.streams[0]->get();
   st.streams[0]->synchronize(st.name);  // the previous batch may still be in use by this stream
   st.out[0].reserve(std::max<size_t>(bytes, 1), st.name + ": " + std::to_string(affines.size()) +
-                                                    " output images (" + std::to_string(bytes >> 20) + " MiB)");
+                                                    " output images (" +
+                                                    std::to_string(bytes >> 20) + " MiB)");
   queue_slice(st, l, affines.data(), affines.size(), st.out[0].data(), *stream);
   return st.out[0].data();
 }
@@ -131,7 +133,8 @@ void cuda_synchronize(void* stream, int device) {
   cuda::synchronize(stream, "cuda:" + std::to_string(device) + ": slicing");
 }
 
-void cuda_copy_to_host(void* host_out, const void* device_data, size_t bytes, void* stream, int device) {
+void cuda_copy_to_host(void* host_out, const void* device_data, size_t bytes, void* stream,
+                       int device) {
   cuda::use_device(device);
   const std::string what = "cuda:" + std::to_string(device) + ": copying images to the host";
   cuda::copy_to_host(host_out, device_data, bytes, stream, what);

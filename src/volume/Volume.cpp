@@ -1,7 +1,6 @@
 #include "sonoslice/volume/Volume.h"
 
 #include <algorithm>
-#include <cmath>
 #include <cstdlib>
 #include <limits>
 #include <sstream>
@@ -9,7 +8,6 @@
 
 #include "../backend/Convert.h"
 #include "../backend/ParallelFor.h"
-#include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -47,11 +45,10 @@ std::pair<double, double> Volume::value_range() const {
   visit_pixel_type(type_, [&](auto zero) {
     using T = decltype(zero);
     const T* p = data_as<T>();
-    backend::parallel_for(chunks, [&](int64_t c) {
-      const int64_t end = std::min(n, (c + 1) * chunk);
+    backend::parallel_for_chunks(n, chunk, [&](int64_t c, int64_t begin, int64_t end) {
       T mn = std::numeric_limits<T>::max(), mx = std::numeric_limits<T>::lowest();
       bool any = false;
-      for (int64_t i = c * chunk; i < end; ++i) {
+      for (int64_t i = begin; i < end; ++i) {
         const T v = p[i];
         if (v != v) continue;  // NaN
         any = true;
@@ -76,17 +73,14 @@ std::pair<double, double> Volume::value_range() const {
 Volume Volume::converted(PixelType type) const {
   Volume out = allocate(type, grid_);
   const int64_t n = grid_.voxel_count();
-  const int64_t chunk = 1 << 20;
   visit_pixel_type(type_, [&](auto in_zero) {
     using TIn = decltype(in_zero);
     visit_pixel_type(type, [&](auto out_zero) {
       using TOut = decltype(out_zero);
       const TIn* src = data_as<TIn>();
       TOut* dst = out.data_as<TOut>();
-      backend::parallel_for((n + chunk - 1) / chunk, [&](int64_t c) {
-        const int64_t end = std::min(n, (c + 1) * chunk);
-        for (int64_t i = c * chunk; i < end; ++i)
-          dst[i] = backend::saturate_cast<TOut>(double(src[i]));
+      backend::parallel_for_chunks(n, int64_t(1) << 20, [&](int64_t, int64_t begin, int64_t end) {
+        for (int64_t i = begin; i < end; ++i) dst[i] = backend::saturate_cast<TOut>(double(src[i]));
       });
     });
   });

@@ -66,18 +66,7 @@ class Cli : public ::testing::Test {
   static void SetUpTestSuite() {
     data_ = new test::TempDir();
     ASSERT_EQ(run("phantom " + quote(data_->file("ph")) + " --size small -q", *data_).code, 0);
-    const ProbeGeometry probe = [] {
-      ProbeGeometry p;
-      p.type = ProbeType::Curvilinear;
-      p.radius_mm = 20;
-      p.depth_mm = 60;
-      p.sector_deg = 60;
-      p.image.width = 120;
-      p.image.height = 100;
-      p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.7;
-      p.image.set_default_origin();
-      return p;
-    }();
+    const ProbeGeometry probe = test::curvilinear_probe(20, 60, 60, 120, 100, 0.7);
     std::ofstream(data_->file("fan.json")) << probe_to_json(probe);
     write_poses_text(data_->file("poses.txt"), phantom_random_poses(12, 5));
   }

@@ -55,6 +55,10 @@ Volume make_volume(const VolumeGrid& grid, const std::function<double(const Vec3
 /// A rotation by `degrees` about the unit axis.
 Mat3 rotation(Vec3 axis, double degrees);
 
+/// A curvilinear probe (SPEC §3) with a width × height image of square pixels, centred laterally.
+ProbeGeometry curvilinear_probe(double radius_mm, double depth_mm, double sector_deg, int width,
+                                int height, double spacing_mm, double face_y_mm = 0.0);
+
 /// An oblique grid: rotated axes, anisotropic spacing, non-zero origin.
 VolumeGrid oblique_grid(std::array<int64_t, 3> dims);
 

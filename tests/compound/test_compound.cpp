@@ -27,15 +27,7 @@ VolumeGrid unit_grid(int64_t nx, int64_t ny, int64_t nz, double spacing = 1.0) {
 
 // Pixel (i, j) at origin + i·ex + j·ey.
 Mat4 frame_matrix(const Vec3& origin, const Vec3& ex, const Vec3& ey) {
-  Mat4 m;
-  const Vec3 ez = cross(ex, ey);
-  for (int r = 0; r < 3; ++r) {
-    m.m[r][0] = ex[r];
-    m.m[r][1] = ey[r];
-    m.m[r][2] = ez[r];
-    m.m[r][3] = origin[r];
-  }
-  return m;
+  return Mat4::from_columns(ex, ey, cross(ex, ey), origin);
 }
 
 Mat4 translation(double x, double y, double z) {

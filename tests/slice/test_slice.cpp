@@ -21,17 +21,7 @@ double wiggly(const Vec3& p) {
 }
 
 ProbeGeometry fan_probe(int w = 96, int h = 80, double spacing = 0.35) {
-  ProbeGeometry p;
-  p.type = ProbeType::Curvilinear;
-  p.radius_mm = 12;
-  p.depth_mm = 25;
-  p.sector_deg = 70;
-  p.face_y_mm = 1.5;
-  p.image.width = w;
-  p.image.height = h;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = spacing;
-  p.image.set_default_origin();
-  return p;
+  return test::curvilinear_probe(12, 25, 70, w, h, spacing, 1.5);
 }
 
 ProbeGeometry linear_probe(int w = 64, int h = 48, double spacing = 0.3) {
@@ -346,7 +336,8 @@ TEST(SliceKernels, Avx2MatchesGeneric) {
           using T = decltype(zero);
           const T* x = reinterpret_cast<const T*>(a.data());
           const T* y = reinterpret_cast<const T*>(g.data());
-          for (size_t i = 0; i < a.size() / sizeof(T); ++i) worst = std::max(worst, std::abs(int(x[i]) - int(y[i])));
+          for (size_t i = 0; i < a.size() / sizeof(T); ++i)
+            worst = std::max(worst, std::abs(int(x[i]) - int(y[i])));
         });
         SCOPED_TRACE(pixel_type_name(v->pixel_type()) + " -> " + pixel_type_name(out) + " " +
                      interpolation_name(interp));

@@ -2,6 +2,7 @@
 // meshes, and the real fan-slicer meshes.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 
@@ -24,7 +25,8 @@ TriangleMesh sphere(const Vec3& c, double r, int rings = 64, int segments = 128)
     const double th = kPi * i / rings;
     for (int j = 0; j < segments; ++j) {
       const double ph = 2 * kPi * j / segments;
-      m.vertices.push_back(c + Vec3{r * std::sin(th) * std::cos(ph), r * std::sin(th) * std::sin(ph), r * std::cos(th)});
+      m.vertices.push_back(c + Vec3{r * std::sin(th) * std::cos(ph),
+                                    r * std::sin(th) * std::sin(ph), r * std::cos(th)});
     }
   }
   m.vertices.push_back(c + Vec3{0, 0, -r});
@@ -36,7 +38,8 @@ TriangleMesh sphere(const Vec3& c, double r, int rings = 64, int segments = 128)
       m.triangles.push_back({ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)});
       m.triangles.push_back({ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)});
     }
-  for (int j = 0; j < segments; ++j) m.triangles.push_back({south, ring(rings - 1, j + 1), ring(rings - 1, j)});
+  for (int j = 0; j < segments; ++j)
+    m.triangles.push_back({south, ring(rings - 1, j + 1), ring(rings - 1, j)});
   return m;
 }
 
@@ -47,7 +50,8 @@ TriangleMesh torus(const Vec3& c, double R, double r, int n = 96, int m = 48) {
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < m; ++j) {
       const double u = 2 * kPi * i / n, v = 2 * kPi * j / m;
-      t.vertices.push_back(c + Vec3{(R + r * std::cos(v)) * std::cos(u), (R + r * std::cos(v)) * std::sin(u), r * std::sin(v)});
+      t.vertices.push_back(c + Vec3{(R + r * std::cos(v)) * std::cos(u),
+                                    (R + r * std::cos(v)) * std::sin(u), r * std::sin(v)});
     }
   auto at = [&](int i, int j) { return (i % n) * m + (j % m); };
   for (int i = 0; i < n; ++i)
@@ -117,7 +121,8 @@ int64_t count(const Volume& v, int label) {
 double mesh_volume(const TriangleMesh& m) {  // divergence theorem
   double v = 0;
   for (const auto& t : m.triangles)
-    v += dot(m.vertices[size_t(t[0])], cross(m.vertices[size_t(t[1])], m.vertices[size_t(t[2])])) / 6.0;
+    v += dot(m.vertices[size_t(t[0])], cross(m.vertices[size_t(t[1])], m.vertices[size_t(t[2])])) /
+         6.0;
   return v;
 }
 
@@ -150,7 +155,8 @@ TEST(Voxelize, CubeOnVoxelBoundariesIsExact) {
     for (int64_t j = 0; j < d[1]; ++j)
       for (int64_t i = 0; i < d[0]; ++i) {
         const bool inside = i >= 3 && i <= 12 && j >= 4 && j <= 9 && k >= 5 && k <= 8;
-        ASSERT_EQ(v.data_as<uint8_t>()[(k * d[1] + j) * d[0] + i], inside ? 1 : 0) << i << " " << j << " " << k;
+        ASSERT_EQ(v.data_as<uint8_t>()[(k * d[1] + j) * d[0] + i], inside ? 1 : 0)
+            << i << " " << j << " " << k;
       }
 }
 
@@ -165,7 +171,8 @@ TEST(Voxelize, RaysThroughVerticesAndEdgesDoNotStreak) {
       for (int64_t y = 0; y < d[1]; ++y)
         for (int64_t x = 0; x < d[0]; ++x) {
           const bool inside = x >= 2 && x < 12 && y >= 3 && y < 9 && z >= 4 && z < 8;
-          ASSERT_EQ(v.data_as<uint8_t>()[(z * d[1] + y) * d[0] + x], inside ? 1 : 0) << x << " " << y << " " << z;
+          ASSERT_EQ(v.data_as<uint8_t>()[(z * d[1] + y) * d[0] + x], inside ? 1 : 0)
+              << x << " " << y << " " << z;
         }
   }
   // A rotated cube (45° about z) whose vertices sit on ray lines.
@@ -182,7 +189,8 @@ bool brute_force_inside(const TriangleMesh& m, const Vec3& p) {
   const Vec3 d = normalized(Vec3{0.3127, 0.7213, 0.5411});
   int n = 0;
   for (const auto& t : m.triangles) {
-    const Vec3 a = m.vertices[size_t(t[0])], e1 = m.vertices[size_t(t[1])] - a, e2 = m.vertices[size_t(t[2])] - a;
+    const Vec3 a = m.vertices[size_t(t[0])], e1 = m.vertices[size_t(t[1])] - a,
+               e2 = m.vertices[size_t(t[2])] - a;
     const Vec3 h = cross(d, e2);
     const double det = dot(e1, h);
     if (std::fabs(det) < 1e-14) continue;
@@ -205,7 +213,8 @@ void expect_matches_brute_force(const TriangleMesh& m, const VolumeGrid& g) {
     for (int64_t j = 0; j < d[1]; ++j)
       for (int64_t i = 0; i < d[0]; ++i) {
         const bool got = v.data_as<uint8_t>()[(k * d[1] + j) * d[0] + i] == 1;
-        mismatches += got != brute_force_inside(m, g.index_to_world({double(i), double(j), double(k)}));
+        mismatches +=
+            got != brute_force_inside(m, g.index_to_world({double(i), double(j), double(k)}));
         inside += got;
       }
   EXPECT_GT(inside, 1000);
@@ -223,7 +232,8 @@ TEST(Voxelize, SphereAndTorusMatchAnIndependentOracle) {
   EXPECT_EQ(vt.data_as<uint8_t>()[(25 * 51 + 25) * 51 + 25], 0);
   // Larger: the sphere's voxel volume converges to the mesh volume.
   const TriangleMesh s = sphere({20.3, 19.7, 20.1}, 12.0);
-  EXPECT_NEAR(double(count(voxelize({s}, unit_grid(81, 0.5)), 1)) * 0.125, mesh_volume(s), 0.005 * mesh_volume(s));
+  EXPECT_NEAR(double(count(voxelize({s}, unit_grid(81, 0.5)), 1)) * 0.125, mesh_volume(s),
+              0.005 * mesh_volume(s));
 }
 
 TEST(Voxelize, ObliqueReferenceGrid) {
@@ -251,7 +261,9 @@ TEST(Voxelize, OverlapsLaterWinsAndGridAround) {
 }
 
 std::vector<std::string> g_warnings;
-void capture(const std::string& m) { g_warnings.push_back(m); }
+void capture(const std::string& m) {
+  g_warnings.push_back(m);
+}
 
 TEST(Voxelize, OpenMeshWarnsAndIsBestEffort) {
   TriangleMesh s = sphere({20, 20, 20}, 10.0);
@@ -348,15 +360,7 @@ TEST(ExactCut, TorusHasTwoLoopsAndAHole) {
 TEST(ExactCut, VoxelisedSlicingAgreesWithExactOnASphere) {
   const TriangleMesh s = sphere({0, 0, 0}, 15, 96, 192);
   const Volume labels = voxelize({s}, voxel_grid_around({s}, 0.25, 1.0));
-  ProbeGeometry probe;
-  probe.type = ProbeType::Curvilinear;
-  probe.radius_mm = 10;
-  probe.depth_mm = 40;
-  probe.sector_deg = 70;
-  probe.image.width = 160;
-  probe.image.height = 160;
-  probe.image.spacing_mm[0] = probe.image.spacing_mm[1] = 0.25;
-  probe.image.set_default_origin();
+  const ProbeGeometry probe = test::curvilinear_probe(10, 40, 70, 160, 160, 0.25);
   const auto poses = test::random_poses(20, {0, -20, 0}, 4, 3);
   SliceSettings settings;
   settings.interpolation = Interpolation::Nearest;
@@ -375,14 +379,7 @@ TEST(ExactCut, VoxelisedSlicingAgreesWithExactOnASphere) {
 }
 
 TEST(ExactCut, LaterMeshesPaintOverEarlierOnesAndRespectTheMask) {
-  ProbeGeometry probe;
-  probe.type = ProbeType::Curvilinear;
-  probe.radius_mm = 5;
-  probe.depth_mm = 30;
-  probe.sector_deg = 60;
-  probe.image.width = probe.image.height = 100;
-  probe.image.spacing_mm[0] = probe.image.spacing_mm[1] = 0.4;
-  probe.image.set_default_origin();
+  const ProbeGeometry probe = test::curvilinear_probe(5, 30, 60, 100, 100, 0.4);
   const TriangleMesh big = box({-50, -50, -50}, {50, 50, 50}), small = sphere({0, 20, 0}, 5);
   SurfaceSlicer slicer({big, small}, probe, {3, 9});
   const Pose pose = Pose::identity();

@@ -6,6 +6,8 @@
 
 namespace sonoslice {
 
+constexpr double kPi = 3.14159265358979323846;
+
 using Vec3 = std::array<double, 3>;
 
 /// 3×3 matrix, row-major: m[r][c].
@@ -73,6 +75,18 @@ struct Mat4 {
     for (int i = 0; i < 3; ++i) {
       for (int j = 0; j < 3; ++j) r.m[i][j] = rotation.m[i][j];
       r.m[i][3] = translation[i];
+    }
+    return r;
+  }
+  /// Columns x, y, z and the translation: a frame whose point (a, b, c) is at
+  /// origin + a·x + b·y + c·z (axes need not be unit: pixel-to-mm matrices scale them).
+  static Mat4 from_columns(const Vec3& x, const Vec3& y, const Vec3& z, const Vec3& origin) {
+    Mat4 r;
+    for (int i = 0; i < 3; ++i) {
+      r.m[i][0] = x[i];
+      r.m[i][1] = y[i];
+      r.m[i][2] = z[i];
+      r.m[i][3] = origin[i];
     }
     return r;
   }

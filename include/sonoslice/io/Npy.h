@@ -20,6 +20,9 @@ struct NpyArray {
   int64_t element_count() const;
 };
 
+/// Strides (in elements) of each dimension of `a`'s shape, honouring C or Fortran order.
+std::vector<int64_t> npy_element_strides(const NpyArray& a);
+
 /// Reads `path`; FileError for a missing, corrupt or truncated file, InputError for a dtype
 /// sonoslice does not handle (names the dtype). Big-endian data is swapped to native order.
 NpyArray read_npy(const std::string& path);

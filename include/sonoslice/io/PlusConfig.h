@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "sonoslice/compound/Compounder.h"
+#include "sonoslice/geometry/VolumeGrid.h"
 #include "sonoslice/io/PlusSequence.h"
 
 namespace sonoslice {
@@ -27,6 +28,11 @@ struct PlusReconstructionConfig {
   std::vector<std::string> ignored_attributes;
   /// Attributes PLUS does not define (typos, newer PLUS versions); the reader also warns.
   std::vector<std::string> unknown_attributes;
+
+  /// The output grid the XML fixes when it gives OutputSpacing, OutputOrigin and OutputExtent:
+  /// voxel (0,0,0) at origin + (i0, j0, k0) * spacing, (i1 - i0 + 1) x (j1 - j0 + 1) x
+  /// (k1 - k0 + 1) voxels; std::nullopt when any of the three is absent.
+  std::optional<VolumeGrid> output_grid() const;
 };
 
 /// Reads `path`. Errors (FileError / InputError) name the file, the element and the attribute:

@@ -3,6 +3,8 @@
 /// (sx, sy, 1)), a C-order (N, H, W) .npy, or a directory of 8-bit PNGs plus poses.txt.
 /// The caller slices straight into the buffers the writer hands out, so in-memory formats cost
 /// no extra copy and streamed formats (.npy, PNG) keep memory bounded by one chunk.
+#include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <string>
@@ -51,6 +53,9 @@ class StackWriter {
 
 /// Bytes the writer holds in memory at most for a stack `spec` written in chunks of `chunk`.
 uint64_t stack_memory_bytes(const std::string& path, const StackSpec& spec, int64_t chunk);
+
+/// Images per chunk so that one chunk of output stays under `bytes`: at least 1, at most `count`.
+int64_t chunk_images(size_t image_bytes, int64_t count, size_t bytes = size_t(64) << 20);
 
 /// Converts images to 8-bit with the window (level, width).
 void apply_window(const void* images, PixelType type, size_t pixels, double level, double width,

@@ -15,11 +15,15 @@ namespace sonoslice {
 namespace slice_impl {
 struct CudaSliceState;
 struct SliceLaunch;
-}
+struct PixelToIndex;
+}  // namespace slice_impl
 
 enum class Interpolation { Linear, Nearest };
 Interpolation parse_interpolation(const std::string& name);  ///< "linear" / "nearest"
 std::string interpolation_name(Interpolation interpolation);
+
+/// The output types the slicer writes: float32, int16, uint8, uint16.
+bool is_slice_output_type(PixelType type);
 
 struct SliceSettings {
   Interpolation interpolation = Interpolation::Linear;
@@ -90,6 +94,11 @@ class Slicer {
  private:
   void check_output_type(PixelType type) const;
   slice_impl::SliceLaunch launch_template() const;
+  /// The poses checked and turned into the kernels' per-image affines.
+  std::vector<slice_impl::PixelToIndex> checked_affines(const Pose* poses, size_t count,
+                                                        size_t first_index) const;
+  /// InputError naming `what` unless this slicer runs on CUDA.
+  void require_cuda(const char* what) const;
 
   Volume volume_;
   ProbeGeometry probe_;

@@ -1,0 +1,37 @@
+#pragma once
+// Internal: opening and parsing a JSON file, with the messages the JSON readers share.
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+/// Whether a failure to open the file names the system's reason.
+enum class OpenErrorReason { Omit, Append };
+
+/// The JSON document in `path`, which errors call `what` (e.g. "poses"). FileError
+/// "cannot open <what> '<path>'" when the file cannot be opened (followed by ": " and
+/// strerror(errno) with OpenErrorReason::Append), "<what> '<path>': invalid JSON (<detail>)"
+/// when it does not parse.
+inline nlohmann::json read_json_file(const std::string& path, const std::string& what,
+                                     OpenErrorReason reason = OpenErrorReason::Omit) {
+  std::ifstream in(path);
+  if (!in) {
+    const int err = errno;
+    std::string message = "cannot open " + what + " '" + path + "'";
+    if (reason == OpenErrorReason::Append) message += std::string(": ") + std::strerror(err);
+    throw FileError(message);
+  }
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const nlohmann::json::parse_error& e) {
+    throw FileError(what + " '" + path + "': invalid JSON (" + e.what() + ")");
+  }
+}
+
+}  // namespace sonoslice
