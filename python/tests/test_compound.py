@@ -134,7 +134,14 @@ def test_clip_dict_and_the_equivalent_mask_give_the_same_bytes():
     mats = np.stack([translation(-5, -3, 2 + 0.7 * k, sx=0.3, sy=0.3) for k in range(4)])
     clip = dict(rect=(5, 2, 40, 30), fan=dict(angles_deg=(-30, 30), origin_px=(25, -10), radius_px=(15, 45)))
     mask = sonoslice.clip_mask(clip, (40, 50))
-    assert mask.shape == (40, 50) and mask.dtype == np.uint8 and 0 < mask.sum() < 40 * 30
+    assert mask.shape == (40, 50) and mask.dtype == np.uint8
+    # An independent mask: the rectangle (W x H pixels from (x, y)) and PLUS's fan test.
+    y, x = np.mgrid[0:40, 0:50].astype(np.float64)
+    dx, dy = x - 25, y + 10
+    r = np.hypot(dx, dy)
+    angle = np.degrees(np.arctan2(dx, dy))
+    expected = (x >= 5) & (x < 45) & (y >= 2) & (y < 32) & (r >= 15) & (r <= 45) & (np.abs(angle) <= 30)
+    assert np.array_equal(mask.astype(bool), expected)
     grid = sonoslice.Grid((12, 20, 20), (0.8, 0.8, 0.8), (-6, -4, 1))
     a = sonoslice.Compounder(grid).add(frames, mats, clip=clip)
     b = sonoslice.Compounder(grid).add(frames, mats, clip=mask.astype(bool))
@@ -388,8 +395,11 @@ def test_reconstruct_plus_matches_plus_reference(nwire, nwire_config):
     ours = volume.array[:, :104, :].astype(np.float64)
     filled = weights.array[:, :104, :] > 0
     assert filled.sum() > 350000
-    mad = np.abs(ours - reference.array.astype(np.float64))[filled].mean()
-    assert mad < 2.0
+    theirs = reference.array.astype(np.float64)
+    mad = np.abs(ours - theirs)[filled].mean()
+    assert mad < 0.3  # measured 0.187; an empty volume would score about 1
+    # The same structures where they are: a shifted or blurred volume correlates far less.
+    assert np.corrcoef(ours[filled], theirs[filled])[0, 1] > 0.97
     # The paths give the same volume as the objects.
     again = sonoslice.reconstruct_plus(NWIRE_MHA, NWIRE_XML)
     assert again.array.tobytes() == volume.array.tobytes()

@@ -29,6 +29,8 @@ def test_slicing_into_a_cpu_tensor(phantom, poses):
     # Torch poses without out= give a torch tensor back; with mask=True the mask is one too.
     images, mask = s.slice(torch.from_numpy(poses), mask=True)
     assert isinstance(images, torch.Tensor) and isinstance(mask, torch.Tensor)
+    assert np.array_equal(images.numpy(), s.slice(poses))
+    assert np.array_equal(mask.numpy(), small_probe().mask)
 
 
 def test_cuda_tensors_without_host_copies(phantom, poses, cuda):

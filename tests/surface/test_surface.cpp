@@ -256,6 +256,9 @@ TEST(Voxelize, OverlapsLaterWinsAndGridAround) {
   EXPECT_EQ(count(v, 1), 1000 - 125);  // the overlap belongs to the later mesh
   const Volume w = voxelize({a, b}, g, {7, 300});
   EXPECT_EQ(w.pixel_type(), PixelType::UInt16);
+  const uint16_t* labels = w.data_as<uint16_t>();
+  EXPECT_EQ(std::count(labels, labels + w.grid().voxel_count(), uint16_t(300)), 1000);
+  EXPECT_EQ(std::count(labels, labels + w.grid().voxel_count(), uint16_t(7)), 1000 - 125);
   EXPECT_THROW(voxel_grid_around({a}, 0.0, 1.0), InputError);
   EXPECT_THROW(voxel_grid_around({a}, 1e-4, 1.0), ResourceError);
 }
