@@ -44,7 +44,7 @@ const std::vector<uint8_t>& sweep_frames() {
 
 CompoundSettings settings_for(const benchmark::State& state) {
   CompoundSettings s;
-  s.interpolation = state.range(0) ? SplatInterpolation::Linear : SplatInterpolation::Nearest;
+  s.interpolation = state.range(0) ? Interpolation::Linear : Interpolation::Nearest;
   s.mode = CompoundingMode::Mean;
   s.fill_holes = state.range(2) != 0;
   return s;
@@ -101,7 +101,7 @@ void BM_Sweep2D(benchmark::State& state) {
   });
 }
 
-// The real PLUS sweeps of ../shared/data/plus with their XML settings (clip rectangle, spacing);
+// The real PLUS sweeps of data/plus with their XML settings (clip rectangle, spacing);
 // the valid frames copied next to each other once, outside the timing.
 struct RealSweep {
   std::vector<uint8_t> pixels;
@@ -119,7 +119,7 @@ const RealSweep& real_sweep(const std::string& name) {
   entry = std::make_unique<RealSweep>();
   RealSweep& r = *entry;
   try {
-    const std::string dir = SONOSLICE_SHARED_DATA_DIR "/plus/";
+    const std::string dir = SONOSLICE_DATA_DIR "/plus/";
     const bool nwire = name == "Nwire";
     const PlusSequence s = read_plus_sequence(
         dir + (nwire ? "NwirePhantomFreehand.igs.mha" : "BoneUltrasound_L14.igs.mha"));
@@ -154,7 +154,7 @@ void BM_PlusSweep(benchmark::State& state, const std::string& name) {
   }
   set_cpu_threads(int(state.range(1)));
   CompoundSettings s = r.config.settings;
-  s.interpolation = state.range(0) ? SplatInterpolation::Linear : SplatInterpolation::Nearest;
+  s.interpolation = state.range(0) ? Interpolation::Linear : Interpolation::Nearest;
   s.fill_holes = false;
   const int64_t n = int64_t(r.image_to_reference.size());
   for (auto _ : state) {

@@ -1,5 +1,5 @@
 // Surfaces: voxelising the real fan-slicer meshes, and label slicing in voxel and exact modes.
-//   build/bin/bench_surface  (needs ../shared/data/fanslicer; skips otherwise)
+//   build/bin/bench_surface  (needs data/fanslicer; skips otherwise)
 #include <benchmark/benchmark.h>
 
 #include <filesystem>
@@ -14,7 +14,7 @@
 namespace sonoslice {
 namespace {
 
-const std::string kData = SONOSLICE_SHARED_DATA_DIR "/fanslicer/";
+const std::string kData = SONOSLICE_DATA_DIR "/fanslicer/";
 
 const std::vector<TriangleMesh>* meshes(bool all) {
   static std::vector<TriangleMesh> four, veins;
@@ -29,7 +29,7 @@ const std::vector<TriangleMesh>* meshes(bool all) {
 // fan-slicer's grid (20 mm margins): hepatic veins at 0.5 mm is 374×364×348.
 void BM_Voxelize(benchmark::State& state, bool all) {
   const auto* m = meshes(all);
-  if (!m) return state.SkipWithError("../shared/data/fanslicer not found");
+  if (!m) return state.SkipWithError("data/fanslicer not found");
   const VolumeGrid grid = voxel_grid_around(*m, 0.5, 20.0);
   for (auto _ : state) benchmark::DoNotOptimize(voxelize(*m, grid).data());
   state.counters["voxels"] = double(grid.voxel_count());
@@ -51,7 +51,7 @@ std::vector<Pose> liver_poses() {
 
 void BM_LabelSlicing(benchmark::State& state, bool exact) {
   const auto* m = meshes(true);
-  if (!m) return state.SkipWithError("../shared/data/fanslicer not found");
+  if (!m) return state.SkipWithError("data/fanslicer not found");
   const ProbeGeometry probe = workload_w1_fan_probe();
   const auto poses = liver_poses();
   std::vector<uint8_t> out(poses.size() * size_t(probe.image.pixel_count()));

@@ -38,9 +38,9 @@ def log(*a):
     print(*a, file=sys.stderr, flush=True)
 
 
-# ---- geometry (SPEC §2-§4) ----------------------------------------------------------------------
+# ---- geometry (docs/conventions.md §2-§4) ----------------------------------------------------------------------
 def fanslicer_probe(path, ds):
-    """SPEC §4: a fan-slicer config → image grid and fan parameters (mm)."""
+    """docs/conventions.md §4: a fan-slicer config → image grid and fan parameters (mm)."""
     sim = json.load(open(path))["simulation"]
     W, H = (int(d) // ds for d in sim["image_dimensions"])
     sx, sy = (ds * p for p in sim["pixel_size"])
@@ -260,7 +260,7 @@ def main():
         mc_sampling, mc_e2e = bench_map_coordinates(vol, p, poses, origin, spacing, min(args.slow_count, 50))
 
         # Same computation? Compare sonoslice's first images with grid_sample's inside the fan,
-        # away from the volume border (where zero padding and SPEC §5's clamping differ).
+        # away from the volume border (where zero padding and docs/conventions.md §5's clamping differ).
         mine = np.load(os.path.join(work, name + ".npy"), mmap_mode="r")[:5]
         c = index_coordinates(p, poses[:5], origin, spacing)
         n = np.array(vol.shape[::-1])

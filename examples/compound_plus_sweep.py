@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
 """Reconstruct a real tracked ultrasound sweep (PLUS toolkit files) into a volume.
 
-    python examples/compound_plus_sweep.py [--data ../shared/data/plus] [--out nwire_slices.png]
+    python examples/compound_plus_sweep.py [--data data/plus] [--out nwire_slices.png]
                                            [--save nwire.nii.gz] [--spacing MM]
 
 Reads PLUS's NWire phantom sweep (NwirePhantomFreehand.igs.mha, 97 frames of 820x616) and its
 configuration XML (calibration ImageToProbe, clip rectangle, 0.5 mm voxels, linear splats, mean
 compounding), chains each frame's ImageToReference = (ReferenceToTracker)^-1 · ProbeToTracker ·
-ImageToProbe (SPEC §7), fits PLUS's output grid around the clipped frames, compounds them, prints
+ImageToProbe (docs/conventions.md §7), fits PLUS's output grid around the clipped frames, compounds them, prints
 the timings and the difference from PLUS's own reconstruction, and saves three orthogonal slices
 as a PNG (top: sonoslice; bottom: PLUS's reconstruction of the same sweep, when it is there;
 with matplotlib, else Pillow, else no picture).
@@ -21,7 +21,7 @@ import numpy as np
 import sonoslice
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DEFAULT_DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data", "plus"))
+DEFAULT_DATA = os.path.normpath(os.path.join(HERE, "..", "data", "plus"))
 SEQUENCE = "NwirePhantomFreehand.igs.mha"
 CONFIG = "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml"
 REFERENCE = "NwirePhantomFreehandReconstructed.mha"

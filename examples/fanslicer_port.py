@@ -2,7 +2,7 @@
 """fan-slicer's own demo (simulation_demo.py), ported by changing its imports.
 
 The body below the marked line is fan-slicer's script as published, with only the two import
-lines changed and its data paths pointed at ../shared/data/fanslicer. fan-slicer's CT test
+lines changed and its data paths pointed at data/fanslicer. fan-slicer's CT test
 volume is not distributed, so the prelude builds a stand-in in the same place and format (an
 [Y, X, Z] .npy plus its npy_config), from the same patient's surface meshes; and figures are saved
 to fanslicer_port_<i>.png instead of opening windows.
@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 
 import sonoslice  # noqa: E402
 
-SHARED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data", "fanslicer")
+SHARED = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "data", "fanslicer")
 WORK = tempfile.mkdtemp(prefix="fanslicer-port-")
 
 # ---- prelude: a CT-like stand-in for fan-slicer's missing CT_test_volume.npy -----------------

@@ -54,7 +54,7 @@ void run_compound_bench(const BenchFlags& f, const Device& device) {
                         Case{"2D sweep 1000 x 820x616 -> grid at 0.5 mm", false}})
     for (const bool linear : {false, true}) {
       CompoundSettings s;
-      s.interpolation = linear ? SplatInterpolation::Linear : SplatInterpolation::Nearest;
+      s.interpolation = linear ? Interpolation::Linear : Interpolation::Nearest;
       double best = 1e300;
       for (int r = 0; r < f.repeat; ++r) {
         Stopwatch clock;
@@ -112,7 +112,7 @@ Result measure(const Workload& w, const Volume& volume, const std::vector<Pose>&
     times.push_back(s.seconds());
   }
   std::sort(times.begin(), times.end());
-  Result r{w.name, pixel_type_name(volume.pixel_type()), interpolation_name(interp),
+  Result r{w.name, to_string(volume.pixel_type()), to_string(interp),
            int64_t(poses.size()), times.front(), times[times.size() / 2]};
   if (device.type == DeviceType::CUDA) {
     // Images left on the GPU, as a training loop consumes them.
@@ -184,7 +184,7 @@ void run_bench(const BenchFlags& f) {
   const bool gpu = device.type == DeviceType::CUDA;
   const std::string where = gpu ? device.to_string() : std::to_string(cpu_threads()) + " threads";
   std::printf("sonoslice bench: %zu poses, %s, %s, best of %d\n", poses.size(), where.c_str(),
-              interpolation_name(interp).c_str(), f.repeat);
+              to_string(interp), f.repeat);
   std::printf("%-22s %-8s %12s %12s%s\n", "workload", "volume", "images/s", "Msamples/s",
               gpu ? "  images/s kept on the GPU" : "");
   for (const Result& r : results) {

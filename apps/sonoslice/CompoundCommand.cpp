@@ -139,7 +139,7 @@ Frames read_sequence(const CompoundFlags& f, const PlusReconstructionConfig* con
   const bool skipped_by_interval = skip > 1 && s.frame_count > 1;
   fr.description = f.sequence + ": " + std::to_string(s.frame_count) + " frames of " +
                    std::to_string(s.width) + "x" + std::to_string(s.height) + " " +
-                   pixel_type_name(s.pixel_type) + " (orientation " + s.orientation + ")" +
+                   to_string(s.pixel_type) + " (orientation " + s.orientation + ")" +
                    (skipped_by_interval ? ", every " + std::to_string(skip) + "th used" : "");
   return fr;
 }
@@ -154,7 +154,7 @@ Frames read_frame_stack(const CompoundFlags& f, Mat4* image_to_probe) {
   fr.total = d[2];
   add_posed_frames(f, "--frames", f.frames, fr.stack.data(), image_to_probe, &fr);
   fr.description = f.frames + ": " + std::to_string(d[2]) + " frames of " + std::to_string(d[0]) +
-                   "x" + std::to_string(d[1]) + " " + pixel_type_name(fr.type);
+                   "x" + std::to_string(d[1]) + " " + to_string(fr.type);
   return fr;
 }
 
@@ -180,7 +180,7 @@ Frames read_beam_frames(const CompoundFlags& f) {
   add_posed_frames(f, "--beam-frames", f.beam_frames, fr.beam_array.data.get(), nullptr, &fr);
   fr.description = f.beam_frames + ": " + std::to_string(fr.total) + " beam-space frames of " +
                    std::to_string(sh[o]) + "x" + std::to_string(sh[o + 1]) + "x" +
-                   std::to_string(sh[o + 2]) + " " + pixel_type_name(fr.type);
+                   std::to_string(sh[o + 2]) + " " + to_string(fr.type);
   return fr;
 }
 
@@ -214,7 +214,7 @@ void run_compound(const CompoundFlags& f) {
       if (!(s > 0)) throw InputError("--spacing " + f.spacing + ": must be > 0 mm");
   }
   if (!spacing) throw InputError("compound: give --spacing (mm) or a --config with OutputSpacing");
-  if (!f.interp.empty()) settings.interpolation = parse_splat_interpolation(f.interp);
+  if (!f.interp.empty()) settings.interpolation = parse_interpolation(f.interp);
   if (!f.compounding.empty()) settings.mode = parse_compounding_mode(f.compounding);
   if (!f.fill_holes.empty()) {
     if (f.fill_holes != "on" && f.fill_holes != "off")
@@ -296,7 +296,7 @@ void run_compound(const CompoundFlags& f) {
                  (long long)grid.dims[0], (long long)grid.dims[1], (long long)grid.dims[2],
                  grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2], grid.origin_mm[0],
                  grid.origin_mm[1], grid.origin_mm[2],
-                 settings.interpolation == SplatInterpolation::Linear ? "linear" : "nearest",
+                 settings.interpolation == Interpolation::Linear ? "linear" : "nearest",
                  settings.mode == CompoundingMode::Mean  ? "mean"
                  : settings.mode == CompoundingMode::Max ? "max"
                                                          : "latest",
@@ -372,7 +372,7 @@ void add_compound_command(CLI::App& app) {
                   "--frames from `sonoslice slice`: its probe file (pixel grid and fan)");
   cmd->add_option("--beam-frames", flags->beam_frames,
                   "3-D beam-space frames: .npy (N, n_elevation, n_azimuth, n_samples)");
-  cmd->add_option("--beam-geometry", flags->beam_geometry, "Their geometry JSON (SPEC §7)");
+  cmd->add_option("--beam-geometry", flags->beam_geometry, "Their geometry JSON (docs/conventions.md §7)");
   cmd->add_option("--out", flags->out, "Output volume: .nii/.nii.gz/.mha/.nrrd/.npy")->required();
   cmd->add_option("--weights", flags->weights, "Also write the splat weight per voxel (float32)");
   cmd->add_option("--spacing", flags->spacing,

@@ -37,7 +37,7 @@ void run_info(const InfoFlags& f) {
     j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};
     j["origin"] = {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]};
     j["direction"] = g.direction.row_major();
-    j["pixel_type"] = pixel_type_name(v.pixel_type());
+    j["pixel_type"] = to_string(v.pixel_type());
     j["value_range"] = {range.first, range.second};
     j["bytes"] = v.byte_size();
     if (!series.empty()) {
@@ -60,7 +60,7 @@ void run_info(const InfoFlags& f) {
       g.direction.m[0][0], g.direction.m[0][1], g.direction.m[0][2], g.direction.m[1][0],
       g.direction.m[1][1], g.direction.m[1][2], g.direction.m[2][0], g.direction.m[2][1],
       g.direction.m[2][2]);
-  std::printf("pixel type:  %s\n", pixel_type_name(v.pixel_type()).c_str());
+  std::printf("pixel type:  %s\n", to_string(v.pixel_type()).c_str());
   std::printf("value range: %.6g .. %.6g\n", range.first, range.second);
   std::printf("memory:      %.1f MiB\n", double(v.byte_size()) / (1 << 20));
   for (const auto& s : series)

@@ -66,11 +66,11 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
     *load_seconds = load.seconds();
     src.description = path + ": " + std::to_string(v.grid().dims[0]) + "x" +
                       std::to_string(v.grid().dims[1]) + "x" + std::to_string(v.grid().dims[2]) +
-                      " " + pixel_type_name(v.pixel_type());
+                      " " + to_string(v.pixel_type());
     if (!f.labels.empty() && v.pixel_type() != PixelType::UInt8 &&
         v.pixel_type() != PixelType::UInt16)
       throw InputError("--labels '" + path + "': a label volume is uint8 or uint16, this one is " +
-                       pixel_type_name(v.pixel_type()));
+                       to_string(v.pixel_type()));
     for (int k = 1; k <= 255; ++k) src.colors.push_back(default_label_color(k));
     src.slicer = std::make_unique<Slicer>(v, probe, settings, device);
     return src;

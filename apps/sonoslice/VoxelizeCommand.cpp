@@ -52,7 +52,7 @@ void run_voxelize(const VoxelizeFlags& f) {
     std::fprintf(stderr, "sonoslice: %zu mesh%s → %s: %lldx%lldx%lld %s labels at %g mm in %.3f s\n",
                  meshes.size(), meshes.size() == 1 ? "" : "es", f.out.c_str(),
                  static_cast<long long>(grid.dims[0]), static_cast<long long>(grid.dims[1]),
-                 static_cast<long long>(grid.dims[2]), pixel_type_name(labels.pixel_type()).c_str(),
+                 static_cast<long long>(grid.dims[2]), to_string(labels.pixel_type()).c_str(),
                  grid.spacing_mm[0], seconds);
     for (size_t k = 0; k < meshes.size(); ++k)
       std::fprintf(stderr, "sonoslice:   label %zu: %s (%zu triangles, %s)\n", k + 1,

@@ -1,6 +1,6 @@
 """sonoslice: fast ultrasound-shaped images from 3D medical volumes, on CPU threads or CUDA.
 
-Conventions (the repository's SPEC.md):
+Conventions (docs/conventions.md):
 
 * World frame: the physical space of the volume as ITK defines it (LPS: x towards the patient's
   left, y posterior, z superior), millimetres. ``world="RAS"`` accepts poses from 3D Slicer or
@@ -9,7 +9,7 @@ Conventions (the repository's SPEC.md):
   axis (image columns), column 1 the axial/depth axis (image rows), column 3 the probe origin.
 * Pixel ``(u, v)`` (column, row) of an image sits at probe ``(x0 + u·sx, y0 + v·sy, 0)``.
 * Arrays are C-order: a volume is ``(nz, ny, nx)``, a batch of images ``(N, H, W)``.
-* Freehand 3D reconstruction (SPEC §7: ``Compounder``, ``reconstruct_plus``) and PLUS toolkit
+* Freehand 3D reconstruction (docs/conventions.md §7: ``Compounder``, ``reconstruct_plus``) and PLUS toolkit
   files (``read_plus_sequence``, ``read_plus_config``, ...) are in ``sonoslice.compound``,
   re-exported here.
 
@@ -74,7 +74,7 @@ class Volume:
     changes made to it. A non-contiguous array raises ``ValueError``; pass
     ``numpy.ascontiguousarray(a)`` to copy it on purpose.
 
-    Geometry (SPEC §1): voxel ``(i, j, k)`` = ``array[k, j, i]`` has its centre at
+    Geometry (docs/conventions.md §1): voxel ``(i, j, k)`` = ``array[k, j, i]`` has its centre at
     ``origin + direction @ (spacing * (i, j, k))`` (mm, LPS); ``direction`` holds the index axes
     as columns.
     """
@@ -165,7 +165,7 @@ class Volume:
 
 
 class Probe:
-    """A probe shape and its image grid (SPEC §3). Build one with :meth:`curvilinear`,
+    """A probe shape and its image grid (docs/conventions.md §3). Build one with :meth:`curvilinear`,
     :meth:`linear`, :meth:`from_json` or :meth:`from_fanslicer`."""
 
     def __init__(self, cpp):
@@ -200,7 +200,7 @@ class Probe:
 
     @classmethod
     def from_fanslicer(cls, path, downsampling: int = 1) -> "Probe":
-        """A fan-slicer configuration file, unchanged (SPEC §4): image size divided by
+        """A fan-slicer configuration file, unchanged (docs/conventions.md §4): image size divided by
         ``downsampling`` (floor), pixel size multiplied by it."""
         import json
         with open(path) as f:
@@ -392,13 +392,13 @@ def write_poses(path, poses) -> None:
 
 
 def validate_poses(poses, source: str = "poses") -> None:
-    """Raises ValueError naming the first bad pose (SPEC §2); warns once for non-orthonormal ones."""
+    """Raises ValueError naming the first bad pose (docs/conventions.md §2); warns once for non-orthonormal ones."""
     _ext.validate_poses(_as_pose_array(poses), source)
 
 
 def write_stack(path, images, spacing_mm: Sequence[float], window: Optional[Sequence[float]] = None,
                 poses=None, mask=None) -> None:
-    """Writes an (N, H, W) batch (SPEC §6): .nii[.gz]/.mha/.nrrd (W×H×N, spacing (sx, sy, 1)),
+    """Writes an (N, H, W) batch (docs/conventions.md §6): .nii[.gz]/.mha/.nrrd (W×H×N, spacing (sx, sy, 1)),
     .npy, or a directory of PNGs (``window`` = (level, width), default robust auto) + poses.txt."""
     images = np.ascontiguousarray(_numpy(images))
     _ext.write_stack(str(path), images, tuple(map(float, spacing_mm)),
@@ -453,7 +453,7 @@ def voxelize(meshes, spacing: Optional[float] = None, margin: Optional[float] = 
     """Meshes → one label volume: label k+1 (or ``labels[k]``) for the k-th mesh, later meshes
     winning where they overlap; uint8, or uint16 past 255. The grid is ``reference``'s, or an
     isotropic ``spacing`` (mm) around the meshes plus ``margin`` (default one voxel). Voxel centres
-    are inside when the mesh contains them (SPEC §1); open meshes warn and are voted best-effort."""
+    are inside when the mesh contains them (docs/conventions.md §1); open meshes warn and are voted best-effort."""
     meshes = [meshes] if isinstance(meshes, Mesh) else list(meshes)
     if reference is None and spacing is None:
         raise ValueError("voxelize: give spacing (mm) or a reference volume")

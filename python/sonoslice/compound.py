@@ -1,4 +1,4 @@
-"""Freehand 3D reconstruction ("compounding", SPEC §7) and PLUS toolkit files.
+"""Freehand 3D reconstruction ("compounding", docs/conventions.md §7) and PLUS toolkit files.
 
 Tracked 2D frames (or 3D beam-space frames of a 3D/4D probe) are inserted into one voxel grid
 whose axes are parallel to the reference (world) frame, as PLUS toolkit's volume reconstructor
@@ -259,7 +259,7 @@ def grid_around_beams(probe_to_reference, geometry, beam_shape: Tuple[int, int, 
 # ---- beam-space frames ------------------------------------------------------------------------------
 @dataclass
 class BeamGeometry:
-    """Geometry of 3D beam-space frames (SPEC §7): sample s of the beam at azimuth
+    """Geometry of 3D beam-space frames (docs/conventions.md §7): sample s of the beam at azimuth
     α = azimuth0_deg + a·dazimuth_deg and elevation β = elevation0_deg + e·delevation_deg lies at
     probe coordinates apex + (r0_mm + s·dr_mm)·(sin α, cos α·cos β, cos α·sin β), with
     apex = (0, -apex_offset_mm, 0) (0 for phased arrays). The frame sizes come from the arrays."""
@@ -367,7 +367,7 @@ def _memory_bytes(max_memory) -> int:
 
 
 class Compounder:
-    """Inserts tracked frames into a voxel grid (freehand 3D reconstruction, SPEC §7) and returns
+    """Inserts tracked frames into a voxel grid (freehand 3D reconstruction, docs/conventions.md §7) and returns
     the volume at any point. Incremental and batch insertion give the same bytes, for any number
     of threads.
 
@@ -749,7 +749,7 @@ def plus_image_to_reference(sequence, config=None, name: Optional[str] = None, i
     ``(frame_indices (M,), matrices (M, 4, 4))``. For each frame the transform ``name`` (default the
     config's ``ImageToReference``) is the chain, through the config's CoordinateDefinitions
     (calibration) and the frame's own transforms, e.g. ``(ReferenceToTracker)⁻¹ · ProbeToTracker ·
-    ImageToProbe`` (SPEC §7). Frames whose image status or transform is not OK are left out, as
+    ImageToProbe`` (docs/conventions.md §7). Frames whose image status or transform is not OK are left out, as
     are all but every ``skip``-th (default: the config's SkipInterval). ``sequence``/``config``:
     objects or paths; ``image_to_probe``: a 4×4 calibration replacing the config's."""
     seq = _as_sequence(sequence)

@@ -12,7 +12,7 @@ Same constructors, same ``simulate_image`` calls, same shapes and dtypes: poses 
 ``(4, 4N)`` strip, images as ``(H, W, N)`` float32. Unlike fan-slicer this runs without a GPU (on
 the CPU threads) and uses one when CUDA is available.
 
-Known, documented differences (SPEC §4):
+Known, documented differences (docs/conventions.md §4):
 
 * Each pixel is sampled directly at its centre (fan-slicer samples a polar grid and splats it
   back onto the pixels), so edges are sharper and no pixel is left empty.

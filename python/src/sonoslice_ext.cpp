@@ -205,7 +205,7 @@ std::string shape_text(int64_t n, int64_t height, int64_t width) {
 
 void check_out_dtype(const nb::ndarray<>& out, PixelType type) {
   if (pixel_type_of(out.dtype(), "out") != type)
-    throw InputError("out: dtype must be " + pixel_type_name(type));
+    throw InputError("out: dtype must be " + to_string(type));
 }
 
 // Validates every pose before the first chunk (so nothing is written when one is bad), then
@@ -305,33 +305,11 @@ GridTuple grid_tuple(const VolumeGrid& g) {
   return GridTuple{g.dims, g.spacing_mm, g.origin_mm, g.direction.row_major()};
 }
 
-std::string splat_name(SplatInterpolation i) {
-  return i == SplatInterpolation::Nearest ? "nearest" : "linear";
-}
-
-std::string mode_name(CompoundingMode m) {
-  return m == CompoundingMode::Max ? "max" : m == CompoundingMode::Latest ? "latest" : "mean";
-}
-
-std::string hole_type_name(HoleFillingKernel::Type t) {
-  switch (t) {
-    case HoleFillingKernel::NearestNeighbor:
-      return "nearest_neighbor";
-    case HoleFillingKernel::GaussianAccumulation:
-      return "gaussian_accumulation";
-    case HoleFillingKernel::DistanceWeightInverse:
-      return "distance_weight_inverse";
-    case HoleFillingKernel::Stick:
-      return "stick";
-    default:
-      return "gaussian";
-  }
-}
 
 std::vector<HoleTuple> hole_tuples(const std::vector<HoleFillingKernel>& kernels) {
   std::vector<HoleTuple> out;
   for (const HoleFillingKernel& k : kernels)
-    out.emplace_back(hole_type_name(k.type), k.size, k.stdev, k.minimum_known_ratio,
+    out.emplace_back(to_string(k.type), k.size, k.stdev, k.minimum_known_ratio,
                      k.stick_length_limit, k.sticks_to_use);
   return out;
 }
@@ -342,9 +320,9 @@ template <typename T, typename SettingsOf>
 void def_settings_properties(nb::class_<T>& cls, SettingsOf settings_of) {
   cls.def_prop_ro(
          "interpolation",
-         [settings_of](const T& self) { return splat_name(settings_of(self).interpolation); })
+         [settings_of](const T& self) { return to_string(settings_of(self).interpolation); })
       .def_prop_ro("compounding",
-                   [settings_of](const T& self) { return mode_name(settings_of(self).mode); })
+                   [settings_of](const T& self) { return to_string(settings_of(self).mode); })
       .def_prop_ro("fill_holes",
                    [settings_of](const T& self) { return settings_of(self).fill_holes; })
       .def_prop_ro(
@@ -361,7 +339,7 @@ CompoundSettings make_settings(const std::string& interpolation, const std::stri
                                bool fill_holes, const std::vector<HoleTuple>& hole_filling,
                                std::optional<double> rejection_threshold) {
   CompoundSettings s;
-  s.interpolation = parse_splat_interpolation(interpolation);
+  s.interpolation = parse_interpolation(interpolation);
   s.mode = parse_compounding_mode(compounding);
   s.fill_holes = fill_holes;
   if (rejection_threshold) {
@@ -443,7 +421,7 @@ struct PyCompounder {
       : compounder(grid, std::move(settings), device, max_memory, type), dtype(type) {}
 };
 
-// The valid frames of a PLUS sequence and their `from`→`to` transforms (SPEC §7), as the CLI
+// The valid frames of a PLUS sequence and their `from`→`to` transforms (docs/conventions.md §7), as the CLI
 // picks them: every `skip`-th frame whose image status is OK and whose chain is valid.
 std::tuple<std::vector<int64_t>, MatricesOut, int, int> plus_frames(const PlusSequence& s,
                                                                     const TransformRepository& base,
@@ -523,7 +501,7 @@ NB_MODULE(_sonoslice, m) {
              return numpy_view(const_cast<void*>(v.data()),
                                {size_t(d[2]), size_t(d[1]), size_t(d[0])}, v.pixel_type(), v);
            })
-      .def_prop_ro("dtype", [](const Volume& v) { return pixel_type_name(v.pixel_type()); })
+      .def_prop_ro("dtype", [](const Volume& v) { return to_string(v.pixel_type()); })
       .def_prop_ro("shape",
                    [](const Volume& v) {
                      const auto& d = v.grid().dims;
@@ -653,9 +631,9 @@ NB_MODULE(_sonoslice, m) {
       .def_prop_ro("height", &Slicer::height)
       .def_prop_ro("device", [](const Slicer& s) { return s.device().to_string(); })
       .def_prop_ro("dtype",
-                   [](const Slicer& s) { return pixel_type_name(s.settings().output_type); })
+                   [](const Slicer& s) { return to_string(s.settings().output_type); })
       .def_prop_ro("interp",
-                   [](const Slicer& s) { return interpolation_name(s.settings().interpolation); })
+                   [](const Slicer& s) { return to_string(s.settings().interpolation); })
       .def_prop_ro("fill", [](const Slicer& s) { return s.settings().fill_value; })
       .def_prop_ro("probe", &Slicer::probe)
       .def_prop_ro("volume", &Slicer::volume)
@@ -808,7 +786,7 @@ NB_MODULE(_sonoslice, m) {
            "chunk"_a = 0)
       .def_prop_ro("width", &SurfaceSlicer::width)
       .def_prop_ro("height", &SurfaceSlicer::height)
-      .def_prop_ro("dtype", [](const SurfaceSlicer& s) { return pixel_type_name(s.output_type()); })
+      .def_prop_ro("dtype", [](const SurfaceSlicer& s) { return to_string(s.output_type()); })
       .def("mask", [](const SurfaceSlicer& s) {
         auto mk = std::make_shared<std::vector<uint8_t>>(s.mask());
         return numpy_view(mk->data(), {size_t(s.height()), size_t(s.width())}, PixelType::UInt8,
@@ -862,7 +840,7 @@ NB_MODULE(_sonoslice, m) {
     return names;
   });
 
-  // ---- compounding (freehand reconstruction, SPEC §7)
+  // ---- compounding (freehand reconstruction, docs/conventions.md §7)
   nb::class_<FrameClip>(m, "FrameClip", "Which pixels of a 2D frame go in (MF-oriented pixels).")
       .def(
           "__init__",
@@ -1030,7 +1008,7 @@ NB_MODULE(_sonoslice, m) {
                      return self.compounder.frames_added();
                    })
       .def_prop_ro("grid", [](PyCompounder& self) { return grid_tuple(self.compounder.grid()); })
-      .def_prop_ro("dtype", [](PyCompounder& self) { return pixel_type_name(self.dtype); });
+      .def_prop_ro("dtype", [](PyCompounder& self) { return to_string(self.dtype); });
   def_settings_properties(compounder, [](const PyCompounder& self) -> const CompoundSettings& {
     return self.compounder.settings();
   });
@@ -1092,7 +1070,7 @@ NB_MODULE(_sonoslice, m) {
       .def_ro("height", &PlusSequence::height)
       .def_ro("frame_count", &PlusSequence::frame_count)
       .def_ro("orientation", &PlusSequence::orientation)
-      .def_prop_ro("dtype", [](const PlusSequence& s) { return pixel_type_name(s.pixel_type); })
+      .def_prop_ro("dtype", [](const PlusSequence& s) { return to_string(s.pixel_type); })
       .def_ro("frame_fields", &PlusSequence::frame_fields,
               "Per frame, every Seq_FrameNNNN_<Field> (a copy).")
       .def(

@@ -6,7 +6,7 @@ import pytest
 import sonoslice
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-SHARED = os.path.join(ROOT, "..", "shared", "data")
+DATA = os.path.join(ROOT, "data")
 
 
 @pytest.fixture(scope="session")
@@ -21,9 +21,9 @@ def poses():
 
 @pytest.fixture(scope="session")
 def shared():
-    path = os.path.join(SHARED, "fanslicer")
-    if not os.path.isdir(path):
-        pytest.skip("../shared/data not found next to the repository")
+    path = os.path.join(DATA, "fanslicer")
+    # The real data ships with the repository: a missing folder is a broken checkout, not a skip.
+    assert os.path.isdir(path), f"{path} is missing (see data/README.md)"
     return path
 
 

@@ -1,4 +1,4 @@
-"""Freehand reconstruction from Python (SPEC §7): known answers, axis conventions, incremental vs
+"""Freehand reconstruction from Python (docs/conventions.md §7): known answers, axis conventions, incremental vs
 batch, the slicer round trip, beam-space frames against a NumPy oracle, PLUS files and the real
 NWire sweep against PLUS's own reconstruction, and bad input."""
 import gc
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import sonoslice
-from conftest import SHARED
+from conftest import DATA
 
-PLUS = os.path.join(SHARED, "plus")
+PLUS = os.path.join(DATA, "plus")
 NWIRE_MHA = os.path.join(PLUS, "NwirePhantomFreehand.igs.mha")
 NWIRE_NRRD = os.path.join(PLUS, "NwirePhantomFreehand.igs.nrrd")
 NWIRE_XML = os.path.join(PLUS, "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml")
@@ -22,8 +22,7 @@ NWIRE_REFERENCE = os.path.join(PLUS, "NwirePhantomFreehandReconstructed.mha")
 
 @pytest.fixture(scope="module")
 def plus_data():
-    if not os.path.isfile(NWIRE_MHA):
-        pytest.skip("../shared/data/plus not found next to the repository")
+    assert os.path.isfile(NWIRE_MHA), f"{NWIRE_MHA} is missing (see data/README.md)"
     return PLUS
 
 
@@ -287,7 +286,7 @@ def test_beam_frames_land_where_spec7_puts_their_samples(tmp_path):
     g = c.grid
     v, w = c.volume().array.astype(np.float64), c.weights().array
 
-    # The NumPy oracle: SPEC §7 positions, voxel floor(c + 0.5).
+    # The NumPy oracle: docs/conventions.md §7 positions, voxel floor(c + 0.5).
     a = np.radians(geometry.azimuth0_deg + np.arange(na) * geometry.dazimuth_deg)[None, :, None]
     e = np.radians(geometry.elevation0_deg + np.arange(ne) * geometry.delevation_deg)[:, None, None]
     r = (geometry.r0_mm + np.arange(ns) * geometry.dr_mm)[None, None, :]

@@ -1,4 +1,4 @@
-"""The fan-slicer shim against the CLI on the same inputs (SPEC §4)."""
+"""The fan-slicer shim against the CLI on the same inputs (docs/conventions.md §4)."""
 import json
 import os
 import subprocess

@@ -1,5 +1,5 @@
 #pragma once
-/// @file The compounding kernels (SPEC §7): one source for every backend. CompoundCPU.cpp and
+/// @file The compounding kernels (docs/conventions.md §7): one source for every backend. CompoundCPU.cpp and
 /// CompoundCUDA.cu include this file. Everything below the dispatch layer (Compounder.cpp)
 /// takes pre-validated raw pointers and sizes.
 ///
@@ -28,6 +28,7 @@
 #include "../backend/Convert.h"
 #include "CompoundTypes.h"
 #include "sonoslice/backend/HostDevice.h"
+#include "sonoslice/core/Error.h"
 
 #if defined(__CUDACC__)
 #include "../backend/ParallelForCUDA.cuh"
@@ -63,7 +64,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool inside_linear(const AccumulatorView&
          cz < float(g.nz);
 }
 
-/// The voxel nearest to a sample (SPEC §5 nearest: floor(c + 0.5)), given t = c + 0.5 (rows of
+/// The voxel nearest to a sample (docs/conventions.md §5 nearest: floor(c + 0.5)), given t = c + 0.5 (rows of
 /// nearest splats carry the 0.5 in their origin); false outside the grid.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool nearest_voxel(const AccumulatorView& g, float tx,
                                                           float ty, float tz, int* i) {
@@ -647,9 +648,15 @@ void visit_sample_type(PixelType type, F&& f) {
       return f(uint16_t{});
     case PixelType::Int16:
       return f(int16_t{});
-    default:
+    case PixelType::Float32:
       return f(float{});
+    case PixelType::Int8:
+    case PixelType::UInt32:
+    case PixelType::Int32:
+    case PixelType::Float64:
+      break;  // the Compounder converts these to float32 before they reach a kernel
   }
+  throw Error(std::string("compounding kernels: no kernel for ") + to_string(type) + " samples");
 }
 
 template <typename F>

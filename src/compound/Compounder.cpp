@@ -55,13 +55,14 @@ std::string format_dims(const std::array<int64_t, 3>& d) {
 
 Mode to_kernel_mode(CompoundingMode m) {
   switch (m) {
+    case CompoundingMode::Mean:
+      return Mode::Mean;
     case CompoundingMode::Max:
       return Mode::Max;
     case CompoundingMode::Latest:
       return Mode::Latest;
-    default:
-      return Mode::Mean;
   }
+  return Mode::Mean;
 }
 
 uint64_t accumulator_bytes_per_voxel(const CompoundSettings& s) {
@@ -124,7 +125,7 @@ RowLine make_line(const Vec3& c0, const Vec3& dc, double offset) {
   return l;
 }
 
-// The unit directions of the beams (SPEC §7), elevation slowest:
+// The unit directions of the beams (docs/conventions.md §7), elevation slowest:
 // (sin α, cos α·cos β, cos α·sin β).
 std::vector<Vec3> beam_directions(const BeamGeometry& g) {
   const double deg = kPi / 180.0;
@@ -181,11 +182,32 @@ std::vector<RowSpans> spans_from_mask(const std::vector<uint8_t>& mask, int widt
 
 }  // namespace
 
-SplatInterpolation parse_splat_interpolation(const std::string& name) {
-  const std::string n = text::lower(name);
-  if (n == "nearest" || n == "nearest_neighbor" || n == "nn") return SplatInterpolation::Nearest;
-  if (n == "linear" || n == "trilinear") return SplatInterpolation::Linear;
-  throw InputError("interpolation '" + name + "': expected nearest or linear");
+const char* to_string(CompoundingMode mode) {
+  switch (mode) {
+    case CompoundingMode::Mean:
+      return "mean";
+    case CompoundingMode::Max:
+      return "max";
+    case CompoundingMode::Latest:
+      return "latest";
+  }
+  return "?";
+}
+
+const char* to_string(HoleFillingKernel::Type type) {
+  switch (type) {
+    case HoleFillingKernel::NearestNeighbor:
+      return "nearest_neighbor";
+    case HoleFillingKernel::Gaussian:
+      return "gaussian";
+    case HoleFillingKernel::GaussianAccumulation:
+      return "gaussian_accumulation";
+    case HoleFillingKernel::DistanceWeightInverse:
+      return "distance_weight_inverse";
+    case HoleFillingKernel::Stick:
+      return "stick";
+  }
+  return "?";
 }
 
 CompoundingMode parse_compounding_mode(const std::string& name) {
@@ -419,7 +441,7 @@ struct Compounder::Impl {
   void run(const FrameBatch& batch) {
 #ifdef SONOSLICE_HAVE_CUDA
     if (cuda) {
-      cuda->add(batch, settings.interpolation == SplatInterpolation::Linear);
+      cuda->add(batch, settings.interpolation == Interpolation::Linear);
       return;
     }
 #endif
@@ -477,7 +499,7 @@ struct Compounder::Impl {
       }
       if (axis < 0) slabs = std::max(1, slabs / 2);
     }
-    compound_impl::compound_cpu(g, b, mode, settings.interpolation == SplatInterpolation::Linear,
+    compound_impl::compound_cpu(g, b, mode, settings.interpolation == Interpolation::Linear,
                                 axis, first[axis], last[axis], slabs);
   }
 
@@ -513,7 +535,7 @@ struct Compounder::Impl {
   }
 
   double line_offset() const {
-    return settings.interpolation == SplatInterpolation::Nearest ? 0.5 : 0.0;
+    return settings.interpolation == Interpolation::Nearest ? 0.5 : 0.0;
   }
 
   void check_frames(const void* data, int64_t count, const Mat4* matrices, const char* what) const {

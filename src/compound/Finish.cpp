@@ -147,9 +147,12 @@ bool fill(const Known& kn, const Element& e, int x, int y, int z, double* result
       return fill_nearest(kn, e, x, y, z, result);
     case HoleFillingKernel::Stick:
       return fill_stick(kn, e, x, y, z, result);
-    default:
+    case HoleFillingKernel::Gaussian:
+    case HoleFillingKernel::GaussianAccumulation:
+    case HoleFillingKernel::DistanceWeightInverse:
       return fill_weighted(kn, e, x, y, z, result);
   }
+  return false;
 }
 
 Element make_element(const HoleFillingKernel& k) {

@@ -16,6 +16,16 @@ WorldFrame parse_world_frame(const std::string& name) {
   throw InputError("world frame '" + name + "': expected LPS or RAS");
 }
 
+const char* to_string(WorldFrame frame) {
+  switch (frame) {
+    case WorldFrame::LPS:
+      return "LPS";
+    case WorldFrame::RAS:
+      return "RAS";
+  }
+  return "?";
+}
+
 Pose pose_to_lps(const Pose& pose, WorldFrame frame) {
   if (frame == WorldFrame::LPS) return pose;
   Pose out = pose;  // diag(-1, -1, 1, 1) · pose

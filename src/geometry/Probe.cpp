@@ -65,6 +65,22 @@ std::vector<uint8_t> ProbeGeometry::mask() const {
   return m;
 }
 
+const char* to_string(ProbeType type) {
+  switch (type) {
+    case ProbeType::Curvilinear:
+      return "curvilinear";
+    case ProbeType::Linear:
+      return "linear";
+  }
+  return "?";
+}
+
+ProbeType parse_probe_type(const std::string& name) {
+  if (name == to_string(ProbeType::Curvilinear)) return ProbeType::Curvilinear;
+  if (name == to_string(ProbeType::Linear)) return ProbeType::Linear;
+  throw InputError("probe type '" + name + "': expected curvilinear or linear");
+}
+
 std::string ProbeGeometry::describe() const {
   std::ostringstream s;
   if (type == ProbeType::Curvilinear)

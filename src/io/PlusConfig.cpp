@@ -338,11 +338,11 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
     }
   }
 
-  s.interpolation = SplatInterpolation::Nearest;  // PLUS's default
+  s.interpolation = Interpolation::Nearest;  // PLUS's default
   if (a.has("Interpolation"))
     s.interpolation = a.choice("Interpolation", {"LINEAR", "NEAREST_NEIGHBOR"}) == "LINEAR"
-                          ? SplatInterpolation::Linear
-                          : SplatInterpolation::Nearest;
+                          ? Interpolation::Linear
+                          : Interpolation::Nearest;
 
   // Compounding: CompoundingMode, else the deprecated Calculation / Compounding.
   std::string calculation, compounding;

@@ -1,4 +1,4 @@
-// PLUS toolkit tracked-frame sequences (SPEC §7): MetaImage (.mha) and NRRD (.nrrd) sequence
+// PLUS toolkit tracked-frame sequences (docs/conventions.md §7): MetaImage (.mha) and NRRD (.nrrd) sequence
 // files read and written without ITK. The header text is parsed here; the pixel data is read (or
 // inflated with zlib) straight into the sequence's one pixel buffer, then flipped to MF in place.
 //
@@ -207,7 +207,7 @@ std::string nrrd_type_name(PixelType t) {
   // NRRD's names, except for the two float types.
   if (t == PixelType::Float32) return "float";
   if (t == PixelType::Float64) return "double";
-  return pixel_type_name(t);
+  return to_string(t);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -913,7 +913,7 @@ void write_plus_sequence(const std::string& path, const PlusSequence& s, bool co
                      "': " + std::to_string(s.pixels.size()) + " pixel bytes, expected " +
                      std::to_string(frame_bytes * uint64_t(s.frame_count)) + " for " +
                      std::to_string(s.frame_count) + " frames of " + std::to_string(s.width) + "x" +
-                     std::to_string(s.height) + " " + pixel_type_name(s.pixel_type));
+                     std::to_string(s.height) + " " + to_string(s.pixel_type));
   if (s.frame_fields.size() > size_t(s.frame_count))
     throw InputError("cannot write PLUS sequence '" + path + "': fields for " +
                      std::to_string(s.frame_fields.size()) + " frames but " +

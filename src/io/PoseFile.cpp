@@ -46,7 +46,7 @@ Mat4 matrix_from_row_major(const std::vector<double>& values) {
 std::vector<Pose> poses_from_npy(const std::string& path) {
   const NpyArray a = read_npy(path);
   if (a.type != PixelType::Float32 && a.type != PixelType::Float64)
-    throw InputError("poses '" + path + "': dtype " + pixel_type_name(a.type) +
+    throw InputError("poses '" + path + "': dtype " + to_string(a.type) +
                      " (expected float32 or float64)");
   // Element (r, c) of pose n, honouring C or Fortran order.
   const std::vector<int64_t> strides = npy_element_strides(a);

@@ -128,7 +128,7 @@ ProbeGeometry parse_native(const json& root, const std::string& source, int ds) 
   return p;
 }
 
-// SPEC §4: fan-slicer's "simulation" block.
+// docs/conventions.md §4: fan-slicer's "simulation" block.
 ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int ds) {
   // "models" (surface files) is read by the surface module; it does not change the probe.
   Keys top(root, "fan-slicer config '" + source + "'", {"simulation", "models"});
@@ -203,12 +203,12 @@ ProbeGeometry read_probe(const std::string& path, int downsampling) {
 std::string probe_to_json(const ProbeGeometry& probe) {
   json j;
   if (probe.type == ProbeType::Curvilinear) {
-    j["type"] = "curvilinear";
+    j["type"] = to_string(probe.type);
     j["radius_mm"] = probe.radius_mm;
     j["depth_mm"] = probe.depth_mm;
     j["sector_deg"] = probe.sector_deg;
   } else {
-    j["type"] = "linear";
+    j["type"] = to_string(probe.type);
     if (probe.has_width) j["width_mm"] = probe.width_mm;
     if (probe.has_depth) j["depth_mm"] = probe.depth_mm;
   }

@@ -312,6 +312,16 @@ PhantomSize parse_phantom_size(const std::string& name) {
   throw InputError("phantom size '" + name + "': expected small or full");
 }
 
+const char* to_string(PhantomSize size) {
+  switch (size) {
+    case PhantomSize::Small:
+      return "small";
+    case PhantomSize::Full:
+      return "full";
+  }
+  return "?";
+}
+
 const char* phantom_label_name(int label) {
   static const char* names[kPhantomLabelCount] = {
       "air",  "fat",    "soft tissue", "liver", "hepatic vessel", "great vessel", "bone",

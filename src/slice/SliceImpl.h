@@ -1,5 +1,5 @@
 #pragma once
-/// @file The slicing kernel (SPEC §5): one source for every backend. SliceCPU.cpp (generic
+/// @file The slicing kernel (docs/conventions.md §5): one source for every backend. SliceCPU.cpp (generic
 /// x86-64), SliceCPUAvx2.cpp (AVX2 + FMA) and SliceCUDA.cu include this file. Everything below
 /// the dispatch layer takes pre-validated raw pointers and sizes.
 ///
@@ -39,7 +39,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F trilinear(F fx, F fy, F fz, F v000, F v
   return lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz);
 }
 
-/// SPEC §5 `linear` at continuous index (cx, cy, cz), already known to be inside
+/// docs/conventions.md §5 `linear` at continuous index (cx, cy, cz), already known to be inside
 /// [-0.5, n - 0.5) on every axis. Neighbour indices are clamped to [0, n - 1].
 template <typename Acc, typename TIn>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc sample_linear(const TIn* __restrict__ volume,
@@ -61,7 +61,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc sample_linear(const TIn* __restrict__
                    Acc(volume[r11 + x0]), Acc(volume[r11 + x1]));
 }
 
-/// SPEC §5 `nearest`: index floor(c + 0.5), clamped.
+/// docs/conventions.md §5 `nearest`: index floor(c + 0.5), clamped.
 template <typename TIn, typename Acc>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE TIn sample_nearest(const TIn* __restrict__ volume,
                                                           const VolumeView& g, Acc cx, Acc cy,
@@ -77,7 +77,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE TIn sample_nearest(const TIn* __restrict_
 /// One output image row at a time: row r of the batch is row v = r % H of image n = r / H.
 template <typename TIn, typename TOut, bool Linear>
 struct SliceKernel {
-  // Geometry in float except for float64 volumes (SPEC §5 allows float32 geometry).
+  // Geometry in float except for float64 volumes (docs/conventions.md §5 allows float32 geometry).
   using Acc = typename std::conditional<std::is_same<TIn, double>::value, double, float>::type;
 
   const TIn* volume;
@@ -119,7 +119,7 @@ struct SliceKernel {
     const Acc cx = backend::add_product(s.c[0], Acc(u), s.d[0]);
     const Acc cy = backend::add_product(s.c[1], Acc(u), s.d[1]);
     const Acc cz = backend::add_product(s.c[2], Acc(u), s.d[2]);
-    // SPEC §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so NaN is outside.
+    // docs/conventions.md §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so NaN is outside.
     if (!(cx >= Acc(-0.5) && cx < Acc(grid.nx) - Acc(0.5) && cy >= Acc(-0.5) &&
           cy < Acc(grid.ny) - Acc(0.5) && cz >= Acc(-0.5) && cz < Acc(grid.nz) - Acc(0.5))) {
       s.out[u] = fill;

@@ -3,6 +3,7 @@
 /// kernels (SliceImpl.h). Trivially copyable, captured by value on every backend.
 #include <cstdint>
 
+#include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
@@ -49,10 +50,15 @@ decltype(auto) visit_output_type(PixelType type, F&& f) {
       return f(int16_t{});
     case PixelType::UInt16:
       return f(uint16_t{});
-    default:
-      break;
+    case PixelType::Float32:
+      return f(float{});
+    case PixelType::Int8:
+    case PixelType::UInt32:
+    case PixelType::Int32:
+    case PixelType::Float64:
+      break;  // Slicer's constructor refuses these output types (is_slice_output_type)
   }
-  return f(float{});
+  throw Error("slicing kernels: no kernel writes " + to_string(type) + " images");
 }
 
 }  // namespace slice_impl

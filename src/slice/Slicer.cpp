@@ -17,16 +17,6 @@ void slice_cpu_avx2(const SliceLaunch& launch);
 #endif
 }  // namespace slice_impl
 
-Interpolation parse_interpolation(const std::string& name) {
-  if (name == "linear" || name == "trilinear") return Interpolation::Linear;
-  if (name == "nearest") return Interpolation::Nearest;
-  throw InputError("interpolation '" + name + "': expected linear or nearest");
-}
-
-std::string interpolation_name(Interpolation interpolation) {
-  return interpolation == Interpolation::Linear ? "linear" : "nearest";
-}
-
 bool is_slice_output_type(PixelType type) {
   return type == PixelType::Float32 || type == PixelType::Int16 || type == PixelType::UInt8 ||
          type == PixelType::UInt16;
@@ -42,7 +32,7 @@ Slicer::Slicer(Volume volume, ProbeGeometry probe, SliceSettings settings, Devic
       throw InputError("volume: too many voxels along axis " + std::to_string(a));
   probe_.validate("probe");
   if (!is_slice_output_type(settings_.output_type))
-    throw InputError("output type " + pixel_type_name(settings_.output_type) +
+    throw InputError("output type " + to_string(settings_.output_type) +
                      ": expected float32, int16, uint8 or uint16");
   if (std::isnan(settings_.fill_value)) {
     // NaN is a legitimate fill for float output (marks "no data"); integers cannot hold it.
@@ -63,8 +53,8 @@ size_t Slicer::image_bytes() const {
 
 void Slicer::check_output_type(PixelType type) const {
   if (type != settings_.output_type)
-    throw InputError("slicer: output buffer type " + pixel_type_name(type) +
-                     " does not match the output type " + pixel_type_name(settings_.output_type));
+    throw InputError("slicer: output buffer type " + to_string(type) +
+                     " does not match the output type " + to_string(settings_.output_type));
 }
 
 namespace {

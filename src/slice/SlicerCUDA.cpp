@@ -57,7 +57,7 @@ std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::ve
   const size_t bytes = volume.byte_size();
   // The volume keeps its pixel type on the GPU: an int16 CT costs 2 bytes per voxel there too.
   st->volume.reserve(bytes, st->name + ": the volume (" + std::to_string(bytes >> 20) + " MiB, " +
-                                pixel_type_name(volume.pixel_type()) + ")");
+                                to_string(volume.pixel_type()) + ")");
   cuda::copy_to_device(st->volume.data(), volume.data(), bytes, st->streams[0]->get(),
                        st->name + ": uploading the volume");
   st->mask.reserve(mask.size(), st->name + ": the probe mask");

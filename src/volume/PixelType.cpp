@@ -8,7 +8,7 @@ size_t pixel_size(PixelType type) {
   return visit_pixel_type(type, [](auto zero) { return sizeof(zero); });
 }
 
-std::string pixel_type_name(PixelType type) {
+std::string to_string(PixelType type) {
   switch (type) {
     case PixelType::UInt8:
       return "uint8";
@@ -33,7 +33,7 @@ std::string pixel_type_name(PixelType type) {
 PixelType parse_pixel_type(const std::string& name) {
   for (PixelType t : {PixelType::UInt8, PixelType::Int8, PixelType::UInt16, PixelType::Int16,
                       PixelType::UInt32, PixelType::Int32, PixelType::Float32, PixelType::Float64})
-    if (pixel_type_name(t) == name) return t;
+    if (to_string(t) == name) return t;
   if (name == "float") return PixelType::Float32;
   if (name == "double") return PixelType::Float64;
   throw InputError("pixel type '" + name +

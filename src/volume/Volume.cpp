@@ -20,7 +20,7 @@ Volume Volume::allocate(PixelType type, const VolumeGrid& grid) {
   if (!p) {
     std::ostringstream s;
     s << "cannot allocate a " << grid.dims[0] << "x" << grid.dims[1] << "x" << grid.dims[2] << " "
-      << pixel_type_name(type) << " volume (" << double(bytes) / (1 << 20) << " MiB)";
+      << to_string(type) << " volume (" << double(bytes) / (1 << 20) << " MiB)";
     throw ResourceError(s.str());
   }
   return wrap(p, type, grid, std::shared_ptr<void>(p, std::free));

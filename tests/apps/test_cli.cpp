@@ -166,9 +166,9 @@ TEST_F(Cli, DemoAndBenchRun) {
 }
 
 TEST_F(Cli, VoxelizeAndSliceMeshesInBothModesWithColours) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
+  SONOSLICE_REQUIRE_DATA();
   test::TempDir out;
-  const std::string d = test::shared_data_dir() + "/fanslicer";
+  const std::string d = test::data_dir() + "/fanslicer";
   const std::string veins = quote(d + "/hepatic veins.vtk"), portal = quote(d + "/portal vein.vtk");
   // voxelize: two meshes (names with spaces) into one label volume, fan-slicer's grid.
   CliRun r = run("voxelize " + veins + " " + portal + " --spacing 0.5 --margin 20 --out " +
@@ -228,9 +228,9 @@ TEST_F(Cli, VoxelizeAndSliceMeshesInBothModesWithColours) {
 }
 
 TEST_F(Cli, CompoundPlusSequencesBothFormatsAgree) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
+  SONOSLICE_REQUIRE_DATA();
   test::TempDir out;
-  const std::string plus = test::shared_data_dir() + "/plus/";
+  const std::string plus = test::data_dir() + "/plus/";
   const std::string xml =
       quote(plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml");
   const CliRun a = run("compound --sequence " + quote(plus + "NwirePhantomFreehand.igs.mha") +
@@ -322,8 +322,8 @@ TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
   ASSERT_EQ(b.code, 0) << b.err;
   const Volume bv = read_volume(out.file("b.nii"));
   EXPECT_EQ(bv.pixel_type(), PixelType::UInt8);
-  // The library, given the same frames in SPEC §7's (elevation, azimuth, sample) order, makes
-  // the same volume (its own placement is checked against the SPEC in test_core).
+  // The library, given the same frames in docs/conventions.md §7's (elevation, azimuth, sample) order, makes
+  // the same volume (its own placement is checked against docs/conventions.md in test_core).
   BeamGeometry g;
   g.n_elevation = 4;
   g.n_azimuth = 6;
@@ -400,7 +400,7 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
   tet.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
   write_mesh(dir.file("in_tet.stl"), tet);
   // Compounding inputs: a truncated PLUS sequence, a bad PLUS XML, beam frames with a typo.
-  const std::string seq = test::shared_data_dir() + "/plus/NwirePhantomFreehand.igs.mha";
+  const std::string seq = test::data_dir() + "/plus/NwirePhantomFreehand.igs.mha";
   if (fs::exists(seq)) {
     fs::copy_file(seq, dir.file("in_seq.igs.mha"));
     fs::resize_file(dir.file("in_seq.igs.mha"), fs::file_size(seq) / 2);
@@ -435,7 +435,7 @@ TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
   replace("{POSES}", poses());
   replace("{OUT}", quote(out.file("out.npy")));
   replace("{DIR}", out.path().string());
-  replace("{SHARED}", test::shared_data_dir());
+  replace("{SHARED}", test::data_dir());
   const CliRun r = run(args, out);
   EXPECT_EQ(r.code, 1) << r.err;
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;

@@ -24,9 +24,9 @@ TempDir::~TempDir() {
   fs::remove_all(path_, ec);
 }
 
-std::string shared_data_dir() {
-#ifdef SONOSLICE_SHARED_DATA_DIR
-  const fs::path p(SONOSLICE_SHARED_DATA_DIR);
+std::string data_dir() {
+#ifdef SONOSLICE_DATA_DIR
+  const fs::path p(SONOSLICE_DATA_DIR);
   std::error_code ec;
   if (fs::is_directory(p / "fanslicer", ec)) return fs::canonical(p).string();
 #endif

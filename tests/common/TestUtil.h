@@ -1,6 +1,6 @@
 #pragma once
 // Helpers shared by the test programs: temporary directories, analytic volumes, poses, and an
-// independent float64 evaluation of SPEC §5 to compare the kernels against.
+// independent float64 evaluation of docs/conventions.md §5 to compare the kernels against.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -31,12 +31,15 @@ class TempDir {
   std::filesystem::path path_;
 };
 
-/// ../shared/data (CMake passes its location); empty when it is not there.
-std::string shared_data_dir();
-#define SONOSLICE_REQUIRE_SHARED_DATA()                                  \
-  do {                                                                   \
-    if (::sonoslice::test::shared_data_dir().empty())                    \
-      GTEST_SKIP() << "../shared/data not found next to the repository"; \
+/// The repository's data/ folder of real files (CMake passes its location; see data/README.md);
+/// empty when it is not there.
+std::string data_dir();
+/// The real data ships with the repository, so a missing data/ is a broken checkout: fail, never
+/// skip (a skipped real-data test would let a fresh clone look green without testing anything).
+#define SONOSLICE_REQUIRE_DATA()                                                          \
+  do {                                                                                    \
+    if (::sonoslice::test::data_dir().empty())                                            \
+      GTEST_FAIL() << "the repository's data/ folder is missing (see data/README.md)";  \
   } while (0)
 
 /// A volume of type T whose voxel (i, j, k) holds f(world position of its centre).
@@ -55,7 +58,7 @@ Volume make_volume(const VolumeGrid& grid, const std::function<double(const Vec3
 /// A rotation by `degrees` about the unit axis.
 Mat3 rotation(Vec3 axis, double degrees);
 
-/// A curvilinear probe (SPEC §3) with a width × height image of square pixels, centred laterally.
+/// A curvilinear probe (docs/conventions.md §3) with a width × height image of square pixels, centred laterally.
 ProbeGeometry curvilinear_probe(double radius_mm, double depth_mm, double sector_deg, int width,
                                 int height, double spacing_mm, double face_y_mm = 0.0);
 
@@ -68,7 +71,7 @@ Pose make_pose(const Mat3& r, const Vec3& origin);
 /// Random poses whose probe origin lies within `radius` mm of `centre`.
 std::vector<Pose> random_poses(size_t count, const Vec3& centre, double radius, uint32_t seed);
 
-/// SPEC §5 evaluated in float64 for one world point: returns false (and `fill`) outside the
+/// docs/conventions.md §5 evaluated in float64 for one world point: returns false (and `fill`) outside the
 /// buffer; `margin` receives the distance (in voxels) of c to the nearest inside/outside
 /// boundary (and, for nearest, to the nearest rounding tie x.5), so callers can exclude pixels
 /// within 1e-3 voxel of it.

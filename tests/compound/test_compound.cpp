@@ -1,4 +1,4 @@
-// Compounding (SPEC §7): known answers for every splat and compounding mode, clip rectangles and
+// Compounding (docs/conventions.md §7): known answers for every splat and compounding mode, clip rectangles and
 // fans, hole filling, an independent float64 oracle, thread-count bit identity, incremental vs
 // batch, 3-D beam frames, the slicer round trip, memory limits and bad input.
 #include <gtest/gtest.h>
@@ -34,7 +34,7 @@ Mat4 translation(double x, double y, double z) {
   return frame_matrix({{x, y, z}}, {{1, 0, 0}}, {{0, 1, 0}});
 }
 
-CompoundSettings settings(SplatInterpolation interp, CompoundingMode mode) {
+CompoundSettings settings(Interpolation interp, CompoundingMode mode) {
   CompoundSettings s;
   s.interpolation = interp;
   s.mode = mode;
@@ -55,7 +55,7 @@ int64_t offset(const VolumeGrid& g, int64_t x, int64_t y, int64_t z) {
 
 TEST(Compound, NearestFrameOnVoxelCentresIsCopiedIntoItsSlice) {
   const VolumeGrid g = unit_grid(8, 6, 4);
-  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean));
+  Compounder c(g, settings(Interpolation::Nearest, CompoundingMode::Mean));
   std::vector<uint8_t> frame(8 * 6);
   for (size_t i = 0; i < frame.size(); ++i) frame[i] = uint8_t(3 * i + 1);
   c.add_image(frame.data(), PixelType::UInt8, 8, 6, translation(0, 0, 2));
@@ -82,7 +82,7 @@ TEST_P(CompoundBackendTest, MeanMaxLatestOfThreeFramesAtOnePose) {
   };
   for (const Case& k : {Case{CompoundingMode::Mean, (10.f + 25.f + 4.f) / 3.f},
                         Case{CompoundingMode::Max, 25.f}, Case{CompoundingMode::Latest, 4.f}}) {
-    for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+    for (auto interp : {Interpolation::Nearest, Interpolation::Linear}) {
       Compounder c(g, settings(interp, k.mode), device());
       for (const auto* f : {&a, &b, &low})
         c.add_image(f->data(), PixelType::UInt8, 4, 4, translation(0, 0, 1));
@@ -96,7 +96,7 @@ TEST_P(CompoundBackendTest, MeanMaxLatestOfThreeFramesAtOnePose) {
 
 TEST(Compound, LinearSplatSpreadsOneSampleWithTrilinearWeights) {
   const VolumeGrid g = unit_grid(6, 6, 6);
-  Compounder c(g, settings(SplatInterpolation::Linear, CompoundingMode::Mean));
+  Compounder c(g, settings(Interpolation::Linear, CompoundingMode::Mean));
   const float sample = 80.f;
   c.add_image(&sample, PixelType::Float32, 1, 1, translation(2.25, 3.5, 1.75));
   const auto w = as_floats(c.weights());
@@ -121,7 +121,7 @@ TEST(Compound, LinearSplatOfARampOnASymmetricSampleLatticeIsExact) {
   // Samples every 0.25 voxel, symmetric around each voxel centre: the weighted mean of a linear
   // function is its value at the voxel centre.
   const VolumeGrid g = unit_grid(10, 10, 5);
-  Compounder c(g, settings(SplatInterpolation::Linear, CompoundingMode::Mean));
+  Compounder c(g, settings(Interpolation::Linear, CompoundingMode::Mean));
   const int W = 37, H = 37;  // 0 .. 9 voxels in steps of 0.25
   for (int s = 0; s <= 16; ++s) {
     const double z = s * 0.25;
@@ -140,7 +140,7 @@ TEST(Compound, LinearSplatOfARampOnASymmetricSampleLatticeIsExact) {
 
 TEST(Compound, LatestKeepsTheMeanOfTheNewestFrameThatReachedEachVoxel) {
   const VolumeGrid g = unit_grid(4, 4, 1);
-  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Latest));
+  Compounder c(g, settings(Interpolation::Nearest, CompoundingMode::Latest));
   // 8×8 pixels of 0.5 mm: four pixels per voxel.
   const std::vector<uint8_t> old(64, 100);
   c.add_image(old.data(), PixelType::UInt8, 8, 8,
@@ -166,7 +166,7 @@ TEST(Compound, LatestKeepsTheMeanOfTheNewestFrameThatReachedEachVoxel) {
 
 TEST(Compound, RejectionThresholdSkipsDarkerSamplesOnly) {
   const VolumeGrid g = unit_grid(4, 1, 1);
-  CompoundSettings s = settings(SplatInterpolation::Nearest, CompoundingMode::Mean);
+  CompoundSettings s = settings(Interpolation::Nearest, CompoundingMode::Mean);
   s.rejection_threshold = 20;
   Compounder c(g, s);
   const uint8_t frame[4] = {5, 19, 20, 200};
@@ -180,7 +180,7 @@ TEST(Compound, RejectionThresholdSkipsDarkerSamplesOnly) {
 
 TEST(Compound, OutputTypesRoundAndSaturate) {
   const VolumeGrid g = unit_grid(3, 1, 1);
-  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean), Device::cpu(), 0,
+  Compounder c(g, settings(Interpolation::Nearest, CompoundingMode::Mean), Device::cpu(), 0,
                PixelType::Float32);
   const float frame[3] = {-7.6f, 2.5f, 300.4f};
   c.add_image(frame, PixelType::Float32, 3, 1, translation(0, 0, 0));
@@ -212,7 +212,7 @@ TEST(Compound, ClipRectangleKeepsOnlyItsPixels) {
   EXPECT_EQ(count, 6);
 
   const VolumeGrid g = unit_grid(8, 6, 1);
-  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean));
+  Compounder c(g, settings(Interpolation::Nearest, CompoundingMode::Mean));
   const std::vector<uint8_t> frame(48, 9);
   c.add_image(frame.data(), PixelType::UInt8, 8, 6, translation(0, 0, 0), clip);
   const auto w = as_floats(c.weights());
@@ -256,7 +256,7 @@ TEST(Compound, FanClipFollowsPlusConventions) {
 // Inserts single samples (value at voxel) with 1×1 frames, nearest.
 Compounder with_known_voxels(const VolumeGrid& g, const std::map<std::array<int, 3>, float>& known,
                              const std::vector<HoleFillingKernel>& kernels) {
-  CompoundSettings s = settings(SplatInterpolation::Nearest, CompoundingMode::Mean);
+  CompoundSettings s = settings(Interpolation::Nearest, CompoundingMode::Mean);
   s.fill_holes = true;
   s.hole_filling = kernels;
   Compounder c(g, s);
@@ -325,7 +325,7 @@ TEST(HoleFilling, InverseDistanceAndAccumulationWeights) {
   EXPECT_NEAR(as_floats(dwi.volume(PixelType::Float32))[offset(g, 1, 1, 1)],
               (10 * w1 + 40 * w3) / (w1 + w3), 1e-4);
   // Gaussian weights times each voxel's splat weight: a voxel reached twice counts double.
-  CompoundSettings s = settings(SplatInterpolation::Nearest, CompoundingMode::Mean);
+  CompoundSettings s = settings(Interpolation::Nearest, CompoundingMode::Mean);
   s.fill_holes = true;
   k.type = HoleFillingKernel::GaussianAccumulation;
   k.stdev = 1;
@@ -520,7 +520,7 @@ TEST_P(CompoundBackendTest, MatchesTheFloat64Oracle) {
   for (bool linear : {false, true}) {
     const Oracle o = oracle(s.grid, oracle_frames(s), linear);
     Compounder c(s.grid,
-                 settings(linear ? SplatInterpolation::Linear : SplatInterpolation::Nearest,
+                 settings(linear ? Interpolation::Linear : Interpolation::Nearest,
                           CompoundingMode::Mean),
                  device());
     c.add_images(s.pixels.data(), PixelType::UInt8, s.width, s.height, int64_t(s.poses.size()),
@@ -553,7 +553,7 @@ SONOSLICE_INSTANTIATE_BACKENDS(CompoundBackendTest);
 TEST(Compound, BitIdenticalFor1_2And16Threads) {
   const Sweep s = make_sweep(30, 11);
   for (auto mode : {CompoundingMode::Mean, CompoundingMode::Max, CompoundingMode::Latest}) {
-    for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+    for (auto interp : {Interpolation::Nearest, Interpolation::Linear}) {
       std::vector<std::vector<uint8_t>> results;
       for (int threads : {1, 2, 16}) {
         set_cpu_threads(threads);
@@ -581,7 +581,7 @@ TEST(Compound, GenericAndAvx2KernelsGiveTheSameBits) {
   }
   const Sweep s = make_sweep(20, 13);
   for (auto mode : {CompoundingMode::Mean, CompoundingMode::Max, CompoundingMode::Latest}) {
-    for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+    for (auto interp : {Interpolation::Nearest, Interpolation::Linear}) {
       std::vector<float> results[2];
       for (const char* isa : {"avx2", "generic"}) {
         set_cpu_kernel_isa(isa);
@@ -600,7 +600,7 @@ TEST(Compound, GenericAndAvx2KernelsGiveTheSameBits) {
 
 TEST(Compound, IncrementalFramesGiveTheBatchResult) {
   const Sweep s = make_sweep(20, 5);
-  for (auto interp : {SplatInterpolation::Nearest, SplatInterpolation::Linear}) {
+  for (auto interp : {Interpolation::Nearest, Interpolation::Linear}) {
     CompoundSettings st = settings(interp, CompoundingMode::Mean);
     st.fill_holes = true;
     Compounder batch(s.grid, st), live(s.grid, st);
@@ -663,7 +663,7 @@ TEST_P(CompoundBackendTest, BeamFramesLandWhereSpec7PutsTheirSamples) {
       }
     }
   const Oracle o = oracle(grid, {of}, false);
-  Compounder c(grid, settings(SplatInterpolation::Nearest, CompoundingMode::Mean), device());
+  Compounder c(grid, settings(Interpolation::Nearest, CompoundingMode::Mean), device());
   c.add_beams(samples.data(), PixelType::Float32, bg, pose);
   const auto v = as_floats(c.volume(PixelType::Float32));
   const auto w = as_floats(c.weights());
@@ -707,7 +707,7 @@ TEST(Compound, RoundTripThroughTheSlicerRecoversTheVolume) {
     image_to_reference.push_back(
         p * frame_matrix({{probe.image.origin_mm[0], probe.image.origin_mm[1], 0}}, {{0.3, 0, 0}},
                          {{0, 0.3, 0}}));
-  Compounder c(grid, settings(SplatInterpolation::Linear, CompoundingMode::Mean), Device::cpu(), 0,
+  Compounder c(grid, settings(Interpolation::Linear, CompoundingMode::Mean), Device::cpu(), 0,
                PixelType::Float32);
   c.add_images(images.data(), PixelType::Float32, probe.image.width, probe.image.height,
                int64_t(poses.size()), image_to_reference.data());
@@ -810,7 +810,7 @@ TEST(Compound, BadInputIsRejectedWithAClearMessage) {
   bad.hole_filling[0].size = 4;
   EXPECT_THROW(Compounder(g, bad), InputError);
   EXPECT_THROW(parse_compounding_mode("median"), InputError);
-  EXPECT_THROW(parse_splat_interpolation("cubic"), InputError);
+  EXPECT_THROW(parse_interpolation("cubic"), InputError);
   EXPECT_EQ(c.frames_added(), 0);  // nothing went in
   // Frames entirely outside the grid are accepted and change nothing.
   c.add_image(px, PixelType::UInt8, 2, 2, translation(100, 100, 100));
@@ -820,7 +820,7 @@ TEST(Compound, BadInputIsRejectedWithAClearMessage) {
 
 TEST(Compound, OtherSampleTypesAreConvertedNotRejected) {
   const VolumeGrid g = unit_grid(2, 1, 1);
-  Compounder c(g, settings(SplatInterpolation::Nearest, CompoundingMode::Mean));
+  Compounder c(g, settings(Interpolation::Nearest, CompoundingMode::Mean));
   const double px[2] = {1.5, -2.25};
   c.add_image(px, PixelType::Float64, 2, 1, translation(0, 0, 0));
   const auto v = as_floats(c.volume(PixelType::Float32));

@@ -1,4 +1,4 @@
-// Probe shapes (SPEC §3), poses (SPEC §2) and volume grids (SPEC §1).
+// Probe shapes (docs/conventions.md §3), poses (docs/conventions.md §2) and volume grids (docs/conventions.md §1).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -22,7 +22,7 @@ ProbeGeometry w1_fan() {
   return workload_w1_fan_probe();
 }
 
-// The mask, recomputed here from the SPEC §3 wording with polar coordinates about the apex.
+// The mask, recomputed here from the docs/conventions.md §3 wording with polar coordinates about the apex.
 TEST(ProbeMask, CurvilinearMatchesSpecFormula) {
   for (const double sector : {36.0, 70.0, 110.0}) {
     ProbeGeometry p = w1_fan();
@@ -199,7 +199,7 @@ TEST(VolumeGrid, WorldToIndexInvertsIndexToWorld) {
   const Vec3 c1 = g.world_to_index(p),
              c2 = g.world_to_index_linear() * p + g.world_to_index_offset();
   for (int a = 0; a < 3; ++a) EXPECT_NEAR(c1[a], c2[a], 1e-12);
-  // SPEC §1: voxel centre = origin + D·diag(spacing)·c (no half-voxel shift).
+  // docs/conventions.md §1: voxel centre = origin + D·diag(spacing)·c (no half-voxel shift).
   const Vec3 w = g.index_to_world({1, 0, 0});
   const Vec3 axis = g.direction.column(0);
   for (int a = 0; a < 3; ++a) EXPECT_NEAR(w[a], g.origin_mm[a] + 0.9 * axis[a], 1e-12);

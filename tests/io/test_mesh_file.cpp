@@ -87,8 +87,8 @@ TEST(MeshFile, BadFilesNameTheFile) {
 }
 
 TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
-  const std::string d = test::shared_data_dir() + "/fanslicer";
+  SONOSLICE_REQUIRE_DATA();
+  const std::string d = test::data_dir() + "/fanslicer";
   const auto models = read_fanslicer_models(d + "/models_binary_LUS_config.json", d);
   // simulation_models [0, 1, 1, 1]: the liver is off; the k-th enabled model is label k.
   ASSERT_EQ(models.size(), 3u);
@@ -106,8 +106,8 @@ TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
 // The real meshes: closed, volumes preserved by voxelisation, and voxel vs exact label images
 // agreeing (Dice) on fans through the liver.
 TEST(RealMeshes, VoxelisedAndExactModesAgree) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
-  const std::string d = test::shared_data_dir() + "/fanslicer/";
+  SONOSLICE_REQUIRE_DATA();
+  const std::string d = test::data_dir() + "/fanslicer/";
   std::vector<TriangleMesh> meshes;
   for (const char* name : {"liver", "hepatic veins", "portal vein", "arteries"}) {
     meshes.push_back(read_mesh(d + name + ".vtk"));

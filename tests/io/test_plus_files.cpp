@@ -1,6 +1,6 @@
-// PLUS toolkit files (SPEC §7): tracked-frame sequences (.mha / .nrrd, compressed or raw), their
+// PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.mha / .nrrd, compressed or raw), their
 // orientations, the transform repository, and PLUS configuration XML. Real data from PlusLibData
-// (../shared/data/plus), synthetic files for every corner the real ones do not reach.
+// (data/plus), synthetic files for every corner the real ones do not reach.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -27,14 +27,14 @@ namespace fs = std::filesystem;
 // Helpers
 
 std::string plus_data(const std::string& name) {
-  return test::shared_data_dir() + "/plus/" + name;
+  return test::data_dir() + "/plus/" + name;
 }
 
 #define REQUIRE_PLUS_DATA()                                                \
   do {                                                                     \
-    SONOSLICE_REQUIRE_SHARED_DATA();                                       \
+    SONOSLICE_REQUIRE_DATA();                                       \
     if (!fs::exists(plus_data("NwirePhantomFreehand.igs.mha")))            \
-      GTEST_SKIP() << "../shared/data/plus (PlusLibData files) not found"; \
+      GTEST_FAIL() << "data/plus (PlusLibData files) is missing";         \
   } while (0)
 
 /// Runs f and returns the message of the exception E it throws (a test failure otherwise).
@@ -327,7 +327,7 @@ struct RoundTripCase {
 };
 
 void PrintTo(const RoundTripCase& c, std::ostream* os) {
-  *os << c.extension << (c.compress ? " compressed " : " raw ") << pixel_type_name(c.type);
+  *os << c.extension << (c.compress ? " compressed " : " raw ") << to_string(c.type);
 }
 
 class PlusSequenceRoundTrip : public ::testing::TestWithParam<RoundTripCase> {};
@@ -366,7 +366,7 @@ INSTANTIATE_TEST_SUITE_P(Formats, PlusSequenceRoundTrip, ::testing::ValuesIn(rou
                          [](const ::testing::TestParamInfo<RoundTripCase>& info) {
                            return std::string(info.param.extension == ".igs.mha" ? "mha" : "nrrd") +
                                   (info.param.compress ? "_compressed_" : "_raw_") +
-                                  pixel_type_name(info.param.type);
+                                  to_string(info.param.type);
                          });
 
 // The header PLUS writes: fields in PLUS's order and style, the compressed size filled in.
@@ -776,7 +776,7 @@ TEST(PlusConfigReal, NwireSettings) {
       plus_data("PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml");
   const PlusReconstructionConfig c = read_plus_config(path);
   EXPECT_EQ(c.path, path);
-  EXPECT_EQ(c.settings.interpolation, SplatInterpolation::Linear);
+  EXPECT_EQ(c.settings.interpolation, Interpolation::Linear);
   EXPECT_EQ(c.settings.mode, CompoundingMode::Mean);
   EXPECT_FALSE(c.settings.fill_holes);
   EXPECT_EQ(c.clip.x, 167);
@@ -809,7 +809,7 @@ TEST(PlusConfigReal, BoneDeprecatedCompounding) {
   WarningCapture warnings;
   const PlusReconstructionConfig c = read_plus_config(plus_data("BoneUltrasound_L14_config.xml"));
   EXPECT_EQ(c.settings.mode, CompoundingMode::Mean);  // Compounding="On"
-  EXPECT_EQ(c.settings.interpolation, SplatInterpolation::Linear);
+  EXPECT_EQ(c.settings.interpolation, Interpolation::Linear);
   EXPECT_FALSE(c.settings.fill_holes);  // FillHoles="Off"
   EXPECT_EQ(c.clip.width, 821);  // cut at the frame's edge when used
   EXPECT_EQ(c.clip.height, 617);
@@ -877,7 +877,7 @@ TEST_F(PlusConfigSynthetic, FanHoleFillingAndUnknownAttributes) {
   EXPECT_EQ(c.clip.fan_radius_px[1], 190);
   EXPECT_EQ(c.settings.rejection_threshold, 3.5);
   EXPECT_EQ(c.skip_interval, 2);
-  EXPECT_EQ(c.settings.interpolation, SplatInterpolation::Nearest);
+  EXPECT_EQ(c.settings.interpolation, Interpolation::Nearest);
   EXPECT_EQ(c.settings.mode, CompoundingMode::Max);
   ASSERT_TRUE(c.settings.fill_holes);
   ASSERT_EQ(c.settings.hole_filling.size(), 5u);
@@ -916,7 +916,7 @@ TEST_F(PlusConfigSynthetic, DefaultsAndDeprecatedNames) {
   {
     WarningCapture warnings;
     const PlusReconstructionConfig c = read_plus_config(write("<VolumeReconstruction/>"));
-    EXPECT_EQ(c.settings.interpolation, SplatInterpolation::Nearest);  // PLUS's default
+    EXPECT_EQ(c.settings.interpolation, Interpolation::Nearest);  // PLUS's default
     EXPECT_EQ(c.settings.mode, CompoundingMode::Mean);
     EXPECT_EQ(c.clip.width, -1);
     EXPECT_FALSE(c.clip.fan);

@@ -1,4 +1,4 @@
-// The real tracked sweep of ../shared/data/plus reconstructed with its PLUS configuration and
+// The real tracked sweep of data/plus reconstructed with its PLUS configuration and
 // compared with PLUS's own reconstruction (NwirePhantomFreehandReconstructed.mha).
 //
 // PLUS inserts each pixel into a uint8 volume and rounds the voxel to an integer after every
@@ -21,7 +21,7 @@ namespace sonoslice {
 namespace {
 
 std::string plus_file(const std::string& name) {
-  return test::shared_data_dir() + "/plus/" + name;
+  return test::data_dir() + "/plus/" + name;
 }
 
 struct Sweep {
@@ -111,7 +111,7 @@ Difference compare(const std::vector<double>& a, const uint8_t* b, Where where) 
 }
 
 TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
+  SONOSLICE_REQUIRE_DATA();
   const Sweep s = load_nwire();
   ASSERT_EQ(s.frames.size(), 97u);
   const Volume reference = read_volume(plus_file("NwirePhantomFreehandReconstructed.mha"));
@@ -133,7 +133,7 @@ TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
   EXPECT_LE(longer, 1);
 
   // sonoslice with the XML's settings, on the reference's grid for a voxel-by-voxel comparison.
-  EXPECT_EQ(s.config.settings.interpolation, SplatInterpolation::Linear);
+  EXPECT_EQ(s.config.settings.interpolation, Interpolation::Linear);
   EXPECT_EQ(s.config.settings.mode, CompoundingMode::Mean);
   Compounder c(rg, s.config.settings);
   for (size_t k = 0; k < s.frames.size(); ++k)

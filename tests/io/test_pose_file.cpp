@@ -1,4 +1,4 @@
-// Pose files in every format SPEC §2 lists, and their errors.
+// Pose files in every format docs/conventions.md §2 lists, and their errors.
 #include <gtest/gtest.h>
 
 #include <fstream>

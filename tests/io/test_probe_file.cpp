@@ -1,4 +1,4 @@
-// Probe files: native JSON (SPEC §3) and fan-slicer configurations unchanged (SPEC §4).
+// Probe files: native JSON (docs/conventions.md §3) and fan-slicer configurations unchanged (docs/conventions.md §4).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -44,7 +44,7 @@ TEST(ProbeFile, NativeLinearDefaultsAndRoundTrip) {
   EXPECT_EQ(p.type, ProbeType::Linear);
   EXPECT_TRUE(p.has_width);
   EXPECT_FALSE(p.has_depth);
-  EXPECT_DOUBLE_EQ(p.image.origin_mm[0], -(100 - 1) * 0.4 / 2);  // SPEC default origin
+  EXPECT_DOUBLE_EQ(p.image.origin_mm[0], -(100 - 1) * 0.4 / 2);  // default origin, docs/conventions.md §3
   EXPECT_DOUBLE_EQ(p.image.origin_mm[1], 0.0);
   const ProbeGeometry q = parse_probe_json(probe_to_json(p), "round trip");
   EXPECT_EQ(q.mask(), p.mask());
@@ -93,10 +93,10 @@ TEST(ProbeFile, MissingFileIsFileError) {
   EXPECT_THROW(read_probe("/nonexistent/probe.json"), FileError);
 }
 
-// SPEC §4 with the real fan-slicer files.
+// docs/conventions.md §4 with the real fan-slicer files.
 TEST(FanSlicerConfig, CurvilinearMappingWithDownsampling) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
-  const std::string path = test::shared_data_dir() + "/fanslicer/models_intensity_LUS_config.json";
+  SONOSLICE_REQUIRE_DATA();
+  const std::string path = test::data_dir() + "/fanslicer/models_intensity_LUS_config.json";
   // fan_geometry [0.05, 0.1235, 36, 526, 380, 17], 668 x 544 px of 0.1235 mm.
   const ProbeGeometry p = read_probe(path, 2);
   EXPECT_EQ(p.type, ProbeType::Curvilinear);
@@ -121,19 +121,19 @@ TEST(FanSlicerConfig, CurvilinearMappingWithDownsampling) {
   EXPECT_DOUBLE_EQ(w1.face_y_mm, p.face_y_mm);
   // The surface config of the same probe gives the same probe.
   const ProbeGeometry s =
-      read_probe(test::shared_data_dir() + "/fanslicer/models_binary_LUS_config.json", 2);
+      read_probe(test::data_dir() + "/fanslicer/models_binary_LUS_config.json", 2);
   EXPECT_EQ(s.mask(), p.mask());
   // And the 70° fan.
   const ProbeGeometry w =
-      read_probe(test::shared_data_dir() + "/fanslicer/intensity_config_2.json");
+      read_probe(test::data_dir() + "/fanslicer/intensity_config_2.json");
   EXPECT_EQ(w.image.width, 600);
   EXPECT_DOUBLE_EQ(w.sector_deg, 70);
   EXPECT_DOUBLE_EQ(w.image.origin_mm[0], -600 * 0.1235 / 2);
 }
 
 TEST(FanSlicerConfig, LinearMapping) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
-  const std::string path = test::shared_data_dir() + "/fanslicer/linear_config.json";
+  SONOSLICE_REQUIRE_DATA();
+  const std::string path = test::data_dir() + "/fanslicer/linear_config.json";
   const ProbeGeometry p = read_probe(path);
   EXPECT_EQ(p.type, ProbeType::Linear);
   EXPECT_FALSE(p.has_width);

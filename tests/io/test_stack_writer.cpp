@@ -1,4 +1,4 @@
-// Output stacks (SPEC §6): formats, windows, atomic replacement.
+// Output stacks (docs/conventions.md §6): formats, windows, atomic replacement.
 #include <gtest/gtest.h>
 
 #include <fstream>

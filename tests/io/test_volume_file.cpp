@@ -74,7 +74,7 @@ TEST_P(ItkRoundTrip, GeometryAndNativeTypes) {
     const Volume v = i16.converted(t);
     write_volume(path, v);  // replaces the previous file atomically
     const Volume r = read_volume(path);
-    EXPECT_EQ(r.pixel_type(), t) << pixel_type_name(t);
+    EXPECT_EQ(r.pixel_type(), t) << to_string(t);
     visit_pixel_type(t, [&](auto zero) { expect_same_voxels<decltype(zero)>(v, r); });
   }
 }
@@ -270,13 +270,13 @@ TEST(VolumeFile, FanSlicerNpyConfig) {
 }
 
 TEST(VolumeFile, FanSlicerSharedNpyConfigParses) {
-  SONOSLICE_REQUIRE_SHARED_DATA();
+  SONOSLICE_REQUIRE_DATA();
   test::TempDir dir;
   // The shared config describes a 312 x 312 x 191 CT; give it a matching (small-valued) array.
   std::vector<uint8_t> a(size_t(312) * 312 * 191, 7);
   write_npy(dir.file("ct.npy"), PixelType::UInt8, {312, 312, 191}, a.data());
   VolumeReadOptions o;
-  o.fanslicer_npy_config = test::shared_data_dir() + "/fanslicer/CT_npy_volume_config.json";
+  o.fanslicer_npy_config = test::data_dir() + "/fanslicer/CT_npy_volume_config.json";
   const Volume v = read_volume(dir.file("ct.npy"), o);
   EXPECT_EQ(v.grid().origin_mm, (Vec3{-94.3125, -84.2125, -410.0}));
   EXPECT_EQ(v.grid().spacing_mm, (Vec3{0.671875, 0.671875, 1.0}));

@@ -1,4 +1,4 @@
-// Slicing against closed-form answers and a float64 evaluation of SPEC §5, on every backend.
+// Slicing against closed-form answers and a float64 evaluation of docs/conventions.md §5, on every backend.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -79,7 +79,7 @@ TEST_P(SliceTest, LinearRampIsExactThroughObliqueVolume) {
   EXPECT_LE(worst, 1e-4 * (range.second - range.first)) << "checked " << checked << " pixels";
 }
 
-// Float64 reference (SPEC §5) on an oblique grid, both probe shapes, both interpolations.
+// Float64 reference (docs/conventions.md §5) on an oblique grid, both probe shapes, both interpolations.
 TEST_P(SliceTest, MatchesFloat64ReferenceOnObliqueGrid) {
   const VolumeGrid grid = test::oblique_grid({48, 40, 32});
   const Volume volume = test::make_volume<float>(grid, wiggly);
@@ -94,7 +94,7 @@ TEST_P(SliceTest, MatchesFloat64ReferenceOnObliqueGrid) {
       const auto images = Slicer(volume, probe, s, device()).slice<float>(poses);
       const auto cmp =
           test::compare_with_reference(volume, probe, poses, interp, s.fill_value, images);
-      SCOPED_TRACE(probe.describe() + " " + interpolation_name(interp));
+      SCOPED_TRACE(probe.describe() + " " + to_string(interp));
       EXPECT_EQ(cmp.mask_mismatches, 0);
       EXPECT_GT(cmp.compared, 10000);
       EXPECT_LT(cmp.excluded, cmp.compared / 100);
@@ -103,7 +103,7 @@ TEST_P(SliceTest, MatchesFloat64ReferenceOnObliqueGrid) {
   }
 }
 
-// SPEC §5: inside iff -0.5 <= c < n - 0.5 (ITK's IsInsideBuffer).
+// docs/conventions.md §5: inside iff -0.5 <= c < n - 0.5 (ITK's IsInsideBuffer).
 TEST_P(SliceTest, HalfVoxelBoundaryRule) {
   VolumeGrid grid;
   grid.dims = {4, 3, 3};
@@ -121,7 +121,7 @@ TEST_P(SliceTest, HalfVoxelBoundaryRule) {
   }
 }
 
-// SPEC §5 nearest: index floor(c + 0.5).
+// docs/conventions.md §5 nearest: index floor(c + 0.5).
 TEST_P(SliceTest, NearestRounding) {
   VolumeGrid grid;
   grid.dims = {5, 2, 2};
@@ -221,7 +221,7 @@ TEST_P(SliceTest, EveryVoxelTypeMatchesFloat) {
       double worst = 0;
       for (size_t i = 0; i < got.size(); ++i)
         worst = std::max(worst, double(std::fabs(got[i] - expected[i])));
-      EXPECT_LE(worst, 1e-4) << pixel_type_name(t) << " " << interpolation_name(interp);
+      EXPECT_LE(worst, 1e-4) << to_string(t) << " " << to_string(interp);
     }
   }
 }
@@ -273,7 +273,7 @@ TEST_P(SliceTest, PhantomAccuracyAgainstFloat64Reference) {
     std::printf(
         "[ accuracy ] %s %s: max |error| = %.3g HU = %.3g of the value range over %lld "
         "pixels (%lld within 1e-3 voxel of a boundary excluded)\n",
-        GetParam().c_str(), interpolation_name(interp).c_str(), cmp.max_abs_error, relative,
+        GetParam().c_str(), to_string(interp), cmp.max_abs_error, relative,
         static_cast<long long>(cmp.compared), static_cast<long long>(cmp.excluded));
     EXPECT_EQ(cmp.mask_mismatches, 0);
     EXPECT_GT(cmp.compared, 100000);  // most of the 40 fans' pixels (about 122k)
@@ -308,7 +308,7 @@ TEST(SliceKernels, Avx2MatchesGeneric) {
         worst = std::max(worst, d);
         differ += d > 0;
       }
-      SCOPED_TRACE(pixel_type_name(t) + " " + interpolation_name(interp));
+      SCOPED_TRACE(to_string(t) + " " + to_string(interp));
       // Same coordinates, same decisions; only the fused lerps round differently.
       const auto range = v.value_range();
       if (interp == Interpolation::Nearest)
@@ -340,8 +340,8 @@ TEST(SliceKernels, Avx2MatchesGeneric) {
           for (size_t i = 0; i < a.size() / sizeof(T); ++i)
             worst = std::max(worst, std::abs(int(x[i]) - int(y[i])));
         });
-        SCOPED_TRACE(pixel_type_name(v->pixel_type()) + " -> " + pixel_type_name(out) + " " +
-                     interpolation_name(interp));
+        SCOPED_TRACE(to_string(v->pixel_type()) + " -> " + to_string(out) + " " +
+                     to_string(interp));
         EXPECT_LE(worst, interp == Interpolation::Nearest ? 0 : 1);
       }
   set_cpu_kernel_isa("auto");

@@ -90,11 +90,11 @@ TEST_F(Cuda, EquivalentToCpu) {
         const auto cpu = Slicer(*v, probe, s).slice<float>(poses);
         const auto gpu = Slicer(*v, probe, s, kCuda).slice<float>(poses);
         const Diff d = compare(cpu, gpu);
-        SCOPED_TRACE(pixel_type_name(v->pixel_type()) + " " + probe.describe() + " " +
-                     interpolation_name(interp));
+        SCOPED_TRACE(to_string(v->pixel_type()) + " " + probe.describe() + " " +
+                     to_string(interp));
         std::printf("[ cuda vs cpu ] %s %s %s: max |difference| %.3g (%.3g of the range)\n",
-                    pixel_type_name(v->pixel_type()).c_str(),
-                    probe.type == ProbeType::Linear ? "linear" : "fan", interpolation_name(interp).c_str(),
+                    to_string(v->pixel_type()).c_str(),
+                    probe.type == ProbeType::Linear ? "linear" : "fan", to_string(interp),
                     d.max_abs, d.max_abs / (range.second - range.first));
         if (interp == Interpolation::Nearest)
           EXPECT_EQ(d.differing, 0u);
@@ -124,7 +124,7 @@ TEST_F(Cuda, IntegerOutputsMatchCpu) {
       const T* b = reinterpret_cast<const T*>(gpu.data());
       for (size_t i = 0; i < cpu.size() / sizeof(T); ++i) off_by_more += std::abs(int(a[i]) - int(b[i])) > 1;
     });
-    EXPECT_EQ(off_by_more, 0u) << pixel_type_name(t);
+    EXPECT_EQ(off_by_more, 0u) << to_string(t);
   }
 }
 

@@ -1,5 +1,5 @@
 #pragma once
-/// @file Freehand 3D reconstruction (SPEC §7): tracked 2D frames and 3D beam-space frames
+/// @file Freehand 3D reconstruction (docs/conventions.md §7): tracked 2D frames and 3D beam-space frames
 /// inserted ("compounded") into one voxel grid, as PLUS toolkit's volume reconstructor does.
 #include <array>
 #include <cstdint>
@@ -10,16 +10,21 @@
 #include <vector>
 
 #include "sonoslice/backend/Device.h"
+#include "sonoslice/core/Interpolation.h"
 #include "sonoslice/core/Memory.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/volume/Volume.h"
 
 namespace sonoslice {
 
-enum class SplatInterpolation { Nearest, Linear };
-enum class CompoundingMode { Mean, Max, Latest };
-SplatInterpolation parse_splat_interpolation(const std::string& name);  ///< nearest | linear
-CompoundingMode parse_compounding_mode(const std::string& name);        ///< mean | max | latest
+/// How samples that land in one voxel combine.
+enum class CompoundingMode {
+  Mean,   ///< the splat-weighted mean of the samples
+  Max,    ///< their maximum (samples with a splat weight >= 1/8)
+  Latest  ///< the newest frame that reached the voxel
+};
+const char* to_string(CompoundingMode mode);                      ///< "mean", "max", "latest"
+CompoundingMode parse_compounding_mode(const std::string& name);  ///< also "maximum"; any case
 
 /// One hole-filling element (PLUS's HoleFillingElement). A hole is a voxel no sample reached;
 /// holes are filled from the voxels samples did reach (never from other filled holes), by the
@@ -45,10 +50,13 @@ struct HoleFillingKernel {
   int reach() const;
   void validate(const std::string& what) const;
 };
-HoleFillingKernel::Type parse_hole_filling_type(const std::string& name);  ///< PLUS names
+/// "nearest_neighbor", "gaussian", "gaussian_accumulation", "distance_weight_inverse", "stick".
+const char* to_string(HoleFillingKernel::Type type);
+/// The names above or PLUS's (NEAREST_NEIGHBOR, GAUSSIAN, ...), any case.
+HoleFillingKernel::Type parse_hole_filling_type(const std::string& name);
 
 struct CompoundSettings {
-  SplatInterpolation interpolation = SplatInterpolation::Linear;
+  Interpolation interpolation = Interpolation::Linear;  ///< how a sample splats into voxels
   CompoundingMode mode = CompoundingMode::Mean;
   /// Samples below this value are not inserted (PLUS's PixelRejectionThreshold).
   double rejection_threshold = -std::numeric_limits<double>::infinity();
@@ -79,7 +87,7 @@ struct FrameClip {
   void validate(const std::string& what) const;
 };
 
-/// A 3D beam-space frame's geometry (SPEC §7): sample s of the beam at azimuth
+/// A 3D beam-space frame's geometry (docs/conventions.md §7): sample s of the beam at azimuth
 /// α = α0 + a·dα and elevation β = β0 + e·dβ lies at probe coordinates
 /// apex + (r0 + s·dr)·(sin α, cos α·cos β, cos α·sin β), apex = (0, -apex_offset_mm, 0).
 struct BeamGeometry {

@@ -1,5 +1,5 @@
 #pragma once
-/// @file Probe shapes and the output image grid (SPEC §3).
+/// @file Probe shapes and the output image grid (docs/conventions.md §3).
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -16,14 +16,19 @@ struct ImageGrid {
   double origin_mm[2] = {0.0, 0.0};   ///< probe coordinates of pixel (0, 0)'s centre
 
   int64_t pixel_count() const { return int64_t(width) * int64_t(height); }
-  /// The SPEC default origin: (-(W-1)·sx/2, 0), i.e. centred laterally.
+  /// The default origin, docs/conventions.md §3: (-(W-1)·sx/2, 0), i.e. centred laterally.
   void set_default_origin() {
     origin_mm[0] = -(width - 1) * spacing_mm[0] / 2.0;
     origin_mm[1] = 0.0;
   }
 };
 
-enum class ProbeType { Curvilinear, Linear };
+enum class ProbeType {
+  Curvilinear,  ///< convex / fan: a sector about a virtual apex behind the face
+  Linear        ///< a rectangle (optionally limited in width and depth)
+};
+const char* to_string(ProbeType type);                ///< "curvilinear" / "linear"
+ProbeType parse_probe_type(const std::string& name);  ///< the names above; InputError otherwise
 
 /// A probe: its shape (which pixels the beam covers) and its image grid.
 struct ProbeGeometry {
@@ -44,7 +49,7 @@ struct ProbeGeometry {
   /// Throws InputError naming `what` for non-positive or non-finite sizes and angles.
   void validate(const std::string& what) const;
 
-  /// SPEC §3 inside test at probe coordinates (x, y) mm, evaluated in double precision.
+  /// docs/conventions.md §3 inside test at probe coordinates (x, y) mm, evaluated in double precision.
   bool inside(double x, double y) const;
 
   /// The H×W uint8 mask (row-major, row 0 first): 1 where the pixel centre is inside.

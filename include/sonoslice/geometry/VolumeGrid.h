@@ -1,5 +1,5 @@
 #pragma once
-/// @file Physical geometry of a voxel grid (SPEC §1).
+/// @file Physical geometry of a voxel grid (docs/conventions.md §1).
 #include <array>
 #include <cstdint>
 #include <string>

@@ -1,6 +1,6 @@
 #pragma once
 /// @file Outputs written under a temporary name in the destination's directory and renamed
-/// into place when complete (SPEC §6): a failed run leaves no partial file and never replaces
+/// into place when complete (docs/conventions.md §6): a failed run leaves no partial file and never replaces
 /// good data with bad.
 #include <string>
 

@@ -1,5 +1,5 @@
 #pragma once
-/// @file The geometry file of 3-D beam-space frames (SPEC §7): a JSON object
+/// @file The geometry file of 3-D beam-space frames (docs/conventions.md §7): a JSON object
 ///   {"r0_mm": 0.3, "dr_mm": 0.3, "azimuth0_deg": -18.7, "dazimuth_deg": 0.45,
 ///    "elevation0_deg": -9.2, "delevation_deg": 0.88, "apex_offset_mm": 0}
 /// (apex_offset_mm optional, default 0). The frame sizes come from the frames' array.

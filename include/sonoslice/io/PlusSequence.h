@@ -1,5 +1,5 @@
 #pragma once
-/// @file PLUS toolkit files (SPEC §7): tracked-frame sequences (.igs.mha / .seq.mha / .mha,
+/// @file PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.igs.mha / .seq.mha / .mha,
 /// .igs.nrrd / .seq.nrrd / .nrrd; zlib/gzip-compressed or raw) and the coordinate definitions of a
 /// PLUS configuration XML, with PLUS's transform naming (`AToB` maps coordinates in A to B).
 #include <map>

@@ -1,6 +1,6 @@
 #pragma once
-/// @file Probe descriptions: sonoslice's native probe JSON (SPEC §3) and fan-slicer
-/// configuration files, accepted unchanged (SPEC §4).
+/// @file Probe descriptions: sonoslice's native probe JSON (docs/conventions.md §3) and fan-slicer
+/// configuration files, accepted unchanged (docs/conventions.md §4).
 #include <string>
 
 #include "sonoslice/geometry/Probe.h"

@@ -14,12 +14,12 @@ namespace sonoslice {
 struct VolumeReadOptions {
   /// DICOM directory: the SeriesInstanceUID to read (default: the series with the most files).
   std::string series_uid;
-  /// .npy geometry (SPEC §1); flags win over a sidecar `<name>.json` beside the .npy, which
+  /// .npy geometry (docs/conventions.md §1); flags win over a sidecar `<name>.json` beside the .npy, which
   /// wins over the defaults (spacing 1 mm, origin 0, identity direction; with a warning).
   std::optional<Vec3> spacing_mm, origin_mm;
   std::optional<Mat3> direction;
   /// fan-slicer's `npy_config` JSON ("voxel size", "bounding box"): the .npy is then read with
-  /// fan-slicer's axis order [Y, X, Z] (SPEC §4).
+  /// fan-slicer's axis order [Y, X, Z] (docs/conventions.md §4).
   std::string fanslicer_npy_config;
 };
 

@@ -16,6 +16,7 @@ enum class PhantomSize {
   Full,   ///< 512 × 512 × 400 voxels at 0.8 × 0.8 × 1 mm (benchmarks; a typical abdominal CT)
 };
 PhantomSize parse_phantom_size(const std::string& name);  ///< "small" / "full"
+const char* to_string(PhantomSize size);                  ///< "small" / "full"
 
 /// Label values of Phantom::labels.
 enum PhantomLabel : uint8_t {

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "sonoslice/backend/Device.h"
+#include "sonoslice/core/Interpolation.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/volume/Volume.h"
@@ -17,10 +18,6 @@ struct CudaSliceState;
 struct SliceLaunch;
 struct PixelToIndex;
 }  // namespace slice_impl
-
-enum class Interpolation { Linear, Nearest };
-Interpolation parse_interpolation(const std::string& name);  ///< "linear" / "nearest"
-std::string interpolation_name(Interpolation interpolation);
 
 /// The output types the slicer writes: float32, int16, uint8, uint16.
 bool is_slice_output_type(PixelType type);

@@ -1,6 +1,6 @@
 #pragma once
 /// @file Triangle meshes of segmented anatomy (liver, vessels, tumours), in world millimetres in
-/// the same frame as volumes (SPEC §1).
+/// the same frame as volumes (docs/conventions.md §1).
 #include <array>
 #include <cstdint>
 #include <string>
