@@ -198,7 +198,8 @@ def argument_parser(doc):
     """The options every peer benchmark takes first: the sonoslice binary and fan-slicer's configs."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sonoslice", default=os.path.join(ROOT, "build", "bin", "sonoslice"))
-    ap.add_argument("--shared", default=os.path.join(ROOT, "..", "shared", "data", "fanslicer"))
+    ap.add_argument("--data", default=os.path.join(ROOT, "data", "fanslicer"),
+                    help="folder of the fan-slicer configs (default: the repository's data/fanslicer)")
     return ap
 
 
@@ -208,10 +209,10 @@ def add_output_arguments(ap):
     ap.add_argument("--json", help="also write the results here")
 
 
-def workloads(shared):
+def workloads(data):
     """(name, fan-slicer config, downsampling) of W1 and W2."""
-    return [("W1", os.path.join(shared, "models_intensity_LUS_config.json"), 2),
-            ("W2", os.path.join(shared, "linear_config.json"), 1)]
+    return [("W1", os.path.join(data, "models_intensity_LUS_config.json"), 2),
+            ("W2", os.path.join(data, "linear_config.json"), 1)]
 
 
 def prepare_phantom(exe, workdir, count, prefix):
@@ -248,7 +249,7 @@ def main():
                                                                         "sonoslice-peers-")
     results = []
     table = []
-    for name, cfg, ds in workloads(args.shared):
+    for name, cfg, ds in workloads(args.data):
         p = fanslicer_probe(cfg, ds)
         log(f"{name}: {p['W']}x{p['H']} {p['type']}, {len(poses)} poses, {args.threads} threads")
         ours = {t: sonoslice_bench(args.sonoslice, ct, cfg, ds, poses_file, t, args.threads, args.repeat)

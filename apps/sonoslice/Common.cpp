@@ -72,15 +72,6 @@ Device setup_device(const std::string& device, int threads) {
   return d;
 }
 
-void check_output_file(const std::string& flag, const std::string& path,
-                       std::initializer_list<const char*> extensions, const std::string& expected) {
-  const std::string ext = file_extension(path);
-  bool known = false;
-  for (const char* e : extensions) known = known || ext == e;
-  if (!known) throw InputError(flag + " '" + path + "': " + expected);
-  check_output_path(path);
-}
-
 ProgressBar::ProgressBar(std::string label, int64_t total, bool enabled)
     : label_(std::move(label)), total_(total), enabled_(enabled && ::isatty(STDERR_FILENO)) {}
 
@@ -115,7 +106,7 @@ void ProgressBar::finish() {
 void write_mask(const std::string& path, const ProbeGeometry& probe,
                 const std::vector<uint8_t>& mask) {
   std::vector<uint8_t> out(mask);
-  if (file_extension(path) == ".png")
+  if (image_format(path, "--mask") == ImageFormat::Png)
     for (auto& v : out) v = v ? 255 : 0;
   write_image(path, out.data(), PixelType::UInt8, {probe.image.width, probe.image.height},
               {probe.image.spacing_mm[0], probe.image.spacing_mm[1]});

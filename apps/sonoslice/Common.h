@@ -3,7 +3,6 @@
 // the built-in probes and the chunked slice-and-write loop.
 #include <chrono>
 #include <cstdio>
-#include <initializer_list>
 #include <optional>
 #include <string>
 #include <vector>
@@ -38,11 +37,6 @@ std::vector<double> parse_numbers(const std::string& text, size_t count, const s
 /// Sets the CPU thread count (--threads, 0: all), then parses --device and checks that it can
 /// be used (InputError / Error otherwise).
 Device setup_device(const std::string& device, int threads);
-
-/// Checks an output file given with `flag`: InputError "<flag> '<path>': <expected>" unless its
-/// file_extension() is one of `extensions`, then check_output_path(path).
-void check_output_file(const std::string& flag, const std::string& path,
-                       std::initializer_list<const char*> extensions, const std::string& expected);
 
 /// Wall-clock seconds since construction.
 class Stopwatch {

@@ -153,8 +153,7 @@ void run_slice(const SliceFlags& f) {
     warn("--window applies to PNG output only; ignored for '" + f.out + "'");
   check_output_path(f.out, format == StackFormat::PngDirectory);
   if (!f.mask.empty())
-    check_output_file("--mask", f.mask, {".png", ".npy", ".nii", ".nii.gz", ".mha", ".nrrd"},
-                      "expected .png, .npy, .nii, .nii.gz, .mha or .nrrd");
+    check_image_output(f.mask, "--mask");
   if (!f.colors.empty())
     check_output_path(f.colors, stack_format(f.colors) == StackFormat::PngDirectory);
 

@@ -132,15 +132,20 @@ class PngStackWriter : public StackWriter {
 }  // namespace
 
 StackFormat stack_format(const std::string& path) {
-  const std::string ext = file_extension(path);
-  if (ext == ".npy") return StackFormat::Npy;
-  if (ext == ".nii" || ext == ".nii.gz" || ext == ".mha" || ext == ".mhd" || ext == ".nrrd" ||
-      ext == ".nhdr")
-    return StackFormat::ItkImage;
-  if (ext.empty() || path.back() == '/') return StackFormat::PngDirectory;
-  throw InputError("output '" + path + "': unknown format '" + ext +
-                   "' (expected .nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr, .npy, or a directory for "
-                   "PNGs)");
+  switch (image_format(path, "output")) {
+    case ImageFormat::Npy:
+      return StackFormat::Npy;
+    case ImageFormat::Nifti:
+    case ImageFormat::MetaImage:
+    case ImageFormat::Nrrd:
+      return StackFormat::ItkImage;
+    case ImageFormat::Directory:
+      return StackFormat::PngDirectory;
+    case ImageFormat::Png:
+      break;
+  }
+  throw InputError("output '" + path + "': a stack of images is one 3-D file (.nii.gz, .mha, " +
+                   ".nrrd, .npy) or a directory of PNGs");
 }
 
 std::unique_ptr<StackWriter> StackWriter::create(const std::string& path, const StackSpec& spec) {

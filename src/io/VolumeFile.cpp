@@ -197,17 +197,87 @@ std::string file_extension(const std::string& path) {
   return dot == std::string::npos || dot == 0 ? "" : name.substr(dot);
 }
 
+const char* to_string(ImageFormat format) {
+  switch (format) {
+    case ImageFormat::Npy:
+      return "npy";
+    case ImageFormat::Nifti:
+      return "NIfTI";
+    case ImageFormat::MetaImage:
+      return "MetaImage";
+    case ImageFormat::Nrrd:
+      return "NRRD";
+    case ImageFormat::Png:
+      return "PNG";
+    case ImageFormat::Directory:
+      return "directory";
+  }
+  return "?";
+}
+
+ImageFormat image_format(const std::string& path, const std::string& what) {
+  const std::string ext = file_extension(path);
+  if (ext == ".npy") return ImageFormat::Npy;
+  if (ext == ".nii" || ext == ".nii.gz" || ext == ".hdr" || ext == ".img")  // .hdr/.img: a pair
+    return ImageFormat::Nifti;
+  if (ext == ".mha" || ext == ".mhd") return ImageFormat::MetaImage;
+  if (ext == ".nrrd" || ext == ".nhdr") return ImageFormat::Nrrd;
+  if (ext == ".png") return ImageFormat::Png;
+  std::error_code ec;
+  if (ext.empty() || (!path.empty() && path.back() == '/') || fs::is_directory(path, ec))
+    return ImageFormat::Directory;
+  throw InputError(what + " '" + path + "': unknown format '" + ext +
+                   "' (expected .nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr, .npy or .png)");
+}
+
+bool needs_itk(ImageFormat format) {
+  switch (format) {
+    case ImageFormat::Npy:
+      return false;
+    case ImageFormat::Nifti:
+    case ImageFormat::MetaImage:
+    case ImageFormat::Nrrd:
+    case ImageFormat::Png:
+    case ImageFormat::Directory:
+      return true;
+  }
+  return true;
+}
+
+namespace {
+void check_writable(const std::string& path, const std::string& what, bool two_d) {
+  const ImageFormat format = image_format(path, what);
+  if (format == ImageFormat::Directory)
+    throw InputError(what + " '" + path + "': give a file name with an extension (.nii.gz, " +
+                     ".mha, .nrrd, .npy" + (two_d ? ", .png" : "") + ")");
+  if (format == ImageFormat::Png && !two_d)
+    throw InputError(what + " '" + path + "': PNG holds 2-D images; write a volume as .nii.gz, " +
+                     ".mha, .nrrd or .npy");
+  if (needs_itk(format) && !built_with_itk())
+    throw Error(what + " '" + path + "': this sonoslice was built without ITK; write .npy");
+  check_output_path(path);
+}
+}  // namespace
+
+void check_volume_output(const std::string& path, const std::string& what) {
+  check_writable(path, what, false);
+}
+
+void check_image_output(const std::string& path, const std::string& what) {
+  check_writable(path, what, true);
+}
+
 Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileError("cannot read volume '" + path + "': no such file");
-  const std::string ext = file_extension(path);
+  const ImageFormat format = image_format(path, "volume");
   const bool npy_flags = options.spacing_mm || options.origin_mm || options.direction ||
                          !options.fanslicer_npy_config.empty();
-  if (ext != ".npy" && npy_flags)
+  if (format != ImageFormat::Npy && npy_flags)
     throw InputError("volume '" + path +
                      "': --spacing/--origin/--direction/--npy-config apply to .npy volumes only "
                      "(this file carries its own geometry)");
-  if (ext == ".npy") return read_npy_volume(path, options);
+  if (format == ImageFormat::Npy) return read_npy_volume(path, options);
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
     throw InputError("--series applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
@@ -233,8 +303,10 @@ void write_image(const std::string& path, const void* data, PixelType type,
                  int components) {
   if (components != 1 && components != 3)
     throw InputError("'" + path + "': images have 1 or 3 (RGB) components");
-  const std::string ext = file_extension(path);
-  if (ext == ".npy") {
+  const ImageFormat format = image_format(path, "output");
+  if (format == ImageFormat::Directory)
+    throw InputError("output '" + path + "': give a file name with an extension");
+  if (format == ImageFormat::Npy) {
     std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
     if (components == 3) shape.push_back(3);
     write_npy(path, type, shape, data);
@@ -253,8 +325,10 @@ void write_image(const std::string& path, const void* data, PixelType type,
 
 void write_volume(const std::string& path, const Volume& volume) {
   const VolumeGrid& g = volume.grid();
-  const std::string ext = file_extension(path);
-  if (ext == ".npy") {
+  const ImageFormat format = image_format(path, "output");
+  if (format == ImageFormat::Directory || format == ImageFormat::Png)
+    throw InputError("output '" + path + "': write a volume as .nii.gz, .mha, .nrrd or .npy");
+  if (format == ImageFormat::Npy) {
     write_npy(path, volume.pixel_type(), {g.dims[2], g.dims[1], g.dims[0]}, volume.data());
     nlohmann::json j;
     j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};

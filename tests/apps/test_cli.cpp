@@ -15,6 +15,9 @@
 
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/Reconstruction.h"
+#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/Npy.h"
 #include "sonoslice/io/PoseFile.h"
@@ -262,6 +265,40 @@ TEST_F(Cli, CompoundPlusSequencesBothFormatsAgree) {
       << c.err;
   EXPECT_NE(c.err.find("97 of 97 frames"), std::string::npos) << c.err;
   EXPECT_LT(read_volume(out.file("c.nii")).grid().dims[0], 60);  // 1 mm, smaller clip
+}
+
+// The CLI is a thin caller of the reconstruction recipe: the same volume, byte for byte, as the
+// library gives for the same inputs; --dtype is honoured for every type (float64 included:
+// before the recipe, the CLI silently wrote float32).
+TEST_F(Cli, CompoundIsTheLibraryRecipeAndHonoursDtype) {
+  SONOSLICE_REQUIRE_DATA();
+  test::TempDir out;
+  const std::string plus = test::data_dir() + "/plus/";
+  const std::string seq = plus + "NwirePhantomFreehand.igs.mha";
+  const std::string xml = plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml";
+  const CliRun a = run("compound --sequence " + quote(seq) + " --config " + quote(xml) +
+                           " --skip 2 --dtype float64 --out " + quote(out.file("a.npy")) + " -q",
+                       out);
+  ASSERT_EQ(a.code, 0) << a.err;
+  const NpyArray cli = read_npy(out.file("a.npy"));
+  EXPECT_EQ(cli.type, PixelType::Float64);
+
+  const PlusSequence s = read_plus_sequence(seq);
+  const PlusReconstructionConfig config = read_plus_config(xml);
+  ReconstructionOptions o;
+  o.skip = 2;
+  o.output_type = PixelType::Float64;
+  Reconstruction recon(FrameSource::plus(s), &config, o);
+  EXPECT_EQ(recon.report().frames_considered, 49);
+  EXPECT_EQ(recon.report().frames_used, 49);
+  const Volume lib = recon.run().volume;
+  ASSERT_EQ(size_t(cli.element_count()) * 8, lib.byte_size());
+  EXPECT_EQ(std::memcmp(cli.data.get(), lib.data(), lib.byte_size()), 0);
+  // Not all zeros, and a float64 volume keeps the fractions a uint8 one would round away.
+  const double* v = static_cast<const double*>(lib.data());
+  size_t fractional = 0;
+  for (size_t i = 0; i < lib.grid().voxel_count(); ++i) fractional += v[i] != std::floor(v[i]);
+  EXPECT_GT(fractional, 1000u);
 }
 
 TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
@@ -543,7 +580,7 @@ std::vector<BadCase> bad_cases() {
       {"CompoundMissingXml",
        "compound --sequence " + std::string(kNwire) + " --config {DIR}/nope.xml --out {OUT}",
        "nope.xml"},
-      {"CompoundUnknownInterp", std::string(kCompound) + "--interp cubic", "interpolation 'cubic'"},
+      {"CompoundUnknownInterp", std::string(kCompound) + "--interp cubic", "--interp 'cubic'"},
       {"CompoundUnknownMode", std::string(kCompound) + "--compounding median", "'median'"},
       {"CompoundBadFillHoles", std::string(kCompound) + "--fill-holes maybe", "--fill-holes maybe"},
       {"CompoundBadClipRect", std::string(kCompound) + "--clip-rect 1,2,3", "--clip-rect"},
@@ -553,7 +590,15 @@ std::vector<BadCase> bad_cases() {
       {"CompoundOutputFormat",
        "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
            " --out {DIR}/v.png",
-       "expected .nii"},
+       "v.png': PNG holds 2-D images"},
+      {"CompoundUnknownOutputFormat",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --out {DIR}/v.xyz",
+       "v.xyz': unknown format '.xyz'"},
+      {"CompoundSkipZero", std::string(kCompound) + "--skip 0", "--skip 0: must be >= 1"},
+      {"CompoundClipAndProbeOnSequence",
+       std::string(kCompound) + "--poses {DIR}/p.npy",
+       "a PLUS sequence carries its own transforms"},
       {"CompoundTwoInputs", std::string(kCompound) + "--frames {CT}", "exactly one of"},
       {"CompoundFramesPoseCount",
        "compound --frames {CT} --poses {POSES} --probe {FAN} --spacing 1 --out {OUT}",

@@ -53,4 +53,28 @@ bool built_with_itk();
 /// ".nii.gz", ".mha"); "" for none.
 std::string file_extension(const std::string& path);
 
+/// The image formats sonoslice reads and writes. Every reader and writer, and every front end,
+/// asks image_format() rather than comparing extensions, so a new format is one enum value, one
+/// line in image_format() and its reader/writer.
+enum class ImageFormat {
+  Npy,        ///< .npy (native)
+  Nifti,      ///< .nii, .nii.gz (ITK)
+  MetaImage,  ///< .mha, .mhd (ITK)
+  Nrrd,       ///< .nrrd, .nhdr (ITK)
+  Png,        ///< .png, 2-D only (ITK)
+  Directory   ///< no extension: a DICOM series to read, or a folder of PNGs to write
+};
+const char* to_string(ImageFormat format);  ///< "npy", "NIfTI", "MetaImage", "NRRD", ...
+/// The format of `path` from its extension (an existing directory, a path ending in '/' or one
+/// without extension: Directory). InputError naming `what` and the path otherwise.
+ImageFormat image_format(const std::string& path, const std::string& what = "file");
+/// True for formats that need ITK (all but .npy).
+bool needs_itk(ImageFormat format);
+
+/// Checks, before any work, that `path` names a volume file this build can write (a 3-D format)
+/// in a writable folder; InputError / FileError naming `what` and the path.
+void check_volume_output(const std::string& path, const std::string& what = "output");
+/// The same for a single 2-D image (also .png).
+void check_image_output(const std::string& path, const std::string& what = "output");
+
 }  // namespace sonoslice

@@ -1,0 +1,181 @@
+#pragma once
+/// @file The reconstruction recipe: tracked frames + an optional PLUS configuration + the
+/// caller's overrides → the output grid, the settings, the output type, a report, and the volume.
+/// `sonoslice compound` and Python's `reconstruct_plus` are thin callers of this one recipe, so
+/// they cannot drift apart (docs/compounding.md describes the rules for users).
+///
+/// Three steps, each usable alone:
+///   1. FrameSource: views of the frames (a PLUS sequence, a stack of 2D frames with poses, or
+///      3-D beam-space frames with poses); `read_frame_files` reads them from files.
+///   2. Reconstruction(frames, config, options): resolves every setting (options win over the
+///      configuration, which wins over the defaults), picks the frames and their transforms,
+///      fits the grid and checks the memory, without allocating the volume.
+///   3. run(): inserts the frames in batches and finishes the volume (and weights).
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "sonoslice/backend/Device.h"
+#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/geometry/Pose.h"
+#include "sonoslice/geometry/Probe.h"
+#include "sonoslice/volume/Volume.h"
+
+namespace sonoslice {
+
+struct PlusSequence;
+struct PlusReconstructionConfig;
+
+/// How a front end spells a parameter of the recipe in its error messages: the CLI says
+/// "--spacing", Python "spacing". Given the recipe's name (snake_case, as Python's keywords).
+using ParameterNames = std::function<std::string(const std::string& parameter)>;
+
+/// Tracked frames, as views: the memory belongs to the caller and must outlive the
+/// Reconstruction built from it.
+struct FrameSource {
+  enum class Kind {
+    PlusSequence,  ///< frames and per-frame transforms of a PLUS sequence
+    Images,        ///< `count` 2D frames (H×W, row-major) stored one after the other
+    Beams          ///< `count` beam-space frames (n_elevation, n_azimuth, n_samples) likewise
+  };
+  Kind kind = Kind::Images;
+  std::string name;  ///< for messages and the report: a path, or "frames"
+  const PlusSequence* sequence = nullptr;  ///< Kind::PlusSequence
+  const void* pixels = nullptr;            ///< Images / Beams
+  PixelType type = PixelType::UInt8;
+  int64_t count = 0;
+  int width = 0, height = 0;          ///< Images
+  BeamGeometry beam_geometry;         ///< Beams, with n_elevation, n_azimuth, n_samples set
+  std::vector<Pose> probe_to_reference;  ///< Images / Beams: one pose per frame (LPS)
+  /// Images: the probe the frames were sliced with (its image grid gives pixel → probe mm, its
+  /// fan the default clip); otherwise ReconstructionOptions::image_to_probe is needed.
+  std::optional<ProbeGeometry> probe;
+
+  static FrameSource plus(const PlusSequence& sequence);
+  /// `frames`: a W×H×N volume (voxel (u, v, n) = pixel (u, v) of frame n), one pose per frame.
+  static FrameSource images(const Volume& frames, std::vector<Pose> probe_to_reference,
+                            std::string name = "frames");
+  static FrameSource beams(const void* samples, PixelType type, int64_t count,
+                           const BeamGeometry& geometry, std::vector<Pose> probe_to_reference,
+                           std::string name = "frames");
+
+  size_t samples_per_frame() const;
+  int64_t frames_in_input() const;
+};
+
+/// Frame files as `sonoslice compound` takes them: exactly one of `sequence`, `frames` (with
+/// `poses` and a `probe` or an image_to_probe option) or `beam_frames` (with `poses` and
+/// `beam_geometry`).
+struct FrameFiles {
+  std::string sequence;       ///< PLUS sequence (.igs.mha, .seq.mha, .mha, .igs.nrrd, .nrrd)
+  std::string frames;         ///< 2D frames: .nii/.mha/.nrrd (W×H×N) or .npy (N, H, W)
+  std::string poses;          ///< probe → reference poses, one per frame
+  std::string probe;          ///< the probe JSON or fan-slicer config the frames were made with
+  std::string beam_frames;    ///< .npy (N, n_elevation, n_azimuth, n_samples)
+  std::string beam_geometry;  ///< its geometry JSON
+  WorldFrame world = WorldFrame::LPS;  ///< the frame `poses` are given in
+};
+
+/// Frames read from files, owning their memory; `source` views it.
+struct LoadedFrames {
+  FrameSource source;
+  std::shared_ptr<const PlusSequence> sequence;
+  Volume stack;
+  std::shared_ptr<void> beam_samples;
+  double read_seconds = 0;
+};
+
+/// Reads `files` (errors name the parameters as `names` spells them).
+LoadedFrames read_frame_files(const FrameFiles& files, const ParameterNames& names = {});
+
+/// What the caller sets; anything left unset comes from the PLUS configuration, else the
+/// default named here.
+struct ReconstructionOptions {
+  /// Voxel size (mm). Default: the configuration's OutputSpacing; required without one. Giving
+  /// it also drops the configuration's OutputOrigin/OutputExtent (the grid is fitted instead).
+  std::optional<Vec3> spacing_mm;
+  std::optional<Interpolation> interpolation;  ///< default: the configuration's, else linear
+  std::optional<CompoundingMode> mode;         ///< default: the configuration's, else mean
+  /// Default: the configuration's; true when `hole_filling` is given; else false.
+  std::optional<bool> fill_holes;
+  /// Default: the configuration's elements, else one Gaussian 3³ (CompoundSettings).
+  std::optional<std::vector<HoleFillingKernel>> hole_filling;
+  std::optional<double> rejection_threshold;  ///< samples below it are not inserted
+  /// Which pixels of a 2D frame go in, replacing the configuration's clip (and a probe's fan).
+  std::optional<FrameClip> clip;
+  /// Only the clip rectangle (x, y, width, height), keeping the configuration's fan.
+  std::optional<std::array<int, 4>> clip_rectangle;
+  std::optional<int> skip;  ///< every skip-th frame; default the configuration's SkipInterval, 1
+  /// PLUS sequences: the transform to reconstruct with, e.g. "ImageToTracker" (a trailing
+  /// "Transform" is allowed). Default: the configuration's ImageToReference.
+  std::optional<std::string> transform;
+  /// PLUS sequences: the calibration (pixel → probe mm), replacing the configuration's
+  /// ImageToProbe. 2D frame stacks: pixel → probe mm, replacing the probe's image grid.
+  std::optional<Mat4> image_to_probe;
+  /// Default: the frames' type, except float64 and int8 frames, which give float32.
+  std::optional<PixelType> output_type;
+  Device device = Device::cpu();
+  uint64_t max_memory_bytes = 0;  ///< 0: what the machine has
+  ParameterNames names;           ///< spelling of parameters in messages (default: as above)
+};
+
+/// What a reconstruction used and did.
+struct ReconstructionReport {
+  std::string input;             ///< "<name>: 97 frames of 820x616 uint8 (orientation MF)"
+  int64_t frames_in_input = 0;   ///< every frame, valid or not
+  int64_t frames_considered = 0; ///< after the skip interval
+  int64_t frames_used = 0;
+  int64_t skipped_bad_image = 0;      ///< image status not OK (PLUS)
+  int64_t skipped_bad_transform = 0;  ///< transform chain through an invalid link (PLUS)
+  int skip = 1;
+  std::string transform;  ///< PLUS: "ImageToReference"; others: ""
+  bool grid_from_config = false;  ///< the configuration's OutputOrigin/Extent, not fitted
+  /// "2 with an invalid ImageToReference transform, 1 with an image status not OK" ("" if none).
+  std::string skipped_reason() const;
+  double splat_seconds = 0, finish_seconds = 0;  ///< filled by run()
+};
+
+struct ReconstructionResult {
+  Volume volume;   ///< in output_type()
+  Volume weights;  ///< float32 splat weights, when asked for (else empty)
+};
+
+/// One reconstruction, resolved. Warns (sonoslice::warn) once when frames are skipped; throws
+/// InputError naming the parameter for contradictory or bad settings, and when no frame can be
+/// used; ResourceError (with a spacing that fits) when the grid does not fit in memory.
+class Reconstruction {
+ public:
+  Reconstruction(const FrameSource& frames, const PlusReconstructionConfig* config,
+                 const ReconstructionOptions& options);
+  ~Reconstruction();
+  Reconstruction(Reconstruction&&) noexcept;
+
+  const VolumeGrid& grid() const;
+  const CompoundSettings& settings() const;
+  const FrameClip& clip() const;
+  PixelType output_type() const;
+  const Device& device() const;
+  const ReconstructionReport& report() const;
+  /// Per frame used: the frame's index in the source and its image (beams: probe) → reference.
+  const std::vector<int64_t>& frame_indices() const;
+  const std::vector<Mat4>& frames_to_reference() const;
+
+  /// Inserts every frame (in batches of about 64 MiB; `progress(done, total)` after each) and
+  /// finishes the volume. Runs once; a second call throws.
+  ReconstructionResult run(bool with_weights = false,
+                           const std::function<void(int64_t, int64_t)>& progress = {});
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// The transform name `name` (e.g. "ImageToReference" or "ImageToReferenceTransform") split into
+/// its frames ("Image", "Reference"); InputError otherwise.
+std::pair<std::string, std::string> split_transform_name(const std::string& name);
+
+}  // namespace sonoslice
