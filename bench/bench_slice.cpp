@@ -66,10 +66,11 @@ void BM_SliceCuda(benchmark::State& state, int workload, PixelType type) {
     return;
   }
   const auto poses = phantom_random_poses(1000);
-  const Slicer slicer(volume(type), workload == 1 ? workload_w1_fan_probe() : workload_w2_linear_probe(),
-                      {}, gpu);
+  const Slicer slicer(
+      volume(type), workload == 1 ? workload_w1_fan_probe() : workload_w2_linear_probe(), {}, gpu);
   const bool to_host = state.range(0) == 1;
-  std::vector<float> out(to_host ? poses.size() * size_t(slicer.width()) * size_t(slicer.height()) : 0);
+  std::vector<float> out(to_host ? poses.size() * size_t(slicer.width()) * size_t(slicer.height())
+                                 : 0);
   for (auto _ : state) {
     if (to_host)
       slicer.slice(poses.data(), poses.size(), out.data());
@@ -78,10 +79,26 @@ void BM_SliceCuda(benchmark::State& state, int workload, PixelType type) {
   }
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
 }
-BENCHMARK_CAPTURE(BM_SliceCuda, W1_float32, 1, PixelType::Float32)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
-BENCHMARK_CAPTURE(BM_SliceCuda, W1_int16, 1, PixelType::Int16)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
-BENCHMARK_CAPTURE(BM_SliceCuda, W2_float32, 2, PixelType::Float32)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
-BENCHMARK_CAPTURE(BM_SliceCuda, W2_int16, 2, PixelType::Int16)->ArgName("to_host")->Arg(0)->Arg(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W1_float32, 1, PixelType::Float32)
+    ->ArgName("to_host")
+    ->Arg(0)
+    ->Arg(1)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W1_int16, 1, PixelType::Int16)
+    ->ArgName("to_host")
+    ->Arg(0)
+    ->Arg(1)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W2_float32, 2, PixelType::Float32)
+    ->ArgName("to_host")
+    ->Arg(0)
+    ->Arg(1)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_SliceCuda, W2_int16, 2, PixelType::Int16)
+    ->ArgName("to_host")
+    ->Arg(0)
+    ->Arg(1)
+    ->UseRealTime();
 
 BENCHMARK_CAPTURE(BM_Slice, W1_float32_linear, 1, PixelType::Float32, Interpolation::Linear)
     ->Apply(threads_and_kernels);
@@ -102,8 +119,13 @@ void BM_SliceLabels(benchmark::State& state) {
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
   set_cpu_threads(0);
 }
-BENCHMARK(BM_SliceLabels)->Name("BM_Slice/W1_uint8_labels_nearest")->ArgName("threads")->Arg(1)->Arg(2)
-    ->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_SliceLabels)
+    ->Name("BM_Slice/W1_uint8_labels_nearest")
+    ->ArgName("threads")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 BENCHMARK_CAPTURE(BM_Slice, W2_float32_linear, 2, PixelType::Float32, Interpolation::Linear)
     ->Apply(threads_and_kernels);

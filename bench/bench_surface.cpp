@@ -19,7 +19,8 @@ const std::string kData = SONOSLICE_DATA_DIR "/fanslicer/";
 const std::vector<TriangleMesh>* meshes(bool all) {
   static std::vector<TriangleMesh> four, veins;
   if (four.empty() && std::filesystem::exists(kData + "liver.vtk")) {
-    for (const char* n : {"liver", "hepatic veins", "portal vein", "arteries"}) four.push_back(read_mesh(kData + n + ".vtk"));
+    for (const char* n : {"liver", "hepatic veins", "portal vein", "arteries"})
+      four.push_back(read_mesh(kData + n + ".vtk"));
     veins = {four[1]};
   }
   if (four.empty()) return nullptr;
@@ -33,10 +34,15 @@ void BM_Voxelize(benchmark::State& state, bool all) {
   const VolumeGrid grid = voxel_grid_around(*m, 0.5, 20.0);
   for (auto _ : state) benchmark::DoNotOptimize(voxelize(*m, grid).data());
   state.counters["voxels"] = double(grid.voxel_count());
-  state.SetLabel(std::to_string(grid.dims[0]) + "x" + std::to_string(grid.dims[1]) + "x" + std::to_string(grid.dims[2]));
+  state.SetLabel(std::to_string(grid.dims[0]) + "x" + std::to_string(grid.dims[1]) + "x" +
+                 std::to_string(grid.dims[2]));
 }
-BENCHMARK_CAPTURE(BM_Voxelize, hepatic_veins_0_5mm, false)->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK_CAPTURE(BM_Voxelize, four_meshes_0_5mm, true)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_Voxelize, hepatic_veins_0_5mm, false)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_Voxelize, four_meshes_0_5mm, true)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // 1000 W1 fans through the liver (random poses inside its bounding box's middle).
 std::vector<Pose> liver_poses() {
@@ -68,8 +74,12 @@ void BM_LabelSlicing(benchmark::State& state, bool exact) {
   }
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
 }
-BENCHMARK_CAPTURE(BM_LabelSlicing, W1_exact_four_meshes, true)->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK_CAPTURE(BM_LabelSlicing, W1_voxel_0_5mm, false)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_LabelSlicing, W1_exact_four_meshes, true)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_LabelSlicing, W1_voxel_0_5mm, false)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 }  // namespace
 }  // namespace sonoslice

@@ -47,8 +47,9 @@ void run_compound_bench(const BenchFlags& f, const Device& device) {
   nlohmann::json j = nlohmann::json::array();
   if (!f.json)
     std::printf("sonoslice bench --compound: %s, best of %d\n%-44s %-8s %9s %10s %12s\n",
-                device.type == DeviceType::CUDA ? device.to_string().c_str()
-                                                : (std::to_string(cpu_threads()) + " threads").c_str(),
+                device.type == DeviceType::CUDA
+                    ? device.to_string().c_str()
+                    : (std::to_string(cpu_threads()) + " threads").c_str(),
                 f.repeat, "workload", "splats", "seconds", "frames/s", "Msamples/s");
   for (const Case& c : {Case{"Jauer 814 x 185x84x22 -> 300x1000x600", true},
                         Case{"2D sweep 1000 x 820x616 -> grid at 0.5 mm", false}})
@@ -66,21 +67,26 @@ void run_compound_bench(const BenchFlags& f, const Device& device) {
         } else {
           Compounder comp(sweep.grid, s, device);
           comp.add_images(image_frames.data(), PixelType::UInt8, sweep.width, sweep.height,
-                          int64_t(sweep.image_to_reference.size()), sweep.image_to_reference.data());
+                          int64_t(sweep.image_to_reference.size()),
+                          sweep.image_to_reference.data());
           (void)comp.volume(PixelType::UInt8);
         }
         best = std::min(best, clock.seconds());
       }
-      const double frames = double(c.beams ? jauer.probe_to_reference.size() : sweep.image_to_reference.size());
+      const double frames =
+          double(c.beams ? jauer.probe_to_reference.size() : sweep.image_to_reference.size());
       const double samples = frames * double(c.beams ? beam_samples : image_samples);
       if (f.json)
-        j.push_back({{"workload", c.name}, {"splats", linear ? "linear" : "nearest"},
-                     {"device", device.to_string()}, {"threads", cpu_threads()},
-                     {"best_seconds", best}, {"frames_per_second", frames / best},
+        j.push_back({{"workload", c.name},
+                     {"splats", linear ? "linear" : "nearest"},
+                     {"device", device.to_string()},
+                     {"threads", cpu_threads()},
+                     {"best_seconds", best},
+                     {"frames_per_second", frames / best},
                      {"samples_per_second", samples / best}});
       else
-        std::printf("%-44s %-8s %9.3f %10.0f %12.0f\n", c.name.c_str(), linear ? "linear" : "nearest",
-                    best, frames / best, samples / best / 1e6);
+        std::printf("%-44s %-8s %9.3f %10.0f %12.0f\n", c.name.c_str(),
+                    linear ? "linear" : "nearest", best, frames / best, samples / best / 1e6);
     }
   if (f.json) std::printf("%s\n", j.dump(2).c_str());
 }
@@ -112,8 +118,8 @@ Result measure(const Workload& w, const Volume& volume, const std::vector<Pose>&
     times.push_back(s.seconds());
   }
   std::sort(times.begin(), times.end());
-  Result r{w.name, to_string(volume.pixel_type()), to_string(interp),
-           int64_t(poses.size()), times.front(), times[times.size() / 2]};
+  Result r{w.name,        to_string(volume.pixel_type()), to_string(interp), int64_t(poses.size()),
+           times.front(), times[times.size() / 2]};
   if (device.type == DeviceType::CUDA) {
     // Images left on the GPU, as a training loop consumes them.
     slicer.slice_on_device(poses.data(), poses.size()).synchronize();

@@ -55,9 +55,12 @@ uint64_t parse_bytes(const std::string& text) {
 // The recipe's parameter → this command's flag, so library messages name what the user typed.
 std::string flag_of(const std::string& parameter) {
   static const std::map<std::string, std::string> renamed = {
-      {"interpolation", "--interp"},       {"mode", "--compounding"},
-      {"clip_rectangle", "--clip-rect"},   {"transform", "--image-to-reference"},
-      {"output_type", "--dtype"},          {"max_memory_bytes", "--max-memory"},
+      {"interpolation", "--interp"},
+      {"mode", "--compounding"},
+      {"clip_rectangle", "--clip-rect"},
+      {"transform", "--image-to-reference"},
+      {"output_type", "--dtype"},
+      {"max_memory_bytes", "--max-memory"},
       {"hole_filling", "the XML's hole-filling elements"}};
   const auto it = renamed.find(parameter);
   if (it != renamed.end()) return it->second;
@@ -165,8 +168,8 @@ void run_compound(const CompoundFlags& f) {
         "splatting %.3f s (%.0f frames/s, %.0f M samples/s, %d threads), finishing %.3f s, "
         "writing %.3f s, total %.3f s\n",
         (long long)report.frames_used, (long long)report.frames_in_input, (long long)grid.dims[0],
-        (long long)grid.dims[1], (long long)grid.dims[2], frames.read_seconds,
-        report.splat_seconds, n / splat, samples / splat / 1e6,
+        (long long)grid.dims[1], (long long)grid.dims[2], frames.read_seconds, report.splat_seconds,
+        n / splat, samples / splat / 1e6,
         recon.device().type == DeviceType::CPU ? cpu_threads() : 0, report.finish_seconds,
         write_seconds, total.seconds());
   }
@@ -194,7 +197,8 @@ void add_compound_command(CLI::App& app) {
                   "--frames from `sonoslice slice`: its probe file (pixel grid and fan)");
   cmd->add_option("--beam-frames", flags->beam_frames,
                   "3-D beam-space frames: .npy (N, n_elevation, n_azimuth, n_samples)");
-  cmd->add_option("--beam-geometry", flags->beam_geometry, "Their geometry JSON (docs/conventions.md §7)");
+  cmd->add_option("--beam-geometry", flags->beam_geometry,
+                  "Their geometry JSON (docs/conventions.md §7)");
   cmd->add_option("--out", flags->out, "Output volume: .nii/.nii.gz/.mha/.nrrd/.npy")->required();
   cmd->add_option("--weights", flags->weights, "Also write the splat weight per voxel (float32)");
   cmd->add_option("--spacing", flags->spacing,

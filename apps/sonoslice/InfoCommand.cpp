@@ -8,6 +8,7 @@
 #include "Commands.h"
 #include "Common.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/core/Memory.h"
 
 namespace sonoslice {
 namespace cli {
@@ -62,7 +63,7 @@ void run_info(const InfoFlags& f) {
       g.direction.m[2][2]);
   std::printf("pixel type:  %s\n", to_string(v.pixel_type()).c_str());
   std::printf("value range: %.6g .. %.6g\n", range.first, range.second);
-  std::printf("memory:      %.1f MiB\n", double(v.byte_size()) / (1 << 20));
+  std::printf("memory:      %.1f MiB\n", double(v.byte_size()) / double(kMiB));
   for (const auto& s : series)
     std::printf("dicom series: %s (%zu files)\n", s.uid.c_str(), s.file_count);
 }

@@ -94,9 +94,6 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
   *load_seconds = load.seconds();
   src.description = std::to_string(meshes.size()) + " meshes, " + f.surface_mode + " mode";
   if (f.surface_mode == "exact") {
-    if (device.type != DeviceType::CPU)
-      throw InputError("--surface-mode exact runs on the CPU (voxel mode runs on " +
-                       device.to_string() + ")");
     src.surfaces =
         std::make_unique<SurfaceSlicer>(std::move(meshes), probe, labels, settings.output_type);
   } else {
@@ -110,6 +107,9 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
 
 void run_slice(const SliceFlags& f) {
   Stopwatch total;
+  // Checked before the device is started, so the answer is the same with or without a GPU.
+  if (f.surface_mode == "exact" && Device::parse(f.device).type != DeviceType::CPU)
+    throw InputError("--surface-mode exact runs on the CPU (voxel mode runs on " + f.device + ")");
   const Device device = setup_device(f.device, f.threads);
 
   const int sources =
@@ -152,8 +152,7 @@ void run_slice(const SliceFlags& f) {
   if (window && format != StackFormat::PngDirectory)
     warn("--window applies to PNG output only; ignored for '" + f.out + "'");
   check_output_path(f.out, format == StackFormat::PngDirectory);
-  if (!f.mask.empty())
-    check_image_output(f.mask, "--mask");
+  if (!f.mask.empty()) check_image_output(f.mask, "--mask");
   if (!f.colors.empty())
     check_output_path(f.colors, stack_format(f.colors) == StackFormat::PngDirectory);
 

@@ -49,7 +49,8 @@ void run_voxelize(const VoxelizeFlags& f) {
   Stopwatch write;
   write_volume(f.out, labels);
   if (!f.quiet) {
-    std::fprintf(stderr, "sonoslice: %zu mesh%s → %s: %lldx%lldx%lld %s labels at %g mm in %.3f s\n",
+    std::fprintf(stderr,
+                 "sonoslice: %zu mesh%s → %s: %lldx%lldx%lld %s labels at %g mm in %.3f s\n",
                  meshes.size(), meshes.size() == 1 ? "" : "es", f.out.c_str(),
                  static_cast<long long>(grid.dims[0]), static_cast<long long>(grid.dims[1]),
                  static_cast<long long>(grid.dims[2]), to_string(labels.pixel_type()).c_str(),
@@ -69,11 +70,13 @@ void run_voxelize(const VoxelizeFlags& f) {
 void add_voxelize_command(CLI::App& app) {
   auto flags = std::make_shared<VoxelizeFlags>();
   CLI::App* cmd = app.add_subcommand(
-      "voxelize", "Surface meshes → one label volume (label k for the k-th mesh; later meshes win)");
+      "voxelize",
+      "Surface meshes → one label volume (label k for the k-th mesh; later meshes win)");
   cmd->add_option("meshes", flags->meshes, "Meshes: .vtk, .vtp, .stl, .obj, .ply")->required();
   cmd->add_option("--out", flags->out, "Label volume: .nii.gz, .mha, .nrrd, .npy ...")->required();
   cmd->add_option("--spacing", flags->spacing, "Isotropic voxel size (mm)");
-  cmd->add_option("--margin", flags->margin, "Margin around the meshes' bounds (mm; default: one voxel)");
+  cmd->add_option("--margin", flags->margin,
+                  "Margin around the meshes' bounds (mm; default: one voxel)");
   cmd->add_option("--reference", flags->reference, "Use this volume's grid (geometry) instead");
   cmd->add_option("--world", flags->world, "Frame of the mesh coordinates: LPS (default) or RAS");
   cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");

@@ -13,7 +13,10 @@ void print_warning(const std::string& message) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"sonoslice: fast ultrasound-shaped slicing of CT/MRI volumes and freehand 3D reconstruction (CPU and CUDA)", "sonoslice"};
+  CLI::App app{
+      "sonoslice: fast ultrasound-shaped slicing of CT/MRI volumes and freehand 3D reconstruction "
+      "(CPU and CUDA)",
+      "sonoslice"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("sonoslice ") + SONOSLICE_VERSION);
   sonoslice::cli::add_slice_command(app);

@@ -261,7 +261,8 @@ void Reconstruction::Impl::resolve_settings(const PlusReconstructionConfig* conf
   }
   if (!clip.custom_mask.empty() && source.kind == FrameSource::Kind::Images &&
       clip.custom_mask.size() != source.samples_per_frame())
-    throw InputError(name(o.clip ? "clip" : "probe") + ": its mask is not the size of the frames (" +
+    throw InputError(name(o.clip ? "clip" : "probe") +
+                     ": its mask is not the size of the frames (" +
                      dims_text(source.width, source.height) + ")");
 
   output_type = o.output_type ? *o.output_type : default_output_type(source.type);
@@ -271,7 +272,8 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
                                          const ReconstructionOptions& o) {
   const int skip = o.skip ? *o.skip : config ? config->skip_interval : 1;
   if (skip < 1)
-    throw InputError(name("skip") + " " + std::to_string(skip) + ": must be >= 1 (every K-th frame)");
+    throw InputError(name("skip") + " " + std::to_string(skip) +
+                     ": must be >= 1 (every K-th frame)");
   report.skip = skip;
   report.frames_in_input = source.count;
   report.frames_considered = (source.count + skip - 1) / skip;
@@ -295,12 +297,13 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
     report.skipped_bad_image = sel.bad_image;
     report.skipped_bad_transform = sel.bad_transform;
     report.input = source.name + ": " + std::to_string(s.frame_count) + " frames of " +
-                   dims_text(s.width, s.height) + " " + to_string(s.pixel_type) +
-                   " (orientation " + s.orientation + ")";
+                   dims_text(s.width, s.height) + " " + to_string(s.pixel_type) + " (orientation " +
+                   s.orientation + ")";
   } else {
     if (o.transform)
-      throw InputError(name("transform") + " applies to PLUS sequences; frames with poses are "
-                                           "placed by their poses");
+      throw InputError(name("transform") +
+                       " applies to PLUS sequences; frames with poses are "
+                       "placed by their poses");
     Mat4 image_to_probe;  // identity: beam-space frames' poses are probe → reference already
     if (source.kind == FrameSource::Kind::Images) {
       if (o.image_to_probe)
@@ -311,30 +314,28 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
         throw InputError(source.name + ": 2D frames need the pixel-to-probe mapping (" +
                          name("image_to_probe") + " or " + name("probe") + ")");
     } else if (o.image_to_probe) {
-      throw InputError(name("image_to_probe") + " applies to 2D frames; beam-space frames are "
-                                                "placed by their geometry");
+      throw InputError(name("image_to_probe") +
+                       " applies to 2D frames; beam-space frames are "
+                       "placed by their geometry");
     }
     // Poses from files were checked when read; these checks name the source for in-memory ones.
-    validate_poses(source.probe_to_reference.data(), source.probe_to_reference.size(),
-                   source.name, 0, false);
+    validate_poses(source.probe_to_reference.data(), source.probe_to_reference.size(), source.name,
+                   0, false);
     for (int64_t k = 0; k < source.count; k += skip) {
       const Pose& p = source.probe_to_reference[size_t(k)];
       frames.push_back(k);
       to_reference.push_back(source.kind == FrameSource::Kind::Images ? p * image_to_probe : p);
     }
-    report.input = source.kind == FrameSource::Kind::Images
-                       ? source.name + ": " + std::to_string(source.count) + " frames of " +
-                             dims_text(source.width, source.height) + " " +
-                             to_string(source.type)
-                       : source.name + ": " + std::to_string(source.count) +
-                             " beam-space frames of " +
-                             std::to_string(source.beam_geometry.n_elevation) + "x" +
-                             dims_text(source.beam_geometry.n_azimuth,
-                                       source.beam_geometry.n_samples) +
-                             " " + to_string(source.type);
+    report.input =
+        source.kind == FrameSource::Kind::Images
+            ? source.name + ": " + std::to_string(source.count) + " frames of " +
+                  dims_text(source.width, source.height) + " " + to_string(source.type)
+            : source.name + ": " + std::to_string(source.count) + " beam-space frames of " +
+                  std::to_string(source.beam_geometry.n_elevation) + "x" +
+                  dims_text(source.beam_geometry.n_azimuth, source.beam_geometry.n_samples) + " " +
+                  to_string(source.type);
   }
-  if (skip > 1 && source.count > 1)
-    report.input += ", every " + std::to_string(skip) + "th used";
+  if (skip > 1 && source.count > 1) report.input += ", every " + std::to_string(skip) + "th used";
   report.frames_used = int64_t(frames.size());
   const std::string why = report.skipped_reason();
   if (!why.empty())
@@ -382,20 +383,34 @@ Reconstruction::Reconstruction(const FrameSource& frames, const PlusReconstructi
   im.select_frames(config, o);
   im.fit_grid(config, o, spacing);
   // Checks the memory (ResourceError naming a spacing that fits) before allocating anything.
-  im.compounder = std::make_unique<Compounder>(im.grid, im.settings, im.device,
-                                               im.max_memory_bytes, im.output_type);
+  im.compounder = std::make_unique<Compounder>(im.grid, im.settings, im.device, im.max_memory_bytes,
+                                               im.output_type);
 }
 
 Reconstruction::~Reconstruction() = default;
 Reconstruction::Reconstruction(Reconstruction&&) noexcept = default;
 
-const VolumeGrid& Reconstruction::grid() const { return impl_->grid; }
-const CompoundSettings& Reconstruction::settings() const { return impl_->settings; }
-const FrameClip& Reconstruction::clip() const { return impl_->clip; }
-PixelType Reconstruction::output_type() const { return impl_->output_type; }
-const Device& Reconstruction::device() const { return impl_->device; }
-const ReconstructionReport& Reconstruction::report() const { return impl_->report; }
-const std::vector<int64_t>& Reconstruction::frame_indices() const { return impl_->frames; }
+const VolumeGrid& Reconstruction::grid() const {
+  return impl_->grid;
+}
+const CompoundSettings& Reconstruction::settings() const {
+  return impl_->settings;
+}
+const FrameClip& Reconstruction::clip() const {
+  return impl_->clip;
+}
+PixelType Reconstruction::output_type() const {
+  return impl_->output_type;
+}
+const Device& Reconstruction::device() const {
+  return impl_->device;
+}
+const ReconstructionReport& Reconstruction::report() const {
+  return impl_->report;
+}
+const std::vector<int64_t>& Reconstruction::frame_indices() const {
+  return impl_->frames;
+}
 const std::vector<Mat4>& Reconstruction::frames_to_reference() const {
   return impl_->to_reference;
 }
@@ -420,8 +435,8 @@ ReconstructionResult Reconstruction::run(bool with_weights,
     if (s.kind == FrameSource::Kind::Beams)
       compounder->add_beams(data, s.type, s.beam_geometry, count, im.to_reference.data() + first);
     else
-      compounder->add_images(data, s.type, s.width, s.height, count,
-                            im.to_reference.data() + first, im.clip);
+      compounder->add_images(data, s.type, s.width, s.height, count, im.to_reference.data() + first,
+                             im.clip);
     first += count;
     if (progress) progress(first, n);
   }

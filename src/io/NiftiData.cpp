@@ -16,6 +16,9 @@ namespace sonoslice {
 namespace itk_io {
 namespace {
 
+// zlib's default buffer is 8 KiB; a larger one means fewer read calls on volumes of hundreds of MB.
+constexpr unsigned kGzipBufferBytes = 1u << 20;
+
 [[noreturn]] void truncated(const std::string& path, const std::string& why) {
   throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + why + ")");
 }
@@ -94,7 +97,7 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
   if (gz) {
     f = gzopen(path.c_str(), "rb");
     if (!f) truncated(path, "cannot open the gzip stream");
-    gzbuffer(f, 1 << 20);
+    gzbuffer(f, kGzipBufferBytes);
     const int n = gzread(f, raw, 348);
     got = n > 0 ? size_t(n) : 0;
     // NIfTI-2 headers are longer: read the rest of them.

@@ -12,6 +12,10 @@
 #include "sonoslice/io/AtomicFile.h"
 
 namespace sonoslice {
+
+// NumPy writes headers of a few hundred bytes (padded to 64); a length field beyond this is a
+// corrupt file, and reading it would allocate whatever the field says.
+constexpr size_t kMaxNpyHeaderBytes = size_t(1) << 20;
 namespace {
 
 constexpr char kMagic[] = "\x93NUMPY";
@@ -82,7 +86,7 @@ NpyArray parse_header(std::ifstream& in, const std::string& path) {
   } else {
     throw FileError("'" + path + "': unsupported .npy version " + std::to_string(major));
   }
-  if (header_len > (1 << 20)) throw FileError("'" + path + "': corrupt .npy header");
+  if (header_len > kMaxNpyHeaderBytes) throw FileError("'" + path + "': corrupt .npy header");
   std::string dict(header_len, '\0');
   if (!in.read(&dict[0], std::streamsize(header_len)))
     throw FileError("'" + path + "': truncated .npy header");

@@ -83,7 +83,8 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
 
   VolumeGrid g;
   if (!options.fanslicer_npy_config.empty()) {
-    // docs/conventions.md §4: array axes [Y, X, Z], spacing = voxel size, origin = bounding-box minimum.
+    // docs/conventions.md §4: array axes [Y, X, Z], spacing = voxel size, origin = bounding-box
+    // minimum.
     const std::string cfg = options.fanslicer_npy_config;
     const auto j = read_json_file(cfg, "npy_config");
     const std::string where = "npy_config '" + cfg + "'";

@@ -5,6 +5,8 @@
 
 namespace sonoslice {
 namespace slice_impl {
-void slice_cuda_launch(const SliceLaunch& launch) { dispatch_slice(launch); }
+void slice_cuda_launch(const SliceLaunch& launch) {
+  dispatch_slice(launch);
+}
 }  // namespace slice_impl
 }  // namespace sonoslice

@@ -1,7 +1,7 @@
 #pragma once
-/// @file The slicing kernel (docs/conventions.md §5): one source for every backend. SliceCPU.cpp (generic
-/// x86-64), SliceCPUAvx2.cpp (AVX2 + FMA) and SliceCUDA.cu include this file. Everything below
-/// the dispatch layer takes pre-validated raw pointers and sizes.
+/// @file The slicing kernel (docs/conventions.md §5): one source for every backend. SliceCPU.cpp
+/// (generic x86-64), SliceCPUAvx2.cpp (AVX2 + FMA) and SliceCUDA.cu include this file. Everything
+/// below the dispatch layer takes pre-validated raw pointers and sizes.
 ///
 /// The interpolation formulas are templates over the lane type (float on CUDA and in scalar
 /// code, eight AVX2 lanes in the CPU fast path), so there is exactly one trilinear formula.
@@ -119,7 +119,8 @@ struct SliceKernel {
     const Acc cx = backend::add_product(s.c[0], Acc(u), s.d[0]);
     const Acc cy = backend::add_product(s.c[1], Acc(u), s.d[1]);
     const Acc cz = backend::add_product(s.c[2], Acc(u), s.d[2]);
-    // docs/conventions.md §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so NaN is outside.
+    // docs/conventions.md §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so
+    // NaN is outside.
     if (!(cx >= Acc(-0.5) && cx < Acc(grid.nx) - Acc(0.5) && cy >= Acc(-0.5) &&
           cy < Acc(grid.ny) - Acc(0.5) && cz >= Acc(-0.5) && cz < Acc(grid.nz) - Acc(0.5))) {
       s.out[u] = fill;

@@ -6,7 +6,8 @@
 namespace sonoslice {
 
 void colorize(const void* labels, PixelType type, int64_t count, int width, int height,
-              const uint8_t* mask, const std::vector<std::array<uint8_t, 3>>& colors, uint8_t* rgb) {
+              const uint8_t* mask, const std::vector<std::array<uint8_t, 3>>& colors,
+              uint8_t* rgb) {
   if (type != PixelType::UInt8 && type != PixelType::UInt16)
     throw InputError("colour images: labels must be uint8 or uint16");
   const size_t pixels = size_t(width) * size_t(height);
@@ -19,7 +20,8 @@ void colorize(const void* labels, PixelType type, int64_t count, int width, int 
       if (!mask[i])
         c = {210, 210, 210};
       else if (label > 0)
-        c = size_t(label) <= colors.size() ? colors[size_t(label - 1)] : std::array<uint8_t, 3>{255, 255, 255};
+        c = size_t(label) <= colors.size() ? colors[size_t(label - 1)]
+                                           : std::array<uint8_t, 3>{255, 255, 255};
       uint8_t* out = rgb + 3 * at;
       out[0] = c[0];
       out[1] = c[1];

@@ -19,7 +19,8 @@
 namespace sonoslice {
 namespace {
 
-// ---- the image plane of one pose -----------------------------------------------------------------
+// ---- the image plane of one pose
+// -----------------------------------------------------------------
 struct Plane {
   Vec3 origin, x_axis, y_axis, normal;
   double inv_gram[2][2];  // (x, y) of a point on the plane = inv_gram · (x̂·d, ŷ·d), d = p - origin
@@ -51,7 +52,9 @@ struct Segment {
 };
 
 // Classification: true = positive side (a vertex on the plane counts as positive).
-inline bool positive(double s) { return s >= 0; }
+inline bool positive(double s) {
+  return s >= 0;
+}
 
 inline bool cut_triangle(const std::vector<Vec3>& v, const std::array<int32_t, 3>& tri,
                          const double s[3], Segment* seg) {
@@ -72,7 +75,8 @@ inline bool cut_triangle(const std::vector<Vec3>& v, const std::array<int32_t, 3
     const Vec3& vb = v[size_t(b)];
     seg->edge[n][0] = a;
     seg->edge[n][1] = b;
-    seg->p[n] = {va[0] + t * (vb[0] - va[0]), va[1] + t * (vb[1] - va[1]), va[2] + t * (vb[2] - va[2])};
+    seg->p[n] = {va[0] + t * (vb[0] - va[0]), va[1] + t * (vb[1] - va[1]),
+                 va[2] + t * (vb[2] - va[2])};
     ++n;
   }
   return n == 2;
@@ -81,7 +85,8 @@ inline bool cut_triangle(const std::vector<Vec3>& v, const std::array<int32_t, 3
 // ---- bounding-volume hierarchy over one mesh's triangles --------------------------------------
 struct Node {
   Vec3 lo, hi;
-  int32_t first, count;  // leaf: triangles order[first, first + count); inner: children first, first + 1
+  int32_t first,
+      count;  // leaf: triangles order[first, first + count); inner: children first, first + 1
   bool leaf() const { return count > 0; }
 };
 
@@ -156,8 +161,9 @@ class Bvh {
     for (int a = 1; a < 3; ++a)
       if (chi[a] - clo[a] > chi[axis] - clo[axis]) axis = a;
     const int32_t half = count / 2;
-    std::nth_element(order_.begin() + first, order_.begin() + first + half, order_.begin() + first + count,
-                     [&](int32_t x, int32_t y) { return centre_[size_t(x)][axis] < centre_[size_t(y)][axis]; });
+    std::nth_element(
+        order_.begin() + first, order_.begin() + first + half, order_.begin() + first + count,
+        [&](int32_t x, int32_t y) { return centre_[size_t(x)][axis] < centre_[size_t(y)][axis]; });
     const size_t left = nodes_.size();
     nodes_.push_back({});
     nodes_.push_back({});
@@ -189,7 +195,8 @@ std::vector<CutPolygon> cut_polygons(const TriangleMesh& mesh, const Pose& pose)
   const Plane plane(pose);
   std::vector<Segment> segments;
   for (const auto& tri : mesh.triangles) {
-    const double s[3] = {plane.side(mesh.vertices[size_t(tri[0])]), plane.side(mesh.vertices[size_t(tri[1])]),
+    const double s[3] = {plane.side(mesh.vertices[size_t(tri[0])]),
+                         plane.side(mesh.vertices[size_t(tri[1])]),
                          plane.side(mesh.vertices[size_t(tri[2])])};
     Segment seg;
     if (cut_triangle(mesh.vertices, tri, s, &seg)) segments.push_back(seg);
@@ -219,7 +226,8 @@ std::vector<CutPolygon> cut_polygons(const TriangleMesh& mesh, const Pose& pose)
       if (next == SIZE_MAX) {
         // Back at the start (closed), or at a hole of an open mesh.
         bool back_home = false;
-        for (auto it = range.first; it != range.second; ++it) back_home |= it->second == start && current != start;
+        for (auto it = range.first; it != range.second; ++it)
+          back_home |= it->second == start && current != start;
         if (!back_home) {
           poly.points.push_back(plane.in_plane(seg.p[leave]));
           poly.closed = false;
@@ -292,7 +300,8 @@ void slice_one(const std::vector<TriangleMesh>& meshes, const std::vector<Bvh>& 
   // Triangles matter when they cross the plane within the band of the image's rows. Left and
   // right of the image they still count: the even-odd rule needs every crossing along a row.
   const Vec3 y_of = plane.inv_gram[1][0] * plane.x_axis + plane.inv_gram[1][1] * plane.y_axis;
-  const double band_lo = im.origin_mm[1] - im.spacing_mm[1], band_hi = im.origin_mm[1] + H * im.spacing_mm[1];
+  const double band_lo = im.origin_mm[1] - im.spacing_mm[1],
+               band_hi = im.origin_mm[1] + H * im.spacing_mm[1];
   auto reach = [](const Vec3& n, const Vec3& e) {
     return std::fabs(n[0]) * e[0] + std::fabs(n[1]) * e[1] + std::fabs(n[2]) * e[2];
   };
@@ -308,7 +317,8 @@ void slice_one(const std::vector<TriangleMesh>& meshes, const std::vector<Bvh>& 
     hits.clear();
     trees[k].query(keep, [&](int32_t t) {
       const auto& tri = mesh.triangles[size_t(t)];
-      const double s[3] = {plane.side(mesh.vertices[size_t(tri[0])]), plane.side(mesh.vertices[size_t(tri[1])]),
+      const double s[3] = {plane.side(mesh.vertices[size_t(tri[0])]),
+                           plane.side(mesh.vertices[size_t(tri[1])]),
                            plane.side(mesh.vertices[size_t(tri[2])])};
       Segment seg;
       if (!cut_triangle(mesh.vertices, tri, s, &seg)) return;
@@ -325,8 +335,9 @@ void slice_one(const std::vector<TriangleMesh>& meshes, const std::vector<Bvh>& 
         hits.push_back({int32_t(v), au + (double(v) - av) * (bu - au) / (bv - av)});
     });
     if (hits.empty()) continue;
-    std::sort(hits.begin(), hits.end(),
-              [](const RowHit& x, const RowHit& y) { return x.row != y.row ? x.row < y.row : x.x < y.x; });
+    std::sort(hits.begin(), hits.end(), [](const RowHit& x, const RowHit& y) {
+      return x.row != y.row ? x.row < y.row : x.x < y.x;
+    });
     const T label = T(labels[k]);
     for (size_t s = 0; s < hits.size();) {
       size_t e = s;

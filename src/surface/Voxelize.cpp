@@ -44,8 +44,8 @@ struct Crossing {
 // The parity runs of one mesh along `axis`, delivered row by row to `fill(k, j, i0, i1)` for
 // voxel index ranges [i0, i1) along the axis (k: third axis, j: second axis).
 template <typename Fill>
-void cast_rays(const std::vector<Vec3>& c, const std::vector<std::array<int32_t, 3>>& tris, int axis,
-               const std::array<int64_t, 3>& dims, const Fill& fill) {
+void cast_rays(const std::vector<Vec3>& c, const std::vector<std::array<int32_t, 3>>& tris,
+               int axis, const std::array<int64_t, 3>& dims, const Fill& fill) {
   const int a = axis, b = (axis + 1) % 3, k_axis = (axis + 2) % 3;
   const int64_t na = dims[size_t(a)], nb = dims[size_t(b)], nk = dims[size_t(k_axis)];
   // Bucket triangles by the slices (integer k) their projection spans.
@@ -69,10 +69,12 @@ void cast_rays(const std::vector<Vec3>& c, const std::vector<std::array<int32_t,
       const P2 p[3] = {{c[size_t(tri[0])][size_t(b)], c[size_t(tri[0])][size_t(k_axis)]},
                        {c[size_t(tri[1])][size_t(b)], c[size_t(tri[1])][size_t(k_axis)]},
                        {c[size_t(tri[2])][size_t(b)], c[size_t(tri[2])][size_t(k_axis)]}};
-      const double area = (p[1].u - p[0].u) * (p[2].v - p[0].v) - (p[1].v - p[0].v) * (p[2].u - p[0].u);
+      const double area =
+          (p[1].u - p[0].u) * (p[2].v - p[0].v) - (p[1].v - p[0].v) * (p[2].u - p[0].u);
       if (area == 0) continue;  // parallel to the rays: its neighbours carry the crossing
       const int orientation = area > 0 ? 1 : -1;
-      const double ulo = std::min({p[0].u, p[1].u, p[2].u}), uhi = std::max({p[0].u, p[1].u, p[2].u});
+      const double ulo = std::min({p[0].u, p[1].u, p[2].u}),
+                   uhi = std::max({p[0].u, p[1].u, p[2].u});
       const int64_t j0 = std::max<int64_t>(0, int64_t(std::ceil(ulo)));
       const int64_t j1 = std::min<int64_t>(nb - 1, int64_t(std::floor(uhi)));
       for (int64_t j = j0; j <= j1; ++j) {
@@ -122,8 +124,8 @@ void cast_rays(const std::vector<Vec3>& c, const std::vector<std::array<int32_t,
 }
 
 template <typename T>
-void paint_mesh(const TriangleMesh& mesh, const std::vector<Vec3>& c, const VolumeGrid& grid, T label,
-                T* labels) {
+void paint_mesh(const TriangleMesh& mesh, const std::vector<Vec3>& c, const VolumeGrid& grid,
+                T label, T* labels) {
   const auto& d = grid.dims;
   const int64_t sy = d[0], sz = d[0] * d[1];
   const MeshTopology topo = mesh_topology(mesh);

@@ -9,8 +9,13 @@
 #include "../backend/Convert.h"
 #include "../backend/ParallelFor.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/core/Memory.h"
 
 namespace sonoslice {
+
+// value_range() works in chunks of this many voxels: enough per task to amortise the thread
+// start, small enough to spread a CT over every core.
+constexpr int64_t kRangeChunkVoxels = int64_t(1) << 20;
 
 Volume Volume::allocate(PixelType type, const VolumeGrid& grid) {
   grid.validate("volume");
@@ -20,7 +25,7 @@ Volume Volume::allocate(PixelType type, const VolumeGrid& grid) {
   if (!p) {
     std::ostringstream s;
     s << "cannot allocate a " << grid.dims[0] << "x" << grid.dims[1] << "x" << grid.dims[2] << " "
-      << to_string(type) << " volume (" << double(bytes) / (1 << 20) << " MiB)";
+      << to_string(type) << " volume (" << double(bytes) / double(kMiB) << " MiB)";
     throw ResourceError(s.str());
   }
   return wrap(p, type, grid, std::shared_ptr<void>(p, std::free));
@@ -38,7 +43,7 @@ Volume Volume::wrap(void* data, PixelType type, const VolumeGrid& grid,
 
 std::pair<double, double> Volume::value_range() const {
   const int64_t n = grid_.voxel_count();
-  const int64_t chunk = 1 << 20;
+  const int64_t chunk = kRangeChunkVoxels;
   const int64_t chunks = (n + chunk - 1) / chunk;
   std::vector<double> lo(size_t(chunks), std::numeric_limits<double>::infinity());
   std::vector<double> hi(size_t(chunks), -std::numeric_limits<double>::infinity());

@@ -16,10 +16,10 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/compound/Reconstruction.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/Npy.h"
+#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/VolumeFile.h"
@@ -275,7 +275,8 @@ TEST_F(Cli, CompoundIsTheLibraryRecipeAndHonoursDtype) {
   test::TempDir out;
   const std::string plus = test::data_dir() + "/plus/";
   const std::string seq = plus + "NwirePhantomFreehand.igs.mha";
-  const std::string xml = plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml";
+  const std::string xml =
+      plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml";
   const CliRun a = run("compound --sequence " + quote(seq) + " --config " + quote(xml) +
                            " --skip 2 --dtype float64 --out " + quote(out.file("a.npy")) + " -q",
                        out);
@@ -359,8 +360,9 @@ TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
   ASSERT_EQ(b.code, 0) << b.err;
   const Volume bv = read_volume(out.file("b.nii"));
   EXPECT_EQ(bv.pixel_type(), PixelType::UInt8);
-  // The library, given the same frames in docs/conventions.md §7's (elevation, azimuth, sample) order, makes
-  // the same volume (its own placement is checked against docs/conventions.md in test_core).
+  // The library, given the same frames in docs/conventions.md §7's (elevation, azimuth, sample)
+  // order, makes the same volume (its own placement is checked against docs/conventions.md in
+  // test_core).
   BeamGeometry g;
   g.n_elevation = 4;
   g.n_azimuth = 6;
@@ -541,7 +543,8 @@ std::vector<BadCase> bad_cases() {
       {"UnknownWorld", std::string(kSlice) + "--world XYZ", "world frame 'XYZ'"},
       {"BadWindow", std::string(kSlice) + "--window 40", "--window '40'"},
       {"BadDownsampling", std::string(kSlice) + "--downsampling 0", "--downsampling 0"},
-      {"CudaUnavailable", std::string(kSlice) + "--device cuda", "cuda"},
+      // cuda:99 fails on every machine: "not available" without a GPU, "no such GPU" with one.
+      {"CudaUnavailable", std::string(kSlice) + "--device cuda:99", "cuda:99"},
       {"UnknownOutputFormat",
        "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/x.tiff",
        "unknown format '.tiff'"},
@@ -561,7 +564,7 @@ std::vector<BadCase> bad_cases() {
       {"ExactOnCuda",
        "slice --meshes {DIR}/in_tet.stl --surface-mode exact --probe {FAN} --poses {POSES} "
        "--out {OUT} --device cuda",
-       "cuda"},
+       "--surface-mode exact runs on the CPU"},
       {"VoxelizeZeroSpacing", "voxelize {DIR}/in_tet.stl --spacing 0 --out {OUT}",
        "voxelize: give --spacing"},
       {"VoxelizeNoMesh", "voxelize {DIR}/nope.stl --spacing 1 --out {OUT}",
@@ -586,7 +589,7 @@ std::vector<BadCase> bad_cases() {
       {"CompoundBadClipRect", std::string(kCompound) + "--clip-rect 1,2,3", "--clip-rect"},
       {"CompoundTooBig", std::string(kCompound) + "--spacing 0.01 --max-memory 1G", "a spacing of"},
       {"CompoundBadMaxMemory", std::string(kCompound) + "--max-memory lots", "--max-memory lots"},
-      {"CompoundCudaUnavailable", std::string(kCompound) + "--device cuda", "cuda"},
+      {"CompoundCudaUnavailable", std::string(kCompound) + "--device cuda:99", "cuda:99"},
       {"CompoundOutputFormat",
        "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
            " --out {DIR}/v.png",
@@ -596,8 +599,7 @@ std::vector<BadCase> bad_cases() {
            " --out {DIR}/v.xyz",
        "v.xyz': unknown format '.xyz'"},
       {"CompoundSkipZero", std::string(kCompound) + "--skip 0", "--skip 0: must be >= 1"},
-      {"CompoundClipAndProbeOnSequence",
-       std::string(kCompound) + "--poses {DIR}/p.npy",
+      {"CompoundClipAndProbeOnSequence", std::string(kCompound) + "--poses {DIR}/p.npy",
        "a PLUS sequence carries its own transforms"},
       {"CompoundTwoInputs", std::string(kCompound) + "--frames {CT}", "exactly one of"},
       {"CompoundFramesPoseCount",

@@ -24,6 +24,11 @@ TempDir::~TempDir() {
   fs::remove_all(path_, ec);
 }
 
+ScopedCpuSettings::~ScopedCpuSettings() {
+  set_cpu_threads(0);
+  set_cpu_kernel_isa("auto");
+}
+
 std::string data_dir() {
 #ifdef SONOSLICE_DATA_DIR
   const fs::path p(SONOSLICE_DATA_DIR);

@@ -31,15 +31,26 @@ class TempDir {
   std::filesystem::path path_;
 };
 
+/// Restores the CPU backend's global settings (thread count, kernel instruction set) to the
+/// suite's defaults when it goes out of scope, so a test that changes them cannot leak them into
+/// the next test, even when an assertion returns early.
+class ScopedCpuSettings {
+ public:
+  ScopedCpuSettings() = default;
+  ~ScopedCpuSettings();
+  ScopedCpuSettings(const ScopedCpuSettings&) = delete;
+  ScopedCpuSettings& operator=(const ScopedCpuSettings&) = delete;
+};
+
 /// The repository's data/ folder of real files (CMake passes its location; see data/README.md);
 /// empty when it is not there.
 std::string data_dir();
 /// The real data ships with the repository, so a missing data/ is a broken checkout: fail, never
 /// skip (a skipped real-data test would let a fresh clone look green without testing anything).
-#define SONOSLICE_REQUIRE_DATA()                                                          \
-  do {                                                                                    \
-    if (::sonoslice::test::data_dir().empty())                                            \
-      GTEST_FAIL() << "the repository's data/ folder is missing (see data/README.md)";  \
+#define SONOSLICE_REQUIRE_DATA()                                                       \
+  do {                                                                                 \
+    if (::sonoslice::test::data_dir().empty())                                         \
+      GTEST_FAIL() << "the repository's data/ folder is missing (see data/README.md)"; \
   } while (0)
 
 /// A volume of type T whose voxel (i, j, k) holds f(world position of its centre).
@@ -58,7 +69,8 @@ Volume make_volume(const VolumeGrid& grid, const std::function<double(const Vec3
 /// A rotation by `degrees` about the unit axis.
 Mat3 rotation(Vec3 axis, double degrees);
 
-/// A curvilinear probe (docs/conventions.md §3) with a width × height image of square pixels, centred laterally.
+/// A curvilinear probe (docs/conventions.md §3) with a width × height image of square pixels,
+/// centred laterally.
 ProbeGeometry curvilinear_probe(double radius_mm, double depth_mm, double sector_deg, int width,
                                 int height, double spacing_mm, double face_y_mm = 0.0);
 
@@ -71,10 +83,10 @@ Pose make_pose(const Mat3& r, const Vec3& origin);
 /// Random poses whose probe origin lies within `radius` mm of `centre`.
 std::vector<Pose> random_poses(size_t count, const Vec3& centre, double radius, uint32_t seed);
 
-/// docs/conventions.md §5 evaluated in float64 for one world point: returns false (and `fill`) outside the
-/// buffer; `margin` receives the distance (in voxels) of c to the nearest inside/outside
-/// boundary (and, for nearest, to the nearest rounding tie x.5), so callers can exclude pixels
-/// within 1e-3 voxel of it.
+/// docs/conventions.md §5 evaluated in float64 for one world point: returns false (and `fill`)
+/// outside the buffer; `margin` receives the distance (in voxels) of c to the nearest
+/// inside/outside boundary (and, for nearest, to the nearest rounding tie x.5), so callers can
+/// exclude pixels within 1e-3 voxel of it.
 bool reference_sample(const Volume& volume, const Vec3& world, Interpolation interp, double fill,
                       double* value, double* margin);
 

@@ -1,6 +1,6 @@
-// Compounding (docs/conventions.md §7): known answers for every splat and compounding mode, clip rectangles and
-// fans, hole filling, an independent float64 oracle, thread-count bit identity, incremental vs
-// batch, 3-D beam frames, the slicer round trip, memory limits and bad input.
+// Compounding (docs/conventions.md §7): known answers for every splat and compounding mode, clip
+// rectangles and fans, hole filling, an independent float64 oracle, thread-count bit identity,
+// incremental vs batch, 3-D beam frames, the slicer round trip, memory limits and bad input.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -519,10 +519,10 @@ TEST_P(CompoundBackendTest, MatchesTheFloat64Oracle) {
   const Sweep s = make_sweep(24, 7);
   for (bool linear : {false, true}) {
     const Oracle o = oracle(s.grid, oracle_frames(s), linear);
-    Compounder c(s.grid,
-                 settings(linear ? Interpolation::Linear : Interpolation::Nearest,
-                          CompoundingMode::Mean),
-                 device());
+    Compounder c(
+        s.grid,
+        settings(linear ? Interpolation::Linear : Interpolation::Nearest, CompoundingMode::Mean),
+        device());
     c.add_images(s.pixels.data(), PixelType::UInt8, s.width, s.height, int64_t(s.poses.size()),
                  s.poses.data());
     const auto v = as_floats(c.volume(PixelType::Float32));
@@ -551,6 +551,7 @@ SONOSLICE_INSTANTIATE_BACKENDS(CompoundBackendTest);
 // --- Determinism ------------------------------------------------------------------------------
 
 TEST(Compound, BitIdenticalFor1_2And16Threads) {
+  const test::ScopedCpuSettings restore;
   const Sweep s = make_sweep(30, 11);
   for (auto mode : {CompoundingMode::Mean, CompoundingMode::Max, CompoundingMode::Latest}) {
     for (auto interp : {Interpolation::Nearest, Interpolation::Linear}) {
@@ -566,7 +567,6 @@ TEST(Compound, BitIdenticalFor1_2And16Threads) {
         std::memcpy(bytes.data() + v.byte_size(), w.data(), w.byte_size());
         results.push_back(std::move(bytes));
       }
-      set_cpu_threads(0);
       EXPECT_TRUE(results[0] == results[1]) << "1 vs 2 threads";
       EXPECT_TRUE(results[0] == results[2]) << "1 vs 16 threads";
     }
@@ -574,6 +574,7 @@ TEST(Compound, BitIdenticalFor1_2And16Threads) {
 }
 
 TEST(Compound, GenericAndAvx2KernelsGiveTheSameBits) {
+  const test::ScopedCpuSettings restore;
   try {
     set_cpu_kernel_isa("avx2");
   } catch (const InputError&) {
@@ -595,7 +596,6 @@ TEST(Compound, GenericAndAvx2KernelsGiveTheSameBits) {
       EXPECT_EQ(std::memcmp(results[0].data(), results[1].data(), results[0].size() * 4), 0);
     }
   }
-  set_cpu_kernel_isa("auto");
 }
 
 TEST(Compound, IncrementalFramesGiveTheBatchResult) {

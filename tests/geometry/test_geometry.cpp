@@ -1,4 +1,5 @@
-// Probe shapes (docs/conventions.md §3), poses (docs/conventions.md §2) and volume grids (docs/conventions.md §1).
+// Probe shapes (docs/conventions.md §3), poses (docs/conventions.md §2) and volume grids
+// (docs/conventions.md §1).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -22,7 +23,8 @@ ProbeGeometry w1_fan() {
   return workload_w1_fan_probe();
 }
 
-// The mask, recomputed here from the docs/conventions.md §3 wording with polar coordinates about the apex.
+// The mask, recomputed here from the docs/conventions.md §3 wording with polar coordinates about
+// the apex.
 TEST(ProbeMask, CurvilinearMatchesSpecFormula) {
   for (const double sector : {36.0, 70.0, 110.0}) {
     ProbeGeometry p = w1_fan();

@@ -1,5 +1,6 @@
 // ITK's ResampleImageFilter as an independent oracle: linear-probe planes through an obliquely
-// oriented volume must match it pixel for pixel (docs/conventions.md §5 says they are the same rule).
+// oriented volume must match it pixel for pixel (docs/conventions.md §5 says they are the same
+// rule).
 #include <gtest/gtest.h>
 
 #include <cmath>

@@ -29,7 +29,8 @@ TriangleMesh tetrahedron() {
 double mesh_volume(const TriangleMesh& m) {
   double v = 0;
   for (const auto& t : m.triangles)
-    v += dot(m.vertices[size_t(t[0])], cross(m.vertices[size_t(t[1])], m.vertices[size_t(t[2])])) / 6.0;
+    v += dot(m.vertices[size_t(t[0])], cross(m.vertices[size_t(t[1])], m.vertices[size_t(t[2])])) /
+         6.0;
   return v;
 }
 
@@ -52,15 +53,17 @@ TEST_P(MeshFormats, RoundTrip) {
   EXPECT_NEAR(b[1][2], 10, 1e-5);
 }
 
-INSTANTIATE_TEST_SUITE_P(Formats, MeshFormats, ::testing::Values(".vtk", ".vtp", ".stl", ".obj", ".ply"),
+INSTANTIATE_TEST_SUITE_P(Formats, MeshFormats,
+                         ::testing::Values(".vtk", ".vtp", ".stl", ".obj", ".ply"),
                          [](const auto& info) { return info.param.substr(1); });
 
 TEST(MeshFile, LegacyAsciiPolygonsAreTriangulated) {
   test::TempDir dir;
   // A unit cube as six quads in ASCII legacy VTK.
-  std::ofstream(dir.file("cube.vtk")) << "# vtk DataFile Version 3.0\ncube\nASCII\nDATASET POLYDATA\n"
-                                         "POINTS 8 float\n0 0 0 1 0 0 1 1 0 0 1 0 0 0 1 1 0 1 1 1 1 0 1 1\n"
-                                         "POLYGONS 6 30\n4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 2 3 7 6\n4 1 2 6 5\n4 0 4 7 3\n";
+  std::ofstream(dir.file("cube.vtk"))
+      << "# vtk DataFile Version 3.0\ncube\nASCII\nDATASET POLYDATA\n"
+         "POINTS 8 float\n0 0 0 1 0 0 1 1 0 0 1 0 0 0 1 1 0 1 1 1 1 0 1 1\n"
+         "POLYGONS 6 30\n4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 2 3 7 6\n4 1 2 6 5\n4 0 4 7 3\n";
   const TriangleMesh cube = read_mesh(dir.file("cube.vtk"));
   EXPECT_EQ(cube.triangles.size(), 12u);
   EXPECT_TRUE(mesh_topology(cube).closed());
@@ -99,7 +102,8 @@ TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
   EXPECT_EQ(models[2].label, 3);
   EXPECT_EQ(models[0].color, (std::array<uint8_t, 3>{0, 200, 0}));
   test::TempDir dir;
-  EXPECT_THROW(read_fanslicer_models(d + "/models_binary_LUS_config.json", dir.path().string()), FileError);
+  EXPECT_THROW(read_fanslicer_models(d + "/models_binary_LUS_config.json", dir.path().string()),
+               FileError);
   EXPECT_THROW(read_fanslicer_models(d + "/models_intensity_LUS_config.json", d), InputError);
 }
 
@@ -115,7 +119,8 @@ TEST(RealMeshes, VoxelisedAndExactModesAgree) {
   }
   const Volume liver = voxelize({meshes[0]}, voxel_grid_around({meshes[0]}, 1.0, 0.0));
   int64_t liver_voxels = 0;
-  for (int64_t i = 0; i < liver.grid().voxel_count(); ++i) liver_voxels += liver.data_as<uint8_t>()[i];
+  for (int64_t i = 0; i < liver.grid().voxel_count(); ++i)
+    liver_voxels += liver.data_as<uint8_t>()[i];
   EXPECT_NEAR(double(liver_voxels), mesh_volume(meshes[0]), 0.01 * mesh_volume(meshes[0]));
 
   // 100 poses through the liver: random voxel centres inside it, random orientations.
@@ -126,7 +131,8 @@ TEST(RealMeshes, VoxelisedAndExactModesAgree) {
   while (poses.size() < 100) {
     const int64_t i = pick(rng);
     if (!liver.data_as<uint8_t>()[i]) continue;
-    const Vec3 c{double(i % g.dims[0]), double((i / g.dims[0]) % g.dims[1]), double(i / (g.dims[0] * g.dims[1]))};
+    const Vec3 c{double(i % g.dims[0]), double((i / g.dims[0]) % g.dims[1]),
+                 double(i / (g.dims[0] * g.dims[1]))};
     const auto one = test::random_poses(1, g.index_to_world(c), 0.0, uint32_t(rng()));
     poses.push_back(one[0]);
   }

@@ -1,6 +1,6 @@
-// PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.mha / .nrrd, compressed or raw), their
-// orientations, the transform repository, and PLUS configuration XML. Real data from PlusLibData
-// (data/plus), synthetic files for every corner the real ones do not reach.
+// PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.mha / .nrrd, compressed or
+// raw), their orientations, the transform repository, and PLUS configuration XML. Real data from
+// PlusLibData (data/plus), synthetic files for every corner the real ones do not reach.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -30,11 +30,11 @@ std::string plus_data(const std::string& name) {
   return test::data_dir() + "/plus/" + name;
 }
 
-#define REQUIRE_PLUS_DATA()                                                \
-  do {                                                                     \
-    SONOSLICE_REQUIRE_DATA();                                       \
-    if (!fs::exists(plus_data("NwirePhantomFreehand.igs.mha")))            \
-      GTEST_FAIL() << "data/plus (PlusLibData files) is missing";         \
+#define REQUIRE_PLUS_DATA()                                       \
+  do {                                                            \
+    SONOSLICE_REQUIRE_DATA();                                     \
+    if (!fs::exists(plus_data("NwirePhantomFreehand.igs.mha")))   \
+      GTEST_FAIL() << "data/plus (PlusLibData files) is missing"; \
   } while (0)
 
 /// Runs f and returns the message of the exception E it throws (a test failure otherwise).
@@ -811,7 +811,7 @@ TEST(PlusConfigReal, BoneDeprecatedCompounding) {
   EXPECT_EQ(c.settings.mode, CompoundingMode::Mean);  // Compounding="On"
   EXPECT_EQ(c.settings.interpolation, Interpolation::Linear);
   EXPECT_FALSE(c.settings.fill_holes);  // FillHoles="Off"
-  EXPECT_EQ(c.clip.width, 821);  // cut at the frame's edge when used
+  EXPECT_EQ(c.clip.width, 821);         // cut at the frame's edge when used
   EXPECT_EQ(c.clip.height, 617);
   EXPECT_TRUE(c.coordinate_definitions.get("Image", "Probe").has_value());  // tabs and newlines
   EXPECT_DOUBLE_EQ(c.coordinate_definitions.get("Image", "Probe")->m[1][3], 50.76);

@@ -1,4 +1,5 @@
-// Probe files: native JSON (docs/conventions.md §3) and fan-slicer configurations unchanged (docs/conventions.md §4).
+// Probe files: native JSON (docs/conventions.md §3) and fan-slicer configurations unchanged
+// (docs/conventions.md §4).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -44,7 +45,8 @@ TEST(ProbeFile, NativeLinearDefaultsAndRoundTrip) {
   EXPECT_EQ(p.type, ProbeType::Linear);
   EXPECT_TRUE(p.has_width);
   EXPECT_FALSE(p.has_depth);
-  EXPECT_DOUBLE_EQ(p.image.origin_mm[0], -(100 - 1) * 0.4 / 2);  // default origin, docs/conventions.md §3
+  EXPECT_DOUBLE_EQ(p.image.origin_mm[0],
+                   -(100 - 1) * 0.4 / 2);  // default origin, docs/conventions.md §3
   EXPECT_DOUBLE_EQ(p.image.origin_mm[1], 0.0);
   const ProbeGeometry q = parse_probe_json(probe_to_json(p), "round trip");
   EXPECT_EQ(q.mask(), p.mask());
@@ -124,8 +126,7 @@ TEST(FanSlicerConfig, CurvilinearMappingWithDownsampling) {
       read_probe(test::data_dir() + "/fanslicer/models_binary_LUS_config.json", 2);
   EXPECT_EQ(s.mask(), p.mask());
   // And the 70° fan.
-  const ProbeGeometry w =
-      read_probe(test::data_dir() + "/fanslicer/intensity_config_2.json");
+  const ProbeGeometry w = read_probe(test::data_dir() + "/fanslicer/intensity_config_2.json");
   EXPECT_EQ(w.image.width, 600);
   EXPECT_DOUBLE_EQ(w.sector_deg, 70);
   EXPECT_DOUBLE_EQ(w.image.origin_mm[0], -600 * 0.1235 / 2);

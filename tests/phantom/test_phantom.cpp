@@ -11,6 +11,7 @@ namespace sonoslice {
 namespace {
 
 TEST(Phantom, DeterministicForAnyThreadCount) {
+  const test::ScopedCpuSettings restore;
   set_cpu_threads(1);
   const Phantom a = make_phantom(PhantomSize::Small);
   set_cpu_threads(0);

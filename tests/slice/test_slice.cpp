@@ -1,4 +1,5 @@
-// Slicing against closed-form answers and a float64 evaluation of docs/conventions.md §5, on every backend.
+// Slicing against closed-form answers and a float64 evaluation of docs/conventions.md §5, on every
+// backend.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -79,7 +80,8 @@ TEST_P(SliceTest, LinearRampIsExactThroughObliqueVolume) {
   EXPECT_LE(worst, 1e-4 * (range.second - range.first)) << "checked " << checked << " pixels";
 }
 
-// Float64 reference (docs/conventions.md §5) on an oblique grid, both probe shapes, both interpolations.
+// Float64 reference (docs/conventions.md §5) on an oblique grid, both probe shapes, both
+// interpolations.
 TEST_P(SliceTest, MatchesFloat64ReferenceOnObliqueGrid) {
   const VolumeGrid grid = test::oblique_grid({48, 40, 32});
   const Volume volume = test::make_volume<float>(grid, wiggly);
@@ -249,11 +251,11 @@ TEST_P(SliceTest, IdenticalForAnyThreadCount) {
   const VolumeGrid grid = test::oblique_grid({40, 40, 40});
   const Volume volume = test::make_volume<int16_t>(grid, wiggly);
   const auto poses = test::random_poses(20, grid_centre(grid), 10.0, 9);
+  const test::ScopedCpuSettings restore;
   set_cpu_threads(1);
   const auto one = Slicer(volume, fan_probe(), {}, device()).slice<float>(poses);
   set_cpu_threads(3);
   const auto three = Slicer(volume, fan_probe(), {}, device()).slice<float>(poses);
-  set_cpu_threads(0);
   ASSERT_EQ(one.size(), three.size());
   EXPECT_EQ(0, std::memcmp(one.data(), three.data(), one.size() * sizeof(float)));
 }
@@ -285,6 +287,7 @@ SONOSLICE_INSTANTIATE_BACKENDS(SliceTest);
 
 // The AVX2 kernels and the generic kernels agree (FMA changes the last bits only).
 TEST(SliceKernels, Avx2MatchesGeneric) {
+  const test::ScopedCpuSettings restore;
   try {
     set_cpu_kernel_isa("avx2");
   } catch (const std::exception&) {
@@ -344,7 +347,6 @@ TEST(SliceKernels, Avx2MatchesGeneric) {
                      to_string(interp));
         EXPECT_LE(worst, interp == Interpolation::Nearest ? 0 : 1);
       }
-  set_cpu_kernel_isa("auto");
 }
 
 TEST(SliceKernels, RejectsBadSettings) {

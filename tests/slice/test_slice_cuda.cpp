@@ -90,8 +90,7 @@ TEST_F(Cuda, EquivalentToCpu) {
         const auto cpu = Slicer(*v, probe, s).slice<float>(poses);
         const auto gpu = Slicer(*v, probe, s, kCuda).slice<float>(poses);
         const Diff d = compare(cpu, gpu);
-        SCOPED_TRACE(to_string(v->pixel_type()) + " " + probe.describe() + " " +
-                     to_string(interp));
+        SCOPED_TRACE(to_string(v->pixel_type()) + " " + probe.describe() + " " + to_string(interp));
         std::printf("[ cuda vs cpu ] %s %s %s: max |difference| %.3g (%.3g of the range)\n",
                     to_string(v->pixel_type()).c_str(),
                     probe.type == ProbeType::Linear ? "linear" : "fan", to_string(interp),
@@ -122,7 +121,8 @@ TEST_F(Cuda, IntegerOutputsMatchCpu) {
       using T = decltype(zero);
       const T* a = reinterpret_cast<const T*>(cpu.data());
       const T* b = reinterpret_cast<const T*>(gpu.data());
-      for (size_t i = 0; i < cpu.size() / sizeof(T); ++i) off_by_more += std::abs(int(a[i]) - int(b[i])) > 1;
+      for (size_t i = 0; i < cpu.size() / sizeof(T); ++i)
+        off_by_more += std::abs(int(a[i]) - int(b[i])) > 1;
     });
     EXPECT_EQ(off_by_more, 0u) << to_string(t);
   }
@@ -185,7 +185,8 @@ TEST_F(Cuda, LargeBatchStreamsInChunks) {
 TEST(CudaAvailability, CpuOnlyMachineSaysNotAvailable) {
   std::string why;
   if (gpu_available(&why)) GTEST_SKIP() << "a GPU is present";
-  EXPECT_NE(describe_devices().find("cuda: not available"), std::string::npos) << describe_devices();
+  EXPECT_NE(describe_devices().find("cuda: not available"), std::string::npos)
+      << describe_devices();
   const Phantom ph = make_phantom(PhantomSize::Small);
   try {
     Slicer(ph.ct, half_w1(), {}, kCuda);

@@ -43,13 +43,13 @@ struct FrameSource {
     Beams          ///< `count` beam-space frames (n_elevation, n_azimuth, n_samples) likewise
   };
   Kind kind = Kind::Images;
-  std::string name;  ///< for messages and the report: a path, or "frames"
+  std::string name;                        ///< for messages and the report: a path, or "frames"
   const PlusSequence* sequence = nullptr;  ///< Kind::PlusSequence
   const void* pixels = nullptr;            ///< Images / Beams
   PixelType type = PixelType::UInt8;
   int64_t count = 0;
-  int width = 0, height = 0;          ///< Images
-  BeamGeometry beam_geometry;         ///< Beams, with n_elevation, n_azimuth, n_samples set
+  int width = 0, height = 0;             ///< Images
+  BeamGeometry beam_geometry;            ///< Beams, with n_elevation, n_azimuth, n_samples set
   std::vector<Pose> probe_to_reference;  ///< Images / Beams: one pose per frame (LPS)
   /// Images: the probe the frames were sliced with (its image grid gives pixel → probe mm, its
   /// fan the default clip); otherwise ReconstructionOptions::image_to_probe is needed.
@@ -125,14 +125,14 @@ struct ReconstructionOptions {
 
 /// What a reconstruction used and did.
 struct ReconstructionReport {
-  std::string input;             ///< "<name>: 97 frames of 820x616 uint8 (orientation MF)"
-  int64_t frames_in_input = 0;   ///< every frame, valid or not
-  int64_t frames_considered = 0; ///< after the skip interval
+  std::string input;              ///< "<name>: 97 frames of 820x616 uint8 (orientation MF)"
+  int64_t frames_in_input = 0;    ///< every frame, valid or not
+  int64_t frames_considered = 0;  ///< after the skip interval
   int64_t frames_used = 0;
   int64_t skipped_bad_image = 0;      ///< image status not OK (PLUS)
   int64_t skipped_bad_transform = 0;  ///< transform chain through an invalid link (PLUS)
   int skip = 1;
-  std::string transform;  ///< PLUS: "ImageToReference"; others: ""
+  std::string transform;          ///< PLUS: "ImageToReference"; others: ""
   bool grid_from_config = false;  ///< the configuration's OutputOrigin/Extent, not fitted
   /// "2 with an invalid ImageToReference transform, 1 with an image status not OK" ("" if none).
   std::string skipped_reason() const;

@@ -4,6 +4,10 @@
 
 namespace sonoslice {
 
+constexpr unsigned long long kKiB = 1ull << 10;
+constexpr unsigned long long kMiB = 1ull << 20;
+constexpr unsigned long long kGiB = 1ull << 30;
+
 /// Memory the OS reports as available (MemAvailable), in bytes.
 unsigned long long available_memory_bytes();
 

@@ -1,6 +1,6 @@
 #pragma once
-/// @file Probe poses (docs/conventions.md §2): 4×4 matrices mapping probe mm to world mm. Column 0 is the
-/// lateral axis x̂, column 1 the axial (depth) axis ŷ, column 2 the elevation, column 3 the
+/// @file Probe poses (docs/conventions.md §2): 4×4 matrices mapping probe mm to world mm. Column 0
+/// is the lateral axis x̂, column 1 the axial (depth) axis ŷ, column 2 the elevation, column 3 the
 /// probe origin in world.
 #include <cstddef>
 #include <string>
@@ -22,8 +22,8 @@ const char* to_string(WorldFrame frame);                ///< "LPS" / "RAS"
 /// Converts a pose given in `frame` to LPS (identity for LPS).
 Pose pose_to_lps(const Pose& pose, WorldFrame frame);
 
-/// Checks poses as docs/conventions.md §2 says; throws InputError "<source>: pose <i>: <why>" for a pose with
-/// non-finite entries, a wrong last row, or degenerate x̂/ŷ (norm outside [0.5, 2] or
+/// Checks poses as docs/conventions.md §2 says; throws InputError "<source>: pose <i>: <why>" for a
+/// pose with non-finite entries, a wrong last row, or degenerate x̂/ŷ (norm outside [0.5, 2] or
 /// |x̂·ŷ| > 0.5·|x̂||ŷ|). Emits one warning for the whole set when any pose deviates from
 /// orthonormal by more than 1e-3 (unless `warn_non_orthonormal` is false: callers that check
 /// chunks of an already-validated file). `first_index` numbers the poses in messages.

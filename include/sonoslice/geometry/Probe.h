@@ -49,7 +49,8 @@ struct ProbeGeometry {
   /// Throws InputError naming `what` for non-positive or non-finite sizes and angles.
   void validate(const std::string& what) const;
 
-  /// docs/conventions.md §3 inside test at probe coordinates (x, y) mm, evaluated in double precision.
+  /// docs/conventions.md §3 inside test at probe coordinates (x, y) mm, evaluated in double
+  /// precision.
   bool inside(double x, double y) const;
 
   /// The H×W uint8 mask (row-major, row 0 first): 1 where the pixel centre is inside.

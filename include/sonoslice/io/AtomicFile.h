@@ -1,7 +1,7 @@
 #pragma once
 /// @file Outputs written under a temporary name in the destination's directory and renamed
-/// into place when complete (docs/conventions.md §6): a failed run leaves no partial file and never replaces
-/// good data with bad.
+/// into place when complete (docs/conventions.md §6): a failed run leaves no partial file and never
+/// replaces good data with bad.
 #include <string>
 
 #include "sonoslice/core/Memory.h"

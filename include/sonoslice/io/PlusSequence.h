@@ -1,7 +1,8 @@
 #pragma once
-/// @file PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.igs.mha / .seq.mha / .mha,
-/// .igs.nrrd / .seq.nrrd / .nrrd; zlib/gzip-compressed or raw) and the coordinate definitions of a
-/// PLUS configuration XML, with PLUS's transform naming (`AToB` maps coordinates in A to B).
+/// @file PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.igs.mha / .seq.mha
+/// / .mha, .igs.nrrd / .seq.nrrd / .nrrd; zlib/gzip-compressed or raw) and the coordinate
+/// definitions of a PLUS configuration XML, with PLUS's transform naming (`AToB` maps coordinates
+/// in A to B).
 #include <map>
 #include <optional>
 #include <string>

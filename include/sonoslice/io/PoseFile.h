@@ -1,6 +1,6 @@
 #pragma once
-/// @file Pose files (docs/conventions.md §2): .npy (N,4,4) or fan-slicer's (4,4N) strip, text .txt/.csv with
-/// 16 or 12 row-major numbers per line, and .json {"poses": [[16 numbers], ...]}.
+/// @file Pose files (docs/conventions.md §2): .npy (N,4,4) or fan-slicer's (4,4N) strip, text
+/// .txt/.csv with 16 or 12 row-major numbers per line, and .json {"poses": [[16 numbers], ...]}.
 #include <string>
 #include <vector>
 

@@ -1,8 +1,8 @@
 #pragma once
-/// @file Writing a batch of N images (docs/conventions.md §6): one W×H×N image (NIfTI/MHA/NRRD, spacing
-/// (sx, sy, 1)), a C-order (N, H, W) .npy, or a directory of 8-bit PNGs plus poses.txt.
-/// The caller slices straight into the buffers the writer hands out, so in-memory formats cost
-/// no extra copy and streamed formats (.npy, PNG) keep memory bounded by one chunk.
+/// @file Writing a batch of N images (docs/conventions.md §6): one W×H×N image (NIfTI/MHA/NRRD,
+/// spacing (sx, sy, 1)), a C-order (N, H, W) .npy, or a directory of 8-bit PNGs plus poses.txt. The
+/// caller slices straight into the buffers the writer hands out, so in-memory formats cost no extra
+/// copy and streamed formats (.npy, PNG) keep memory bounded by one chunk.
 #include <cstddef>
 #include <cstdint>
 #include <memory>

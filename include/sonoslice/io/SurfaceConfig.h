@@ -9,10 +9,10 @@
 namespace sonoslice {
 
 struct SurfaceModel {
-  std::string name;                 ///< as in the config ("hepatic veins")
-  std::string path;                 ///< mesh_dir/<name>.vtk
-  uint16_t label = 0;               ///< the k-th enabled model is label k (1-based), as fan-slicer
-  std::array<uint8_t, 3> color{};   ///< RGB for colour images
+  std::string name;                ///< as in the config ("hepatic veins")
+  std::string path;                ///< mesh_dir/<name>.vtk
+  uint16_t label = 0;              ///< the k-th enabled model is label k (1-based), as fan-slicer
+  std::array<uint8_t, 3> color{};  ///< RGB for colour images
 };
 
 /// The enabled models of a fan-slicer configuration ("models": {"files": [...]},

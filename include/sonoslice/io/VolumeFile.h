@@ -14,8 +14,9 @@ namespace sonoslice {
 struct VolumeReadOptions {
   /// DICOM directory: the SeriesInstanceUID to read (default: the series with the most files).
   std::string series_uid;
-  /// .npy geometry (docs/conventions.md §1); flags win over a sidecar `<name>.json` beside the .npy, which
-  /// wins over the defaults (spacing 1 mm, origin 0, identity direction; with a warning).
+  /// .npy geometry (docs/conventions.md §1); flags win over a sidecar `<name>.json` beside the
+  /// .npy, which wins over the defaults (spacing 1 mm, origin 0, identity direction; with a
+  /// warning).
   std::optional<Vec3> spacing_mm, origin_mm;
   std::optional<Mat3> direction;
   /// fan-slicer's `npy_config` JSON ("voxel size", "bounding box"): the .npy is then read with

@@ -11,9 +11,9 @@
 namespace sonoslice {
 
 struct TriangleMesh {
-  std::string name;                              ///< for messages (usually the file name)
-  std::vector<Vec3> vertices;                    ///< mm
-  std::vector<std::array<int32_t, 3>> triangles; ///< vertex indices
+  std::string name;                               ///< for messages (usually the file name)
+  std::vector<Vec3> vertices;                     ///< mm
+  std::vector<std::array<int32_t, 3>> triangles;  ///< vertex indices
 
   /// Axis-aligned bounds {min, max} (mm); InputError for an empty mesh.
   std::array<Vec3, 2> bounds() const;

@@ -9,7 +9,7 @@ namespace sonoslice {
 enum class PixelType { UInt8, Int8, UInt16, Int16, UInt32, Int32, Float32, Float64 };
 
 size_t pixel_size(PixelType type);
-std::string to_string(PixelType type);          ///< "uint8", "int16", "float32", ...
+std::string to_string(PixelType type);                ///< "uint8", "int16", "float32", ...
 PixelType parse_pixel_type(const std::string& name);  ///< inverse of to_string; InputError
 
 template <typename T>
