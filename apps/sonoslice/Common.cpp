@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <map>
 #include <sstream>
 
 #include "sonoslice/core/Error.h"
@@ -45,6 +46,26 @@ VolumeReadOptions VolumeFlags::options() const {
   }
   o.fanslicer_npy_config = npy_config;
   return o;
+}
+
+std::string flag_of(const std::string& parameter) {
+  static const std::map<std::string, std::string> renamed = {
+      {"spacing_mm", "--spacing"},
+      {"margin_mm", "--margin"},
+      {"series_uid", "--series"},
+      {"interpolation", "--interp"},
+      {"mode", "--compounding"},
+      {"clip_rectangle", "--clip-rect"},
+      {"transform", "--image-to-reference"},
+      {"output_type", "--dtype"},
+      {"max_memory_bytes", "--max-memory"},
+      {"hole_filling", "the XML's hole-filling elements"}};
+  const auto it = renamed.find(parameter);
+  if (it != renamed.end()) return it->second;
+  std::string flag = "--" + parameter;
+  for (char& c : flag)
+    if (c == '_') c = '-';
+  return flag;
 }
 
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag) {

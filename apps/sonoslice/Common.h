@@ -31,6 +31,11 @@ struct VolumeFlags {
   VolumeReadOptions options() const;
 };
 
+/// The flag that sets a library parameter (ParameterError::parameter()): "spacing_mm" →
+/// "--spacing", "series_uid" → "--series", "clip_rectangle" → "--clip-rect", ...; otherwise
+/// "--" + the name with '-' for '_'. Commands whose flag differs catch and rename themselves.
+std::string flag_of(const std::string& parameter);
+
 /// Parses "a,b,c" into exactly `count` finite numbers; InputError naming `flag` otherwise.
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag);
 

@@ -52,24 +52,6 @@ uint64_t parse_bytes(const std::string& text) {
   return uint64_t(v * scale);
 }
 
-// The recipe's parameter → this command's flag, so library messages name what the user typed.
-std::string flag_of(const std::string& parameter) {
-  static const std::map<std::string, std::string> renamed = {
-      {"interpolation", "--interp"},
-      {"mode", "--compounding"},
-      {"clip_rectangle", "--clip-rect"},
-      {"transform", "--image-to-reference"},
-      {"output_type", "--dtype"},
-      {"max_memory_bytes", "--max-memory"},
-      {"hole_filling", "the XML's hole-filling elements"}};
-  const auto it = renamed.find(parameter);
-  if (it != renamed.end()) return it->second;
-  std::string flag = "--" + parameter;
-  for (char& c : flag)
-    if (c == '_') c = '-';
-  return flag;
-}
-
 // "S" or "SX,SY,SZ" → mm (the recipe checks the values).
 Vec3 parse_spacing(const std::string& text) {
   const bool one = text.find(',') == std::string::npos;

@@ -97,8 +97,13 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
     src.surfaces =
         std::make_unique<SurfaceSlicer>(std::move(meshes), probe, labels, settings.output_type);
   } else {
-    const Volume v =
-        voxelize(meshes, voxel_grid_around(meshes, f.voxel_size, f.voxel_size), labels);
+    VolumeGrid grid;
+    try {
+      grid = voxel_grid_around(meshes, f.voxel_size, f.voxel_size);
+    } catch (const ParameterError& e) {  // both the spacing and the margin are --voxel-size
+      throw InputError("--voxel-size " + e.detail());
+    }
+    const Volume v = voxelize(meshes, grid, labels);
     src.description += " at " + std::to_string(f.voxel_size) + " mm";
     src.slicer = std::make_unique<Slicer>(v, probe, settings, device);
   }

@@ -4,6 +4,7 @@
 #include <string>
 
 #include "Commands.h"
+#include "Common.h"
 #include "sonoslice/core/Error.h"
 
 namespace {
@@ -31,6 +32,11 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  } catch (const sonoslice::ParameterError& e) {
+    // A library parameter, said as the flag that sets it.
+    std::fprintf(stderr, "sonoslice: error: %s %s\n",
+                 sonoslice::cli::flag_of(e.parameter()).c_str(), e.detail().c_str());
+    return 1;
   } catch (const std::bad_alloc&) {
     std::fprintf(stderr, "sonoslice: error: out of memory\n");
     return 1;

@@ -18,6 +18,9 @@
 
 namespace sonoslice {
 
+// More threads than any machine we target has cores; a larger number is a typo.
+constexpr int kMaxCpuThreads = 4096;
+
 Device Device::parse(const std::string& text) {
   const std::string t = text::lower(text);
   if (t == "cpu") return Device::cpu();
@@ -61,7 +64,9 @@ int cpu_threads() {
 }
 
 void set_cpu_threads(int n) {
-  if (n > 4096) throw InputError("--threads " + std::to_string(n) + ": too many threads");
+  if (n > kMaxCpuThreads)
+    throw ParameterError("threads", std::to_string(n) + ": more than " +
+                                        std::to_string(kMaxCpuThreads) + " threads");
   g_threads = n > 0 ? n : 0;
 #ifdef _OPENMP
   omp_set_num_threads(cpu_threads());

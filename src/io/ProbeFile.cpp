@@ -178,7 +178,7 @@ ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int d
 ProbeGeometry parse_probe_json(const std::string& text, const std::string& source,
                                int downsampling) {
   if (downsampling < 1 || downsampling > 64)
-    throw InputError("--downsampling " + std::to_string(downsampling) + ": must be in 1..64");
+    throw ParameterError("downsampling", std::to_string(downsampling) + ": must be in 1..64");
   json root;
   try {
     root = json::parse(text);

@@ -57,7 +57,7 @@ std::vector<SurfaceModel> read_fanslicer_models(const std::string& config_path,
     }
     std::error_code ec;
     if (!std::filesystem::is_regular_file(m.path, ec))
-      throw FileError(where + ": mesh '" + m.path + "' not found (from --mesh-dir)");
+      throw FileError(where + ": mesh '" + m.path + "' not found (listed in the config's models)");
     models.push_back(m);
   }
   if (models.empty()) throw InputError(where + ": no model is enabled in \"simulation_models\"");

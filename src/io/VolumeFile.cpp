@@ -142,7 +142,7 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
   if (options.origin_mm) g.origin_mm = *options.origin_mm;
   if (options.direction) g.direction = *options.direction;
   if (!have_geometry)
-    warn("volume '" + path + "': no spacing given (--spacing or a sidecar " +
+    warn("volume '" + path + "': no spacing given (a spacing option or a sidecar " +
          sidecar.filename().string() + "); assuming 1 mm voxels at the origin");
 
   if (a.fortran_order) {
@@ -275,12 +275,13 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
   const bool npy_flags = options.spacing_mm || options.origin_mm || options.direction ||
                          !options.fanslicer_npy_config.empty();
   if (format != ImageFormat::Npy && npy_flags)
-    throw InputError("volume '" + path +
-                     "': --spacing/--origin/--direction/--npy-config apply to .npy volumes only "
-                     "(this file carries its own geometry)");
+    throw InputError(
+        "volume '" + path +
+        "': spacing, origin, direction and a fan-slicer npy config apply to .npy volumes only "
+        "(this file carries its own geometry)");
   if (format == ImageFormat::Npy) return read_npy_volume(path, options);
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
-    throw InputError("--series applies to DICOM directories; '" + path + "' is a file");
+    throw ParameterError("series_uid", "applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
   Volume v = fs::is_directory(path, ec) ? itk_io::read_dicom_directory(path, options.series_uid)
                                         : itk_io::read_image_file(path);

@@ -156,9 +156,9 @@ void paint_mesh(const TriangleMesh& mesh, const std::vector<Vec3>& c, const Volu
 VolumeGrid voxel_grid_around(const std::vector<TriangleMesh>& meshes, double spacing_mm,
                              double margin_mm) {
   if (!(spacing_mm > 0) || !std::isfinite(spacing_mm))
-    throw InputError("--spacing " + std::to_string(spacing_mm) + ": must be > 0 mm");
+    throw ParameterError("spacing_mm", std::to_string(spacing_mm) + ": must be > 0 mm");
   if (!(margin_mm >= 0) || !std::isfinite(margin_mm))
-    throw InputError("--margin " + std::to_string(margin_mm) + ": must be >= 0 mm");
+    throw ParameterError("margin_mm", std::to_string(margin_mm) + ": must be >= 0 mm");
   if (meshes.empty()) throw InputError("voxelize: no meshes");
   Vec3 lo{1e300, 1e300, 1e300}, hi{-1e300, -1e300, -1e300};
   for (const TriangleMesh& m : meshes) {
@@ -180,7 +180,7 @@ VolumeGrid voxel_grid_around(const std::vector<TriangleMesh>& meshes, double spa
   if (voxels > 8e9) {
     std::ostringstream s;
     s << "voxelize: a " << g.dims[0] << "x" << g.dims[1] << "x" << g.dims[2] << " grid at "
-      << spacing_mm << " mm is too large; use a coarser --spacing";
+      << spacing_mm << " mm is too large; use a coarser spacing";
     throw ResourceError(s.str());
   }
   return g;

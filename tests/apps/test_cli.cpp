@@ -598,6 +598,11 @@ std::vector<BadCase> bad_cases() {
        "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
            " --out {DIR}/v.xyz",
        "v.xyz': unknown format '.xyz'"},
+      {"DownsamplingOutOfRange", std::string(kSlice) + "--downsampling 0",
+       "error: --downsampling 0: must be in 1..64"},
+      {"VoxelSizeZero",
+       "slice --meshes {DIR}/in_tet.stl --voxel-size 0 --probe {FAN} --poses {POSES} --out {OUT}",
+       "error: --voxel-size must be > 0 mm"},
       {"CompoundSkipZero", std::string(kCompound) + "--skip 0", "--skip 0: must be >= 1"},
       {"CompoundClipAndProbeOnSequence", std::string(kCompound) + "--poses {DIR}/p.npy",
        "a PLUS sequence carries its own transforms"},

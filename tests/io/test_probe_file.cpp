@@ -84,8 +84,9 @@ TEST(ProbeFile, ErrorsNameTheKey) {
           .find("unknown key 'colour'"),
       std::string::npos);
   EXPECT_NE(error_of(R"({"type": "linear", )").find("invalid JSON"), std::string::npos);
-  EXPECT_NE(error_of(R"({"type": "linear", )" + base + "}", 0).find("--downsampling"),
-            std::string::npos);
+  EXPECT_NE(
+      error_of(R"({"type": "linear", )" + base + "}", 0).find("downsampling 0: must be in 1..64"),
+      std::string::npos);
   EXPECT_NE(error_of("[1, 2]").find("expected a JSON object"), std::string::npos);
   // Every message names the file.
   EXPECT_NE(error_of(R"({"type": "curvilinear", )" + base + "}").find("p.json"), std::string::npos);

@@ -18,6 +18,22 @@ class InputError : public Error {
   using Error::Error;
 };
 
+/// An InputError about one named parameter of a library function ("spacing_mm", "threads"):
+/// the message reads "<parameter> <detail>". Front ends that spell the parameter otherwise (the
+/// CLI's --spacing) rebuild the message from parameter() and detail().
+class ParameterError : public InputError {
+ public:
+  ParameterError(std::string parameter, std::string detail)
+      : InputError(parameter + " " + detail),
+        parameter_(std::move(parameter)),
+        detail_(std::move(detail)) {}
+  const std::string& parameter() const { return parameter_; }
+  const std::string& detail() const { return detail_; }
+
+ private:
+  std::string parameter_, detail_;
+};
+
 /// A file that cannot be read or written: missing, corrupt, truncated, unwritable (Python:
 /// OSError).
 class FileError : public Error {
