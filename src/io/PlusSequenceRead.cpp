@@ -218,8 +218,9 @@ void read_pixels(const DataLayout& layout, InputFile& header_file, PlusSequence*
       inflate_into(*in, after_header, 15 + 32, seq->pixels.data(), bytes);
       break;
 #else
-    default:
-      break;
+    case DataLayout::Zlib:
+    case DataLayout::Gzip:
+      break;  // refused above: this build has no zlib
 #endif
   }
 }
