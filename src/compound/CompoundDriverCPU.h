@@ -188,8 +188,8 @@ struct CornerSums {
       for (int k = 0; k < 8; ++k) gather<M>(value[k], weight[k], s, corner_weight(f, k));
       return;
     }
-    // cell_weight's (wx·wy)·wz, laid out so that the compiler vectorises it (through
-    // cell_weight itself, GCC does not).
+    // cell_weight's (wx·wy)·wz, laid out so that the compiler vectorises it (a loop calling
+    // cell_weight per corner made the generic linear kernel about 25% slower with GCC 12).
     const float wx[2] = {1.f - fx, fx}, wy[2] = {1.f - fy, fy}, wz[2] = {1.f - fz, fz};
     const float wxy[4] = {wx[0] * wy[0], wx[1] * wy[0], wx[0] * wy[1], wx[1] * wy[1]};
     float w[8];
