@@ -1,8 +1,9 @@
 #pragma once
 /// @file Eight float lanes for the CPU's AVX2 fast paths: just enough vector arithmetic for the
 /// shared per-element formulas (they are templates over the lane type, so float on CUDA and in
-/// scalar code, Vec8f here) plus the gathers that load voxel pairs. Only the translation unit
-/// built with -mavx2 -mfma includes this.
+/// scalar code, Vec8f here), the gathers that load voxel pairs (slicing) and the sample loads,
+/// blends and interleaved adds of the compounding splats. Only translation units built with
+/// -mavx2 -mfma include this; kernels use these lanes rather than raw intrinsics.
 #if !defined(__AVX2__) || !defined(__FMA__)
 #error "Avx2Lanes.h needs -mavx2 -mfma"
 #endif
@@ -55,11 +56,52 @@ inline int lanes_set(const uint8_t* p) {
   return _mm_movemask_epi8(_mm_cmpgt_epi8(bytes, _mm_setzero_si128())) & 0xff;
 }
 
+/// Lane k of b where bit k of Mask is set, of a elsewhere.
+template <int Mask>
+inline Vec8f blend(Vec8f a, Vec8f b) {
+  return _mm256_blend_ps(a.v, b.v, Mask);
+}
+
+/// Eight consecutive samples from p, as floats (unaligned; integers converted exactly).
+inline Vec8f load_as_float(const uint8_t* p) {
+  return _mm256_cvtepi32_ps(
+      _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p))));
+}
+inline Vec8f load_as_float(const uint16_t* p) {
+  return _mm256_cvtepi32_ps(
+      _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p))));
+}
+inline Vec8f load_as_float(const int16_t* p) {
+  return _mm256_cvtepi32_ps(
+      _mm256_cvtepi16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p))));
+}
+inline Vec8f load_as_float(const float* p) {
+  return _mm256_loadu_ps(p);
+}
+
+/// Adds the lanes of a and b, interleaved in pairs, to four places in memory (arrays of
+/// {a, b} structs): d01 += (a0 b0 a1 b1), d23 += (a2 b2 a3 b3), d45 += (a4 b4 a5 b5),
+/// d67 += (a6 b6 a7 b7). Unaligned.
+inline void add_interleaved(Vec8f a, Vec8f b, float* d01, float* d23, float* d45, float* d67) {
+  const __m256 lo = _mm256_unpacklo_ps(a.v, b.v);  // lanes 0 1 | 4 5
+  const __m256 hi = _mm256_unpackhi_ps(a.v, b.v);  // lanes 2 3 | 6 7
+  _mm_storeu_ps(d01, _mm_add_ps(_mm_loadu_ps(d01), _mm256_castps256_ps128(lo)));
+  _mm_storeu_ps(d23, _mm_add_ps(_mm_loadu_ps(d23), _mm256_castps256_ps128(hi)));
+  _mm_storeu_ps(d45, _mm_add_ps(_mm_loadu_ps(d45), _mm256_extractf128_ps(lo, 1)));
+  _mm_storeu_ps(d67, _mm_add_ps(_mm_loadu_ps(d67), _mm256_extractf128_ps(hi, 1)));
+}
+
 struct Vec8i {
   __m256i v;
+  void store(int32_t* p) const { _mm256_storeu_si256(reinterpret_cast<__m256i*>(p), v); }
 };
+/// floor(x) for |x| < 2^31 (NaN and values beyond give INT32_MIN).
 inline Vec8i floor_to_int(Vec8f x) {
   return {_mm256_cvttps_epi32(_mm256_floor_ps(x.v))};
+}
+/// x rounded towards zero, for |x| < 2^31 (NaN and values beyond give INT32_MIN).
+inline Vec8i truncate_to_int(Vec8f x) {
+  return {_mm256_cvttps_epi32(x.v)};
 }
 inline Vec8f to_float(Vec8i i) {
   return _mm256_cvtepi32_ps(i.v);

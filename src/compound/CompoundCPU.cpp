@@ -1,7 +1,7 @@
-// The CPU backend of the compounding kernels for any x86-64 (or other) CPU: CompoundImpl.h with
-// the OpenMP parallel_for and scalar code.
+// The CPU backend of the compounding kernels for any x86-64 (or other) CPU: CompoundDriverCPU.h
+// with the OpenMP parallel_for and scalar code.
 #include "CompoundBackends.h"
-#include "CompoundImpl.h"
+#include "CompoundDriverCPU.h"
 
 namespace sonoslice {
 namespace compound_impl {

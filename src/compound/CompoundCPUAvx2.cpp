@@ -1,9 +1,10 @@
-// The CPU backend of the compounding kernels for CPUs with AVX2: the same CompoundImpl.h built
-// with -mavx2 -mfma (the eight corner sums of a linear splat in one register). Chosen at run
-// time (Compounder.cpp); it gives the same bits as the generic build.
+// The CPU backend of the compounding kernels for CPUs with AVX2: the same CompoundDriverCPU.h
+// built with -mavx2 -mfma (eight samples' voxels at a time, the eight corner sums of a linear
+// splat in one register). Chosen at run time (Compounder.cpp); it gives the same bits as the
+// generic build.
 #define SONOSLICE_KERNEL_ISA avx2
 #include "CompoundBackends.h"
-#include "CompoundImpl.h"
+#include "CompoundDriverCPU.h"
 
 namespace sonoslice {
 namespace compound_impl {

@@ -1,21 +1,19 @@
-// The CUDA backend of the compounding kernels: CompoundImpl.h compiled by nvcc with the CUDA
-// parallel_for. Buffers and streams are host code (CompounderCUDA.cpp).
+// The CUDA backend of the compounding kernels: CompoundDriverCUDA.cuh (over the shared
+// CompoundImpl.h) compiled by nvcc with the CUDA parallel_for. Buffers and streams are host code
+// (CompounderCUDA.cpp).
 #define SONOSLICE_KERNEL_ISA cuda
+#include <cstdint>
+
+#include "../backend/ParallelForCUDA.cuh"
 #include "CompoundBackends.h"
-#include "CompoundImpl.h"
+#include "CompoundDriverCUDA.cuh"
 
 namespace sonoslice {
 namespace compound_impl {
 
 void compound_cuda_launch(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
                           bool linear, void* stream) {
-  visit_sample_type(batch.type, [&](auto sample_zero) {
-    using T = decltype(sample_zero);
-    visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
-      compound_batch_cuda<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(grid, batch,
-                                                                                     stream);
-    });
-  });
+  dispatch_compound_cuda(grid, batch, mode, linear, stream);
 }
 
 namespace {

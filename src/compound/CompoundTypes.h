@@ -1,6 +1,6 @@
 #pragma once
-// Internal: the plain structs the compounding kernels (CompoundImpl.h) take, shared by the
-// dispatch layer (Compounder.cpp) and every backend. No pointers are checked below this layer.
+// Internal: the plain structs the compounding kernels (CompoundImpl.h, the drivers) take, shared by
+// the dispatch layer (Compounder.cpp) and every backend. No pointers are checked below this layer.
 #include <cstdint>
 #include <limits>
 

@@ -1,20 +1,22 @@
-// The dispatch layer of compounding: checks inputs once, turns frames into rows in voxel-index
-// space (CompoundTypes.h), picks the CPU slabs, and finishes the volume (Finish.cpp).
+// The Compounder (the dispatch layer of compounding): checks inputs once, turns frames into rows
+// in voxel-index space (CompoundTypes.h), picks the CPU slabs, and finishes the volume
+// (Finish.cpp). Frame clips, beam geometry and the output grid live beside it (FrameClip.cpp,
+// BeamGeometry.cpp, CompoundGrid.cpp).
 #include "sonoslice/compound/Compounder.h"
-
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <fstream>
 #include <limits>
-#include <sstream>
+#include <memory>
+#include <string>
+#include <vector>
 
 #include "../backend/ParallelFor.h"
-#include "../core/Text.h"
+#include "BeamGeometry.h"
 #include "CompoundBackends.h"
+#include "CompoundGrid.h"
 #include "Finish.h"
+#include "FrameClip.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -26,6 +28,14 @@ using compound_impl::kMaxSpans;
 using compound_impl::Mode;
 using compound_impl::RowLine;
 using compound_impl::RowSpans;
+
+using compound_impl::accumulator_bytes_per_voxel;
+using compound_impl::beam_directions;
+using compound_impl::beam_point;
+using compound_impl::check_matrix;
+using compound_impl::format_bytes;
+using compound_impl::format_dims;
+using compound_impl::spans_from_mask;
 
 namespace compound_impl {
 void compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mode, bool linear,
@@ -40,19 +50,6 @@ void compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mod
 
 namespace {
 
-std::string format_bytes(uint64_t bytes) {
-  char text[64];
-  if (bytes >= (uint64_t(1) << 30))
-    std::snprintf(text, sizeof text, "%.1f GiB", double(bytes) / double(uint64_t(1) << 30));
-  else
-    std::snprintf(text, sizeof text, "%.0f MiB", double(bytes) / double(1 << 20));
-  return text;
-}
-
-std::string format_dims(const std::array<int64_t, 3>& d) {
-  return std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]);
-}
-
 Mode to_kernel_mode(CompoundingMode m) {
   switch (m) {
     case CompoundingMode::Mean:
@@ -65,24 +62,10 @@ Mode to_kernel_mode(CompoundingMode m) {
   return Mode::Mean;
 }
 
-uint64_t accumulator_bytes_per_voxel(const CompoundSettings& s) {
-  return sizeof(Accumulator) + (s.mode == CompoundingMode::Latest ? sizeof(int32_t) : 0);
-}
-
 // Frames of these types go to the kernels as they are; others are converted to float first.
 bool kernel_sample_type(PixelType t) {
   return t == PixelType::UInt8 || t == PixelType::UInt16 || t == PixelType::Int16 ||
          t == PixelType::Float32;
-}
-
-void check_matrix(const Mat4& m, const std::string& what) {
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c)
-      if (!std::isfinite(m.m[r][c]))
-        throw InputError(what + ": the matrix has a non-finite element (row " + std::to_string(r) +
-                         ", column " + std::to_string(c) + ")");
-  if (m.m[3][0] != 0 || m.m[3][1] != 0 || m.m[3][2] != 0 || m.m[3][3] != 1)
-    throw InputError(what + ": the matrix's last row must be 0 0 0 1");
 }
 
 // The affine (3×4) from frame coordinates to continuous voxel index: world_to_index ·
@@ -125,248 +108,11 @@ RowLine make_line(const Vec3& c0, const Vec3& dc, double offset) {
   return l;
 }
 
-// The unit directions of the beams (docs/conventions.md §7), elevation slowest:
-// (sin α, cos α·cos β, cos α·sin β).
-std::vector<Vec3> beam_directions(const BeamGeometry& g) {
-  const double deg = kPi / 180.0;
-  std::vector<Vec3> directions;
-  directions.reserve(size_t(g.n_elevation) * g.n_azimuth);
-  for (int e = 0; e < g.n_elevation; ++e)
-    for (int a = 0; a < g.n_azimuth; ++a) {
-      const double alpha = (g.azimuth0_deg + a * g.dazimuth_deg) * deg;
-      const double beta = (g.elevation0_deg + e * g.delevation_deg) * deg;
-      directions.push_back(
-          {std::sin(alpha), std::cos(alpha) * std::cos(beta), std::cos(alpha) * std::sin(beta)});
-    }
-  return directions;
-}
-
-// The probe-frame point at depth r along the beam of direction d: apex + r·d, with
-// apex = (0, -apex_offset, 0).
-Vec3 beam_point(const BeamGeometry& g, const Vec3& d, double r) {
-  return {r * d[0], r * d[1] - g.apex_offset_mm, r * d[2]};
-}
-
 // Frames go to the kernels in batches. CPU: about a million samples, one parallel pass over the
 // output each, small enough to stay in cache while every slab task reads it. CUDA: 32 M samples
 // per upload and launch, so that launches and copies are few.
 constexpr int64_t kCpuBatchSamples = int64_t(1) << 20;
 constexpr int64_t kCudaBatchSamples = int64_t(1) << 25;
-
-// Turns a frame's mask rows into runs.
-std::vector<RowSpans> spans_from_mask(const std::vector<uint8_t>& mask, int width, int height) {
-  std::vector<RowSpans> spans(static_cast<size_t>(height));
-  for (int v = 0; v < height; ++v) {
-    RowSpans& s = spans[size_t(v)];
-    for (int k = 0; k < kMaxSpans; ++k) s.begin[k] = s.end[k] = 0;
-    int k = 0;
-    const uint8_t* row = mask.data() + size_t(v) * width;
-    for (int u = 0; u < width;) {
-      if (!row[u]) {
-        ++u;
-        continue;
-      }
-      int e = u;
-      while (e < width && row[e]) ++e;
-      if (k == kMaxSpans)
-        throw InputError("frame clip: row " + std::to_string(v) + " of the fan has more than " +
-                         std::to_string(kMaxSpans) + " runs of pixels");
-      s.begin[k] = u;
-      s.end[k] = e;
-      ++k;
-      u = e;
-    }
-  }
-  return spans;
-}
-
-}  // namespace
-
-const char* to_string(CompoundingMode mode) {
-  switch (mode) {
-    case CompoundingMode::Mean:
-      return "mean";
-    case CompoundingMode::Max:
-      return "max";
-    case CompoundingMode::Latest:
-      return "latest";
-  }
-  return "?";
-}
-
-const char* to_string(HoleFillingKernel::Type type) {
-  switch (type) {
-    case HoleFillingKernel::NearestNeighbor:
-      return "nearest_neighbor";
-    case HoleFillingKernel::Gaussian:
-      return "gaussian";
-    case HoleFillingKernel::GaussianAccumulation:
-      return "gaussian_accumulation";
-    case HoleFillingKernel::DistanceWeightInverse:
-      return "distance_weight_inverse";
-    case HoleFillingKernel::Stick:
-      return "stick";
-  }
-  return "?";
-}
-
-CompoundingMode parse_compounding_mode(const std::string& name) {
-  const std::string n = text::lower(name);
-  if (n == "mean") return CompoundingMode::Mean;
-  if (n == "max" || n == "maximum") return CompoundingMode::Max;
-  if (n == "latest") return CompoundingMode::Latest;
-  throw InputError("compounding mode '" + name + "': expected mean, max or latest");
-}
-
-HoleFillingKernel::Type parse_hole_filling_type(const std::string& name) {
-  const std::string n = text::lower(name);
-  if (n == "nearest_neighbor" || n == "nearest") return HoleFillingKernel::NearestNeighbor;
-  if (n == "gaussian") return HoleFillingKernel::Gaussian;
-  if (n == "gaussian_accumulation") return HoleFillingKernel::GaussianAccumulation;
-  if (n == "distance_weight_inverse") return HoleFillingKernel::DistanceWeightInverse;
-  if (n == "stick") return HoleFillingKernel::Stick;
-  throw InputError("hole filling type '" + name +
-                   "': expected NEAREST_NEIGHBOR, GAUSSIAN, GAUSSIAN_ACCUMULATION, "
-                   "DISTANCE_WEIGHT_INVERSE or STICK");
-}
-
-int HoleFillingKernel::reach() const {
-  if (type == Stick) return std::max(1, stick_length_limit - 2);
-  return std::max(1, (size - 1) / 2);
-}
-
-void HoleFillingKernel::validate(const std::string& what) const {
-  if (type == Stick) {
-    if (stick_length_limit < 3 || stick_length_limit > 255)
-      throw InputError(what + ": stick length limit " + std::to_string(stick_length_limit) +
-                       " must be between 3 and 255 voxels");
-    if (sticks_to_use < 1 || sticks_to_use > 13)
-      throw InputError(what + ": sticks to use " + std::to_string(sticks_to_use) +
-                       " must be between 1 and 13");
-    return;
-  }
-  if (size < 3 || size > 31 || size % 2 == 0)
-    throw InputError(what + ": size " + std::to_string(size) + " must be odd, 3 to 31 voxels");
-  if ((type == Gaussian || type == GaussianAccumulation) && !(stdev > 0 && std::isfinite(stdev)))
-    throw InputError(what + ": Gaussian standard deviation must be positive");
-  if (!(minimum_known_ratio >= 0 && minimum_known_ratio < 1))
-    throw InputError(what + ": minimum known ratio must be in [0, 1)");
-}
-
-std::array<int, 4> FrameClip::rectangle(int frame_width, int frame_height) const {
-  if (!custom_mask.empty() && custom_mask.size() == size_t(frame_width) * size_t(frame_height)) {
-    // The box around the mask's pixels.
-    std::array<int, 4> box{frame_width, frame_height, 0, 0};
-    for (int v = 0; v < frame_height; ++v)
-      for (int u = 0; u < frame_width; ++u)
-        if (custom_mask[size_t(v) * frame_width + u]) {
-          box = {std::min(box[0], u), std::min(box[1], v), std::max(box[2], u + 1),
-                 std::max(box[3], v + 1)};
-        }
-    if (box[0] >= box[2]) box = {0, 0, 0, 0};
-    return box;
-  }
-  const int x0 = std::max(0, x), y0 = std::max(0, y);
-  const int x1 = width < 0 ? frame_width : std::min(frame_width, x + width);
-  const int y1 = height < 0 ? frame_height : std::min(frame_height, y + height);
-  return {x0, y0, std::max(x0, x1), std::max(y0, y1)};
-}
-
-void FrameClip::validate(const std::string& what) const {
-  if (width < -1 || height < -1)
-    throw InputError(what + ": clip rectangle size " + std::to_string(width) + "x" +
-                     std::to_string(height) + " is negative");
-  if (!fan) return;
-  for (double a : fan_angles_deg)
-    if (!(a > -90 && a < 90))
-      throw InputError(what + ": fan angles must be strictly between -90 and 90 degrees");
-  if (!(fan_angles_deg[0] <= fan_angles_deg[1]))
-    throw InputError(what + ": fan angles must be given smallest first");
-  if (!std::isfinite(fan_origin_px[0]) || !std::isfinite(fan_origin_px[1]))
-    throw InputError(what + ": fan origin must be finite");
-  if (!(fan_radius_px[0] >= 0 && fan_radius_px[1] >= fan_radius_px[0]))
-    throw InputError(what + ": fan radii must satisfy 0 <= start <= stop");
-}
-
-std::vector<uint8_t> FrameClip::mask(int frame_width, int frame_height) const {
-  validate("frame clip");
-  if (!custom_mask.empty()) {
-    if (custom_mask.size() != size_t(frame_width) * size_t(frame_height))
-      throw InputError("frame clip: the mask has " + std::to_string(custom_mask.size()) +
-                       " pixels, frames have " + std::to_string(frame_width) + "x" +
-                       std::to_string(frame_height));
-    return custom_mask;
-  }
-  std::vector<uint8_t> m(size_t(frame_width) * frame_height, 0);
-  const auto r = rectangle(frame_width, frame_height);
-  // PLUS's fan test (unoptimised path): below the origin, tan(a0) <= dx/dy <= tan(a1), and
-  // start <= distance <= stop, all inclusive.
-  const double deg = kPi / 180.0;
-  const double tan0 = std::tan(fan_angles_deg[0] * deg), tan1 = std::tan(fan_angles_deg[1] * deg);
-  for (int v = r[1]; v < r[3]; ++v)
-    for (int u = r[0]; u < r[2]; ++u) {
-      if (fan) {
-        const double dx = u - fan_origin_px[0], dy = v - fan_origin_px[1];
-        if (dy < 0) continue;
-        if (dy == 0 ? dx != 0 : (dx / dy < tan0 || dx / dy > tan1)) continue;
-        const double d2 = dx * dx + dy * dy;
-        if (d2 < fan_radius_px[0] * fan_radius_px[0] || d2 > fan_radius_px[1] * fan_radius_px[1])
-          continue;
-      }
-      m[size_t(v) * frame_width + u] = 1;
-    }
-  return m;
-}
-
-void BeamGeometry::validate(const std::string& what) const {
-  if (n_elevation <= 0 || n_azimuth <= 0 || n_samples <= 0)
-    throw InputError(what + ": beam-space frame size " + std::to_string(n_elevation) + "x" +
-                     std::to_string(n_azimuth) + "x" + std::to_string(n_samples) +
-                     " must be positive");
-  if (int64_t(n_elevation) * n_azimuth > (int64_t(1) << 28) || n_samples > (1 << 24))
-    throw InputError(what + ": beam-space frame size is absurd");
-  const double values[] = {r0_mm,          dr_mm,          azimuth0_deg,  dazimuth_deg,
-                           elevation0_deg, delevation_deg, apex_offset_mm};
-  for (double v : values)
-    if (!std::isfinite(v)) throw InputError(what + ": beam geometry values must be finite");
-  if (!(dr_mm > 0)) throw InputError(what + ": sample spacing dr_mm must be positive");
-  if (r0_mm < 0) throw InputError(what + ": first sample depth r0_mm must not be negative");
-  const double a_end = azimuth0_deg + (n_azimuth - 1) * dazimuth_deg;
-  const double e_end = elevation0_deg + (n_elevation - 1) * delevation_deg;
-  if (std::fabs(azimuth0_deg) >= 90 || std::fabs(a_end) >= 90 || std::fabs(elevation0_deg) >= 90 ||
-      std::fabs(e_end) >= 90)
-    throw InputError(what + ": beam angles must stay within ±90 degrees");
-}
-
-uint64_t compounding_memory_bytes(const VolumeGrid& grid, const CompoundSettings& settings,
-                                  PixelType output_type) {
-  const uint64_t voxels = uint64_t(grid.voxel_count());
-  return voxels * (accumulator_bytes_per_voxel(settings) + pixel_size(output_type));
-}
-
-namespace {
-
-// A spacing (two decimals, mm) at which the same physical box fits in `limit` bytes.
-std::string suggest_spacing(const VolumeGrid& grid, const CompoundSettings& settings,
-                            PixelType output_type, uint64_t limit) {
-  const double s0 = std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
-  for (double s = std::ceil(s0 * 100 + 1) / 100; s < s0 * 1000; s = std::ceil(s * 105) / 100) {
-    VolumeGrid g = grid;
-    for (int a = 0; a < 3; ++a) {
-      const double extent = double(grid.dims[a] - 1) * grid.spacing_mm[a];
-      g.dims[a] = int64_t(std::round(extent / s)) + 1;
-      g.spacing_mm[a] = s;
-    }
-    const uint64_t need = compounding_memory_bytes(g, settings, output_type);
-    if (need <= limit) {
-      char text[160];
-      std::snprintf(text, sizeof text, "a spacing of %.2f mm fits (%s voxels, %s)", s,
-                    format_dims(g.dims).c_str(), format_bytes(need).c_str());
-      return text;
-    }
-  }
-  return "no spacing fits";
-}
 
 }  // namespace
 
@@ -499,8 +245,8 @@ struct Compounder::Impl {
       }
       if (axis < 0) slabs = std::max(1, slabs / 2);
     }
-    compound_impl::compound_cpu(g, b, mode, settings.interpolation == Interpolation::Linear,
-                                axis, first[axis], last[axis], slabs);
+    compound_impl::compound_cpu(g, b, mode, settings.interpolation == Interpolation::Linear, axis,
+                                first[axis], last[axis], slabs);
   }
 
   // Frames of other types travel as float32.
@@ -591,14 +337,7 @@ Compounder::Compounder(const VolumeGrid& grid, CompoundSettings settings, Device
     settings.hole_filling[k].validate("hole filling element " + std::to_string(k + 1));
   require_device(device);
 
-  const uint64_t need = compounding_memory_bytes(grid, settings, output_type);
-  const uint64_t limit = max_memory_bytes ? max_memory_bytes : available_memory_bytes();
-  if (need > limit)
-    throw ResourceError("compounding: the output grid (" + format_dims(grid.dims) + " voxels at " +
-                        std::to_string(grid.spacing_mm[0]).substr(0, 5) + " mm) needs " +
-                        format_bytes(need) + ", more than the " + format_bytes(limit) +
-                        (max_memory_bytes ? " allowed (--max-memory)" : " available") + "; " +
-                        suggest_spacing(grid, settings, output_type, limit));
+  compound_impl::check_fits_in_memory(grid, settings, output_type, max_memory_bytes);
 
   Impl& im = *impl_;
   im.grid = grid;
@@ -703,70 +442,6 @@ Volume Compounder::weights() const {
   const int64_t n = im.grid.voxel_count();
   for (int64_t i = 0; i < n; ++i) w[i] = c[i].weight;
   return out;
-}
-
-namespace {
-
-// The box around the points given to add(): the grid PLUS fits around the frames.
-struct Bounds {
-  Vec3 lo{{1e300, 1e300, 1e300}}, hi{{-1e300, -1e300, -1e300}};
-  bool empty = true;
-  void add(const Vec3& p) {
-    empty = false;
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], p[a]);
-      hi[a] = std::max(hi[a], p[a]);
-    }
-  }
-  // Origin at the minimum, round((max - min) / spacing) + 1 voxels per axis.
-  VolumeGrid grid(const Vec3& spacing_mm, const char* what) const {
-    for (double s : spacing_mm)
-      if (!(s > 0 && std::isfinite(s)))
-        throw InputError(std::string(what) + ": output spacing must be a positive number of mm");
-    if (empty)
-      throw InputError(std::string(what) + ": no valid frame to compute the output extent from");
-    VolumeGrid g;
-    for (int a = 0; a < 3; ++a) {
-      g.origin_mm[a] = lo[a];
-      g.spacing_mm[a] = spacing_mm[a];
-      g.dims[a] = int64_t(std::round((hi[a] - lo[a]) / spacing_mm[a])) + 1;
-    }
-    return g;
-  }
-};
-
-}  // namespace
-
-VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, int width,
-                                   int height, const FrameClip& clip, const Vec3& spacing_mm) {
-  const auto r = clip.rectangle(width, height);
-  if (r[0] >= r[2] || r[1] >= r[3])
-    throw InputError("compounding: the clip rectangle leaves no pixel of the frame");
-  // Corner pixel centres: first and last pixel of the clip rectangle.
-  const double xs[2] = {double(r[0]), double(r[2] - 1)}, ys[2] = {double(r[1]), double(r[3] - 1)};
-  Bounds box;
-  for (const Mat4& m : image_to_reference) {
-    check_matrix(m, "compounding: image-to-reference");
-    for (double x : xs)
-      for (double y : ys) box.add(m.transform_point(Vec3{{x, y, 0.0}}));
-  }
-  return box.grid(spacing_mm, "compounding");
-}
-
-VolumeGrid Compounder::grid_around_beams(const std::vector<Mat4>& probe_to_reference,
-                                         const BeamGeometry& geometry, const Vec3& spacing_mm) {
-  geometry.validate("compounding: beam geometry");
-  // Every beam's first and last sample, in the probe frame once, then per pose.
-  const double r1 = geometry.r0_mm + (geometry.n_samples - 1) * geometry.dr_mm;
-  std::vector<Vec3> ends;
-  for (const Vec3& d : beam_directions(geometry))
-    for (double r : {geometry.r0_mm, r1}) ends.push_back(beam_point(geometry, d, r));
-  Bounds box;
-  for (const Mat4& m : probe_to_reference) {
-    check_matrix(m, "compounding: probe-to-reference");
-    for (const Vec3& p : ends) box.add(m.transform_point(p));
-  }
-  return box.grid(spacing_mm, "compounding");
 }
 
 }  // namespace sonoslice

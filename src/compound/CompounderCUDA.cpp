@@ -1,5 +1,5 @@
 // Host side of the CUDA compounding backend: the accumulators resident on the GPU and the
-// buffers frames travel through. The kernels are CompoundImpl.h compiled by nvcc
+// buffers frames travel through. The kernels are CompoundDriverCUDA.cuh compiled by nvcc
 // (CompoundCUDA.cu).
 #include <string>
 

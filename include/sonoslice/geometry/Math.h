@@ -3,6 +3,7 @@
 /// Kernels never see these: the dispatch layer reduces them to float structs (see slice/).
 #include <array>
 #include <cmath>
+#include <optional>
 
 namespace sonoslice {
 
@@ -114,6 +115,10 @@ struct Mat4 {
     return r;
   }
 };
+
+/// The inverse of a 4×4 matrix (Gauss-Jordan elimination with partial pivoting); std::nullopt
+/// when it is singular (a pivot below 1e-12 of the matrix's largest entry) or not finite.
+std::optional<Mat4> invert(const Mat4& m);
 
 inline Vec3 operator+(const Vec3& a, const Vec3& b) {
   return {a[0] + b[0], a[1] + b[1], a[2] + b[2]};

@@ -1,0 +1,421 @@
+#pragma once
+/// @file The CPU driver of the compounding kernels: owner computes, over the per-sample math of
+/// CompoundImpl.h. CompoundCPU.cpp (generic x86-64) and CompoundCPUAvx2.cpp (AVX2 + FMA, its
+/// SIMD through backend/Avx2Lanes.h) include this file; both give the same bits.
+///
+/// The batch's footprint is cut into slabs along one axis; a task owns a slab and walks every row
+/// of every frame of the batch, in order, writing only its own voxels. Each voxel therefore
+/// receives its samples in one fixed order whatever the number of threads, and the result is the
+/// same bit for bit. Consecutive samples of a row that fall in the same voxel (nearest) or cell
+/// (linear) are summed in registers first and written once: ultrasound pixels are several times
+/// smaller than the voxels they go into.
+#if defined(__CUDACC__)
+#error "CompoundDriverCPU.h is the CPU driver; CUDA builds use CompoundDriverCUDA.cuh"
+#endif
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "../backend/ParallelFor.h"
+#include "CompoundImpl.h"
+#include "CompoundTypes.h"
+#include "sonoslice/backend/HostDevice.h"
+#if defined(__AVX2__) && defined(__FMA__)
+#include "../backend/Avx2Lanes.h"
+#define SONOSLICE_COMPOUND_AVX2 1
+#endif
+
+namespace sonoslice {
+namespace compound_impl {
+inline namespace SONOSLICE_KERNEL_ISA {
+
+/// Writes a group into voxel i (the calling task owns the voxel).
+template <Mode M>
+inline void apply(const AccumulatorView& g, int64_t i, float value, float weight, int32_t frame) {
+  if (M == Mode::Latest) restart_for_frame(g, i, frame);
+  Accumulator& a = g.cells[i];
+  a.value = merged<M>(a.value, value);
+  a.weight += weight;
+}
+
+/// floor and ceil without a libm call (baseline x86-64 has no SSE4.1 round); |x| is first
+/// clamped to 2^40, far beyond any sample index.
+inline double floor_fast(double x) {
+  x = x < -1099511627776.0 ? -1099511627776.0 : (x > 1099511627776.0 ? 1099511627776.0 : x);
+  const double t = double(int64_t(x));
+  return t > x ? t - 1 : t;
+}
+inline double ceil_fast(double x) {
+  return -floor_fast(-x);
+}
+
+/// Narrows [ub, ue) to the samples u of a row whose coordinate c0 + u·d along one axis lies in
+/// [lo, hi] (`inv_d` = 1/d, 0 when the row is parallel to the axis's planes).
+/// `outer`: conservatively (every such sample is kept, and up to two more at each end);
+/// otherwise strictly (every sample kept is inside by 0.01 voxel and one sample), so that the
+/// kernels can skip their per-sample tests there.
+inline void clip_axis(double c0, double inv_d, double lo, double hi, bool outer, int& ub, int& ue) {
+  if (ub >= ue) return;
+  const double margin = outer ? 0.0 : 0.01;
+  if (inv_d == 0) {
+    if (!(c0 >= lo + margin && c0 <= hi - margin)) ue = ub;
+    return;
+  }
+  double u0 = (lo - c0) * inv_d, u1 = (hi - c0) * inv_d;
+  if (u0 > u1) std::swap(u0, u1);
+  double b, e;  // [b, e) in samples
+  if (outer) {
+    b = floor_fast(u0) - 1;
+    e = ceil_fast(u1) + 2;
+  } else {
+    const double shrink = margin * std::fabs(inv_d) + 1;
+    b = ceil_fast(u0 + shrink);
+    e = floor_fast(u1 - shrink) + 1;
+  }
+  if (b > double(ub)) ub = b < double(ue) ? int(b) : ue;
+  if (e < double(ue)) ue = e > double(ub) ? int(e) : ub;
+}
+
+inline double inverse_step(float d) {
+  return std::fabs(d) < 1e-9f ? 0.0 : 1.0 / double(d);
+}
+
+/// The samples of one run of a row that can reach the grid ([outer_b, outer_e)) and those that
+/// certainly do ([inner_b, inner_e)), before the slab's own axis is considered.
+struct RowClip {
+  int outer_b, outer_e, inner_b, inner_e;
+  double c0, inv_d;  ///< along the slab axis
+};
+
+/// Visits the samples u in [ub, ue) in order: step(u, checked) one at a time, with
+/// checked = false inside [ib, ie), where every sample is certainly inside the grid and the slab;
+/// there blocks(u, ie) may first take whole blocks of samples (SIMD) and return where it stopped.
+template <typename Step, typename Blocks>
+SONOSLICE_INLINE void walk_row(int ub, int ue, int ib, int ie, const Step& step,
+                               const Blocks& blocks) {
+  ib = ib < ub ? ub : ib;
+  ie = ie > ue ? ue : ie;
+  if (ib >= ie) ib = ie = ue;
+  for (int u = ub; u < ib; ++u) step(u, std::true_type{});
+  for (int u = blocks(ib, ie); u < ie; ++u) step(u, std::false_type{});
+  for (int u = ie; u < ue; ++u) step(u, std::true_type{});
+}
+
+/// One row's samples [ub, ue) into the slab (voxels with index in [lo, hi) along Axis), nearest
+/// voxel (the row's c0 carries the +0.5 of floor(c + 0.5)). Runs of samples in the same voxel
+/// are gathered first.
+template <typename T, Mode M, int Axis>
+void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine& L, const T* row,
+                       const RowClip& clip, float threshold, int32_t frame) {
+  int ub = clip.outer_b, ue = clip.outer_e, ib = clip.inner_b, ie = clip.inner_e;
+  clip_axis(clip.c0, clip.inv_d, slab.lo, slab.hi, true, ub, ue);
+  if (ub >= ue) return;
+  clip_axis(clip.c0, clip.inv_d, slab.lo, slab.hi, false, ib, ie);
+  int64_t current = -1;
+  float value = empty_value(M), weight = 0.f;
+  const auto take = [&](int64_t v, float s) {
+    if (v != current) {
+      if (current >= 0) apply<M>(g, current, value, weight, frame);
+      current = v;
+      value = empty_value(M);
+      weight = 0.f;
+    }
+    gather<M>(value, weight, s, 1.f);
+  };
+  const auto step = [&](int u, auto checked) {
+    const float s = sample_value(row, u);
+    if (rejected(s, threshold)) return;
+    // Three scalars, not an array: GCC would pack an array loop into part-filled vectors.
+    const float fu = float(u);
+    const float tx = sample_coordinate(L.c0[0], fu, L.dc[0]),
+                ty = sample_coordinate(L.c0[1], fu, L.dc[1]),
+                tz = sample_coordinate(L.c0[2], fu, L.dc[2]);
+    if (decltype(checked)::value && !inside_nearest(g, tx, ty, tz)) return;
+    // t >= 0: truncation is floor.
+    const int ix = int(tx), iy = int(ty), iz = int(tz);
+    if (decltype(checked)::value) {
+      const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
+      if (ia < slab.lo || ia >= slab.hi) return;
+    }
+    take(g.offset(ix, iy, iz), s);
+  };
+  walk_row(ub, ue, ib, ie, step, [&](int u, [[maybe_unused]] int end) {
+#if defined(SONOSLICE_COMPOUND_AVX2)
+    // Eight samples' voxels at a time (the same float operations as step(), so the same bits);
+    // the runs are then gathered lane by lane. Offsets are int32 lanes.
+    if (int64_t(g.nx) * g.ny * g.nz >= (int64_t(1) << 31)) return u;
+    using backend::Vec8f;
+    const Vec8f c0x(L.c0[0]), c0y(L.c0[1]), c0z(L.c0[2]);
+    const Vec8f dx(L.dc[0]), dy(L.dc[1]), dz(L.dc[2]);
+    const int32_t sy = g.nx, sz = g.nx * g.ny;
+    alignas(32) int32_t offsets[8];
+    alignas(32) float samples[8];
+    for (; u + 8 <= end; u += 8) {
+      const Vec8f fu = Vec8f::iota(float(u));
+      // In the inner run t >= 0: truncation is floor.
+      const backend::Vec8i ix = backend::truncate_to_int(sample_coordinate(c0x, fu, dx));
+      const backend::Vec8i iy = backend::truncate_to_int(sample_coordinate(c0y, fu, dy));
+      const backend::Vec8i iz = backend::truncate_to_int(sample_coordinate(c0z, fu, dz));
+      backend::offsets(ix, iy, iz, sy, sz).store(offsets);
+      backend::load_as_float(row + u).store(samples);
+      for (int l = 0; l < 8; ++l)
+        if (!rejected(samples[l], threshold)) take(offsets[l], samples[l]);
+    }
+#endif
+    return u;
+  });
+  if (current >= 0) apply<M>(g, current, value, weight, frame);
+}
+
+/// The eight corner sums (corner k: bit 0 +x, bit 1 +y, bit 2 +z) of a run of samples in one
+/// cell. Every version computes the weights with cell_weight and value += w·s without fusing,
+/// so the generic and AVX2 kernels give the same bits.
+template <Mode M, bool Summing = (M != Mode::Max)>
+struct CornerSums {
+  float value[8], weight[8];
+  void reset() {
+    for (int k = 0; k < 8; ++k) {
+      value[k] = empty_value(M);
+      weight[k] = 0.f;
+    }
+  }
+  void add(float fx, float fy, float fz, float s) {
+    if (!Summing) {
+      const float f[3] = {fx, fy, fz};
+      for (int k = 0; k < 8; ++k) gather<M>(value[k], weight[k], s, corner_weight(f, k));
+      return;
+    }
+    // cell_weight's (wx·wy)·wz, laid out so that the compiler vectorises it (a loop calling
+    // cell_weight per corner made the generic linear kernel about 25% slower with GCC 12).
+    const float wx[2] = {1.f - fx, fx}, wy[2] = {1.f - fy, fy}, wz[2] = {1.f - fz, fz};
+    const float wxy[4] = {wx[0] * wy[0], wx[1] * wy[0], wx[0] * wy[1], wx[1] * wy[1]};
+    float w[8];
+    for (int k = 0; k < 4; ++k) {
+      w[k] = wxy[k] * wz[0];
+      w[k + 4] = wxy[k] * wz[1];
+    }
+    for (int k = 0; k < 8; ++k) {
+      value[k] += w[k] * s;
+      weight[k] += w[k];
+    }
+  }
+  void get(float* v, float* w) const {
+    for (int k = 0; k < 8; ++k) {
+      v[k] = value[k];
+      w[k] = weight[k];
+    }
+  }
+  /// Mean mode, every corner inside: adds the sums to the cell whose lower corner is `base`.
+  void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
+    for (int k = 0; k < 8; ++k) {
+      Accumulator& a = base[(k >> 2) * sz + ((k >> 1) & 1) * sy + (k & 1)];
+      a.value += value[k];
+      a.weight += weight[k];
+    }
+  }
+};
+
+#if defined(SONOSLICE_COMPOUND_AVX2)
+/// The eight corners in one AVX register (mean and latest).
+template <Mode M>
+struct CornerSums<M, true> {
+  backend::Vec8f value, weight;
+  void reset() {
+    value = backend::Vec8f(0.f);
+    weight = backend::Vec8f(0.f);
+  }
+  void add(float fx, float fy, float fz, float s) {
+    using backend::blend;
+    using backend::Vec8f;
+    const Vec8f one(1.f), x(fx), y(fy), z(fz);
+    // Lane k takes f where bit (0, 1, 2) of k is set, 1 - f elsewhere.
+    const Vec8f w =
+        cell_weight(blend<0xAA>(one - x, x), blend<0xCC>(one - y, y), blend<0xF0>(one - z, z));
+    value = value + w * Vec8f(s);
+    weight = weight + w;
+  }
+  void get(float* v, float* w) const {
+    value.store(v);
+    weight.store(w);
+  }
+  void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
+    // (value, weight) of corners 2j and 2j+1 are adjacent in memory: four 16-byte updates.
+    backend::add_interleaved(value, weight, &base[0].value, &base[sy].value, &base[sz].value,
+                             &base[sy + sz].value);
+  }
+};
+#endif
+
+/// One row's samples [ub, ue) into the slab, trilinear weights. Runs of samples in the same
+/// cell are gathered per corner first (corner k: bit 0 +x, bit 1 +y, bit 2 +z).
+template <typename T, Mode M, int Axis>
+void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine& L, const T* row,
+                      const RowClip& clip, float threshold, int32_t frame) {
+  // A cell touches the slab when its coordinate along Axis is in (lo - 1, hi).
+  int ub = clip.outer_b, ue = clip.outer_e, ib = clip.inner_b, ie = clip.inner_e;
+  clip_axis(clip.c0, clip.inv_d, slab.lo - 1.0, slab.hi, true, ub, ue);
+  if (ub >= ue) return;
+  clip_axis(clip.c0, clip.inv_d, slab.lo - 1.0, slab.hi, false, ib, ie);
+  int cell[3] = {std::numeric_limits<int>::min(), 0, 0};
+  CornerSums<M> sums;
+  sums.reset();
+  const int64_t sy = g.nx, sz = int64_t(g.nx) * g.ny;
+  const auto flush = [&] {
+    if (cell[0] == std::numeric_limits<int>::min()) return;
+    const int ca = Axis == 0 ? cell[0] : (Axis == 1 ? cell[1] : cell[2]);
+    if (M == Mode::Mean && cell[0] >= 0 && cell[1] >= 0 && cell[2] >= 0 && cell[0] + 1 < g.nx &&
+        cell[1] + 1 < g.ny && cell[2] + 1 < g.nz && ca >= slab.lo && ca + 1 < slab.hi) {
+      // All eight corners are ours (zero weights add nothing).
+      sums.add_to(g.cells + g.offset(cell[0], cell[1], cell[2]), sy, sz);
+      return;
+    }
+    float value[8], weight[8];
+    sums.get(value, weight);
+    for (int k = 0; k < 8; ++k) {
+      const int x = cell[0] + (k & 1), y = cell[1] + ((k >> 1) & 1), z = cell[2] + (k >> 2);
+      const int ia = Axis == 0 ? x : (Axis == 1 ? y : z);
+      if (!(weight[k] > 0.f) || !g.contains(x, y, z) || ia < slab.lo || ia >= slab.hi) continue;
+      apply<M>(g, g.offset(x, y, z), value[k], weight[k], frame);
+    }
+  };
+  const auto take = [&](int ix, int iy, int iz, float fx, float fy, float fz, float s) {
+    if (ix != cell[0] || iy != cell[1] || iz != cell[2]) {
+      flush();
+      cell[0] = ix;
+      cell[1] = iy;
+      cell[2] = iz;
+      sums.reset();
+    }
+    sums.add(fx, fy, fz, s);
+  };
+  const auto step = [&](int u, auto checked) {
+    const float s = sample_value(row, u);
+    if (rejected(s, threshold)) return;
+    const float fu = float(u);
+    const float cx = sample_coordinate(L.c0[0], fu, L.dc[0]),
+                cy = sample_coordinate(L.c0[1], fu, L.dc[1]),
+                cz = sample_coordinate(L.c0[2], fu, L.dc[2]);
+    if (decltype(checked)::value && !inside_linear(g, cx, cy, cz)) return;
+    const int ix = floor_to_int(cx), iy = floor_to_int(cy), iz = floor_to_int(cz);
+    if (decltype(checked)::value) {
+      const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
+      if (ia + 1 < slab.lo || ia >= slab.hi) return;
+    }
+    take(ix, iy, iz, cx - float(ix), cy - float(iy), cz - float(iz), s);
+  };
+  walk_row(ub, ue, ib, ie, step, [&](int u, [[maybe_unused]] int end) {
+#if defined(SONOSLICE_COMPOUND_AVX2)
+    // Eight samples' cells and fractions at a time (step()'s float operations, so its bits: in
+    // the inner run |c| is far below 2^31, where the lanes' floor equals floor_to_int).
+    using backend::Vec8f;
+    const Vec8f c0[3] = {Vec8f(L.c0[0]), Vec8f(L.c0[1]), Vec8f(L.c0[2])};
+    const Vec8f d[3] = {Vec8f(L.dc[0]), Vec8f(L.dc[1]), Vec8f(L.dc[2])};
+    alignas(32) int32_t idx[3][8];
+    alignas(32) float frac[3][8], samples[8];
+    for (; u + 8 <= end; u += 8) {
+      const Vec8f fu = Vec8f::iota(float(u));
+      for (int a = 0; a < 3; ++a) {
+        const Vec8f c = sample_coordinate(c0[a], fu, d[a]);
+        const backend::Vec8i i = backend::floor_to_int(c);
+        i.store(idx[a]);
+        (c - backend::to_float(i)).store(frac[a]);
+      }
+      backend::load_as_float(row + u).store(samples);
+      for (int l = 0; l < 8; ++l)
+        if (!rejected(samples[l], threshold))
+          take(idx[0][l], idx[1][l], idx[2][l], frac[0][l], frac[1][l], frac[2][l], samples[l]);
+    }
+#endif
+    return u;
+  });
+  flush();
+}
+
+template <typename T, Mode M, bool Linear, int Axis>
+void compound_slab(const AccumulatorView& g, const FrameBatch& b, const RowClip* clips,
+                   const Slab& slab) {
+  const T* samples = static_cast<const T*>(b.samples);
+  for (int f = 0; f < b.frames; ++f)
+    for (int r = 0; r < b.rows; ++r) {
+      const int64_t fr = int64_t(f) * b.rows + r;
+      const RowLine& line = b.lines[fr];
+      const T* row = samples + fr * b.width;
+      for (int k = 0; k < kMaxSpans; ++k) {
+        const RowClip& clip = clips[fr * kMaxSpans + k];
+        if (clip.outer_b >= clip.outer_e) continue;
+        if (Linear)
+          splat_row_linear<T, M, Axis>(g, slab, line, row, clip, b.rejection_threshold,
+                                       b.first_frame_id + f);
+        else
+          splat_row_nearest<T, M, Axis>(g, slab, line, row, clip, b.rejection_threshold,
+                                        b.first_frame_id + f);
+      }
+    }
+}
+
+/// Each row's runs clipped to the grid on the axes other than the slab axis (done once per
+/// batch rather than once per slab).
+inline void clip_rows(const AccumulatorView& g, const FrameBatch& b, bool linear, int axis,
+                      RowClip* clips) {
+  const double n[3] = {double(g.nx), double(g.ny), double(g.nz)};
+  const double lo = linear ? -1.0 : 0.0;
+  backend::parallel_for(b.frames, [&](int64_t f) {
+    for (int r = 0; r < b.rows; ++r) {
+      const int64_t fr = f * b.rows + r;
+      const RowLine& line = b.lines[fr];
+      double inv[3];
+      for (int a = 0; a < 3; ++a) inv[a] = inverse_step(line.dc[a]);
+      for (int k = 0; k < kMaxSpans; ++k) {
+        RowClip& c = clips[fr * kMaxSpans + k];
+        c.outer_b = c.inner_b = b.spans[r].begin[k];
+        c.outer_e = c.inner_e = b.spans[r].end[k];
+        c.c0 = line.c0[axis];
+        c.inv_d = inv[axis];
+        for (int a = 0; a < 3; ++a) {
+          if (a == axis) continue;
+          clip_axis(line.c0[a], inv[a], lo, n[a], true, c.outer_b, c.outer_e);
+          clip_axis(line.c0[a], inv[a], lo, n[a], false, c.inner_b, c.inner_e);
+        }
+      }
+    }
+  });
+}
+
+/// `slabs` tasks along `axis` over [lo, hi), each walking the whole batch.
+template <typename T, Mode M, bool Linear>
+void compound_batch_cpu(const AccumulatorView& g, const FrameBatch& b, int axis, int lo, int hi,
+                        int slabs, RowClip* clips) {
+  clip_rows(g, b, Linear, axis, clips);
+  backend::parallel_for(slabs, [&](int64_t s) {
+    Slab slab;
+    slab.lo = int(lo + (int64_t(hi) - lo) * s / slabs);
+    slab.hi = int(lo + (int64_t(hi) - lo) * (s + 1) / slabs);
+    if (slab.lo >= slab.hi) return;
+    if (axis == 0)
+      compound_slab<T, M, Linear, 0>(g, b, clips, slab);
+    else if (axis == 1)
+      compound_slab<T, M, Linear, 1>(g, b, clips, slab);
+    else
+      compound_slab<T, M, Linear, 2>(g, b, clips, slab);
+  });
+}
+
+/// The CPU entry point every CPU instruction set's translation unit exposes.
+inline void dispatch_compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
+                                  bool linear, int axis, int lo, int hi, int slabs) {
+  std::vector<RowClip> clips(size_t(batch.frames) * batch.rows * kMaxSpans);
+  visit_sample_type(batch.type, [&](auto sample_zero) {
+    using T = decltype(sample_zero);
+    visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
+      compound_batch_cpu<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(
+          grid, batch, axis, lo, hi, slabs, clips.data());
+    });
+  });
+}
+
+}  // namespace SONOSLICE_KERNEL_ISA
+}  // namespace compound_impl
+}  // namespace sonoslice

@@ -1,0 +1,119 @@
+#pragma once
+/// @file The CUDA driver of the compounding kernels: one thread per sample with atomic updates,
+/// over the per-sample math of CompoundImpl.h. CompoundCUDA.cu includes this file.
+///
+/// Mean sums depend on the order in which threads arrive, to float rounding; max and
+/// integer-valued nearest sums do not.
+#include <cstdint>
+
+#include "../backend/AtomicsCUDA.cuh"
+#include "../backend/ParallelForCUDA.cuh"
+#include "CompoundImpl.h"
+#include "CompoundTypes.h"
+
+namespace sonoslice {
+namespace compound_impl {
+inline namespace SONOSLICE_KERNEL_ISA {
+
+/// Writes one sample's share into voxel i (any thread may touch any voxel): the atomic form of
+/// gather() and merged().
+template <Mode M>
+__device__ __forceinline__ void apply_atomic(const AccumulatorView& g, int64_t i, float sample,
+                                             float w) {
+  Accumulator& a = g.cells[i];
+  if (M == Mode::Max) {
+    if (!counts_for_max(w)) return;
+    backend::atomic_max_float(&a.value, sample);
+  } else {
+    atomicAdd(&a.value, w * sample);
+  }
+  atomicAdd(&a.weight, w);
+}
+
+/// One thread per sample: row() finds the row's line and values, pixel() splats one sample.
+/// `reset_latest` is the first of latest mode's two passes per frame: it clears the voxels this
+/// frame will write (all threads write the same values), the second pass accumulates.
+template <typename T, Mode M, bool Linear>
+struct SplatSamples {
+  AccumulatorView g;
+  FrameBatch b;
+  int64_t first_row;  // rows first_row, first_row + 1, ... of the batch (all frames' rows)
+  bool reset_latest;
+
+  struct Row {
+    const RowLine* line;
+    const T* samples;
+    const RowSpans* spans;
+    int32_t frame_id;
+  };
+  __device__ Row row(int64_t r) const {
+    const int64_t fr = first_row + r;
+    return Row{b.lines + fr, static_cast<const T*>(b.samples) + fr * b.width, b.spans + fr % b.rows,
+               b.first_frame_id + int32_t(fr / b.rows)};
+  }
+  __device__ void touch(const Row& row, int64_t i, float s, float w) const {
+    if (reset_latest)
+      restart_for_frame(g, i, row.frame_id);
+    else
+      apply_atomic<M>(g, i, s, w);
+  }
+  __device__ void pixel(const Row& row, int u) const {
+    const RowSpans& sp = *row.spans;
+    bool inside = false;
+    for (int k = 0; k < kMaxSpans; ++k) inside = inside || (u >= sp.begin[k] && u < sp.end[k]);
+    if (!inside) return;
+    const float s = sample_value(row.samples, u);
+    if (rejected(s, b.rejection_threshold)) return;
+    const RowLine& L = *row.line;
+    const float fu = float(u);
+    const float cx = sample_coordinate(L.c0[0], fu, L.dc[0]),
+                cy = sample_coordinate(L.c0[1], fu, L.dc[1]),
+                cz = sample_coordinate(L.c0[2], fu, L.dc[2]);
+    int i[3];
+    if (!Linear) {
+      if (nearest_voxel(g, cx, cy, cz, i)) touch(row, g.offset(i[0], i[1], i[2]), s, 1.f);
+      return;
+    }
+    float f[3];
+    if (!linear_cell(g, cx, cy, cz, i, f)) return;
+    for (int k = 0; k < 8; ++k) {
+      const int x = i[0] + (k & 1), y = i[1] + ((k >> 1) & 1), z = i[2] + (k >> 2);
+      if (!g.contains(x, y, z)) continue;
+      const float w = corner_weight(f, k);
+      if (w > 0.f) touch(row, g.offset(x, y, z), s, w);
+    }
+  }
+};
+
+/// Mean and max do not depend on the order of the samples (to float rounding, for the mean):
+/// one launch for the whole batch. Latest goes frame by frame, each frame first clearing the
+/// voxels it reaches, then accumulating into them.
+template <typename T, Mode M, bool Linear>
+void compound_batch_cuda(const AccumulatorView& g, const FrameBatch& b, void* stream) {
+  using Kernel = SplatSamples<T, M, Linear>;
+  if constexpr (M != Mode::Latest) {
+    backend::parallel_for_rows(int64_t(b.frames) * b.rows, b.width, Kernel{g, b, 0, false}, stream);
+  } else {
+    for (int f = 0; f < b.frames; ++f) {
+      const int64_t first = int64_t(f) * b.rows;
+      backend::parallel_for_rows(b.rows, b.width, Kernel{g, b, first, true}, stream);
+      backend::parallel_for_rows(b.rows, b.width, Kernel{g, b, first, false}, stream);
+    }
+  }
+}
+
+/// Calls the driver instantiated for the batch's sample type, mode and interpolation.
+inline void dispatch_compound_cuda(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
+                                   bool linear, void* stream) {
+  visit_sample_type(batch.type, [&](auto sample_zero) {
+    using T = decltype(sample_zero);
+    visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
+      compound_batch_cuda<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(grid, batch,
+                                                                                     stream);
+    });
+  });
+}
+
+}  // namespace SONOSLICE_KERNEL_ISA
+}  // namespace compound_impl
+}  // namespace sonoslice

@@ -1,0 +1,84 @@
+// The compounding settings' spellings (to_string / parse beside each enum) and the checks of
+// the hole-filling elements.
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "../core/Text.h"
+#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+const char* to_string(CompoundingMode mode) {
+  switch (mode) {
+    case CompoundingMode::Mean:
+      return "mean";
+    case CompoundingMode::Max:
+      return "max";
+    case CompoundingMode::Latest:
+      return "latest";
+  }
+  return "?";
+}
+
+const char* to_string(HoleFillingKernel::Type type) {
+  switch (type) {
+    case HoleFillingKernel::NearestNeighbor:
+      return "nearest_neighbor";
+    case HoleFillingKernel::Gaussian:
+      return "gaussian";
+    case HoleFillingKernel::GaussianAccumulation:
+      return "gaussian_accumulation";
+    case HoleFillingKernel::DistanceWeightInverse:
+      return "distance_weight_inverse";
+    case HoleFillingKernel::Stick:
+      return "stick";
+  }
+  return "?";
+}
+
+CompoundingMode parse_compounding_mode(const std::string& name) {
+  const std::string n = text::lower(name);
+  if (n == "mean") return CompoundingMode::Mean;
+  if (n == "max" || n == "maximum") return CompoundingMode::Max;
+  if (n == "latest") return CompoundingMode::Latest;
+  throw InputError("compounding mode '" + name + "': expected mean, max or latest");
+}
+
+HoleFillingKernel::Type parse_hole_filling_type(const std::string& name) {
+  const std::string n = text::lower(name);
+  if (n == "nearest_neighbor" || n == "nearest") return HoleFillingKernel::NearestNeighbor;
+  if (n == "gaussian") return HoleFillingKernel::Gaussian;
+  if (n == "gaussian_accumulation") return HoleFillingKernel::GaussianAccumulation;
+  if (n == "distance_weight_inverse") return HoleFillingKernel::DistanceWeightInverse;
+  if (n == "stick") return HoleFillingKernel::Stick;
+  throw InputError("hole filling type '" + name +
+                   "': expected NEAREST_NEIGHBOR, GAUSSIAN, GAUSSIAN_ACCUMULATION, "
+                   "DISTANCE_WEIGHT_INVERSE or STICK");
+}
+
+int HoleFillingKernel::reach() const {
+  if (type == Stick) return std::max(1, stick_length_limit - 2);
+  return std::max(1, (size - 1) / 2);
+}
+
+void HoleFillingKernel::validate(const std::string& what) const {
+  if (type == Stick) {
+    if (stick_length_limit < 3 || stick_length_limit > 255)
+      throw InputError(what + ": stick length limit " + std::to_string(stick_length_limit) +
+                       " must be between 3 and 255 voxels");
+    if (sticks_to_use < 1 || sticks_to_use > 13)
+      throw InputError(what + ": sticks to use " + std::to_string(sticks_to_use) +
+                       " must be between 1 and 13");
+    return;
+  }
+  if (size < 3 || size > 31 || size % 2 == 0)
+    throw InputError(what + ": size " + std::to_string(size) + " must be odd, 3 to 31 voxels");
+  if ((type == Gaussian || type == GaussianAccumulation) && !(stdev > 0 && std::isfinite(stdev)))
+    throw InputError(what + ": Gaussian standard deviation must be positive");
+  if (!(minimum_known_ratio >= 0 && minimum_known_ratio < 1))
+    throw InputError(what + ": minimum known ratio must be in [0, 1)");
+}
+
+}  // namespace sonoslice

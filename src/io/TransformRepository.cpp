@@ -1,0 +1,176 @@
+// PLUS's transform repository (named transforms, chained and inverted on request) and the
+// selection of a sequence's frames for a reconstruction.
+#include <algorithm>
+#include <cctype>
+#include <deque>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "PlusFormat.h"
+#include "TextParse.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/Math.h"
+#include "sonoslice/io/PlusSequence.h"
+
+namespace sonoslice {
+
+using namespace text;
+using plus::fields_of;
+
+std::pair<std::string, std::string> TransformRepository::split_name(const std::string& name) {
+  // PLUS names are <From>To<To> with capitalised frame names; "To" followed by a capital letter
+  // (or digit) separates them, e.g. StylusTipToStylus, ToolToTracker.
+  std::vector<size_t> splits;
+  for (size_t p = 1; p + 2 < name.size(); ++p)
+    if (name.compare(p, 2, "To") == 0 && (std::isupper(static_cast<unsigned char>(name[p + 2])) ||
+                                          std::isdigit(static_cast<unsigned char>(name[p + 2]))))
+      splits.push_back(p);
+  if (splits.empty())
+    throw InputError("transform name " + quote_value(name) +
+                     " is not of the form <From>To<To> "
+                     "(e.g. ImageToReference)");
+  if (splits.size() > 1)
+    throw InputError("transform name " + quote_value(name) +
+                     " is ambiguous: more than one 'To' "
+                     "followed by a capital letter");
+  return {name.substr(0, splits[0]), name.substr(splits[0] + 2)};
+}
+
+void TransformRepository::set(const std::string& from, const std::string& to, const Mat4& m,
+                              bool valid) {
+  if (from.empty() || to.empty() || from == to)
+    throw InputError("transform " + quote_value(from + "To" + to) +
+                     ": needs two different, non-empty coordinate frame names");
+  transforms_.erase({to, from});  // one direction per pair: the newest wins
+  transforms_[{from, to}] = Entry{m, valid};
+}
+
+void TransformRepository::set_frame(const PlusSequence& sequence, int frame) {
+  const auto& fields = fields_of(sequence, frame);
+  for (const std::string& name : sequence.transform_names(frame)) {
+    std::pair<std::string, std::string> ends;
+    try {
+      ends = split_name(name);
+    } catch (const InputError&) {
+      continue;  // a field ending in "Transform" that is not a PLUS transform name
+    }
+    if (ends.first == ends.second) continue;
+    std::optional<Mat4> m = sequence.transform(frame, name);
+    if (m) {
+      set(ends.first, ends.second, *m, true);
+    } else {
+      Mat4 stored;  // kept for completeness; a chain through it is reported invalid
+      parse_matrix16(fields.at(name + "Transform"), &stored);
+      set(ends.first, ends.second, stored, false);
+    }
+  }
+}
+
+std::optional<Mat4> TransformRepository::get(const std::string& from, const std::string& to) const {
+  if (from == to) return Mat4::identity();
+  struct Edge {
+    std::string next;
+    const Entry* entry;
+    bool inverse;
+    std::string name;  // AToB as stored
+  };
+  std::map<std::string, std::vector<Edge>> graph;
+  for (const auto& [key, entry] : transforms_) {
+    const std::string name = key.first + "To" + key.second;
+    graph[key.first].push_back({key.second, &entry, false, name});
+    graph[key.second].push_back({key.first, &entry, true, name});
+  }
+  // Breadth-first: the chain with the fewest transforms; valid transforms only first, so that a
+  // valid chain is found even when an equally short one passes through an invalid transform.
+  auto search = [&](bool valid_only) -> std::optional<std::vector<const Edge*>> {
+    std::map<std::string, const Edge*> came_by;
+    std::map<std::string, std::string> came_from;
+    std::deque<std::string> queue{from};
+    came_from[from] = "";
+    while (!queue.empty()) {
+      const std::string node = queue.front();
+      queue.pop_front();
+      if (node == to) break;
+      auto it = graph.find(node);
+      if (it == graph.end()) continue;
+      for (const Edge& e : it->second) {
+        if (valid_only && !e.entry->valid) continue;
+        if (came_from.count(e.next)) continue;
+        came_from[e.next] = node;
+        came_by[e.next] = &e;
+        queue.push_back(e.next);
+      }
+    }
+    if (!came_from.count(to)) return std::nullopt;
+    std::vector<const Edge*> path;
+    for (std::string node = to; node != from; node = came_from[node]) path.push_back(came_by[node]);
+    std::reverse(path.begin(), path.end());
+    return path;
+  };
+  std::optional<std::vector<const Edge*>> path = search(true);
+  if (!path) {
+    if (search(false)) return std::nullopt;  // only through an invalid transform
+    std::string known;
+    for (const auto& [key, entry] : transforms_)
+      known += (known.empty() ? "" : ", ") + key.first + "To" + key.second +
+               (entry.valid ? "" : " (invalid)");
+    throw InputError("no chain of transforms from '" + from + "' to '" + to +
+                     "' (known: " + (known.empty() ? "none" : known) + ")");
+  }
+  Mat4 result = Mat4::identity();
+  for (const Edge* e : *path) {
+    Mat4 step = e->entry->matrix;
+    if (e->inverse) {
+      std::optional<Mat4> inv = invert(step);
+      if (!inv)
+        throw InputError("transform " + e->name + " is not invertible, so " + from + "To" + to +
+                         " cannot be computed through it");
+      step = *inv;
+    }
+    result = step * result;
+  }
+  return result;
+}
+
+std::string PlusFrameSelection::skipped_reason(const std::string& from,
+                                               const std::string& to) const {
+  std::string why;
+  if (bad_transform)
+    why += std::to_string(bad_transform) + " with an invalid " + from + "To" + to + " transform";
+  if (bad_image)
+    why += (why.empty() ? "" : ", ") + std::to_string(bad_image) + " with an image status not OK";
+  return why;
+}
+
+PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
+                                      const TransformRepository& calibration,
+                                      const std::string& from, const std::string& to, int skip,
+                                      const std::string& hint) {
+  if (skip < 1) throw InputError("skip interval " + std::to_string(skip) + ": must be >= 1");
+  PlusFrameSelection sel;
+  for (int k = 0; k < sequence.frame_count; k += skip) {
+    if (!sequence.image_ok(k)) {
+      ++sel.bad_image;
+      continue;
+    }
+    TransformRepository repo = calibration;
+    repo.set_frame(sequence, k);
+    std::optional<Mat4> m;
+    try {
+      m = repo.get(from, to);
+    } catch (const InputError& e) {
+      throw InputError(sequence.path + ": " + e.what() + hint);
+    }
+    if (!m) {
+      ++sel.bad_transform;
+      continue;
+    }
+    sel.frames.push_back(k);
+    sel.to_reference.push_back(*m);
+  }
+  return sel;
+}
+
+}  // namespace sonoslice
