@@ -10,6 +10,7 @@
 #include <fstream>
 #include <limits>
 #include <sstream>
+#include <utility>
 
 #include "../backend/ParallelFor.h"
 #include "../core/Text.h"
@@ -238,19 +239,19 @@ int HoleFillingKernel::reach() const {
 void HoleFillingKernel::validate(const std::string& what) const {
   if (type == Stick) {
     if (stick_length_limit < 3 || stick_length_limit > 255)
-      throw InputError(what + ": stick length limit " + std::to_string(stick_length_limit) +
+      throw InputError(what + ": stick_length_limit " + std::to_string(stick_length_limit) +
                        " must be between 3 and 255 voxels");
     if (sticks_to_use < 1 || sticks_to_use > 13)
-      throw InputError(what + ": sticks to use " + std::to_string(sticks_to_use) +
+      throw InputError(what + ": sticks_to_use " + std::to_string(sticks_to_use) +
                        " must be between 1 and 13");
     return;
   }
   if (size < 3 || size > 31 || size % 2 == 0)
     throw InputError(what + ": size " + std::to_string(size) + " must be odd, 3 to 31 voxels");
   if ((type == Gaussian || type == GaussianAccumulation) && !(stdev > 0 && std::isfinite(stdev)))
-    throw InputError(what + ": Gaussian standard deviation must be positive");
+    throw InputError(what + ": stdev (the Gaussian's, in voxels) must be positive");
   if (!(minimum_known_ratio >= 0 && minimum_known_ratio < 1))
-    throw InputError(what + ": minimum known ratio must be in [0, 1)");
+    throw InputError(what + ": minimum_known_ratio must be in [0, 1)");
 }
 
 std::array<int, 4> FrameClip::rectangle(int frame_width, int frame_height) const {
@@ -273,19 +274,23 @@ std::array<int, 4> FrameClip::rectangle(int frame_width, int frame_height) const
 }
 
 void FrameClip::validate(const std::string& what) const {
+  if (x < 0 || y < 0)
+    throw InputError(what + ": clip rectangle x, y = " + std::to_string(x) + ", " +
+                     std::to_string(y) + " must not be negative");
   if (width < -1 || height < -1)
-    throw InputError(what + ": clip rectangle size " + std::to_string(width) + "x" +
-                     std::to_string(height) + " is negative");
+    throw InputError(what + ": clip rectangle width x height = " + std::to_string(width) + "x" +
+                     std::to_string(height) + " is negative (-1: to the frame's edge)");
   if (!fan) return;
   for (double a : fan_angles_deg)
     if (!(a > -90 && a < 90))
-      throw InputError(what + ": fan angles must be strictly between -90 and 90 degrees");
+      throw InputError(what +
+                       ": fan angles (fan_angles_deg) must be strictly between -90 and 90 degrees");
   if (!(fan_angles_deg[0] <= fan_angles_deg[1]))
-    throw InputError(what + ": fan angles must be given smallest first");
+    throw InputError(what + ": fan angles (fan_angles_deg) must be given smallest first");
   if (!std::isfinite(fan_origin_px[0]) || !std::isfinite(fan_origin_px[1]))
-    throw InputError(what + ": fan origin must be finite");
+    throw InputError(what + ": fan origin (fan_origin_px) must be finite");
   if (!(fan_radius_px[0] >= 0 && fan_radius_px[1] >= fan_radius_px[0]))
-    throw InputError(what + ": fan radii must satisfy 0 <= start <= stop");
+    throw InputError(what + ": fan radii (fan_radius_px) must satisfy 0 <= start <= stop");
 }
 
 std::vector<uint8_t> FrameClip::mask(int frame_width, int frame_height) const {
@@ -325,17 +330,27 @@ void BeamGeometry::validate(const std::string& what) const {
                      " must be positive");
   if (int64_t(n_elevation) * n_azimuth > (int64_t(1) << 28) || n_samples > (1 << 24))
     throw InputError(what + ": beam-space frame size is absurd");
-  const double values[] = {r0_mm,          dr_mm,          azimuth0_deg,  dazimuth_deg,
-                           elevation0_deg, delevation_deg, apex_offset_mm};
-  for (double v : values)
-    if (!std::isfinite(v)) throw InputError(what + ": beam geometry values must be finite");
+  const std::pair<const char*, double> values[] = {{"r0_mm", r0_mm},
+                                                   {"dr_mm", dr_mm},
+                                                   {"azimuth0_deg", azimuth0_deg},
+                                                   {"dazimuth_deg", dazimuth_deg},
+                                                   {"elevation0_deg", elevation0_deg},
+                                                   {"delevation_deg", delevation_deg},
+                                                   {"apex_offset_mm", apex_offset_mm}};
+  for (const auto& [name, v] : values)
+    if (!std::isfinite(v)) throw InputError(what + ": beam geometry " + name + " is not finite");
   if (!(dr_mm > 0)) throw InputError(what + ": sample spacing dr_mm must be positive");
   if (r0_mm < 0) throw InputError(what + ": first sample depth r0_mm must not be negative");
   const double a_end = azimuth0_deg + (n_azimuth - 1) * dazimuth_deg;
   const double e_end = elevation0_deg + (n_elevation - 1) * delevation_deg;
-  if (std::fabs(azimuth0_deg) >= 90 || std::fabs(a_end) >= 90 || std::fabs(elevation0_deg) >= 90 ||
-      std::fabs(e_end) >= 90)
-    throw InputError(what + ": beam angles must stay within ±90 degrees");
+  if (std::fabs(azimuth0_deg) >= 90 || std::fabs(a_end) >= 90)
+    throw InputError(what + ": beam angles must stay within ±90 degrees (azimuth0_deg " +
+                     std::to_string(azimuth0_deg) + " to " + std::to_string(a_end) + " over " +
+                     std::to_string(n_azimuth) + " beams of dazimuth_deg)");
+  if (std::fabs(elevation0_deg) >= 90 || std::fabs(e_end) >= 90)
+    throw InputError(what + ": beam angles must stay within ±90 degrees (elevation0_deg " +
+                     std::to_string(elevation0_deg) + " to " + std::to_string(e_end) + " over " +
+                     std::to_string(n_elevation) + " planes of delevation_deg)");
 }
 
 uint64_t compounding_memory_bytes(const VolumeGrid& grid, const CompoundSettings& settings,
@@ -499,8 +514,8 @@ struct Compounder::Impl {
       }
       if (axis < 0) slabs = std::max(1, slabs / 2);
     }
-    compound_impl::compound_cpu(g, b, mode, settings.interpolation == Interpolation::Linear,
-                                axis, first[axis], last[axis], slabs);
+    compound_impl::compound_cpu(g, b, mode, settings.interpolation == Interpolation::Linear, axis,
+                                first[axis], last[axis], slabs);
   }
 
   // Frames of other types travel as float32.
