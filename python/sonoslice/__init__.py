@@ -30,9 +30,9 @@ __all__ = [
     "surface_poses", "PHANTOM_LABELS", "Mesh", "voxelize", "SurfaceSlicer", "colorize", "cut_polygons",
     "fanslicer_models", "__version__",
     # freehand reconstruction and PLUS files (sonoslice.compound)
-    "Grid", "Compounder", "BeamGeometry", "grid_around", "grid_around_beams", "clip_mask", "PlusSequence",
-    "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence", "read_plus_config",
-    "plus_image_to_reference", "reconstruct_plus",
+    "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams",
+    "clip_mask", "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
+    "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
 ]
 __version__ = "0.1.0"
 
@@ -82,8 +82,7 @@ class Volume:
     def __init__(self, array, spacing: Sequence[float] = (1.0, 1.0, 1.0),
                  origin: Sequence[float] = (0.0, 0.0, 0.0), direction=None):
         d = np.eye(3) if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3)
-        self._cpp = _ext.Volume.from_array(array, tuple(map(float, spacing)), tuple(map(float, origin)),
-                                           tuple(d.ravel().tolist()))
+        self._cpp = _ext.Volume.from_array(array, tuple(map(float, spacing)), tuple(map(float, origin)), d.tolist())
 
     @classmethod
     def _wrap(cls, cpp) -> "Volume":
@@ -99,7 +98,7 @@ class Volume:
         NumPy .npy (geometry from ``spacing``/``origin``/``direction``, else a sidecar
         ``<name>.json``; ``npy_config``: fan-slicer's volume config). Voxels keep their stored
         type. Missing or corrupt files raise ``OSError``; bad values ``ValueError``."""
-        d = None if direction is None else tuple(np.asarray(direction, dtype=np.float64).ravel().tolist())
+        d = None if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3).tolist()
         return cls._wrap(_ext.Volume.from_file(
             str(path), None if spacing is None else tuple(map(float, spacing)),
             None if origin is None else tuple(map(float, origin)), d, series or "",
@@ -352,7 +351,7 @@ class Slicer(_ImageSlicer):
         return self.slice(poses, **kwargs)
 
     def __repr__(self) -> str:
-        return f"Slicer({self.probe!r} on {self.device}, {self._cpp.interp}, {self.dtype})"
+        return f"Slicer({self.probe!r} on {self.device}, {self._cpp.interpolation}, {self.dtype})"
 
 
 # ---- devices, threads ------------------------------------------------------------------------
@@ -536,7 +535,7 @@ def surface_poses(count: int, face_y_mm: float = 0.0) -> np.ndarray:
 
 # ---- freehand reconstruction (compounding) and PLUS files: sonoslice/compound.py --------------------
 from .compound import (  # noqa: E402  (it uses Volume, defined above)
-    BeamGeometry, Compounder, Grid, PlusConfig, PlusSequence, TransformRepository, clip_mask, grid_around,
-    grid_around_beams, plus_image_to_reference, read_plus_config, read_plus_sequence, reconstruct_plus,
-    write_plus_sequence,
+    BeamGeometry, Compounder, FrameClip, Grid, HoleFillingElement, PlusConfig, PlusSequence, TransformRepository,
+    clip_mask, grid_around, grid_around_beams, plus_image_to_reference, read_plus_config, read_plus_sequence,
+    reconstruct_plus, write_plus_sequence,
 )
