@@ -18,6 +18,7 @@ Importing this package never touches a GPU; a slicer on ``"cuda"`` starts it.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -281,25 +282,39 @@ class _ImageSlicer:
         return self._cpp.mask()
 
 
+def _renamed_keyword(value, old_value, name: str, old_name: str, default, where: str):
+    """``value`` of the keyword ``name``, or of ``old_name`` (its deprecated spelling: a
+    DeprecationWarning pointing at the caller's caller) when that was given instead."""
+    if old_value is None:
+        return value
+    if value != default:
+        raise TypeError(f"{where}: give {name}= ({old_name}= is its deprecated spelling), not both")
+    warnings.warn(f"{where}: {old_name}= is deprecated; use {name}=", DeprecationWarning, stacklevel=3)
+    return old_value
+
+
 class Slicer(_ImageSlicer):
     """Slices a volume with a probe on one device ("cpu", "cuda", "cuda:K").
 
     On CUDA the volume is uploaded once, in its own pixel type, and stays on the GPU for the
-    slicer's life. ``interp``: "linear" (trilinear) or "nearest" (labels); ``fill``: value outside
-    the probe shape or the volume; ``dtype``: "float32", "int16", "uint8" or "uint16" (integers
-    round and saturate). The GIL is released while slicing.
+    slicer's life. ``interpolation``: "linear" (trilinear) or "nearest" (labels), as for
+    :class:`Compounder` (``interp=`` is its deprecated spelling); ``fill``: value outside the probe
+    shape or the volume; ``dtype``: "float32", "int16", "uint8" or "uint16" (integers round and
+    saturate). The GIL is released while slicing.
     """
 
-    def __init__(self, volume: Volume, probe: Probe, device: str = "cpu", interp: str = "linear",
-                 fill: float = 0.0, dtype: str = "float32"):
+    def __init__(self, volume: Volume, probe: Probe, device: str = "cpu", interpolation: str = "linear",
+                 fill: float = 0.0, dtype: str = "float32", *, interp: Optional[str] = None):
+        interpolation = _renamed_keyword(interpolation, interp, "interpolation", "interp", "linear", "Slicer")
         if not isinstance(volume, Volume):
             raise TypeError("volume: expected a sonoslice.Volume")
         if not isinstance(probe, Probe):
             raise TypeError("probe: expected a sonoslice.Probe")
         self.volume, self.probe = volume, probe
-        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), interp, float(fill), str(dtype))
+        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), str(interpolation), float(fill), str(dtype))
 
     device = property(lambda self: self._cpp.device, doc='"cpu" or "cuda:K"')
+    interpolation = property(lambda self: self._cpp.interpolation, doc='"linear" or "nearest"')
 
     def slice(self, poses, out=None, *, mask: bool = False,
               progress: Union[None, bool, Callable[[int, int], None]] = None, world: str = "LPS",
@@ -351,7 +366,7 @@ class Slicer(_ImageSlicer):
         return self.slice(poses, **kwargs)
 
     def __repr__(self) -> str:
-        return f"Slicer({self.probe!r} on {self.device}, {self._cpp.interpolation}, {self.dtype})"
+        return f"Slicer({self.probe!r} on {self.device}, {self.interpolation}, {self.dtype})"
 
 
 # ---- devices, threads ------------------------------------------------------------------------
