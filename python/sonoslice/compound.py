@@ -33,8 +33,8 @@ from . import _sonoslice as _ext
 from . import Volume, _matrix_stack, _numpy
 
 __all__ = [
-    "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams", "clip_mask",
-    "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
+    "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams",
+    "clip_mask", "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
     "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
 ]
 
