@@ -18,6 +18,7 @@ Importing this package never touches a GPU; a slicer on ``"cuda"`` starts it.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -30,9 +31,9 @@ __all__ = [
     "surface_poses", "PHANTOM_LABELS", "Mesh", "voxelize", "SurfaceSlicer", "colorize", "cut_polygons",
     "fanslicer_models", "__version__",
     # freehand reconstruction and PLUS files (sonoslice.compound)
-    "Grid", "Compounder", "BeamGeometry", "grid_around", "grid_around_beams", "clip_mask", "PlusSequence",
-    "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence", "read_plus_config",
-    "plus_image_to_reference", "reconstruct_plus",
+    "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams",
+    "clip_mask", "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
+    "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
 ]
 __version__ = "0.1.0"
 
@@ -82,8 +83,7 @@ class Volume:
     def __init__(self, array, spacing: Sequence[float] = (1.0, 1.0, 1.0),
                  origin: Sequence[float] = (0.0, 0.0, 0.0), direction=None):
         d = np.eye(3) if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3)
-        self._cpp = _ext.Volume.from_array(array, tuple(map(float, spacing)), tuple(map(float, origin)),
-                                           tuple(d.ravel().tolist()))
+        self._cpp = _ext.Volume.from_array(array, tuple(map(float, spacing)), tuple(map(float, origin)), d.tolist())
 
     @classmethod
     def _wrap(cls, cpp) -> "Volume":
@@ -99,7 +99,7 @@ class Volume:
         NumPy .npy (geometry from ``spacing``/``origin``/``direction``, else a sidecar
         ``<name>.json``; ``npy_config``: fan-slicer's volume config). Voxels keep their stored
         type. Missing or corrupt files raise ``OSError``; bad values ``ValueError``."""
-        d = None if direction is None else tuple(np.asarray(direction, dtype=np.float64).ravel().tolist())
+        d = None if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3).tolist()
         return cls._wrap(_ext.Volume.from_file(
             str(path), None if spacing is None else tuple(map(float, spacing)),
             None if origin is None else tuple(map(float, origin)), d, series or "",
@@ -282,25 +282,39 @@ class _ImageSlicer:
         return self._cpp.mask()
 
 
+def _renamed_keyword(value, old_value, name: str, old_name: str, default, where: str):
+    """``value`` of the keyword ``name``, or of ``old_name`` (its deprecated spelling: a
+    DeprecationWarning pointing at the caller's caller) when that was given instead."""
+    if old_value is None:
+        return value
+    if value != default:
+        raise TypeError(f"{where}: give {name}= ({old_name}= is its deprecated spelling), not both")
+    warnings.warn(f"{where}: {old_name}= is deprecated; use {name}=", DeprecationWarning, stacklevel=3)
+    return old_value
+
+
 class Slicer(_ImageSlicer):
     """Slices a volume with a probe on one device ("cpu", "cuda", "cuda:K").
 
     On CUDA the volume is uploaded once, in its own pixel type, and stays on the GPU for the
-    slicer's life. ``interp``: "linear" (trilinear) or "nearest" (labels); ``fill``: value outside
-    the probe shape or the volume; ``dtype``: "float32", "int16", "uint8" or "uint16" (integers
-    round and saturate). The GIL is released while slicing.
+    slicer's life. ``interpolation``: "linear" (trilinear) or "nearest" (labels), as for
+    :class:`Compounder` (``interp=`` is its deprecated spelling); ``fill``: value outside the probe
+    shape or the volume; ``dtype``: "float32", "int16", "uint8" or "uint16" (integers round and
+    saturate). The GIL is released while slicing.
     """
 
-    def __init__(self, volume: Volume, probe: Probe, device: str = "cpu", interp: str = "linear",
-                 fill: float = 0.0, dtype: str = "float32"):
+    def __init__(self, volume: Volume, probe: Probe, device: str = "cpu", interpolation: str = "linear",
+                 fill: float = 0.0, dtype: str = "float32", *, interp: Optional[str] = None):
+        interpolation = _renamed_keyword(interpolation, interp, "interpolation", "interp", "linear", "Slicer")
         if not isinstance(volume, Volume):
             raise TypeError("volume: expected a sonoslice.Volume")
         if not isinstance(probe, Probe):
             raise TypeError("probe: expected a sonoslice.Probe")
         self.volume, self.probe = volume, probe
-        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), interp, float(fill), str(dtype))
+        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), str(interpolation), float(fill), str(dtype))
 
     device = property(lambda self: self._cpp.device, doc='"cpu" or "cuda:K"')
+    interpolation = property(lambda self: self._cpp.interpolation, doc='"linear" or "nearest"')
 
     def slice(self, poses, out=None, *, mask: bool = False,
               progress: Union[None, bool, Callable[[int, int], None]] = None, world: str = "LPS",
@@ -352,7 +366,7 @@ class Slicer(_ImageSlicer):
         return self.slice(poses, **kwargs)
 
     def __repr__(self) -> str:
-        return f"Slicer({self.probe!r} on {self.device}, {self._cpp.interp}, {self.dtype})"
+        return f"Slicer({self.probe!r} on {self.device}, {self.interpolation}, {self.dtype})"
 
 
 # ---- devices, threads ------------------------------------------------------------------------
@@ -536,7 +550,7 @@ def surface_poses(count: int, face_y_mm: float = 0.0) -> np.ndarray:
 
 # ---- freehand reconstruction (compounding) and PLUS files: sonoslice/compound.py --------------------
 from .compound import (  # noqa: E402  (it uses Volume, defined above)
-    BeamGeometry, Compounder, Grid, PlusConfig, PlusSequence, TransformRepository, clip_mask, grid_around,
-    grid_around_beams, plus_image_to_reference, read_plus_config, read_plus_sequence, reconstruct_plus,
-    write_plus_sequence,
+    BeamGeometry, Compounder, FrameClip, Grid, HoleFillingElement, PlusConfig, PlusSequence, TransformRepository,
+    clip_mask, grid_around, grid_around_beams, plus_image_to_reference, read_plus_config, read_plus_sequence,
+    reconstruct_plus, write_plus_sequence,
 )

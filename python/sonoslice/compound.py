@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from dataclasses import asdict, dataclass, fields
 from typing import Any, Dict, List, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -34,14 +33,14 @@ from . import _sonoslice as _ext
 from . import Volume, _matrix_stack, _numpy
 
 __all__ = [
-    "Grid", "Compounder", "BeamGeometry", "grid_around", "grid_around_beams", "clip_mask",
-    "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
+    "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams",
+    "clip_mask", "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
     "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
 ]
 
 _DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 _IDENTITY3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-Clip = Union[None, Dict[str, Any], np.ndarray, "_ext.FrameClip"]
+Clip = Union[None, Dict[str, Any], np.ndarray, "FrameClip"]
 PathLike = Union[str, "os.PathLike[str]"]
 
 
@@ -81,17 +80,21 @@ class Grid(NamedTuple):
         return int(_ext.compounding_memory_bytes(self.dims, str(compounding), _dtype_name(dtype, "dtype")))
 
     @classmethod
-    def _from_ext(cls, t) -> "Grid":
-        dims, spacing, origin, direction = t
-        d = tuple(tuple(float(x) for x in direction[3 * r:3 * r + 3]) for r in range(3))
-        return cls(tuple(int(n) for n in reversed(dims)), tuple(map(float, spacing)), tuple(map(float, origin)), d)
+    def _from_ext(cls, g: "_ext.VolumeGrid") -> "Grid":
+        return cls(tuple(reversed(g.dims)), g.spacing, g.origin, g.direction)
+
+    def _to_ext(self) -> "_ext.VolumeGrid":
+        """The C++ grid (dims along x, y, z), checked by the library (ValueError naming the field)."""
+        return _ext.VolumeGrid(dims=self.dims, spacing=self.spacing, origin=self.origin, direction=self.direction)
 
     @classmethod
     def of(cls, volume_like) -> "Grid":
         """The grid of a :class:`Volume` (or of anything with ``shape``/``spacing``/``origin``
-        and optionally ``direction`` in these conventions)."""
+        and optionally ``direction`` in these conventions, or of a ``_sonoslice.VolumeGrid``)."""
         if isinstance(volume_like, Grid):
             return volume_like
+        if isinstance(volume_like, _ext.VolumeGrid):
+            return cls._from_ext(volume_like)
         try:
             shape, spacing, origin = volume_like.shape, volume_like.spacing, volume_like.origin
         except AttributeError:
@@ -112,13 +115,12 @@ def _direction_rows(direction) -> Tuple[Tuple[float, float, float], ...]:
 
 
 def _spacing3(spacing, what: str) -> Tuple[float, float, float]:
+    """One number or three (x, y, z mm) as three; the library checks the values."""
     if spacing is None:
         raise ValueError(f"{what}: give spacing (mm)")
     s = (float(spacing),) * 3 if np.isscalar(spacing) else tuple(float(v) for v in spacing)
     if len(s) != 3:
         raise ValueError(f"{what}: spacing must be one number or three (x, y, z mm), got {spacing!r}")
-    if not all(v > 0 and math.isfinite(v) for v in s):
-        raise ValueError(f"{what}: spacing {s} must be positive mm")
     return s
 
 
@@ -148,60 +150,61 @@ def _matrices(m, what: str, count: Optional[int] = None, single: bool = False) -
     return np.ascontiguousarray(a)
 
 
-def _frames(frames, what: str, frame_ndim: int, layout: str) -> np.ndarray:
-    a = np.asarray(_numpy(frames))
-    if a.dtype.name not in _DTYPES:
-        raise ValueError(f"{what} has dtype {a.dtype}; supported: {', '.join(_DTYPES)}")
-    if a.ndim not in (frame_ndim, frame_ndim + 1):
-        raise ValueError(f"{what} has shape {a.shape}; expected {layout}")
-    return np.ascontiguousarray(a)  # no copy when it already is
+def _frames(frames) -> np.ndarray:
+    """Frames as an array in host memory (torch tensors through NumPy, lists as arrays); the
+    library checks their dtype and shape, and nanobind makes strided arrays C-contiguous."""
+    return np.asarray(_numpy(frames))
 
 
 # ---- frame clips ----------------------------------------------------------------------------------
-def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None):
-    """A clip (None, dict(rect=..., fan=...), an (H, W) mask or an _ext.FrameClip) → _ext.FrameClip."""
+FrameClip = _ext.FrameClip
+_FAN_KEYS = {"angles_deg": "fan_angles_deg", "origin_px": "fan_origin_px", "radius_px": "fan_radius_px"}
+
+
+def _whole_pixels(v, rect, what: str) -> int:
+    if not float(v).is_integer():
+        raise ValueError(f"{what}: clip rect {rect} must be whole pixels")
+    return int(v)
+
+
+def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None) -> FrameClip:
+    """A clip as a :class:`FrameClip`: None (every pixel), a FrameClip, ``dict(rect=(x, y, w, h),
+    fan=dict(angles_deg=..., origin_px=..., radius_px=...))`` (w or h None: to the frame's edge) or
+    an (H, W) mask (compared with ``frame_shape`` here, where the mask's shape is still known).
+    FrameClip checks the values."""
     if clip is None:
-        return _ext.FrameClip()
-    if isinstance(clip, _ext.FrameClip):
+        return FrameClip()
+    if isinstance(clip, FrameClip):
         return clip
     if isinstance(clip, dict):
         unknown = sorted(set(clip) - {"rect", "fan"})
         if unknown:
             raise ValueError(f"{what}: unknown clip key(s) {unknown}; expected 'rect' and/or 'fan' "
                              "(or an (H, W) mask array)")
-        rect = fan = None
+        kw: Dict[str, Any] = {}
         if clip.get("rect") is not None:
             r = tuple(clip["rect"])
             if len(r) != 4:
                 raise ValueError(f"{what}: clip rect {r} must be (x, y, width, height) pixels")
-            for v in r:
-                if v is not None and (not float(v).is_integer()):
-                    raise ValueError(f"{what}: clip rect {r} must be whole pixels")
-            x, y, w, h = r
-            rect = (int(x or 0), int(y or 0), -1 if w is None else int(w), -1 if h is None else int(h))
-            if min(rect) < -1 or rect[0] < 0 or rect[1] < 0:
-                raise ValueError(f"{what}: clip rect {r} must not be negative")
+            x, y, w, h = (None if v is None else _whole_pixels(v, r, what) for v in r)
+            kw.update(x=x or 0, y=y or 0, width=-1 if w is None else w, height=-1 if h is None else h)
         if clip.get("fan") is not None:
             f = clip["fan"]
             if not isinstance(f, dict):
                 raise ValueError(f"{what}: clip fan must be a dict(angles_deg=(a0, a1), origin_px=(x, y), "
                                  "radius_px=(r0, r1))")
-            unknown = sorted(set(f) - {"angles_deg", "origin_px", "radius_px"})
+            unknown = sorted(set(f) - set(_FAN_KEYS))
             if unknown:
                 raise ValueError(f"{what}: unknown clip fan key(s) {unknown}; expected angles_deg, origin_px, "
                                  "radius_px")
             if "angles_deg" not in f:
                 raise ValueError(f"{what}: clip fan needs angles_deg=(a0, a1) (degrees from +y, towards +x)")
-
-            def pair(key, default):
-                v = f.get(key, default)
-                v = tuple(float(t) for t in v)
+            for key, value in f.items():
+                v = tuple(float(t) for t in value)
                 if len(v) != 2:
-                    raise ValueError(f"{what}: clip fan {key} must be two numbers, got {f.get(key)!r}")
-                return v
-
-            fan = pair("angles_deg", None) + pair("origin_px", (0.0, 0.0)) + pair("radius_px", (0.0, math.inf))
-        return _ext.FrameClip(rect, fan, None)
+                    raise ValueError(f"{what}: clip fan {key} must be two numbers, got {value!r}")
+                kw[_FAN_KEYS[key]] = v
+        return FrameClip(**kw)
     m = np.asarray(_numpy(clip))
     if m.ndim != 2:
         raise ValueError(f"{what}: a clip mask must be (H, W) like the frames, got shape {m.shape} "
@@ -210,18 +213,16 @@ def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None):
         raise ValueError(f"{what}: a clip mask must be boolean or integer (non-zero: inserted), got {m.dtype}")
     if frame_shape is not None and tuple(m.shape) != tuple(frame_shape):
         raise ValueError(f"{what}: the clip mask has shape {m.shape} but frames are {tuple(frame_shape)}")
-    return _ext.FrameClip(None, None, np.ascontiguousarray(m != 0, dtype=np.uint8))
+    return FrameClip(mask=m != 0)
 
 
-def _clip_dict(c) -> Optional[Dict[str, Any]]:
-    """An _ext.FrameClip (rect/fan only) as the dict Compounder takes; None when it clips nothing."""
+def _clip_dict(c: FrameClip) -> Optional[Dict[str, Any]]:
+    """A FrameClip (rect/fan only) as the dict Compounder takes; None when it clips nothing."""
     out: Dict[str, Any] = {}
-    x, y, w, h = c.rect
-    if (x, y, w, h) != (0, 0, -1, -1):
-        out["rect"] = (x, y, None if w < 0 else w, None if h < 0 else h)
-    if c.fan is not None:
-        a0, a1, ox, oy, r0, r1 = c.fan
-        out["fan"] = dict(angles_deg=(a0, a1), origin_px=(ox, oy), radius_px=(r0, r1))
+    if (c.x, c.y, c.width, c.height) != (0, 0, -1, -1):
+        out["rect"] = (c.x, c.y, None if c.width < 0 else c.width, None if c.height < 0 else c.height)
+    if c.fan:
+        out["fan"] = dict(angles_deg=c.fan_angles_deg, origin_px=c.fan_origin_px, radius_px=c.fan_radius_px)
     return out or None
 
 
@@ -253,94 +254,91 @@ def grid_around_beams(probe_to_reference, geometry, beam_shape: Tuple[int, int, 
     if len(shape) != 3:
         raise ValueError(f"grid_around_beams: beam_shape {beam_shape} must be (n_elevation, n_azimuth, n_samples)")
     spacing = _spacing3(spacing, "grid_around_beams")
-    return Grid._from_ext(_ext.compound_grid_around_beams(m, g._tuple(), shape, spacing))
+    return Grid._from_ext(_ext.compound_grid_around_beams(m, g, shape, spacing))
 
 
 # ---- beam-space frames ------------------------------------------------------------------------------
-@dataclass
-class BeamGeometry:
-    """Geometry of 3D beam-space frames (docs/conventions.md §7): sample s of the beam at azimuth
-    α = azimuth0_deg + a·dazimuth_deg and elevation β = elevation0_deg + e·delevation_deg lies at
-    probe coordinates apex + (r0_mm + s·dr_mm)·(sin α, cos α·cos β, cos α·sin β), with
-    apex = (0, -apex_offset_mm, 0) (0 for phased arrays). The frame sizes come from the arrays."""
-    r0_mm: float = 0.0
-    dr_mm: float = 1.0
-    azimuth0_deg: float = 0.0
-    dazimuth_deg: float = 1.0
-    elevation0_deg: float = 0.0
-    delevation_deg: float = 1.0
-    apex_offset_mm: float = 0.0
+BeamGeometry = _ext.BeamGeometry
+HoleFillingElement = _ext.HoleFillingElement
 
-    @classmethod
-    def from_file(cls, path: PathLike) -> "BeamGeometry":
-        """Reads the geometry JSON (``{"r0_mm": ..., "dr_mm": ..., ...}``)."""
-        return cls(*_ext.read_beam_geometry(os.fspath(path)))
 
-    def save(self, path: PathLike) -> None:
-        """Writes the geometry JSON atomically."""
-        _ext.write_beam_geometry(os.fspath(path), self._tuple())
+def _fields(cls) -> List[str]:
+    """The fields of a bound class (its read-write properties), in declaration order."""
+    return [k for k, v in vars(cls).items() if isinstance(v, property) and v.fset is not None]
 
-    @classmethod
-    def of(cls, geometry) -> "BeamGeometry":
-        """A BeamGeometry from itself, a dict of its fields, or a path to its JSON file."""
-        if isinstance(geometry, BeamGeometry):
-            return geometry
-        if isinstance(geometry, dict):
-            names = {f.name for f in fields(cls)}
-            unknown = sorted(set(geometry) - names)
-            if unknown:
-                raise ValueError(f"beam geometry: unknown key(s) {unknown}; expected {', '.join(sorted(names))}")
-            return cls(**{k: float(v) for k, v in geometry.items()})
-        if isinstance(geometry, (str, os.PathLike)):
-            return cls.from_file(geometry)
-        raise TypeError("geometry: expected a sonoslice.BeamGeometry, a dict or a path to its JSON file, got "
-                        f"{type(geometry).__name__}")
 
-    def _tuple(self) -> Tuple[float, ...]:
-        return tuple(float(v) for v in asdict(self).values())
+def _beam_geometry_of(geometry) -> BeamGeometry:
+    """A BeamGeometry from itself, a dict of its fields, or a path to its JSON file."""
+    if isinstance(geometry, BeamGeometry):
+        return geometry
+    if isinstance(geometry, dict):
+        names = _fields(BeamGeometry)
+        unknown = sorted(set(geometry) - set(names))
+        if unknown:
+            raise ValueError(f"beam geometry: unknown key(s) {unknown}; expected {', '.join(sorted(names))}")
+        return BeamGeometry(**{k: float(v) for k, v in geometry.items()})
+    if isinstance(geometry, (str, os.PathLike)):
+        return BeamGeometry.from_file(geometry)
+    raise TypeError("geometry: expected a sonoslice.BeamGeometry, a dict or a path to its JSON file, got "
+                    f"{type(geometry).__name__}")
+
+
+# BeamGeometry was a dataclass with this classmethod; the bound class keeps it (a conversion from
+# dicts and paths, which is Python's to make).
+BeamGeometry.of = staticmethod(_beam_geometry_of)
 
 
 # ---- the compounder -------------------------------------------------------------------------------
-_HOLE_KEYS = {"type": "type", "size": "size", "stdev": "stdev", "min_ratio": "min_ratio",
-              "minimum_known_ratio": "min_ratio", "length_limit": "length_limit",
-              "stick_length_limit": "length_limit", "sticks": "sticks", "sticks_to_use": "sticks"}
+# Hole-filling dicts' keys: the element's fields and the short names of the dicts users pass.
+_HOLE_KEYS = {"type": "type", "size": "size", "stdev": "stdev", "min_ratio": "minimum_known_ratio",
+              "minimum_known_ratio": "minimum_known_ratio", "length_limit": "stick_length_limit",
+              "stick_length_limit": "stick_length_limit", "sticks": "sticks_to_use",
+              "sticks_to_use": "sticks_to_use"}
 
 
-def _hole_tuples(hole_filling) -> list:
+def _hole_elements(hole_filling) -> Optional[List[HoleFillingElement]]:
+    """Hole-filling elements from HoleFillingElement objects or dicts such as dict(type="gaussian",
+    size=3, stdev=0.667, min_ratio=0.5) (a None value: the default)."""
     if hole_filling is None:
-        return []
-    if isinstance(hole_filling, dict):
+        return None
+    if isinstance(hole_filling, (dict, HoleFillingElement)):
         hole_filling = [hole_filling]
     out = []
     for k, e in enumerate(hole_filling):
+        if isinstance(e, HoleFillingElement):
+            out.append(e)
+            continue
         if not isinstance(e, dict):
             raise ValueError(f"hole_filling[{k}]: expected a dict such as dict(type='gaussian', size=3, "
-                             f"stdev=0.667, min_ratio=0.5), got {e!r}")
+                             f"stdev=0.667, min_ratio=0.5) or a sonoslice.HoleFillingElement, got {e!r}")
         unknown = sorted(set(e) - set(_HOLE_KEYS))
         if unknown:
             raise ValueError(f"hole_filling[{k}]: unknown key(s) {unknown}; expected type, size, stdev, "
                              "min_ratio, length_limit, sticks")
-        d = {_HOLE_KEYS[key]: v for key, v in e.items()}
+        d = {_HOLE_KEYS[key]: v for key, v in e.items() if v is not None}
         if "type" not in d:
             raise ValueError(f"hole_filling[{k}]: needs a type (gaussian, gaussian_accumulation, "
                              "distance_weight_inverse, nearest_neighbor or stick)")
-        opt_int = lambda v: None if v is None else int(v)  # noqa: E731
-        opt_float = lambda v: None if v is None else float(v)  # noqa: E731
-        out.append((str(d["type"]), opt_int(d.get("size")), opt_float(d.get("stdev")),
-                    opt_float(d.get("min_ratio")), opt_int(d.get("length_limit")), opt_int(d.get("sticks"))))
+        # Set field by field: the Compounder checks the list, naming the element's position
+        # ("hole filling element 2: size 4 must be odd ...").
+        element = HoleFillingElement(str(d.pop("type")))
+        for key, value in d.items():
+            setattr(element, key, float(value) if key in ("stdev", "minimum_known_ratio") else int(value))
+        out.append(element)
     return out
 
 
-def _hole_dicts(tuples) -> List[Dict[str, Any]]:
+def _hole_dicts(elements) -> List[Dict[str, Any]]:
+    """Hole-filling elements as the dicts Compounder and PlusConfig report (the fields each type uses)."""
     out = []
-    for t, size, stdev, ratio, length, sticks in tuples:
-        if t == "stick":
-            out.append(dict(type=t, length_limit=length, sticks=sticks))
+    for e in elements:
+        if e.type == "stick":
+            out.append(dict(type=e.type, length_limit=e.stick_length_limit, sticks=e.sticks_to_use))
         else:
-            d = dict(type=t, size=size)
-            if t in ("gaussian", "gaussian_accumulation"):
-                d["stdev"] = stdev
-            d["min_ratio"] = ratio
+            d = dict(type=e.type, size=e.size)
+            if e.type in ("gaussian", "gaussian_accumulation"):
+                d["stdev"] = e.stdev
+            d["min_ratio"] = e.minimum_known_ratio
             out.append(d)
     return out
 
@@ -396,7 +394,7 @@ class Compounder:
     def __init__(self, grid=None, *, shape: Optional[Sequence[int]] = None, spacing=None,
                  origin: Sequence[float] = (0.0, 0.0, 0.0), direction=None, interpolation: str = "linear",
                  compounding: str = "mean", fill_holes: Optional[bool] = None,
-                 hole_filling: Optional[Sequence[Dict[str, Any]]] = None,
+                 hole_filling: Optional[Sequence[Union[Dict[str, Any], HoleFillingElement]]] = None,
                  rejection_threshold: Optional[float] = None, clip: Clip = None, device: str = "cpu",
                  max_memory: Union[None, int, str] = None, dtype="float32"):
         if grid is not None:
@@ -421,11 +419,12 @@ class Compounder:
             _frame_clip(clip, "Compounder")  # checked now; a mask's shape when frames arrive
         self._clip = clip
         self._beam_geometry: Optional[BeamGeometry] = None
-        self._cpp = _ext.Compounder(
-            g.dims, g.spacing, g.origin, tuple(float(v) for row in g.direction for v in row), str(interpolation),
-            str(compounding), bool(fill_holes), _hole_tuples(hole_filling),
-            None if rejection_threshold is None else float(rejection_threshold), str(device),
-            _memory_bytes(max_memory), _dtype_name(dtype, "dtype"))
+        settings = _ext.CompoundSettings(
+            interpolation=str(interpolation), compounding=str(compounding), fill_holes=bool(fill_holes),
+            hole_filling=_hole_elements(hole_filling),
+            rejection_threshold=None if rejection_threshold is None else float(rejection_threshold))
+        self._cpp = _ext.Compounder(g._to_ext(), settings, str(device), _memory_bytes(max_memory),
+                                    _dtype_name(dtype, "dtype"))
         self._device = str(device)
 
     @classmethod
@@ -453,9 +452,8 @@ class Compounder:
         (reference mm). ``clip``: which pixels go in (default: the compounder's); a dict
         ``dict(rect=(x, y, w, h), fan=dict(angles_deg=..., origin_px=..., radius_px=...))`` or an
         (H, W) boolean/uint8 mask. Frames entirely outside the grid change nothing. Returns self."""
-        a = _frames(frames, "add: frames", 2, "(H, W) or (N, H, W)")
-        n = 1 if a.ndim == 2 else a.shape[0]
-        m = _matrices(image_to_reference, "add: image_to_reference", n, single=a.ndim == 2)
+        a = _frames(frames)
+        m = _matrices(image_to_reference, "add: image_to_reference")
         if clip is None:
             clip = self._clip
         self._cpp.add_images(a, m, _frame_clip(clip, "add", a.shape[-2:]))
@@ -466,15 +464,13 @@ class Compounder:
         ``probe_to_reference``, or (N, n_elevation, n_azimuth, n_samples) with (N, 4, 4). ``geometry``:
         a :class:`BeamGeometry`, a dict of its fields or a path to its JSON (default: the one given to
         :meth:`around_beams`). Returns self."""
-        a = _frames(frames, "add_beams: frames", 3,
-                    "(n_elevation, n_azimuth, n_samples) or (N, n_elevation, n_azimuth, n_samples)")
-        n = 1 if a.ndim == 3 else a.shape[0]
-        m = _matrices(probe_to_reference, "add_beams: probe_to_reference", n, single=a.ndim == 3)
+        a = _frames(frames)
+        m = _matrices(probe_to_reference, "add_beams: probe_to_reference")
         if geometry is None:
             if self._beam_geometry is None:
                 raise ValueError("add_beams: give the frames' geometry (a sonoslice.BeamGeometry)")
             geometry = self._beam_geometry
-        self._cpp.add_beams(a, m, BeamGeometry.of(geometry)._tuple())
+        self._cpp.add_beams(a, m, BeamGeometry.of(geometry))
         return self
 
     # -- results
@@ -502,11 +498,12 @@ class Compounder:
 
     dtype = property(lambda self: np.dtype(self._cpp.dtype), doc="default dtype of volume()")
     device = property(lambda self: self._device, doc='"cpu" or "cuda[:K]"')
-    interpolation = property(lambda self: self._cpp.interpolation, doc='"linear" or "nearest"')
-    compounding = property(lambda self: self._cpp.compounding, doc='"mean", "max" or "latest"')
-    fill_holes = property(lambda self: self._cpp.fill_holes)
-    hole_filling = property(lambda self: _hole_dicts(self._cpp.hole_filling), doc="hole-filling elements (dicts)")
-    rejection_threshold = property(lambda self: self._cpp.rejection_threshold)
+    interpolation = property(lambda self: self._cpp.settings.interpolation, doc='"linear" or "nearest"')
+    compounding = property(lambda self: self._cpp.settings.compounding, doc='"mean", "max" or "latest"')
+    fill_holes = property(lambda self: self._cpp.settings.fill_holes)
+    hole_filling = property(lambda self: _hole_dicts(self._cpp.settings.hole_filling),
+                            doc="hole-filling elements (dicts)")
+    rejection_threshold = property(lambda self: self._cpp.settings.rejection_threshold)
 
     def __repr__(self) -> str:
         holes = f", hole filling {[h['type'] for h in self.hole_filling]}" if self.fill_holes else ""
@@ -639,9 +636,7 @@ def write_plus_sequence(path: PathLike, frames, fields: Optional[Sequence[Dict[s
     ``fields``: per frame (at most N) a dict of ``Seq_FrameNNNN_<key> = value`` fields, e.g.
     ``{"ProbeToTrackerTransform": m4x4, "ProbeToTrackerTransformStatus": "OK", "Timestamp": 0.1,
     "ImageStatus": "OK"}``: arrays become their numbers (row-major, exact), True/False "OK"/"INVALID"."""
-    a = _frames(frames, "write_plus_sequence: frames", 3, "(N, H, W)")
-    if a.ndim != 3:
-        raise ValueError(f"write_plus_sequence: frames has shape {a.shape}; expected (N, H, W)")
+    a = _frames(frames)
     out = []
     for k, f in enumerate(fields or []):
         if not isinstance(f, dict):
@@ -669,11 +664,11 @@ class PlusConfig:
         self.spacing = None if _cpp.spacing is None else tuple(_cpp.spacing)
         self.origin = None if _cpp.origin is None else tuple(_cpp.origin)
         self.extent = None if _cpp.extent is None else tuple(_cpp.extent)
-        self.interpolation: str = _cpp.interpolation
-        self.compounding: str = _cpp.compounding
-        self.fill_holes: bool = _cpp.fill_holes
-        self.hole_filling = _hole_dicts(_cpp.hole_filling)
-        self.rejection_threshold: Optional[float] = _cpp.rejection_threshold
+        self.interpolation: str = _cpp.settings.interpolation
+        self.compounding: str = _cpp.settings.compounding
+        self.fill_holes: bool = _cpp.settings.fill_holes
+        self.hole_filling = _hole_dicts(_cpp.settings.hole_filling)
+        self.rejection_threshold: Optional[float] = _cpp.settings.rejection_threshold
         self.clip = _clip_dict(_cpp.clip)
         self.skip_interval: int = _cpp.skip_interval
         self.ignored_attributes: List[str] = list(_cpp.ignored_attributes)
@@ -699,12 +694,8 @@ class PlusConfig:
     @property
     def grid(self) -> Optional[Grid]:
         """The output grid the XML gives (OutputSpacing, OutputOrigin and OutputExtent), else None."""
-        if self.spacing is None or self.origin is None or self.extent is None:
-            return None
-        e = self.extent
-        dims = [e[2 * a + 1] - e[2 * a] + 1 for a in range(3)]
-        origin = tuple(self.origin[a] + e[2 * a] * self.spacing[a] for a in range(3))
-        return Grid(tuple(reversed(dims)), self.spacing, origin)
+        g = self._cpp.output_grid
+        return None if g is None else Grid._from_ext(g)
 
     def __repr__(self) -> str:
         return (f"PlusConfig({self.path!r}: {self.transform}, spacing={self.spacing}, {self.interpolation}, "

@@ -188,7 +188,7 @@ class SegmentedVolume:
         elif mode == "voxel":
             self.label_volume = voxelize(meshes, spacing=voxel_size, labels=labels)
             self.slicer = Slicer(self.label_volume, self.probe, device=_default_device(device),
-                                 interp="nearest", dtype="uint8" if max(labels) < 256 else "uint16")
+                                 interpolation="nearest", dtype="uint8" if max(labels) < 256 else "uint16")
         else:
             raise ValueError(f"mode {mode!r}: expected 'voxel' or 'exact'")
 

@@ -60,7 +60,7 @@ def test_voxelize_and_exact_cut_agree_on_a_sphere():
     poses = np.tile(np.eye(4), (3, 1, 1))
     poses[:, 2, 3] = [0.0, 5.0, 10.0]  # planes z = 0, 5, 10
     exact = sonoslice.SurfaceSlicer(s, probe).slice(poses)
-    voxel = sonoslice.Slicer(labels, probe, interp="nearest", dtype="uint8").slice(poses)
+    voxel = sonoslice.Slicer(labels, probe, interpolation="nearest", dtype="uint8").slice(poses)
     both = ((exact == 1) & (voxel == 1)).sum()
     assert 2 * both / ((exact == 1).sum() + (voxel == 1).sum()) > 0.98
     for n, z in enumerate([0.0, 5.0, 10.0]):

@@ -66,19 +66,19 @@ int HoleFillingKernel::reach() const {
 void HoleFillingKernel::validate(const std::string& what) const {
   if (type == Stick) {
     if (stick_length_limit < 3 || stick_length_limit > 255)
-      throw InputError(what + ": stick length limit " + std::to_string(stick_length_limit) +
+      throw InputError(what + ": stick_length_limit " + std::to_string(stick_length_limit) +
                        " must be between 3 and 255 voxels");
     if (sticks_to_use < 1 || sticks_to_use > 13)
-      throw InputError(what + ": sticks to use " + std::to_string(sticks_to_use) +
+      throw InputError(what + ": sticks_to_use " + std::to_string(sticks_to_use) +
                        " must be between 1 and 13");
     return;
   }
   if (size < 3 || size > 31 || size % 2 == 0)
     throw InputError(what + ": size " + std::to_string(size) + " must be odd, 3 to 31 voxels");
   if ((type == Gaussian || type == GaussianAccumulation) && !(stdev > 0 && std::isfinite(stdev)))
-    throw InputError(what + ": Gaussian standard deviation must be positive");
+    throw InputError(what + ": stdev (the Gaussian's, in voxels) must be positive");
   if (!(minimum_known_ratio >= 0 && minimum_known_ratio < 1))
-    throw InputError(what + ": minimum known ratio must be in [0, 1)");
+    throw InputError(what + ": minimum_known_ratio must be in [0, 1)");
 }
 
 }  // namespace sonoslice

@@ -63,19 +63,23 @@ std::array<int, 4> FrameClip::rectangle(int frame_width, int frame_height) const
 }
 
 void FrameClip::validate(const std::string& what) const {
+  if (x < 0 || y < 0)
+    throw InputError(what + ": clip rectangle x, y = " + std::to_string(x) + ", " +
+                     std::to_string(y) + " must not be negative");
   if (width < -1 || height < -1)
-    throw InputError(what + ": clip rectangle size " + std::to_string(width) + "x" +
-                     std::to_string(height) + " is negative");
+    throw InputError(what + ": clip rectangle width x height = " + std::to_string(width) + "x" +
+                     std::to_string(height) + " is negative (-1: to the frame's edge)");
   if (!fan) return;
   for (double a : fan_angles_deg)
     if (!(a > -90 && a < 90))
-      throw InputError(what + ": fan angles must be strictly between -90 and 90 degrees");
+      throw InputError(what +
+                       ": fan angles (fan_angles_deg) must be strictly between -90 and 90 degrees");
   if (!(fan_angles_deg[0] <= fan_angles_deg[1]))
-    throw InputError(what + ": fan angles must be given smallest first");
+    throw InputError(what + ": fan angles (fan_angles_deg) must be given smallest first");
   if (!std::isfinite(fan_origin_px[0]) || !std::isfinite(fan_origin_px[1]))
-    throw InputError(what + ": fan origin must be finite");
+    throw InputError(what + ": fan origin (fan_origin_px) must be finite");
   if (!(fan_radius_px[0] >= 0 && fan_radius_px[1] >= fan_radius_px[0]))
-    throw InputError(what + ": fan radii must satisfy 0 <= start <= stop");
+    throw InputError(what + ": fan radii (fan_radius_px) must satisfy 0 <= start <= stop");
 }
 
 std::vector<uint8_t> FrameClip::mask(int frame_width, int frame_height) const {

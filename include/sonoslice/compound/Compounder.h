@@ -1,6 +1,6 @@
 #pragma once
-/// @file Freehand 3D reconstruction (docs/conventions.md §7): tracked 2D frames and 3D beam-space frames
-/// inserted ("compounded") into one voxel grid, as PLUS toolkit's volume reconstructor does.
+/// @file Freehand 3D reconstruction (docs/conventions.md §7): tracked 2D frames and 3D beam-space
+/// frames inserted ("compounded") into one voxel grid, as PLUS toolkit's volume reconstructor does.
 #include <array>
 #include <cstdint>
 #include <limits>
@@ -83,7 +83,8 @@ struct FrameClip {
   /// The clip rectangle intersected with the frame (or the box around a custom mask's pixels):
   /// pixels [x0, x1) × [y0, y1).
   std::array<int, 4> rectangle(int frame_width, int frame_height) const;
-  /// InputError naming `what` for negative sizes, NaN angles or radii, angles outside ±180°.
+  /// InputError naming `what` and the field for a negative x, y or size, NaN angles or radii,
+  /// angles outside (-90°, 90°).
   void validate(const std::string& what) const;
 };
 

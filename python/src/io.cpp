@@ -1,0 +1,217 @@
+// Files: poses, image stacks, and the PLUS toolkit's tracked-frame sequences, transform
+// repositories and reconstruction configurations (docs/conventions.md §7). Volumes, probes, meshes
+// and beam geometries read and write through their own classes' from_file/save.
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/map.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/pair.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
+
+#include <algorithm>
+#include <cstring>
+
+#include "bindings.h"
+#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/io/PoseFile.h"
+#include "sonoslice/io/StackWriter.h"
+#include "sonoslice/io/VolumeFile.h"
+
+namespace sonoslice::bindings {
+namespace {
+
+using namespace nb::literals;
+
+// The valid frames of a PLUS sequence and their `from`→`to` transforms (docs/conventions.md §7),
+// as the CLI picks them: every `skip`-th frame whose image status is OK and whose chain is valid.
+std::tuple<std::vector<int64_t>, MatricesOut, int, int> plus_frames(const PlusSequence& s,
+                                                                    const TransformRepository& base,
+                                                                    const std::string& from,
+                                                                    const std::string& to, int skip,
+                                                                    const std::string& hint) {
+  PlusFrameSelection sel;
+  {
+    nb::gil_scoped_release release;
+    sel = select_plus_frames(s, base, from, to, skip, hint);
+  }
+  std::vector<int64_t> frames(sel.frames.begin(), sel.frames.end());
+  return {frames, matrices_to_numpy(std::move(sel.to_reference)), sel.bad_image, sel.bad_transform};
+}
+
+}  // namespace
+
+void bind_io(nb::module_& m) {
+  // ---- poses and image stacks
+  m.def(
+      "read_poses",
+      [](const std::string& path, const std::string& world) {
+        return matrices_to_numpy(read_poses(path, parse_world_frame(world)));
+      },
+      "path"_a, "world"_a = to_string(WorldFrame::LPS));
+  m.def(
+      "write_poses",
+      [](const std::string& path, Matrices a) {
+        const std::vector<Pose> poses = matrices_from(a);
+        if (file_extension(path) == ".npy")
+          write_poses_npy(path, poses);
+        else
+          write_poses_text(path, poses);
+      },
+      "path"_a, "poses"_a);
+  m.def(
+      "write_stack",
+      [](const std::string& path, HostPixels images, std::pair<double, double> spacing,
+         std::optional<std::pair<double, double>> window, std::optional<Matrices> poses,
+         std::optional<Mask> mask) {
+        if (images.ndim() != 3)
+          throw InputError("images has shape " + shape_text(images) + "; expected (N, H, W)");
+        StackSpec spec;
+        spec.type = pixel_type_of(images.dtype(), "images");
+        spec.count = int64_t(images.shape(0));
+        spec.height = int(images.shape(1));
+        spec.width = int(images.shape(2));
+        spec.spacing_mm[0] = spacing.first;
+        spec.spacing_mm[1] = spacing.second;
+        spec.window = window;
+        if (poses)
+          spec.poses = matrices_from(*poses);
+        else
+          spec.poses.assign(size_t(spec.count), Pose::identity());
+        if (mask) spec.mask = mask->data();
+        const size_t image_bytes = size_t(spec.width) * size_t(spec.height) * pixel_size(spec.type);
+        nb::gil_scoped_release release;
+        auto writer = StackWriter::create(path, spec);
+        const int64_t chunk = chunk_images(image_bytes, spec.count);
+        for (int64_t first = 0; first < spec.count; first += chunk) {
+          const int64_t n = std::min(chunk, spec.count - first);
+          std::memcpy(writer->buffer(first, n),
+                      static_cast<const char*>(images.data()) + size_t(first) * image_bytes,
+                      size_t(n) * image_bytes);
+          writer->write(first, n);
+        }
+        writer->commit();
+      },
+      "path"_a, "images"_a, "spacing_mm"_a, "window"_a = nb::none(), "poses"_a = nb::none(),
+      "mask"_a = nb::none());
+
+  // ---- PLUS toolkit files
+  nb::class_<PlusSequence>(m, "PlusSequence",
+                           "A PLUS tracked-frame sequence, frames in MF orientation.")
+      .def_ro("path", &PlusSequence::path)
+      .def_ro("width", &PlusSequence::width)
+      .def_ro("height", &PlusSequence::height)
+      .def_ro("frame_count", &PlusSequence::frame_count)
+      .def_ro("orientation", &PlusSequence::orientation)
+      .def_prop_ro("dtype", [](const PlusSequence& s) { return to_string(s.pixel_type); })
+      .def_ro("frame_fields", &PlusSequence::frame_fields,
+              "Per frame, every Seq_FrameNNNN_<Field> (a copy).")
+      .def(
+          "frames",
+          [](nb::handle_t<PlusSequence> self) {
+            PlusSequence& s = nb::cast<PlusSequence&>(self);
+            const size_t shape[3] = {size_t(s.frame_count), size_t(s.height), size_t(s.width)};
+            // A view of the sequence's pixels; the array keeps the sequence object alive.
+            return nb::ndarray<nb::numpy>(s.pixels.data(), 3, shape, self, nullptr,
+                                          dlpack_dtype(s.pixel_type));
+          },
+          "(N, H, W) view of the frames (no copy).")
+      .def("image_ok", &PlusSequence::image_ok, "frame"_a)
+      .def("transform_names", &PlusSequence::transform_names, "frame"_a)
+      .def(
+          "transform",
+          [](const PlusSequence& s, int frame, const std::string& name) {
+            return matrix_or_none(s.transform(frame, name));
+          },
+          "frame"_a, "name"_a,
+          "Frame's <name>Transform (4x4) or None (missing or its status not OK).")
+      .def("timestamps", [](const PlusSequence& s) {
+        std::vector<double> t(size_t(s.frame_count));
+        for (int k = 0; k < s.frame_count; ++k) t[size_t(k)] = s.timestamp(k);
+        return t;
+      });
+  m.def(
+      "read_plus_sequence",
+      [](const std::string& path) {
+        nb::gil_scoped_release release;
+        return read_plus_sequence(path);
+      },
+      "path"_a);
+  m.def(
+      "write_plus_sequence",
+      [](const std::string& path, HostPixels frames,
+         const std::vector<std::map<std::string, std::string>>& fields,
+         const std::string& orientation, bool compress) {
+        const std::string what = "write_plus_sequence: frames";
+        PlusSequence s;
+        s.pixel_type = pixel_type_of(frames.dtype(), what);
+        if (frames.ndim() != 3)
+          throw InputError(what + " has shape " + shape_text(frames) + "; expected (N, H, W)");
+        s.path = path;
+        s.frame_count = int(frames.shape(0));
+        s.height = int(frames.shape(1));
+        s.width = int(frames.shape(2));
+        if (int64_t(s.frame_count) != int64_t(frames.shape(0)) ||
+            int64_t(s.height) != int64_t(frames.shape(1)) ||
+            int64_t(s.width) != int64_t(frames.shape(2)))
+          throw InputError(what + ": too many frames or pixels");
+        s.orientation = orientation;
+        s.frame_fields = fields;
+        const auto* p = static_cast<const uint8_t*>(frames.data());
+        s.pixels.assign(p, p + frames.nbytes());
+        nb::gil_scoped_release release;
+        write_plus_sequence(path, s, compress);
+      },
+      "path"_a, "frames"_a, "fields"_a, "orientation"_a = "MF", "compress"_a = true);
+
+  nb::class_<TransformRepository>(m, "TransformRepository",
+                                  "Named transforms; chains of them on request.")
+      .def(nb::init<>())
+      .def("copy", [](const TransformRepository& r) { return r; })
+      .def(
+          "set",
+          [](TransformRepository& r, const std::string& from, const std::string& to, Matrix4 matrix,
+             bool valid) { r.set(from, to, Mat4::from_row_major(matrix.data()), valid); },
+          "from_frame"_a, "to_frame"_a, "matrix"_a, "valid"_a = true)
+      .def("set_frame", &TransformRepository::set_frame, "sequence"_a, "frame"_a)
+      .def(
+          "get",
+          [](const TransformRepository& r, const std::string& from, const std::string& to) {
+            return matrix_or_none(r.get(from, to));
+          },
+          "from_frame"_a, "to_frame"_a)
+      .def_static("split_name", &TransformRepository::split_name, "name"_a);
+
+  nb::class_<PlusReconstructionConfig>(m, "PlusConfig",
+                                       "A PLUS configuration's reconstruction settings.")
+      .def_ro("path", &PlusReconstructionConfig::path)
+      .def_prop_ro("coordinate_definitions",
+                   [](const PlusReconstructionConfig& c) { return c.coordinate_definitions; })
+      .def_ro("image_frame", &PlusReconstructionConfig::image_frame)
+      .def_ro("reference_frame", &PlusReconstructionConfig::reference_frame)
+      .def_ro("spacing", &PlusReconstructionConfig::output_spacing_mm)
+      .def_ro("origin", &PlusReconstructionConfig::output_origin_mm)
+      .def_ro("extent", &PlusReconstructionConfig::output_extent)
+      .def_prop_ro("output_grid", &PlusReconstructionConfig::output_grid,
+                   "The grid OutputSpacing, OutputOrigin and OutputExtent fix, or None.")
+      .def_ro("settings", &PlusReconstructionConfig::settings)
+      .def_ro("clip", &PlusReconstructionConfig::clip)
+      .def_ro("skip_interval", &PlusReconstructionConfig::skip_interval)
+      .def_ro("ignored_attributes", &PlusReconstructionConfig::ignored_attributes)
+      .def_ro("unknown_attributes", &PlusReconstructionConfig::unknown_attributes);
+  m.def(
+      "read_plus_config",
+      [](const std::string& path) {
+        nb::gil_scoped_release release;
+        return read_plus_config(path);
+      },
+      "path"_a);
+  m.def(
+      "plus_frames", &plus_frames, "sequence"_a, "repository"_a, "from_frame"_a, "to_frame"_a,
+      "skip"_a = 1, "hint"_a = "",
+      "(frame indices, (M, 4, 4) from->to matrices, frames with a bad image status, frames with an "
+      "invalid transform) for every skip-th frame.");
+}
+
+}  // namespace sonoslice::bindings
