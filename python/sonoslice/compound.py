@@ -716,36 +716,39 @@ def _as_config(config) -> Optional[PlusConfig]:
     return None if config is None else config if isinstance(config, PlusConfig) else read_plus_config(config)
 
 
-def _plus_frames(seq: PlusSequence, cfg: Optional[PlusConfig], name: Optional[str], image_to_probe,
-                 skip: Optional[int]):
-    """(frame indices, matrices, frames with a bad image status, frames with an invalid transform,
-    the transform's name, the skip interval used)."""
-    repo = cfg.coordinate_definitions if cfg is not None else TransformRepository()
+def _plus_options(seq: PlusSequence, clip, image_to_probe, spacing, dtype) -> Dict[str, Any]:
+    """Conversions nanobind cannot do alone (dicts, masks, "float64" names, one spacing number);
+    the recipe checks every value."""
+    out: Dict[str, Any] = {}
+    if clip is not None:
+        out["clip"] = _frame_clip(clip, "clip", seq.shape[1:])
     if image_to_probe is not None:
-        repo.set("ImageToProbe", image_to_probe)
-    if name is None:
-        name = cfg.transform if cfg is not None else "ImageToReference"
-    a, b = _ext.TransformRepository.split_name(_transform_name(name))
-    if skip is None:
-        skip = cfg.skip_interval if cfg is not None else 1
-    hint = "" if cfg is not None or image_to_probe is not None else \
-        "; give the calibration with config= or image_to_probe="
-    frames, matrices, bad_image, bad_transform = _ext.plus_frames(seq._cpp, repo._cpp, a, b, int(skip), hint)
-    return np.array(frames, dtype=np.int64), matrices, bad_image, bad_transform, f"{a}To{b}", skip
+        out["image_to_probe"] = _matrices(image_to_probe, "image_to_probe", 1, single=True)[0]
+    if spacing is not None:
+        out["spacing"] = _spacing3(spacing, "spacing")
+    if dtype is not None:
+        out["dtype"] = _dtype_name(dtype, "dtype")
+    return out
 
 
 def plus_image_to_reference(sequence, config=None, name: Optional[str] = None, image_to_probe=None,
                             skip: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
     """The frames of a PLUS sequence that can be used and their image→reference matrices:
-    ``(frame_indices (M,), matrices (M, 4, 4))``. For each frame the transform ``name`` (default the
-    config's ``ImageToReference``) is the chain, through the config's CoordinateDefinitions
-    (calibration) and the frame's own transforms, e.g. ``(ReferenceToTracker)⁻¹ · ProbeToTracker ·
-    ImageToProbe`` (docs/conventions.md §7). Frames whose image status or transform is not OK are left out, as
-    are all but every ``skip``-th (default: the config's SkipInterval). ``sequence``/``config``:
-    objects or paths; ``image_to_probe``: a 4×4 calibration replacing the config's."""
+    ``(frame_indices (M,), matrices (M, 4, 4))``, exactly as :func:`reconstruct_plus` and
+    ``sonoslice compound`` pick them (one C++ recipe). For each frame the transform ``name``
+    (default the config's ``ImageToReference``) is the chain, through the config's
+    CoordinateDefinitions (calibration) and the frame's own transforms, e.g.
+    ``(ReferenceToTracker)⁻¹ · ProbeToTracker · ImageToProbe`` (docs/conventions.md §7). Frames
+    whose image status or transform is not OK are left out, as are all but every ``skip``-th
+    (default: the config's SkipInterval). ``sequence``/``config``: objects or paths;
+    ``image_to_probe``: a 4×4 calibration replacing the config's."""
     seq = _as_sequence(sequence)
-    frames, matrices, *_ = _plus_frames(seq, _as_config(config), name, image_to_probe, skip)
-    return frames, matrices
+    cfg = _as_config(config)
+    extra = _plus_options(seq, None, image_to_probe, None, None)
+    frames, matrices, _ = _ext.select_plus_frames(
+        seq._cpp, None if cfg is None else cfg._cpp, None if skip is None else int(skip),
+        None if name is None else str(name), extra.get("image_to_probe"))
+    return np.array(frames, dtype=np.int64), matrices
 
 
 def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Optional[str] = None,
@@ -753,59 +756,40 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
                      hole_filling: Optional[Sequence[Dict[str, Any]]] = None,
                      rejection_threshold: Optional[float] = None, clip: Clip = None, skip: Optional[int] = None,
                      transform: Optional[str] = None, image_to_probe=None, dtype=None, device: str = "cpu",
-                     max_memory: Union[None, int, str] = None, return_weights: bool = False):
-    """Reconstructs a PLUS sequence as ``sonoslice compound --sequence S --config X`` does and
-    returns the :class:`Volume` (with ``return_weights=True``: ``(volume, weights)``).
+                     max_memory: Union[None, int, str] = None, return_weights: bool = False,
+                     return_report: bool = False):
+    """Reconstructs a PLUS sequence with the same C++ recipe as ``sonoslice compound --sequence S
+    --config X`` (same inputs, same bytes) and returns the :class:`Volume` (with
+    ``return_weights=True``: ``(volume, weights)``; with ``return_report=True`` a dict of what was
+    used is appended: input, frames_in_input/considered/used, skipped counts and reason,
+    transform, grid_from_config, splat/finish seconds).
 
     Settings come from the configuration XML (``config``: path or :class:`PlusConfig`), then the
     keywords override them. The grid is the XML's when it gives OutputOrigin and OutputExtent (and
-    ``spacing`` is not overridden), else PLUS's grid around the clipped frames at ``spacing`` (mm;
-    default the XML's OutputSpacing). ``transform``: e.g. "ImageToTracker" (default the XML's
+    ``spacing`` is not given), else PLUS's grid around the clipped frames at ``spacing`` (mm;
+    default the XML's OutputSpacing). ``fill_holes`` defaults to the XML's, or True when
+    ``hole_filling`` is given. ``clip`` replaces the XML's clip (a dict, a mask or a
+    :class:`FrameClip`). ``transform``: e.g. "ImageToTracker" (default the XML's
     ImageToReference); ``image_to_probe``: a 4×4 calibration (needed without a config, unless the
-    frames carry the transform). Output ``dtype``: default the frames' (float64 and int8 frames
-    give float32). Frames skipped (image or transform not OK) are reported as a warning."""
+    frames carry the transform). Output ``dtype``: any given type is honoured; default the frames'
+    (float64 and int8 frames give float32). Frames skipped (image or transform not OK) are
+    reported as one warning; ValueError when none can be used."""
     seq = _as_sequence(sequence)
     cfg = _as_config(config)
-    settings = cfg.settings if cfg is not None else {}
-    for key, value in (("interpolation", interpolation), ("compounding", compounding),
-                       ("rejection_threshold", rejection_threshold), ("hole_filling", hole_filling)):
-        if value is not None:
-            settings[key] = value
-    if fill_holes is not None:
-        settings["fill_holes"] = bool(fill_holes)
-    elif hole_filling is not None:
-        settings["fill_holes"] = True
-    if not settings.get("fill_holes"):
-        settings["hole_filling"] = None
-    sp = spacing if spacing is not None else (cfg.spacing if cfg is not None else None)
-    if sp is None:
-        raise ValueError("reconstruct_plus: give spacing (mm) or a config with OutputSpacing")
-    sp = _spacing3(sp, "reconstruct_plus")
-    if clip is None and cfg is not None:
-        clip = cfg.clip
-    frames, matrices, bad_image, bad_transform, name, every = _plus_frames(
-        seq, cfg, transform, image_to_probe, skip)
-    considered = (len(seq) + every - 1) // every
-    why = ", ".join(s for s in (f"{bad_transform} with an invalid {name} transform" if bad_transform else "",
-                                f"{bad_image} with an image status not OK" if bad_image else "") if s)
-    if why:
-        warnings.warn(f"reconstruct_plus: skipped {considered - len(frames)} of {considered} frames: {why}",
-                      stacklevel=2)
-    if len(frames) == 0:
-        raise ValueError(f"reconstruct_plus: no frame of {seq.path} can be used ({why or 'no frames'})")
-    n, h, w = seq.shape
-    grid = cfg.grid if cfg is not None and spacing is None else None
-    if grid is None:
-        grid = grid_around(matrices, (h, w), sp, clip)
-    out = _dtype_name(dtype, "dtype") if dtype is not None else seq.dtype.name
-    if dtype is None and out in ("float64", "int8"):
-        out = "float32"
-    c = Compounder(grid, clip=clip, device=device, max_memory=max_memory, dtype=out, **settings)
-    pixels = seq.frames
-    # Runs of consecutive frames go in together, as views of the sequence (no copies).
-    breaks = np.flatnonzero(np.diff(frames) != 1) + 1
-    for run in np.split(np.arange(len(frames)), breaks):
-        first, last = int(frames[run[0]]), int(frames[run[-1]])
-        c.add(pixels[first:last + 1], matrices[run[0]:run[-1] + 1])
-    volume = c.volume()
-    return (volume, c.weights()) if return_weights else volume
+    r = _ext.Reconstruction(
+        seq._cpp, None if cfg is None else cfg._cpp,
+        interpolation=None if interpolation is None else str(interpolation),
+        compounding=None if compounding is None else str(compounding),
+        fill_holes=None if fill_holes is None else bool(fill_holes),
+        hole_filling=_hole_elements(hole_filling),
+        rejection_threshold=None if rejection_threshold is None else float(rejection_threshold),
+        skip=None if skip is None else int(skip), transform=None if transform is None else str(transform),
+        device=str(device), max_memory=_memory_bytes(max_memory),
+        **_plus_options(seq, clip, image_to_probe, spacing, dtype))
+    volume, weights = r.run(bool(return_weights))
+    out: Tuple[Any, ...] = (Volume._wrap(volume),)
+    if return_weights:
+        out += (Volume._wrap(weights),)
+    if return_report:
+        out += (r.report,)
+    return out[0] if len(out) == 1 else out

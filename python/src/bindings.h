@@ -22,11 +22,12 @@ namespace sonoslice::bindings {
 
 namespace nb = nanobind;
 
-void bind_volumes(nb::module_& m);      // Volume, VolumeGrid, the phantom
-void bind_slicing(nb::module_& m);      // Probe, Slicer, pose checks
-void bind_surfaces(nb::module_& m);     // Mesh, voxelize, SurfaceSlicer, colours
-void bind_compounding(nb::module_& m);  // Compounder and its small classes
-void bind_io(nb::module_& m);           // pose and stack files, PLUS sequences and configs
+void bind_volumes(nb::module_& m);         // Volume, VolumeGrid, the phantom
+void bind_slicing(nb::module_& m);         // Probe, Slicer, pose checks
+void bind_surfaces(nb::module_& m);        // Mesh, voxelize, SurfaceSlicer, colours
+void bind_compounding(nb::module_& m);     // Compounder and its small classes
+void bind_io(nb::module_& m);              // pose and stack files, PLUS sequences and configs
+void bind_reconstruction(nb::module_& m);  // the reconstruction recipe (reconstruct_plus)
 
 // ---- arrays in: nanobind checks these types and converts other dtypes and strides (a copy).
 /// (N, 4, 4) float64 matrices: poses (probe → world), image/probe → reference; row-major.

@@ -20,27 +20,8 @@
 #include "sonoslice/io/VolumeFile.h"
 
 namespace sonoslice::bindings {
-namespace {
 
 using namespace nb::literals;
-
-// The valid frames of a PLUS sequence and their `from`→`to` transforms (docs/conventions.md §7),
-// as the CLI picks them: every `skip`-th frame whose image status is OK and whose chain is valid.
-std::tuple<std::vector<int64_t>, MatricesOut, int, int> plus_frames(const PlusSequence& s,
-                                                                    const TransformRepository& base,
-                                                                    const std::string& from,
-                                                                    const std::string& to, int skip,
-                                                                    const std::string& hint) {
-  PlusFrameSelection sel;
-  {
-    nb::gil_scoped_release release;
-    sel = select_plus_frames(s, base, from, to, skip, hint);
-  }
-  std::vector<int64_t> frames(sel.frames.begin(), sel.frames.end());
-  return {frames, matrices_to_numpy(std::move(sel.to_reference)), sel.bad_image, sel.bad_transform};
-}
-
-}  // namespace
 
 void bind_io(nb::module_& m) {
   // ---- poses and image stacks
@@ -207,11 +188,6 @@ void bind_io(nb::module_& m) {
         return read_plus_config(path);
       },
       "path"_a);
-  m.def(
-      "plus_frames", &plus_frames, "sequence"_a, "repository"_a, "from_frame"_a, "to_frame"_a,
-      "skip"_a = 1, "hint"_a = "",
-      "(frame indices, (M, 4, 4) from->to matrices, frames with a bad image status, frames with an "
-      "invalid transform) for every skip-th frame.");
 }
 
 }  // namespace sonoslice::bindings

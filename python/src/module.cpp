@@ -54,4 +54,5 @@ NB_MODULE(_sonoslice, m) {
   bindings::bind_surfaces(m);
   bindings::bind_compounding(m);
   bindings::bind_io(m);
+  bindings::bind_reconstruction(m);
 }

@@ -420,7 +420,20 @@ def test_reconstruct_plus_overrides(nwire, nwire_config):
         sonoslice.reconstruct_plus(nwire)
 
 
-@pytest.mark.parametrize("case", ["nwire", "nwire overrides", "bone"])
+def test_reconstruct_plus_reports_what_it_used(nwire, nwire_config):
+    v, report = sonoslice.reconstruct_plus(nwire, nwire_config, skip=2, return_report=True)
+    assert report["frames_in_input"] == 97 and report["frames_considered"] == 49
+    assert report["frames_used"] == 49 and report["skipped_reason"] == ""
+    assert report["transform"] == "ImageToReference" and report["skip"] == 2
+    assert not report["grid_from_config"]  # the NWire XML gives a spacing, not an extent
+    assert report["splat_seconds"] > 0 and "49" not in report["input"] and "97 frames" in report["input"]
+    with pytest.raises(ValueError, match="skip 0: must be >= 1"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, skip=0)
+    with pytest.raises(ValueError, match="spacing -1"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, spacing=-1)
+
+
+@pytest.mark.parametrize("case", ["nwire", "nwire overrides", "nwire float64", "bone"])
 def test_reconstruct_plus_gives_the_cli_bytes(cli, tmp_path, plus_data, case):
     sequence, config, flags, kwargs = NWIRE_MHA, NWIRE_XML, [], {}
     if case == "nwire overrides":
@@ -428,6 +441,9 @@ def test_reconstruct_plus_gives_the_cli_bytes(cli, tmp_path, plus_data, case):
                  "--dtype", "float32", "--clip-rect", "200,100,300,300", "--fill-holes", "on"]
         kwargs = dict(spacing=0.8, interpolation="nearest", compounding="max", skip=3, dtype="float32",
                       clip=dict(rect=(200, 100, 300, 300)), fill_holes=True)
+    elif case == "nwire float64":  # before the shared recipe, the CLI wrote float32 here
+        flags = ["--dtype", "float64", "--skip", "2", "--compounding", "max"]
+        kwargs = dict(dtype="float64", skip=2, compounding="max")
     elif case == "bone":
         sequence = os.path.join(PLUS, "BoneUltrasound_L14.igs.mha")
         config = os.path.join(PLUS, "BoneUltrasound_L14_config.xml")
@@ -483,7 +499,7 @@ def test_reconstruct_plus_skips_bad_frames_with_a_warning(tmp_path):
     assert np.array_equal(v.array, frames[:2])
     frames_used, mats = sonoslice.plus_image_to_reference(path, name="ImageToTracker", image_to_probe=np.eye(4))
     assert list(frames_used) == [0, 1] and np.array_equal(mats[1], translation(0, 0, 1))
-    with pytest.raises(ValueError, match="config= or image_to_probe="):
+    with pytest.raises(ValueError, match="give the calibration with config or image_to_probe"):
         sonoslice.reconstruct_plus(path, spacing=1.0)
     sonoslice.write_plus_sequence(path, frames[:1], [dict(ImageStatus="INVALID")])
     with pytest.raises(ValueError, match="no frame"), pytest.warns(UserWarning, match="skipped 1 of 1"):
@@ -619,7 +635,7 @@ def test_bad_plus_input(tmp_path, nwire, nwire_config):
     with pytest.raises(OSError):
         sonoslice.reconstruct_plus(tmp_path / "missing.igs.mha", NWIRE_XML)
     # Without the calibration there is no chain from Image to Reference: say how to give it.
-    with pytest.raises(ValueError, match="config= or image_to_probe="):
+    with pytest.raises(ValueError, match="give the calibration with config or image_to_probe"):
         sonoslice.plus_image_to_reference(nwire)
     with pytest.raises(IndexError):
         nwire.transform(97, "ProbeToTracker")

@@ -268,8 +268,11 @@ void Reconstruction::Impl::resolve_settings(const PlusReconstructionConfig* conf
   output_type = o.output_type ? *o.output_type : default_output_type(source.type);
 }
 
-void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
-                                         const ReconstructionOptions& o) {
+FrameSelection select_frames(const FrameSource& source, const PlusReconstructionConfig* config,
+                             const ReconstructionOptions& o) {
+  const auto name = [&](const char* p) { return spell(o.names, p); };
+  FrameSelection out;
+  ReconstructionReport& report = out.report;
   const int skip = o.skip ? *o.skip : config ? config->skip_interval : 1;
   if (skip < 1)
     throw InputError(name("skip") + " " + std::to_string(skip) +
@@ -291,8 +294,8 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
             : "; give the calibration with " + name("config") + " or " + name("image_to_probe");
     const PlusSequence& s = *source.sequence;
     const PlusFrameSelection sel = select_plus_frames(s, calibration, from, to, skip, hint);
-    frames.assign(sel.frames.begin(), sel.frames.end());
-    to_reference = sel.to_reference;
+    out.indices.assign(sel.frames.begin(), sel.frames.end());
+    out.to_reference = sel.to_reference;
     report.transform = from + "To" + to;
     report.skipped_bad_image = sel.bad_image;
     report.skipped_bad_transform = sel.bad_transform;
@@ -302,8 +305,7 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
   } else {
     if (o.transform)
       throw InputError(name("transform") +
-                       " applies to PLUS sequences; frames with poses are "
-                       "placed by their poses");
+                       " applies to PLUS sequences; frames with poses are placed by their poses");
     Mat4 image_to_probe;  // identity: beam-space frames' poses are probe → reference already
     if (source.kind == FrameSource::Kind::Images) {
       if (o.image_to_probe)
@@ -315,16 +317,18 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
                          name("image_to_probe") + " or " + name("probe") + ")");
     } else if (o.image_to_probe) {
       throw InputError(name("image_to_probe") +
-                       " applies to 2D frames; beam-space frames are "
-                       "placed by their geometry");
+                       " applies to 2D frames; beam-space frames are placed by their geometry");
     }
-    // Poses from files were checked when read; these checks name the source for in-memory ones.
+    if (int64_t(source.probe_to_reference.size()) != source.count)
+      throw InputError(source.name + ": " + std::to_string(source.probe_to_reference.size()) +
+                       " poses for " + std::to_string(source.count) + " frames");
+    // Poses from files were checked when read; this names the source for in-memory ones.
     validate_poses(source.probe_to_reference.data(), source.probe_to_reference.size(), source.name,
                    0, false);
     for (int64_t k = 0; k < source.count; k += skip) {
       const Pose& p = source.probe_to_reference[size_t(k)];
-      frames.push_back(k);
-      to_reference.push_back(source.kind == FrameSource::Kind::Images ? p * image_to_probe : p);
+      out.indices.push_back(k);
+      out.to_reference.push_back(source.kind == FrameSource::Kind::Images ? p * image_to_probe : p);
     }
     report.input =
         source.kind == FrameSource::Kind::Images
@@ -335,8 +339,17 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
                   dims_text(source.beam_geometry.n_azimuth, source.beam_geometry.n_samples) + " " +
                   to_string(source.type);
   }
-  if (skip > 1 && source.count > 1) report.input += ", every " + std::to_string(skip) + "th used";
-  report.frames_used = int64_t(frames.size());
+  if (skip > 1 && source.count > 1) report.input += ", one frame in " + std::to_string(skip) + " used";
+  report.frames_used = int64_t(out.indices.size());
+  return out;
+}
+
+void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
+                                         const ReconstructionOptions& o) {
+  FrameSelection sel = sonoslice::select_frames(source, config, o);
+  frames = std::move(sel.indices);
+  to_reference = std::move(sel.to_reference);
+  report = std::move(sel.report);
   const std::string why = report.skipped_reason();
   if (!why.empty())
     warn(source.name + ": skipped " +

@@ -139,6 +139,21 @@ struct ReconstructionReport {
   double splat_seconds = 0, finish_seconds = 0;  ///< filled by run()
 };
 
+/// The frames a reconstruction uses, and why the others are left out.
+struct FrameSelection {
+  std::vector<int64_t> indices;    ///< frames of the source, in order
+  std::vector<Mat4> to_reference;  ///< per frame: image (beams: probe) → reference mm
+  ReconstructionReport report;     ///< input, counts and the transform (no timings)
+};
+
+/// Step 2a alone: every skip-th frame whose image status is OK and whose transform chain (PLUS:
+/// the frame's transforms, the configuration's CoordinateDefinitions and image_to_probe) is
+/// valid, with its transform; 2D frame stacks: pose · image_to_probe (or the probe's grid).
+/// Uses only the frame-related options (skip, transform, image_to_probe). Warns of nothing and
+/// may return no frame; InputError (naming parameters) when no transform chain exists at all.
+FrameSelection select_frames(const FrameSource& frames, const PlusReconstructionConfig* config,
+                             const ReconstructionOptions& options);
+
 struct ReconstructionResult {
   Volume volume;   ///< in output_type()
   Volume weights;  ///< float32 splat weights, when asked for (else empty)
