@@ -339,7 +339,8 @@ FrameSelection select_frames(const FrameSource& source, const PlusReconstruction
                   dims_text(source.beam_geometry.n_azimuth, source.beam_geometry.n_samples) + " " +
                   to_string(source.type);
   }
-  if (skip > 1 && source.count > 1) report.input += ", one frame in " + std::to_string(skip) + " used";
+  if (skip > 1 && source.count > 1)
+    report.input += ", one frame in " + std::to_string(skip) + " used";
   report.frames_used = int64_t(out.indices.size());
   return out;
 }
