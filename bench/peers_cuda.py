@@ -60,7 +60,7 @@ def main():
     results = []
     print(f"images/s on {args.device}, {len(poses)} poses, best of {args.repeat}")
     print(f"{'workload':8} {'tool':26} {'on-GPU':>10} {'to host':>10}")
-    for name, cfg, ds in workloads(args.shared):
+    for name, cfg, ds in workloads(args.data):
         p = fanslicer_probe(cfg, ds)
         ours = {}
         for t in ("float32", "int16"):
