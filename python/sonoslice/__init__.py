@@ -384,8 +384,14 @@ def cuda_available(device: str = "cuda:0") -> bool:
         return False
 
 
-def set_threads(n: int) -> None:
-    """CPU threads for slicing (0: all hardware threads)."""
+def set_threads(n: Optional[int]) -> None:
+    """CPU threads for slicing and compounding: ``n`` >= 1, or None for all hardware threads (the
+    default). 0 and negative counts raise ValueError."""
+    if n is None:
+        _ext.reset_cpu_threads()
+        return
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise TypeError(f"set_threads: expected an int >= 1 or None, got {n!r}")
     _ext.set_cpu_threads(int(n))
 
 
