@@ -77,7 +77,7 @@ void run_synthetic(benchmark::State& state, const VolumeGrid& grid, int64_t fram
   state.SetItemsProcessed(int64_t(state.iterations()) * frames * samples_per_frame);
   state.counters["frames_per_s"] =
       benchmark::Counter(double(frames) * double(state.iterations()), benchmark::Counter::kIsRate);
-  set_cpu_threads(0);
+  reset_cpu_threads();
 }
 
 void BM_Jauer(benchmark::State& state) {
@@ -170,7 +170,7 @@ void BM_PlusSweep(benchmark::State& state, const std::string& name) {
       benchmark::Counter(double(n) * double(state.iterations()), benchmark::Counter::kIsRate);
   state.counters["inserted_px_per_s"] = benchmark::Counter(
       double(n) * inserted * double(state.iterations()), benchmark::Counter::kIsRate);
-  set_cpu_threads(0);
+  reset_cpu_threads();
 }
 
 void real_cases(benchmark::internal::Benchmark* b) {

@@ -47,7 +47,7 @@ void BM_Slice(benchmark::State& state, int workload, PixelType type, Interpolati
   state.counters["threads"] = double(cpu_threads());
   state.SetLabel(cpu_kernel_isa());
   set_cpu_kernel_isa("auto");
-  set_cpu_threads(0);
+  reset_cpu_threads();
 }
 
 void threads_and_kernels(benchmark::internal::Benchmark* b) {
@@ -117,7 +117,7 @@ void BM_SliceLabels(benchmark::State& state) {
   std::vector<uint8_t> out(poses.size() * size_t(slicer.width()) * size_t(slicer.height()));
   for (auto _ : state) slicer.slice(poses.data(), poses.size(), out.data());
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
-  set_cpu_threads(0);
+  reset_cpu_threads();
 }
 BENCHMARK(BM_SliceLabels)
     ->Name("BM_Slice/W1_uint8_labels_nearest")

@@ -24,7 +24,8 @@ namespace {
 struct BenchFlags {
   VolumeFlags volume;
   std::string probe, poses, as = "", interp = "linear", size = "full", device = "cpu";
-  int downsampling = 1, count = 1000, repeat = 3, threads = 0;
+  int downsampling = 1, count = 1000, repeat = 3;
+  std::optional<int> threads;  // unset: all hardware threads
   bool json = false, compound = false;
 };
 
@@ -134,7 +135,7 @@ Result measure(const Workload& w, const Volume& volume, const std::vector<Pose>&
 }
 
 void run_bench(const BenchFlags& f) {
-  set_cpu_threads(f.threads);
+  setup_threads(f.threads);
   if (f.count < 1 || f.repeat < 1) throw InputError("--count and --repeat must be >= 1");
   const Device device = Device::parse(f.device);
   if (f.compound) {
@@ -219,7 +220,7 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--interp", flags->interp, "linear (default) or nearest");
   cmd->add_option("--size", flags->size, "Phantom size when no --volume: full (default) or small");
   cmd->add_option("--repeat", flags->repeat, "Timed repetitions; the best is reported (default 3)");
-  cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
+  add_threads_option(*cmd, flags->threads);
   cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");
   cmd->add_flag("--json", flags->json, "Machine-readable output");
   cmd->add_flag("--compound", flags->compound,

@@ -86,8 +86,21 @@ std::vector<double> parse_numbers(const std::string& text, size_t count, const s
   return out;
 }
 
-Device setup_device(const std::string& device, int threads) {
-  set_cpu_threads(threads);
+void add_threads_option(CLI::App& cmd, std::optional<int>& threads) {
+  cmd.add_option_function<int>(
+      "--threads", [&threads](const int& n) { threads = n; },
+      "CPU threads, at least 1 (default: all hardware threads)");
+}
+
+void setup_threads(const std::optional<int>& threads) {
+  if (threads)
+    set_cpu_threads(*threads);
+  else
+    reset_cpu_threads();
+}
+
+Device setup_device(const std::string& device, const std::optional<int>& threads) {
+  setup_threads(threads);
   const Device d = Device::parse(device);
   require_device(d);
   return d;

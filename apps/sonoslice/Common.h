@@ -39,9 +39,16 @@ std::string flag_of(const std::string& parameter);
 /// Parses "a,b,c" into exactly `count` finite numbers; InputError naming `flag` otherwise.
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag);
 
-/// Sets the CPU thread count (--threads, 0: all), then parses --device and checks that it can
-/// be used (InputError / Error otherwise).
-Device setup_device(const std::string& device, int threads);
+/// Adds --threads N to a command: unset means all hardware threads; an explicit N must be at
+/// least 1 (set_cpu_threads refuses 0 and negative counts: "--threads 0: must be at least 1").
+void add_threads_option(CLI::App& cmd, std::optional<int>& threads);
+
+/// Sets the CPU thread count from --threads (unset: all hardware threads).
+void setup_threads(const std::optional<int>& threads);
+
+/// setup_threads(threads), then parses --device and checks that it can be used (InputError /
+/// Error otherwise).
+Device setup_device(const std::string& device, const std::optional<int>& threads);
 
 /// Wall-clock seconds since construction.
 class Stopwatch {

@@ -26,7 +26,7 @@ struct CompoundFlags {
   std::string device = "cpu", max_memory, dtype, world = "LPS";
   std::optional<double> rejection_threshold;
   std::optional<int> skip;
-  int threads = 0;
+  std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false, verbose = false;
 };
 
@@ -201,7 +201,7 @@ void add_compound_command(CLI::App& app) {
                   "Memory the reconstruction may use, e.g. 8G (default: what is available)");
   cmd->add_option("--world", flags->world, "Frame of --poses: LPS (default) or RAS");
   cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");
-  cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
+  add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--quiet,-q", flags->quiet, "No progress bar or summary");
   cmd->add_flag("--verbose,-v", flags->verbose, "Print the input and the settings used");
   cmd->callback([flags] { run_compound(*flags); });

@@ -23,7 +23,8 @@ namespace {
 
 struct DemoFlags {
   std::string out_dir, size = "full";
-  int poses = 8, threads = 0;
+  int poses = 8;
+  std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false;
 };
 
@@ -80,7 +81,7 @@ std::vector<float> slice_and_write(const Volume& ct, const ProbeGeometry& probe,
 }
 
 void run_demo(const DemoFlags& f) {
-  set_cpu_threads(f.threads);
+  setup_threads(f.threads);
   if (f.poses < 1 || f.poses > 64)
     throw InputError("--poses " + std::to_string(f.poses) + ": use 1..64");
   std::error_code ec;
@@ -188,7 +189,7 @@ void add_demo_command(CLI::App& app) {
   cmd->add_option("out_dir", flags->out_dir, "Output directory (created if missing)")->required();
   cmd->add_option("--size", flags->size, "Phantom size: full (default) or small");
   cmd->add_option("--poses", flags->poses, "Probe positions (default 8)");
-  cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
+  add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--quiet,-q", flags->quiet, "No summary");
   cmd->callback([flags] { run_demo(*flags); });
 }

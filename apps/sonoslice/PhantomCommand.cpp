@@ -16,12 +16,13 @@ namespace {
 
 struct PhantomFlags {
   std::string out_dir, size = "small", format = "nii.gz";
-  int threads = 0, poses = 0;
+  int poses = 0;
+  std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false;
 };
 
 void run_phantom(const PhantomFlags& f) {
-  set_cpu_threads(f.threads);
+  setup_threads(f.threads);
   const PhantomSize size = parse_phantom_size(f.size);
   if (f.format != "nii.gz" && f.format != "nii" && f.format != "mha" && f.format != "nrrd" &&
       f.format != "npy")
@@ -72,7 +73,7 @@ void add_phantom_command(CLI::App& app) {
       "--poses", flags->poses,
       "Also write N random poses inside the body (poses.npy, the benchmark's) and up to "
       "64 poses on the skin (surface_poses.txt)");
-  cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
+  add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--quiet,-q", flags->quiet, "No summary");
   cmd->callback([flags] { run_phantom(*flags); });
 }

@@ -28,7 +28,8 @@ struct SliceFlags {
   std::string probe, poses, out, mask;
   std::string interp = "linear", dtype = "float32", world = "LPS", device = "cpu", window;
   double fill = 0.0;
-  int downsampling = 1, threads = 0;
+  int downsampling = 1;
+  std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false, verbose = false;
   bool interp_given = false, dtype_given = false;
 };
@@ -272,7 +273,7 @@ void add_slice_command(CLI::App& app) {
       ->each([flags](const std::string&) { flags->dtype_given = true; });
   cmd->add_option("--downsampling", flags->downsampling, "Divide the probe image size by K");
   cmd->add_option("--world", flags->world, "Frame of the poses and meshes: LPS (default) or RAS");
-  cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
+  add_threads_option(*cmd, flags->threads);
   cmd->add_option("--mask", flags->mask, "Also write the HxW fan mask here");
   cmd->add_option("--window", flags->window, "PNG window level,width (default: robust auto)");
   cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");

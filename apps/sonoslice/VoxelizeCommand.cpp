@@ -17,12 +17,12 @@ struct VoxelizeFlags {
   std::vector<std::string> meshes;
   std::string out, reference, world = "LPS";
   double spacing = 0, margin = -1;
-  int threads = 0;
+  std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false, verbose = false;
 };
 
 void run_voxelize(const VoxelizeFlags& f) {
-  set_cpu_threads(f.threads);
+  setup_threads(f.threads);
   const WorldFrame frame = parse_world_frame(f.world);
   if (f.reference.empty() && !(f.spacing > 0))
     throw InputError("voxelize: give --spacing S (mm) or --reference VOLUME");
@@ -79,7 +79,7 @@ void add_voxelize_command(CLI::App& app) {
                   "Margin around the meshes' bounds (mm; default: one voxel)");
   cmd->add_option("--reference", flags->reference, "Use this volume's grid (geometry) instead");
   cmd->add_option("--world", flags->world, "Frame of the mesh coordinates: LPS (default) or RAS");
-  cmd->add_option("--threads", flags->threads, "CPU threads (default: all)");
+  add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--quiet,-q", flags->quiet, "No summary");
   cmd->add_flag("--verbose,-v", flags->verbose, "Print load/voxelize/write times");
   cmd->callback([flags] { run_voxelize(*flags); });

@@ -18,6 +18,7 @@ Importing this package never touches a GPU; a slicer on ``"cuda"`` starts it.
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from typing import Callable, Optional, Sequence, Tuple, Union
 
@@ -47,15 +48,61 @@ def _numpy(x):
     return x.detach().cpu().numpy() if _is_torch(x) else x
 
 
-def _matrix_stack(m) -> np.ndarray:
-    """``m`` (array-like, not torch) as float64, a (4, 4) matrix as a stack of one; shape unchecked."""
-    a = np.asarray(m, dtype=np.float64)
+def _path(path, what: str = "path") -> str:
+    """A file path (str, bytes or os.PathLike) as str; TypeError naming ``what`` for anything else
+    (``str(None)`` would look for a file called 'None')."""
+    if isinstance(path, (str, bytes, os.PathLike)):
+        return os.fsdecode(os.fspath(path))
+    raise TypeError(f"{what}: expected a file path (str or os.PathLike), got {type(path).__name__}")
+
+
+def _no_complex(a: np.ndarray, what: str) -> np.ndarray:
+    """``a``, or ValueError naming ``what`` when it is complex (a cast would drop the imaginary part)."""
+    if a.dtype.kind == "c":
+        raise ValueError(f"{what}: dtype {a.dtype.name} is complex; sonoslice takes real numbers and does "
+                         "not drop imaginary parts silently (pass .real if that is what you mean)")
+    return a
+
+
+def _native(a, what: str, *, in_place: bool = False):
+    """A NumPy array ``a`` (an input named ``what``) in this machine's byte order: a big-endian one
+    (from some files and instruments) is converted, a copy, or refused naming the dtype where
+    sonoslice works on the array itself (``in_place``: a Volume's voxels, ``out=``). Anything else
+    (torch tensors, lists) unchanged; the library names unsupported dtypes (complex among them)."""
+    if not isinstance(a, np.ndarray):
+        return a
+    if not a.dtype.isnative:
+        if in_place:
+            raise ValueError(f"{what}: dtype {a.dtype.str} is big-endian (not this machine's byte order) and "
+                             "sonoslice uses the array itself, not a copy; convert it first: "
+                             "a.astype(a.dtype.newbyteorder('='))")
+        a = a.astype(a.dtype.newbyteorder("="))
+    return a
+
+
+def _real_array(x, what: str) -> np.ndarray:
+    """Numbers (array-like, not torch) as float64; complex refused naming ``what``."""
+    return np.asarray(_no_complex(np.asarray(x), what), dtype=np.float64)
+
+
+def _floats(x, what: str, count: int) -> Tuple[float, ...]:
+    """Exactly ``count`` real numbers as floats; ValueError naming ``what`` otherwise."""
+    a = _real_array(x, what).ravel()
+    if a.size != count:
+        raise ValueError(f"{what}: expected {count} numbers, got {a.size}")
+    return tuple(float(v) for v in a)
+
+
+def _matrix_stack(m, what: str = "matrices") -> np.ndarray:
+    """``m`` (array-like, not torch) as float64, a (4, 4) matrix as a stack of one; shape unchecked.
+    Complex values are refused, naming ``what`` (a cast would drop the imaginary part)."""
+    a = _real_array(m, what)
     return a[None] if a.shape == (4, 4) else a
 
 
 def _as_pose_array(poses, world: str = "LPS") -> np.ndarray:
     """(N, 4, 4) float64 C-contiguous probe→world matrices in LPS, from NumPy or torch."""
-    a = _matrix_stack(_numpy(poses))
+    a = _matrix_stack(_numpy(poses), "poses")
     if a.ndim != 3 or a.shape[1:] != (4, 4):
         raise ValueError(f"poses: expected shape (N, 4, 4) or (4, 4), got {a.shape}")
     world = world.upper()
@@ -71,9 +118,16 @@ class Volume:
 
     ``Volume(array, spacing, origin, direction)`` wraps a C-contiguous ``(nz, ny, nx)`` array of
     uint8, int8, uint16, int16, uint32, int32, float32 or float64 **without copying it** (NumPy
-    arrays, or CPU torch tensors through DLPack): the volume keeps the array alive and sees
-    changes made to it. A non-contiguous array raises ``ValueError``; pass
-    ``numpy.ascontiguousarray(a)`` to copy it on purpose.
+    arrays, read-only ones such as a memmap included, or CPU torch tensors through DLPack): the
+    volume keeps the array alive and sees changes made to its values. A non-contiguous or
+    big-endian array raises ``ValueError``; pass ``numpy.ascontiguousarray(a)`` (or
+    ``a.astype(a.dtype.newbyteorder('='))``) to copy it on purpose. A bare DLPack capsule is copied.
+
+    If the array itself changes after that (torch's ``resize_``, NumPy's
+    ``resize(refcheck=False)``, assigning ``.shape`` or ``.dtype``), its memory may have been
+    freed: the volume's next use (slicing, ``array``, ``save``, ...) raises ``RuntimeError``
+    instead of reading it. Make a new Volume from the array as it is then. (Do not resize it while
+    another thread slices it.)
 
     Geometry (docs/conventions.md §1): voxel ``(i, j, k)`` = ``array[k, j, i]`` has its centre at
     ``origin + direction @ (spacing * (i, j, k))`` (mm, LPS); ``direction`` holds the index axes
@@ -82,8 +136,10 @@ class Volume:
 
     def __init__(self, array, spacing: Sequence[float] = (1.0, 1.0, 1.0),
                  origin: Sequence[float] = (0.0, 0.0, 0.0), direction=None):
-        d = np.eye(3) if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3)
-        self._cpp = _ext.Volume.from_array(array, tuple(map(float, spacing)), tuple(map(float, origin)), d.tolist())
+        d = np.eye(3) if direction is None else np.array(_floats(direction, "direction", 9)).reshape(3, 3)
+        self._cpp = _ext.ArrayVolume.from_array(_native(array, "volume array", in_place=True),
+                                                _floats(spacing, "spacing", 3), _floats(origin, "origin", 3),
+                                                d.tolist())
 
     @classmethod
     def _wrap(cls, cpp) -> "Volume":
@@ -99,15 +155,16 @@ class Volume:
         NumPy .npy (geometry from ``spacing``/``origin``/``direction``, else a sidecar
         ``<name>.json``; ``npy_config``: fan-slicer's volume config). Voxels keep their stored
         type. Missing or corrupt files raise ``OSError``; bad values ``ValueError``."""
-        d = None if direction is None else np.asarray(direction, dtype=np.float64).reshape(3, 3).tolist()
+        d = None if direction is None else np.array(_floats(direction, "direction", 9)).reshape(3, 3).tolist()
         return cls._wrap(_ext.Volume.from_file(
-            str(path), None if spacing is None else tuple(map(float, spacing)),
-            None if origin is None else tuple(map(float, origin)), d, series or "",
-            "" if npy_config is None else str(npy_config)))
+            _path(path), None if spacing is None else _floats(spacing, "spacing", 3),
+            None if origin is None else _floats(origin, "origin", 3), d, series or "",
+            "" if npy_config is None else _path(npy_config, "npy_config")))
 
     @property
     def array(self) -> np.ndarray:
-        """The voxels as a ``(nz, ny, nx)`` NumPy view (no copy)."""
+        """The voxels as a ``(nz, ny, nx)`` NumPy view (no copy; read-only when the volume views
+        a read-only array)."""
         return self._cpp.array()
 
     @property
@@ -148,7 +205,7 @@ class Volume:
 
     def save(self, path) -> None:
         """Writes .nii[.gz], .mha, .nrrd... through ITK, or .npy with a sidecar .json; atomically."""
-        self._cpp.save(str(path))
+        self._cpp.save(_path(path))
 
     def world_to_index(self, point_mm: Sequence[float]) -> np.ndarray:
         """Continuous voxel index (i, j, k) of a world point (mm, LPS)."""
@@ -196,17 +253,18 @@ class Probe:
     @classmethod
     def from_json(cls, path, downsampling: int = 1) -> "Probe":
         """A native probe JSON or a fan-slicer configuration (recognised by its "simulation" key)."""
-        return cls(_ext.Probe.from_file(str(path), int(downsampling)))
+        return cls(_ext.Probe.from_file(_path(path), int(downsampling)))
 
     @classmethod
     def from_fanslicer(cls, path, downsampling: int = 1) -> "Probe":
         """A fan-slicer configuration file, unchanged (docs/conventions.md §4): image size divided by
         ``downsampling`` (floor), pixel size multiplied by it."""
         import json
+        path = _path(path)
         with open(path) as f:
             if "simulation" not in json.load(f):
                 raise ValueError(f"fan-slicer config '{path}': no \"simulation\" block")
-        return cls(_ext.Probe.from_file(str(path), int(downsampling)))
+        return cls(_ext.Probe.from_file(path, int(downsampling)))
 
     @classmethod
     def workload(cls, name: str) -> "Probe":
@@ -282,6 +340,14 @@ class _ImageSlicer:
         return self._cpp.mask()
 
 
+def _out_array(out):
+    """``out=``: filled in place, so a NumPy array must be writable and in this machine's byte
+    order (ValueError naming ``out`` otherwise)."""
+    if isinstance(out, np.ndarray) and not out.flags.writeable:
+        raise ValueError("out: the array is read-only; slicing fills it in place: pass a writable array")
+    return _native(out, "out", in_place=True)
+
+
 def _renamed_keyword(value, old_value, name: str, old_name: str, default, where: str):
     """``value`` of the keyword ``name``, or of ``old_name`` (its deprecated spelling: a
     DeprecationWarning pointing at the caller's caller) when that was given instead."""
@@ -335,6 +401,7 @@ class Slicer(_ImageSlicer):
         p = _as_pose_array(poses, world)
         n = p.shape[0]
         on_gpu = self.device.startswith("cuda")
+        out = _out_array(out)
         if out is None:
             if on_gpu:
                 try:
@@ -384,8 +451,14 @@ def cuda_available(device: str = "cuda:0") -> bool:
         return False
 
 
-def set_threads(n: int) -> None:
-    """CPU threads for slicing (0: all hardware threads)."""
+def set_threads(n: Optional[int]) -> None:
+    """CPU threads for slicing and compounding: ``n`` >= 1, or None for all hardware threads (the
+    default). 0 and negative counts raise ValueError."""
+    if n is None:
+        _ext.reset_cpu_threads()
+        return
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise TypeError(f"set_threads: expected an int >= 1 or None, got {n!r}")
     _ext.set_cpu_threads(int(n))
 
 
@@ -397,12 +470,12 @@ def threads() -> int:
 def read_poses(path, world: str = "LPS") -> np.ndarray:
     """(N, 4, 4) float64 poses from .npy ((N,4,4) or fan-slicer's (4,4N)), .txt/.csv (16 or 12
     numbers a line) or .json; validated, converted to LPS."""
-    return _ext.read_poses(str(path), world)
+    return _ext.read_poses(_path(path), world)
 
 
 def write_poses(path, poses) -> None:
     """Writes (N, 4, 4) poses as .npy or text (16 numbers a line), atomically."""
-    _ext.write_poses(str(path), _as_pose_array(poses))
+    _ext.write_poses(_path(path), _as_pose_array(poses))
 
 
 def validate_poses(poses, source: str = "poses") -> None:
@@ -414,11 +487,17 @@ def write_stack(path, images, spacing_mm: Sequence[float], window: Optional[Sequ
                 poses=None, mask=None) -> None:
     """Writes an (N, H, W) batch (docs/conventions.md §6): .nii[.gz]/.mha/.nrrd (W×H×N, spacing (sx, sy, 1)),
     .npy, or a directory of PNGs (``window`` = (level, width), default robust auto) + poses.txt."""
-    images = np.ascontiguousarray(_numpy(images))
-    _ext.write_stack(str(path), images, tuple(map(float, spacing_mm)),
-                     None if window is None else tuple(map(float, window)),
-                     None if poses is None else _as_pose_array(poses),
-                     None if mask is None else np.ascontiguousarray(mask, dtype=np.uint8))
+    images = np.ascontiguousarray(_native(np.asarray(_numpy(images)), "images"))
+    _ext.write_stack(_path(path), images, _floats(spacing_mm, "spacing_mm", 2),
+                     None if window is None else _floats(window, "window", 2),
+                     None if poses is None else _as_pose_array(poses), _mask_array(mask, "mask"))
+
+
+def _mask_array(mask, what: str) -> Optional[np.ndarray]:
+    """An (H, W) mask as C-contiguous uint8 (None stays None); complex refused."""
+    if mask is None:
+        return None
+    return np.ascontiguousarray(_no_complex(np.asarray(_numpy(mask)), what), dtype=np.uint8)
 
 
 # ---- surfaces -----------------------------------------------------------------------------------
@@ -428,8 +507,9 @@ class Mesh:
     triangulated, coincident points merged); ``Mesh(vertices (V, 3), triangles (T, 3))`` builds one."""
 
     def __init__(self, vertices, triangles, name: str = "mesh"):
-        self._cpp = _ext.Mesh.from_arrays(np.ascontiguousarray(vertices, dtype=np.float64),
-                                          np.ascontiguousarray(triangles, dtype=np.int32), name)
+        vertices = np.ascontiguousarray(_real_array(_numpy(vertices), "vertices"))
+        triangles = np.ascontiguousarray(_no_complex(np.asarray(_numpy(triangles)), "triangles"), dtype=np.int32)
+        self._cpp = _ext.Mesh.from_arrays(vertices, triangles, name)
 
     @classmethod
     def _wrap(cls, cpp) -> "Mesh":
@@ -439,10 +519,10 @@ class Mesh:
 
     @classmethod
     def from_file(cls, path, world: str = "LPS") -> "Mesh":
-        return cls._wrap(_ext.Mesh.from_file(str(path), world))
+        return cls._wrap(_ext.Mesh.from_file(_path(path), world))
 
     def save(self, path) -> None:
-        self._cpp.save(str(path))
+        self._cpp.save(_path(path))
 
     name = property(lambda self: self._cpp.name)
     vertices = property(lambda self: self._cpp.vertices(), doc="(V, 3) float64 mm (a copy)")
@@ -496,6 +576,7 @@ class SurfaceSlicer(_ImageSlicer):
         (host memory)."""
         p = _as_pose_array(poses, world)
         n = p.shape[0]
+        out = _out_array(out)
         if out is None:
             out = np.empty((n, self.height, self.width), dtype=self.dtype)
         callback, chunk = _progress_and_chunk(progress, n, chunk)
@@ -508,11 +589,11 @@ class SurfaceSlicer(_ImageSlicer):
 def colorize(labels, mask, colors: Optional[Sequence[Sequence[int]]] = None) -> np.ndarray:
     """(N, H, W) labels → (N, H, W, 3) uint8 RGB, fan-slicer style: label k in ``colors[k-1]``
     (default palette otherwise), 0 black, outside the (H, W) probe mask grey 210."""
-    labels = np.ascontiguousarray(_numpy(labels))
+    labels = np.ascontiguousarray(_native(np.asarray(_numpy(labels)), "labels"))
     if colors is None:
         top = int(labels.max()) if labels.size else 0
         colors = [_ext.default_label_color(k) for k in range(1, max(top, 1) + 1)]
-    return _ext.colorize(labels, np.ascontiguousarray(mask, dtype=np.uint8), [tuple(int(v) for v in c) for c in colors])
+    return _ext.colorize(labels, _mask_array(mask, "mask"), [tuple(int(v) for v in c) for c in colors])
 
 
 def cut_polygons(mesh: Mesh, pose) -> list:
@@ -524,7 +605,8 @@ def cut_polygons(mesh: Mesh, pose) -> list:
 def fanslicer_models(config, mesh_dir) -> list:
     """The enabled models of a fan-slicer surface config: dicts of name, path (mesh_dir/<name>.vtk),
     label (k-th enabled = k) and color."""
-    return [dict(name=n, path=p, label=l, color=tuple(c)) for n, p, l, c in _ext.fanslicer_models(str(config), str(mesh_dir))]
+    models = _ext.fanslicer_models(_path(config, "config"), _path(mesh_dir, "mesh_dir"))
+    return [dict(name=n, path=p, label=l, color=tuple(c)) for n, p, l, c in models]
 
 
 # ---- the built-in phantom ----------------------------------------------------------------------

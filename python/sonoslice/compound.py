@@ -30,7 +30,7 @@ from typing import Any, Dict, List, NamedTuple, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from . import _sonoslice as _ext
-from . import Volume, _matrix_stack, _numpy
+from . import Volume, _matrix_stack, _native, _no_complex, _numpy, _real_array
 
 __all__ = [
     "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams",
@@ -111,7 +111,7 @@ class Grid(NamedTuple):
 
 
 def _direction_rows(direction) -> Tuple[Tuple[float, float, float], ...]:
-    return tuple(tuple(row) for row in np.asarray(direction, dtype=np.float64).reshape(3, 3).tolist())
+    return tuple(tuple(row) for row in _real_array(direction, "direction").reshape(3, 3).tolist())
 
 
 def _spacing3(spacing, what: str) -> Tuple[float, float, float]:
@@ -137,8 +137,10 @@ def _dtype_name(dtype, what: str) -> str:
 def _matrices(m, what: str, count: Optional[int] = None, single: bool = False) -> np.ndarray:
     """(N, 4, 4) float64 C-contiguous; (4, 4) accepted as one matrix."""
     m = _numpy(m)
+    if np.iscomplexobj(m):  # said as such, not as "expected 4x4 matrices of numbers" below
+        _no_complex(np.asarray(m), what)
     try:
-        a = _matrix_stack(m)
+        a = _matrix_stack(m, what)
     except (TypeError, ValueError):
         raise ValueError(f"{what}: expected 4x4 matrices of numbers") from None
     if a.ndim != 3 or a.shape[1:] != (4, 4):
@@ -150,10 +152,25 @@ def _matrices(m, what: str, count: Optional[int] = None, single: bool = False) -
     return np.ascontiguousarray(a)
 
 
-def _frames(frames) -> np.ndarray:
-    """Frames as an array in host memory (torch tensors through NumPy, lists as arrays); the
-    library checks their dtype and shape, and nanobind makes strided arrays C-contiguous."""
-    return np.asarray(_numpy(frames))
+def _whole(value, what: str) -> int:
+    """An integer argument; ValueError naming ``what`` for 2.5 (int() would make it 2), TypeError for
+    what is not a number. The library checks the range."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{what}: expected an integer, got {value!r}")
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)) and float(value).is_integer():
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        raise ValueError(f"{what} {value!r}: expected a whole number")
+    raise TypeError(f"{what}: expected an integer, got {type(value).__name__}")
+
+
+def _frames(frames, what: str = "frames") -> np.ndarray:
+    """Frames as an array in host memory (torch tensors through NumPy, lists as arrays, big-endian
+    ones converted); the library checks their dtype and shape (naming ``what``), and nanobind
+    makes strided arrays C-contiguous."""
+    return _native(np.asarray(_numpy(frames)), what)
 
 
 # ---- frame clips ----------------------------------------------------------------------------------
@@ -452,7 +469,7 @@ class Compounder:
         (reference mm). ``clip``: which pixels go in (default: the compounder's); a dict
         ``dict(rect=(x, y, w, h), fan=dict(angles_deg=..., origin_px=..., radius_px=...))`` or an
         (H, W) boolean/uint8 mask. Frames entirely outside the grid change nothing. Returns self."""
-        a = _frames(frames)
+        a = _frames(frames, "add: frames")
         m = _matrices(image_to_reference, "add: image_to_reference")
         if clip is None:
             clip = self._clip
@@ -464,7 +481,7 @@ class Compounder:
         ``probe_to_reference``, or (N, n_elevation, n_azimuth, n_samples) with (N, 4, 4). ``geometry``:
         a :class:`BeamGeometry`, a dict of its fields or a path to its JSON (default: the one given to
         :meth:`around_beams`). Returns self."""
-        a = _frames(frames)
+        a = _frames(frames, "add_beams: frames")
         m = _matrices(probe_to_reference, "add_beams: probe_to_reference")
         if geometry is None:
             if self._beam_geometry is None:
@@ -636,7 +653,7 @@ def write_plus_sequence(path: PathLike, frames, fields: Optional[Sequence[Dict[s
     ``fields``: per frame (at most N) a dict of ``Seq_FrameNNNN_<key> = value`` fields, e.g.
     ``{"ProbeToTrackerTransform": m4x4, "ProbeToTrackerTransformStatus": "OK", "Timestamp": 0.1,
     "ImageStatus": "OK"}``: arrays become their numbers (row-major, exact), True/False "OK"/"INVALID"."""
-    a = _frames(frames)
+    a = _frames(frames, "write_plus_sequence: frames")
     out = []
     for k, f in enumerate(fields or []):
         if not isinstance(f, dict):
@@ -746,7 +763,7 @@ def plus_image_to_reference(sequence, config=None, name: Optional[str] = None, i
     cfg = _as_config(config)
     extra = _plus_options(seq, None, image_to_probe, None, None)
     frames, matrices, _ = _ext.select_plus_frames(
-        seq._cpp, None if cfg is None else cfg._cpp, None if skip is None else int(skip),
+        seq._cpp, None if cfg is None else cfg._cpp, None if skip is None else _whole(skip, "skip"),
         None if name is None else str(name), extra.get("image_to_probe"))
     return np.array(frames, dtype=np.int64), matrices
 
@@ -783,7 +800,7 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
         fill_holes=None if fill_holes is None else bool(fill_holes),
         hole_filling=_hole_elements(hole_filling),
         rejection_threshold=None if rejection_threshold is None else float(rejection_threshold),
-        skip=None if skip is None else int(skip), transform=None if transform is None else str(transform),
+        skip=None if skip is None else _whole(skip, "skip"), transform=None if transform is None else str(transform),
         device=str(device), max_memory=_memory_bytes(max_memory),
         **_plus_options(seq, clip, image_to_probe, spacing, dtype))
     volume, weights = r.run(bool(return_weights))

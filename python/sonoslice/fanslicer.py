@@ -34,7 +34,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from . import Probe, Slicer, Volume, _numpy, cuda_available
+from . import Probe, Slicer, Volume, _numpy, _real_array, cuda_available
 
 __all__ = ["IntensityVolume", "SegmentedVolume"]
 
@@ -47,7 +47,7 @@ def _default_device(device: Optional[str]) -> str:
 
 def _strip_to_poses(poses: np.ndarray, image_num: int) -> np.ndarray:
     """fan-slicer's (4, 4N) strip → (N, 4, 4)."""
-    poses = np.asarray(poses, dtype=np.float64)
+    poses = _real_array(_numpy(poses), "poses")
     if poses.ndim != 2 or poses.shape[0] != 4 or poses.shape[1] / 4 != image_num:
         raise ValueError("Input poses do not match image number!")
     return np.ascontiguousarray(poses.reshape(4, image_num, 4).transpose(1, 0, 2))

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -17,6 +18,7 @@
 #include "sonoslice/geometry/Math.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/volume/PixelType.h"
+#include "sonoslice/volume/Volume.h"
 
 namespace sonoslice::bindings {
 
@@ -28,6 +30,44 @@ void bind_surfaces(nb::module_& m);        // Mesh, voxelize, SurfaceSlicer, col
 void bind_compounding(nb::module_& m);     // Compounder and its small classes
 void bind_io(nb::module_& m);              // pose and stack files, PLUS sequences and configs
 void bind_reconstruction(nb::module_& m);  // the reconstruction recipe (reconstruct_plus)
+
+// ---- volumes that view a caller's array (Volume(array), volumes.cpp)
+/// What a Volume made from a caller's array views. The volume holds the array (and the DLPack
+/// export or buffer nanobind took from it), so the memory lives as long as the volume; but an
+/// array can change in place: torch's resize_ reallocates its storage, NumPy's
+/// resize(refcheck=False) too, assigning .shape or .dtype reinterprets it. Reading the old
+/// pointer then reads freed memory. So the layout seen at construction (data pointer, shape,
+/// strides, dtype) is compared with the array's current one, exported again, before every use
+/// from Python: check() raises RuntimeError naming the volume instead. (Copying every array
+/// would be safe too, but doubles the memory of a large CT and breaks "the volume sees changes
+/// made to the array".) Needs the GIL; dropped under the GIL (volume_from_array's deleter).
+class ArraySource {
+ public:
+  ArraySource(nb::object array, nb::ndarray<nb::ro> view, bool read_only, std::string volume);
+  /// Error (RuntimeError) "<volume>: cannot <use>: the <type> it views was resized, reshaped or
+  /// reallocated since ..." when the array's layout is not the recorded one.
+  void check(const std::string& use) const;
+  /// True for read-only arrays (a read-only memmap): Volume.array is read-only too.
+  bool read_only() const { return read_only_; }
+
+ private:
+  std::string layout_text(const nb::ndarray<nb::ro>& a) const;
+
+  nb::object array_;          // the caller's object, exported again by check()
+  nb::ndarray<nb::ro> view_;  // the export the volume reads (holds the DLPack capsule / buffer)
+  bool read_only_;
+  std::string volume_, type_name_;
+};
+
+/// The source of a Python Volume made from an array; null for volumes that own their memory
+/// (files, results, copies).
+std::shared_ptr<const ArraySource> volume_source(nb::handle volume);
+
+/// Raises RuntimeError when `volume` views an array that changed since it was made (see
+/// ArraySource); `use` says what was about to happen ("slice", "save", ...).
+inline void check_volume_source(nb::handle volume, const std::string& use) {
+  if (const auto source = volume_source(volume)) source->check(use);
+}
 
 // ---- arrays in: nanobind checks these types and converts other dtypes and strides (a copy).
 /// (N, 4, 4) float64 matrices: poses (probe → world), image/probe → reference; row-major.

@@ -45,6 +45,7 @@ NB_MODULE(_sonoslice, m) {
   m.def("require_device", [](const std::string& d) { require_device(Device::parse(d)); });
   m.def("cpu_threads", &cpu_threads);
   m.def("set_cpu_threads", &set_cpu_threads, "n"_a);
+  m.def("reset_cpu_threads", &reset_cpu_threads);
   m.def("cpu_kernel_isa", &cpu_kernel_isa);
   m.def("set_cpu_kernel_isa", &set_cpu_kernel_isa, "isa"_a);
 

@@ -37,8 +37,17 @@ ProbeGeometry probe_grid(ProbeGeometry p, int width, int height, std::pair<doubl
   return p;
 }
 
-void slice_into(const Slicer& slicer, Matrices pose_array, nb::ndarray<> out, uintptr_t stream,
+/// The bound Slicer: a CPU slicer reads the volume's memory at every call, so it keeps what the
+/// volume views (null for a volume that owns its memory, or on CUDA, where the volume was
+/// uploaded when the slicer was made) and checks it before each call.
+struct PySlicer : Slicer {
+  using Slicer::Slicer;
+  std::shared_ptr<const ArraySource> source;
+};
+
+void slice_into(const PySlicer& slicer, Matrices pose_array, nb::ndarray<> out, uintptr_t stream,
                 nb::object progress, int64_t chunk) {
+  if (slicer.source) slicer.source->check("slice");
   const std::vector<Pose> poses = matrices_from(pose_array);
   const int64_t n = int64_t(poses.size());
   if (!has_shape(out, n, slicer.height(), slicer.width()))
@@ -134,10 +143,10 @@ void bind_slicing(nb::module_& m) {
       .def_prop_ro("face_y_mm", [](const ProbeGeometry& p) { return p.face_y_mm; });
 
   const SliceSettings defaults;
-  nb::class_<Slicer>(m, "Slicer")
+  nb::class_<PySlicer>(m, "Slicer")
       .def(
           "__init__",
-          [](Slicer* self, const Volume& volume, const ProbeGeometry& probe,
+          [](PySlicer* self, nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe,
              const std::string& device, const std::string& interpolation, double fill,
              const std::string& dtype) {
             SliceSettings s;
@@ -145,24 +154,28 @@ void bind_slicing(nb::module_& m) {
             s.fill_value = fill;
             s.output_type = parse_pixel_type(dtype);  // the Slicer says which types it makes
             const Device d = Device::parse(device);
-            nb::gil_scoped_release release;  // a CUDA slicer uploads the volume here
-            new (self) Slicer(volume, probe, s, d);
+            auto source = volume_source(volume.h);
+            if (source) source->check("make a Slicer");
+            {
+              nb::gil_scoped_release release;  // a CUDA slicer uploads the volume here
+              new (self) PySlicer(*volume.p, probe, s, d);
+            }
+            if (d.type == DeviceType::CPU) self->source = std::move(source);
           },
           "volume"_a, "probe"_a, "device"_a = "cpu",
           "interpolation"_a = to_string(defaults.interpolation), "fill"_a = defaults.fill_value,
           "dtype"_a = to_string(defaults.output_type))
       .def("slice_into", &slice_into, "poses"_a, "out"_a, "stream"_a = 0, "progress"_a = nb::none(),
            "chunk"_a = 0)
-      .def_prop_ro("width", &Slicer::width)
-      .def_prop_ro("height", &Slicer::height)
-      .def_prop_ro("device", [](const Slicer& s) { return s.device().to_string(); })
-      .def_prop_ro("dtype", [](const Slicer& s) { return to_string(s.settings().output_type); })
+      .def_prop_ro("width", [](const PySlicer& s) { return s.width(); })
+      .def_prop_ro("height", [](const PySlicer& s) { return s.height(); })
+      .def_prop_ro("device", [](const PySlicer& s) { return s.device().to_string(); })
+      .def_prop_ro("dtype", [](const PySlicer& s) { return to_string(s.settings().output_type); })
       .def_prop_ro("interpolation",
-                   [](const Slicer& s) { return to_string(s.settings().interpolation); })
-      .def_prop_ro("fill", [](const Slicer& s) { return s.settings().fill_value; })
-      .def_prop_ro("probe", &Slicer::probe)
-      .def_prop_ro("volume", &Slicer::volume)
-      .def("mask", [](const Slicer& s) {
+                   [](const PySlicer& s) { return to_string(s.settings().interpolation); })
+      .def_prop_ro("fill", [](const PySlicer& s) { return s.settings().fill_value; })
+      .def_prop_ro("probe", [](const PySlicer& s) { return s.probe(); })
+      .def("mask", [](const PySlicer& s) {
         auto m = std::make_shared<std::vector<uint8_t>>(s.mask());
         return numpy_view(m->data(), {size_t(s.height()), size_t(s.width())}, PixelType::UInt8, m);
       });

@@ -6,6 +6,7 @@
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
+#include <cstring>
 #include <memory>
 
 #include "bindings.h"
@@ -50,11 +51,36 @@ std::tuple<Row, Row, Row> rows_tuple(const Mat3& d) {
   return {tuple3(r[0]), tuple3(r[1]), tuple3(r[2])};
 }
 
+/// A Python Volume made from a caller's array: the volume plus what it views (null for a copy).
+struct ArrayVolume : Volume {
+  std::shared_ptr<const ArraySource> source;
+};
+
+std::string volume_text(const VolumeGrid& g, PixelType type) {
+  return "Volume(" + std::to_string(g.dims[0]) + "x" + std::to_string(g.dims[1]) + "x" +
+         std::to_string(g.dims[2]) + " " + to_string(type) + ")";
+}
+
 // Zero-copy: the volume points into the caller's array, which it keeps alive. The array is
 // untyped and checked here rather than converted by nanobind: a converted copy would silently
-// break "the volume sees changes made to the array".
-Volume volume_from_array(nb::ndarray<> a, const Vec3& spacing, const Vec3& origin,
-                         const Rows& direction) {
+// break "the volume sees changes made to the array". Read-only arrays (a read-only memmap) are
+// fine: slicing only reads. A bare DLPack capsule is copied: once consumed, it cannot be
+// exported again, so a resize of the tensor behind it could not be noticed.
+ArrayVolume volume_from_array(nb::handle array, const Vec3& spacing, const Vec3& origin,
+                              const Rows& direction) {
+  const bool capsule = PyCapsule_CheckExact(array.ptr());
+  nb::ndarray<nb::ro> a;
+  bool read_only = false;
+  if (nb::ndarray<> writable; nb::try_cast(array, writable, false)) {
+    a = nb::ndarray<nb::ro>(writable);
+  } else if (nb::try_cast(array, a, false)) {
+    read_only = true;
+  } else {
+    throw InputError(
+        "volume array: expected a NumPy array or a torch tensor (any object with __dlpack__ or "
+        "the buffer protocol), got " +
+        std::string(nb::type_name(array.type()).c_str()));
+  }
   if (a.ndim() != 3)
     throw InputError("volume array: expected 3 dimensions (nz, ny, nx), got " +
                      std::to_string(a.ndim()));
@@ -69,12 +95,37 @@ Volume volume_from_array(nb::ndarray<> a, const Vec3& spacing, const Vec3& origi
   g.origin_mm = origin;
   g.direction = mat3_of(direction);
   g.validate("volume array");
-  auto* keep = new nb::ndarray<>(a);
-  std::shared_ptr<void> owner(keep, [](void* p) {
-    nb::gil_scoped_acquire gil;  // dropping a Python reference needs the GIL
-    delete static_cast<nb::ndarray<>*>(p);
-  });
-  return Volume::wrap(a.data(), type, g, owner);
+  ArrayVolume v;
+  if (capsule) {
+    static_cast<Volume&>(v) = Volume::allocate(type, g);
+    std::memcpy(v.data(), a.data(), v.byte_size());
+    return v;
+  }
+  // Dropping Python references needs the GIL; a Volume copy may die on a worker thread.
+  std::shared_ptr<ArraySource> source(
+      new ArraySource(nb::borrow(array), a, read_only, volume_text(g, type)), [](ArraySource* p) {
+        nb::gil_scoped_acquire gil;
+        delete p;
+      });
+  static_cast<Volume&>(v) = Volume::wrap(const_cast<void*>(a.data()), type, g, source);
+  v.source = std::move(source);
+  return v;
+}
+
+/// Volume.array: a NumPy view (read-only when the volume views a read-only array).
+nb::object volume_array(nb::pointer_and_handle<Volume> self) {
+  const auto source = volume_source(self.h);
+  if (source) source->check("give its array");
+  const Volume& v = *self.p;
+  const auto& d = v.grid().dims;
+  if (!source || !source->read_only())
+    return nb::cast(numpy_view(const_cast<void*>(v.data()),
+                               {size_t(d[2]), size_t(d[1]), size_t(d[0])}, v.pixel_type(), v));
+  auto* keep = new Volume(v);
+  nb::capsule owner(keep, [](void* p) noexcept { delete static_cast<Volume*>(p); });
+  const size_t shape[3] = {size_t(d[2]), size_t(d[1]), size_t(d[0])};
+  return nb::cast(nb::ndarray<nb::numpy, nb::ro>(v.data(), 3, shape, owner, nullptr,
+                                                 dlpack_dtype(v.pixel_type())));
 }
 
 bool same_grid(const VolumeGrid& a, const VolumeGrid& b) {
@@ -93,6 +144,45 @@ std::string grid_repr(const VolumeGrid& g) {
 }
 
 }  // namespace
+
+ArraySource::ArraySource(nb::object array, nb::ndarray<nb::ro> view, bool read_only,
+                         std::string volume)
+    : array_(std::move(array)),
+      view_(std::move(view)),
+      read_only_(read_only),
+      volume_(std::move(volume)),
+      type_name_(nb::str(array_.type().attr("__module__")).c_str() + std::string(".") +
+                 nb::str(array_.type().attr("__qualname__")).c_str()) {}
+
+std::string ArraySource::layout_text(const nb::ndarray<nb::ro>& a) const {
+  return shape_text(a) + " " + dtype_name(a.dtype());
+}
+
+void ArraySource::check(const std::string& use) const {
+  nb::ndarray<nb::ro> now;
+  const bool exported = nb::try_cast(array_, now, false);
+  bool same = exported && now.data() == view_.data() && now.ndim() == view_.ndim() &&
+              now.dtype() == view_.dtype() && now.device_type() == view_.device_type();
+  for (size_t i = 0; same && i < view_.ndim(); ++i)
+    same = now.shape(i) == view_.shape(i) && now.stride(i) == view_.stride(i);
+  if (same) return;
+  std::string change;
+  if (!exported)
+    change = "it can no longer be exported";
+  else if (layout_text(now) != layout_text(view_))
+    change = layout_text(view_) + " then, " + layout_text(now) + " now";
+  else
+    change = "its memory moved or its strides changed";
+  throw Error(volume_ + ": cannot " + use + ": the " + type_name_ +
+              " it views was resized, reshaped or reallocated since the Volume was made: " +
+              change + "; the old memory may be freed. Make a new sonoslice.Volume from it.");
+}
+
+std::shared_ptr<const ArraySource> volume_source(nb::handle volume) {
+  ArrayVolume* v = nullptr;
+  if (nb::try_cast(volume, v, false) && v) return v->source;
+  return nullptr;
+}
 
 void bind_volumes(nb::module_& m) {
   const VolumeGrid defaults;
@@ -130,8 +220,6 @@ void bind_volumes(nb::module_& m) {
       .def("__repr__", &grid_repr);
 
   nb::class_<Volume>(m, "Volume")
-      .def_static("from_array", &volume_from_array, "array"_a, "spacing"_a, "origin"_a,
-                  "direction"_a)
       .def_static(
           "from_file",
           [](const std::string& path, std::optional<Vec3> spacing, std::optional<Vec3> origin,
@@ -148,12 +236,7 @@ void bind_volumes(nb::module_& m) {
           },
           "path"_a, "spacing"_a = nb::none(), "origin"_a = nb::none(), "direction"_a = nb::none(),
           "series"_a = "", "npy_config"_a = "")
-      .def("array",
-           [](const Volume& v) {
-             const auto& d = v.grid().dims;
-             return numpy_view(const_cast<void*>(v.data()),
-                               {size_t(d[2]), size_t(d[1]), size_t(d[0])}, v.pixel_type(), v);
-           })
+      .def("array", &volume_array)
       .def_prop_ro("dtype", [](const Volume& v) { return to_string(v.pixel_type()); })
       .def_prop_ro("shape",
                    [](const Volume& v) {
@@ -166,25 +249,33 @@ void bind_volumes(nb::module_& m) {
       .def_prop_ro("grid", [](const Volume& v) { return v.grid(); })
       .def_prop_ro("nbytes", &Volume::byte_size)
       .def("value_range",
-           [](const Volume& v) {
+           [](nb::pointer_and_handle<Volume> self) {
+             check_volume_source(self.h, "compute its value range");
              nb::gil_scoped_release release;
-             return v.value_range();
+             return self.p->value_range();
            })
       .def("converted",
-           [](const Volume& v, const std::string& dtype) {
+           [](nb::pointer_and_handle<Volume> self, const std::string& dtype) {
              const PixelType t = parse_pixel_type(dtype);
+             check_volume_source(self.h, "convert");
              nb::gil_scoped_release release;
-             return v.converted(t);
+             return self.p->converted(t);
            })
       .def("save",
-           [](const Volume& v, const std::string& path) {
+           [](nb::pointer_and_handle<Volume> self, const std::string& path) {
+             check_volume_source(self.h, "save");
              nb::gil_scoped_release release;
-             write_volume(path, v);
+             write_volume(path, *self.p);
            })
       .def("world_to_index",
            [](const Volume& v, const Vec3& p) { return v.grid().world_to_index(p); })
       .def("index_to_world",
            [](const Volume& v, const Vec3& c) { return v.grid().index_to_world(c); });
+
+  nb::class_<ArrayVolume, Volume>(m, "ArrayVolume",
+                                  "A Volume viewing a caller's array (checked before each use).")
+      .def_static("from_array", &volume_from_array, "array"_a, "spacing"_a, "origin"_a,
+                  "direction"_a);
 
   // ---- the built-in phantom
   m.def(

@@ -192,4 +192,4 @@ def test_devices_report():
     assert text.startswith("cpu: ") and "cuda" in text
     sonoslice.set_threads(1)
     assert sonoslice.threads() == 1
-    sonoslice.set_threads(0)
+    sonoslice.set_threads(None)

@@ -64,10 +64,21 @@ int cpu_threads() {
 }
 
 void set_cpu_threads(int n) {
+  if (n < 1)
+    throw ParameterError("threads", std::to_string(n) +
+                                        ": must be at least 1 (leave it unset for all hardware "
+                                        "threads)");
   if (n > kMaxCpuThreads)
     throw ParameterError("threads", std::to_string(n) + ": more than " +
                                         std::to_string(kMaxCpuThreads) + " threads");
-  g_threads = n > 0 ? n : 0;
+  g_threads = n;
+#ifdef _OPENMP
+  omp_set_num_threads(cpu_threads());
+#endif
+}
+
+void reset_cpu_threads() {
+  g_threads = 0;
 #ifdef _OPENMP
   omp_set_num_threads(cpu_threads());
 #endif

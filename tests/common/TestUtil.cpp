@@ -25,7 +25,7 @@ TempDir::~TempDir() {
 }
 
 ScopedCpuSettings::~ScopedCpuSettings() {
-  set_cpu_threads(0);
+  reset_cpu_threads();
   set_cpu_kernel_isa("auto");
 }
 

@@ -14,7 +14,7 @@ TEST(Phantom, DeterministicForAnyThreadCount) {
   const test::ScopedCpuSettings restore;
   set_cpu_threads(1);
   const Phantom a = make_phantom(PhantomSize::Small);
-  set_cpu_threads(0);
+  reset_cpu_threads();
   const Phantom b = make_phantom(PhantomSize::Small);
   ASSERT_EQ(a.ct.byte_size(), b.ct.byte_size());
   EXPECT_EQ(0, std::memcmp(a.ct.data(), b.ct.data(), a.ct.byte_size()));

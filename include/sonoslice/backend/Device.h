@@ -22,8 +22,12 @@ bool built_with_cuda();
 
 /// Number of CPU threads the CPU backend uses (default: all hardware threads).
 int cpu_threads();
-/// Sets the CPU thread count; n <= 0 restores the default. InputError for absurd values.
+/// Sets the CPU thread count, 1 to 4096. ParameterError("threads", ...) otherwise: 0 or a
+/// negative count is a mistake (a script's arithmetic gone wrong), not a request for the
+/// default; reset_cpu_threads() restores that.
 void set_cpu_threads(int n);
+/// Restores the default: all hardware threads.
+void reset_cpu_threads();
 
 /// The instruction set the CPU kernels use: "avx2" (eight-lane fast paths, when the build has
 /// them and the CPU supports AVX2 and FMA) or "generic". The environment variable

@@ -1,0 +1,302 @@
+"""Issue 10 (hardening), the Python side and the CLI's exit codes: no crash when an array a Volume
+views changes under it, clear errors for arrays nanobind would turn away with "incompatible
+function arguments", nothing complex cast to real in silence, thread counts and --skip checked,
+one exit code per kind of CLI failure."""
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import sonoslice
+
+from conftest import DATA
+
+SMALL_PROBE = dict(width=16, height=16, spacing_mm=0.5)
+
+
+def run_python(code: str, cwd=None) -> subprocess.CompletedProcess:
+    """``code`` in a fresh interpreter (same environment): a crash there fails the test instead of
+    killing the test run."""
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, encoding="utf-8",
+                          errors="replace", timeout=300, cwd=cwd)
+
+
+def centre_pose(n: float) -> np.ndarray:
+    """A pose whose 16×16 linear image (8 mm) lies inside an n-voxel cube of 1 mm voxels."""
+    p = np.eye(4)
+    p[:3, 3] = (n / 2, n / 2, n / 2)
+    return p
+
+
+# ---- crash 4: the array a Volume views changes under it --------------------------------------------
+TORCH_RESIZED = """
+    import numpy as np, torch, sonoslice
+    t = torch.full((20, 20, 20), 7.0)
+    v = sonoslice.Volume(t)
+    slicer = sonoslice.Slicer(v, sonoslice.Probe.linear(16, 16, 0.5))
+    pose = np.eye(4); pose[:3, 3] = 10
+    assert slicer.slice(pose).max() == 7.0
+    t.resize_(400, 400, 400)   # reallocates the storage: the volume's pointer now dangles
+    uses = {"slice": lambda: slicer.slice(pose), "array": lambda: v.array, "value_range": v.value_range,
+            "astype": lambda: v.astype("int16"), "save": lambda: v.save("never-written.npy"),
+            "Slicer": lambda: sonoslice.Slicer(v, sonoslice.Probe.linear(16, 16, 0.5))}
+    for name, use in uses.items():
+        try:
+            use()
+            print(name, "NO ERROR")
+        except RuntimeError as e:
+            print(name, "RuntimeError", e)
+"""
+
+
+def test_torch_tensor_resized_under_a_volume_raises_instead_of_crashing(tmp_path):
+    pytest.importorskip("torch")
+    r = run_python(TORCH_RESIZED, cwd=tmp_path)
+    assert r.returncode == 0, f"the interpreter died ({r.returncode}): {r.stderr[-2000:]}"
+    lines = r.stdout.strip().splitlines()
+    assert len(lines) == 6, r.stdout
+    for line in lines:
+        assert " RuntimeError " in line, line
+        # One line naming the volume, the kind of array and what changed.
+        assert "Volume(20x20x20 float32)" in line and "torch.Tensor" in line, line
+        assert "(20, 20, 20) float32 then, (400, 400, 400) float32 now" in line, line
+    assert not os.path.exists(tmp_path / "never-written.npy")
+
+
+def test_torch_tensor_resized_smaller_or_same_is_checked_too():
+    torch = pytest.importorskip("torch")
+    t = torch.zeros(20, 20, 20)
+    v = sonoslice.Volume(t)
+    t.resize_(20, 20, 20)  # no change: still fine
+    assert v.array.shape == (20, 20, 20)
+    t.resize_(10, 10, 10)  # same storage, fewer elements: the volume would read past them
+    with pytest.raises(RuntimeError, match=r"cannot give its array.*\(10, 10, 10\) float32 now"):
+        v.array
+
+
+def test_volume_still_sees_changes_to_the_values_and_keeps_the_tensor_alive():
+    torch = pytest.importorskip("torch")
+    t = torch.zeros(20, 20, 20)
+    v = sonoslice.Volume(t)
+    slicer = sonoslice.Slicer(v, sonoslice.Probe.linear(**SMALL_PROBE))
+    t += 3  # in place: same memory, no reallocation
+    assert slicer.slice(centre_pose(20)).max() == 3.0
+    kept = sonoslice.Volume(torch.full((8, 8, 8), 5, dtype=torch.int16))  # the only reference
+    import gc
+    gc.collect()
+    assert (kept.array == 5).all()
+
+
+def test_numpy_resize_without_refcheck_and_in_place_reshape_are_caught():
+    a = np.ones((20, 20, 20), np.float32)
+    v = sonoslice.Volume(a)
+    slicer = sonoslice.Slicer(v, sonoslice.Probe.linear(**SMALL_PROBE))
+    # NumPy refuses to resize an array something references...
+    with pytest.raises(ValueError, match="cannot resize"):
+        a.resize((200, 200, 200))
+    # ...unless told not to check: then it reallocates, as torch's resize_ does.
+    a.resize((200, 200, 200), refcheck=False)
+    with pytest.raises(RuntimeError, match=r"numpy.ndarray it views.*\(200, 200, 200\) float32 now"):
+        slicer.slice(centre_pose(20))
+    b = np.ones((20, 20, 20), np.float32)
+    w = sonoslice.Volume(b)
+    b.dtype = np.int32  # the same bytes read as another type
+    with pytest.raises(RuntimeError, match="int32 now"):
+        w.value_range()
+    c = np.ones((20, 20, 20), np.float32)
+    u = sonoslice.Volume(c)
+    c.shape = (40, 10, 20)
+    with pytest.raises(RuntimeError, match=r"\(40, 10, 20\) float32 now"):
+        u.save("never-written.npy")
+
+
+CAPSULE = """
+    import numpy as np, torch, sonoslice
+    from torch.utils.dlpack import to_dlpack
+    t = torch.full((256, 256, 256), 2.0)  # 64 MiB: malloc maps it, and unmaps it when freed
+    v = sonoslice.Volume(to_dlpack(t))
+    t.resize_(260, 260, 260)  # a capsule cannot be exported again to notice this: hence the copy
+    t.fill_(9.0)
+    a = v.array
+    print(a.shape, a.min(), a.max())
+"""
+
+
+def test_a_dlpack_capsule_is_copied():
+    pytest.importorskip("torch")
+    r = run_python(CAPSULE)
+    assert r.returncode == 0, f"the interpreter died ({r.returncode}): {r.stderr[-2000:]}"
+    assert r.stdout == "(256, 256, 256) 2.0 2.0\n"
+
+
+def test_cuda_slicer_uploaded_the_volume_and_does_not_need_the_array(cuda):
+    torch = pytest.importorskip("torch")
+    t = torch.full((20, 20, 20), 4.0)
+    slicer = sonoslice.Slicer(sonoslice.Volume(t), sonoslice.Probe.linear(**SMALL_PROBE), device=cuda)
+    t.resize_(300, 300, 300)
+    assert float(slicer.slice(centre_pose(20)).max()) == 4.0
+
+
+# ---- read-only and big-endian arrays ------------------------------------------------------------------
+def test_read_only_arrays_make_volumes(tmp_path):
+    a = np.arange(20 ** 3, dtype=np.float32).reshape(20, 20, 20)
+    np.save(tmp_path / "v.npy", a)
+    mm = np.load(tmp_path / "v.npy", mmap_mode="r")  # the normal way to open a large volume
+    v = sonoslice.Volume(mm)
+    probe = sonoslice.Probe.linear(**SMALL_PROBE)
+    expected = sonoslice.Slicer(sonoslice.Volume(a.copy()), probe).slice(centre_pose(20))
+    assert np.array_equal(sonoslice.Slicer(v, probe).slice(centre_pose(20)), expected)
+    assert not v.array.flags.writeable  # the view keeps the promise the memmap made
+    assert np.array_equal(v.array, a)
+    frozen = a.copy()
+    frozen.flags.writeable = False
+    assert sonoslice.Volume(frozen).value_range() == (0.0, 20 ** 3 - 1.0)
+    assert sonoslice.Volume(a).array.flags.writeable
+
+
+def test_big_endian_arrays_are_converted_or_refused_by_name(tmp_path):
+    a = np.arange(20 ** 3, dtype=np.float32).reshape(20, 20, 20)
+    big = a.astype(">f4")
+    with pytest.raises(ValueError, match=r"volume array: dtype >f4 is big-endian.*newbyteorder"):
+        sonoslice.Volume(big)
+    slicer = sonoslice.Slicer(sonoslice.Volume(a), sonoslice.Probe.linear(**SMALL_PROBE))
+    with pytest.raises(ValueError, match="out: dtype >f4 is big-endian"):
+        slicer.slice(centre_pose(20), out=np.empty((1, 16, 16), ">f4"))
+    with pytest.raises(ValueError, match="out: the array is read-only"):
+        slicer.slice(centre_pose(20), out=np.broadcast_to(np.empty((16, 16), np.float32), (1, 16, 16)))
+    # Where sonoslice copies anyway, big-endian input is converted: same result as native.
+    native = slicer.slice(centre_pose(20))
+    assert np.array_equal(slicer.slice(centre_pose(20).astype(">f8")), native)
+    sonoslice.write_stack(tmp_path / "s.npy", native.astype(">f4"), (0.5, 0.5))
+    assert np.array_equal(np.load(tmp_path / "s.npy"), native)
+    frames = np.arange(16, dtype=np.float32).reshape(4, 4)
+    volumes = [sonoslice.Compounder(shape=(4, 6, 6), spacing=1.0).add(f, np.eye(4)).volume().array
+               for f in (frames, frames.astype(">f4"))]
+    assert np.array_equal(volumes[0], volumes[1])
+    labels = np.ones((1, 4, 4), np.uint16)
+    mask = np.ones((4, 4), np.uint8)
+    assert np.array_equal(sonoslice.colorize(labels.astype(">u2"), mask), sonoslice.colorize(labels, mask))
+
+
+# ---- complex numbers are refused, naming the argument ---------------------------------------------------
+def test_complex_inputs_are_refused_not_cast(tmp_path):
+    pose = centre_pose(20).astype(complex)
+    pose[0, 3] += 1j
+    slicer = sonoslice.Slicer(sonoslice.Volume(np.ones((20, 20, 20), np.float32)),
+                              sonoslice.Probe.linear(**SMALL_PROBE))
+    cases = {
+        "poses": [lambda: slicer.slice(pose), lambda: sonoslice.validate_poses(pose),
+                  lambda: sonoslice.write_poses(tmp_path / "p.npy", pose)],
+        "add: image_to_reference": [
+            lambda: sonoslice.Compounder(shape=(4, 6, 6), spacing=1.0).add(np.ones((4, 4), np.float32), pose)],
+        "direction": [lambda: sonoslice.Volume(np.ones((4, 4, 4), np.float32), direction=np.eye(3) * (1 + 1j))],
+        "spacing": [lambda: sonoslice.Volume(np.ones((4, 4, 4), np.float32), spacing=[np.complex128(1 + 1j)] * 3)],
+        "vertices": [lambda: sonoslice.Mesh(np.eye(3) * 1j, [[0, 1, 2]])],
+    }
+    for what, calls in cases.items():
+        for call in calls:
+            with pytest.raises(ValueError, match=f"{what}: dtype complex128 is complex"):
+                call()
+    assert not os.path.exists(tmp_path / "p.npy")
+    torch = pytest.importorskip("torch")
+    with pytest.raises(ValueError, match="poses: dtype complex128 is complex"):
+        slicer.slice(torch.from_numpy(pose))
+    # Arrays handed to the library unconverted: it names the dtype as unsupported.
+    with pytest.raises(ValueError, match="volume array has dtype complex64, an unsupported dtype"):
+        sonoslice.Volume(np.ones((4, 4, 4), np.complex64))
+    with pytest.raises(ValueError, match="frames has dtype complex64, an unsupported dtype"):
+        sonoslice.Compounder(shape=(4, 6, 6), spacing=1.0).add(np.ones((4, 4), np.complex64), np.eye(4))
+
+
+# ---- paths ------------------------------------------------------------------------------------------
+def test_none_is_not_a_path():
+    calls = [lambda: sonoslice.Volume.from_file(None), lambda: sonoslice.read_poses(None),
+             lambda: sonoslice.Probe.from_json(None), lambda: sonoslice.Mesh.from_file(None),
+             lambda: sonoslice.Volume(np.ones((4, 4, 4), np.float32)).save(None)]
+    for call in calls:
+        with pytest.raises(TypeError, match=r"path: expected a file path \(str or os.PathLike\), got NoneType"):
+            call()
+
+
+# ---- threads and --skip ---------------------------------------------------------------------------------
+def test_thread_counts_below_one_are_refused():
+    default = sonoslice.threads()
+    try:
+        for n in (-3, 0):
+            with pytest.raises(ValueError, match=f"threads {n}: must be at least 1"):
+                sonoslice.set_threads(n)
+            assert sonoslice.threads() == default
+        with pytest.raises(TypeError):
+            sonoslice.set_threads(1.5)
+        sonoslice.set_threads(1)
+        assert sonoslice.threads() == 1
+    finally:
+        sonoslice.set_threads(None)
+    assert sonoslice.threads() == default
+
+
+def test_skip_must_be_a_whole_number_at_least_one():
+    sequence = os.path.join(DATA, "plus", "NwirePhantomFreehand.igs.mha")
+    config = os.path.join(DATA, "plus", "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml")
+    for skip in (0, -1):
+        for call in (sonoslice.plus_image_to_reference, sonoslice.reconstruct_plus):
+            with pytest.raises(ValueError, match=f"skip {skip}: must be >= 1"):
+                call(sequence, config, skip=skip)
+    with pytest.raises(ValueError, match="skip 2.5: expected a whole number"):
+        sonoslice.plus_image_to_reference(sequence, config, skip=2.5)
+    frames, _ = sonoslice.plus_image_to_reference(sequence, config, skip=2.0)
+    assert np.array_equal(frames, sonoslice.plus_image_to_reference(sequence, config, skip=2)[0])
+
+
+# ---- the CLI: 2 for usage errors, 1 for bad input, one line each ------------------------------------------
+def run_cli(cli, *args, cwd=None):
+    return subprocess.run([cli, *args], capture_output=True, encoding="utf-8", errors="replace", timeout=300, cwd=cwd)
+
+
+def test_cli_usage_errors_exit_2_with_one_line(cli, tmp_path):
+    cases = [
+        ((), "give a command: slice, info"),
+        (("frobnicate",), "unknown command 'frobnicate'"),
+        (("slice", "--volume", "ct.nii"), "--probe is required; see 'sonoslice slice --help'"),
+        (("slice", "--bogus", "1"), "unexpected argument(s) --bogus 1"),
+        (("info", "a", "b", "c"), "not expected"),
+        (("phantom", "ph", "--threads", "abc"), "--threads = abc"),
+        (("compound", "--skip", "x"), "--skip = x"),
+    ]
+    for args, needle in cases:
+        r = run_cli(cli, *args, cwd=tmp_path)
+        assert r.returncode == 2, (args, r.returncode, r.stderr)
+        assert r.stderr.count("\n") == 1 and r.stderr.startswith("sonoslice: error: "), (args, r.stderr)
+        assert needle in r.stderr, (args, r.stderr)
+        assert r.stdout == ""
+    assert os.listdir(tmp_path) == []
+    for args in (("--help",), ("slice", "--help"), ("--version",)):
+        r = run_cli(cli, *args)
+        assert r.returncode == 0 and r.stdout, args
+    assert "Exit status: 0 done, 1 bad input" in run_cli(cli, "--help").stdout
+
+
+def test_cli_threads_below_one_exit_1_and_write_nothing(cli, tmp_path):
+    for n in ("0", "-1"):
+        r = run_cli(cli, "phantom", str(tmp_path / "ph"), "--threads", n, "-q")
+        assert r.returncode == 1, (n, r.stderr)
+        assert r.stderr == f"sonoslice: error: --threads {n}: must be at least 1 (leave it unset for all " \
+                           "hardware threads)\n"
+    assert os.listdir(tmp_path) == []
+    r = run_cli(cli, "voxelize", "nope.stl", "--spacing", "1", "--out", str(tmp_path / "v.npy"), "--threads", "0")
+    assert r.returncode == 1 and "--threads 0: must be at least 1" in r.stderr
+    r = run_cli(cli, "phantom", str(tmp_path / "ph"), "--threads", "1", "-q")
+    assert r.returncode == 0, r.stderr
+    assert os.path.exists(tmp_path / "ph" / "ct.nii.gz")
+
+
+def test_cli_skip_zero_is_bad_input(cli, tmp_path):
+    sequence = os.path.join(DATA, "plus", "NwirePhantomFreehand.igs.mha")
+    config = os.path.join(DATA, "plus", "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml")
+    r = run_cli(cli, "compound", "--sequence", sequence, "--config", config, "--out", str(tmp_path / "v.npy"),
+                "--skip", "0")
+    assert r.returncode == 1 and r.stderr == "sonoslice: error: --skip 0: must be >= 1 (every K-th frame)\n"
+    assert os.listdir(tmp_path) == []
