@@ -453,12 +453,18 @@ def cuda_available(device: str = "cuda:0") -> bool:
 
 def set_threads(n: Optional[int]) -> None:
     """CPU threads for slicing and compounding: ``n`` >= 1, or None for all hardware threads (the
-    default). 0 and negative counts raise ValueError."""
+    default). Negative counts raise ValueError; 0, which earlier versions documented as "all
+    threads", still means that, with a DeprecationWarning (use None)."""
     if n is None:
         _ext.reset_cpu_threads()
         return
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
         raise TypeError(f"set_threads: expected an int >= 1 or None, got {n!r}")
+    if int(n) == 0:
+        warnings.warn("set_threads(0) is deprecated: use set_threads(None) for all hardware threads",
+                      DeprecationWarning, stacklevel=2)
+        _ext.reset_cpu_threads()
+        return
     _ext.set_cpu_threads(int(n))
 
 

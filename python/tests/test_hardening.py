@@ -225,10 +225,14 @@ def test_none_is_not_a_path():
 def test_thread_counts_below_one_are_refused():
     default = sonoslice.threads()
     try:
-        for n in (-3, 0):
+        for n in (-3, -1):
             with pytest.raises(ValueError, match=f"threads {n}: must be at least 1"):
                 sonoslice.set_threads(n)
             assert sonoslice.threads() == default
+        sonoslice.set_threads(1)
+        with pytest.warns(DeprecationWarning, match="set_threads\\(None\\)"):
+            sonoslice.set_threads(0)  # documented as "all threads" before: still that, deprecated
+        assert sonoslice.threads() == default
         with pytest.raises(TypeError):
             sonoslice.set_threads(1.5)
         sonoslice.set_threads(1)
