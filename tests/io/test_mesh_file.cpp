@@ -294,6 +294,26 @@ TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
   EXPECT_THROW(read_fanslicer_models(d + "/models_binary_LUS_config.json", dir.path().string()),
                FileError);
   EXPECT_THROW(read_fanslicer_models(d + "/models_intensity_LUS_config.json", d), InputError);
+  // What issue 10 found: a colour that is not a number escaped as the JSON library's own
+  // exception ("[json.exception.type_error.302] type must be number"), without the file.
+  std::ifstream in(d + "/models_binary_LUS_config.json");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto error_for = [&](const std::string& from, const std::string& to) {
+    std::string t = text;
+    t.replace(t.find(from), from.size(), to);
+    std::ofstream(dir.file("cfg.json")) << t;
+    try {
+      read_fanslicer_models(dir.file("cfg.json"), d);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  std::string e = error_for("[0, 200, 0]", "[\"green\", 200, 0]");
+  EXPECT_NE(e.find("cfg.json': colour of 'hepatic veins' must be [r, g, b]"), std::string::npos)
+      << e;
+  e = error_for("[0, 1, 1, 1]", "[0, \"yes\", 1, 1]");
+  EXPECT_NE(e.find("cfg.json': \"simulation_models\"[1] must be 0 or 1"), std::string::npos) << e;
 }
 
 // The real meshes: closed, volumes preserved by voxelisation, and voxel vs exact label images
