@@ -66,7 +66,7 @@ endmacro()
 # ITK: medical image formats.
 sonoslice_find_optional(ITK SONOSLICE_WITH_ITK SONOSLICE_HAVE_ITK
   ITKCommon ITKIOImageBase ITKIONIFTI ITKIOMeta ITKIONRRD ITKIOGDCM ITKIOPNG ITKImageGrid
-  ITKImageFunction)
+  ITKImageFunction ITKGDCM)  # ITKGDCM: GDCM itself, to check DICOM slices before ITK reads them
 
 # VTK: surface meshes.
 sonoslice_find_optional(VTK SONOSLICE_WITH_VTK SONOSLICE_HAVE_VTK

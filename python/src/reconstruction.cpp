@@ -68,6 +68,8 @@ nb::dict report_dict(const ReconstructionReport& r) {
   d["frames_used"] = r.frames_used;
   d["skipped_bad_image"] = r.skipped_bad_image;
   d["skipped_bad_transform"] = r.skipped_bad_transform;
+  d["skipped_unusable_transform"] = r.skipped_unusable_transform;
+  d["skipped_frames"] = r.skipped_frames;
   d["skipped_reason"] = r.skipped_reason();
   d["skip"] = r.skip;
   d["transform"] = r.transform;

@@ -41,6 +41,13 @@ Mat4 image_to_probe_of(const ProbeGeometry& p) {
   return m;
 }
 
+// A calibration applies to every frame: an all-zero or degenerate one is refused, naming where it
+// came from, rather than collapsing every frame onto a point (docs/compounding.md §3).
+void check_image_to_probe(const Mat4& m, const std::string& name) {
+  const std::string problem = transform_problem(m);
+  if (!problem.empty()) throw InputError(name + ": the pixel-to-probe matrix " + problem);
+}
+
 // The default output type: the frames' own, except types the volume writers and most viewers
 // handle poorly as a reconstruction (float64 is twice the memory for no gain over float32's
 // precision of 8-16 bit ultrasound; int8 frames are rare and a mean needs the sign bit's range).
@@ -183,6 +190,9 @@ std::string ReconstructionReport::skipped_reason() const {
   std::string out;
   if (skipped_bad_transform)
     out += std::to_string(skipped_bad_transform) + " with an invalid " + transform + " transform";
+  if (skipped_unusable_transform)
+    out += (out.empty() ? "" : ", ") + std::to_string(skipped_unusable_transform) +
+           " whose transforms cannot place them (" + skipped_frames + ")";
   if (skipped_bad_image)
     out += (out.empty() ? "" : ", ") + std::to_string(skipped_bad_image) +
            " with an image status not OK";
@@ -287,7 +297,10 @@ FrameSelection select_frames(const FrameSource& source, const PlusReconstruction
     std::string from = config ? config->image_frame : "Image";
     std::string to = config ? config->reference_frame : "Reference";
     if (o.transform) std::tie(from, to) = split_transform_name(*o.transform);
-    if (o.image_to_probe) calibration.set("Image", "Probe", *o.image_to_probe);
+    if (o.image_to_probe) {
+      check_image_to_probe(*o.image_to_probe, name("image_to_probe"));
+      calibration.set("Image", "Probe", *o.image_to_probe);
+    }
     const std::string hint =
         config || o.image_to_probe
             ? ""
@@ -299,6 +312,14 @@ FrameSelection select_frames(const FrameSource& source, const PlusReconstruction
     report.transform = from + "To" + to;
     report.skipped_bad_image = sel.bad_image;
     report.skipped_bad_transform = sel.bad_transform;
+    report.skipped_unusable_transform = int64_t(sel.unusable.size());
+    // The frames named, a few of them: enough to find them in the file.
+    for (size_t i = 0; i < sel.unusable.size() && i < 3; ++i)
+      report.skipped_frames += (i ? "; " : "") + std::string("frame ") +
+                               std::to_string(sel.unusable[i].first) + ": " +
+                               sel.unusable[i].second;
+    if (sel.unusable.size() > 3)
+      report.skipped_frames += "; " + std::to_string(sel.unusable.size() - 3) + " more";
     report.input = source.name + ": " + std::to_string(s.frame_count) + " frames of " +
                    dims_text(s.width, s.height) + " " + to_string(s.pixel_type) + " (orientation " +
                    s.orientation + ")";
@@ -308,11 +329,12 @@ FrameSelection select_frames(const FrameSource& source, const PlusReconstruction
                        " applies to PLUS sequences; frames with poses are placed by their poses");
     Mat4 image_to_probe;  // identity: beam-space frames' poses are probe → reference already
     if (source.kind == FrameSource::Kind::Images) {
-      if (o.image_to_probe)
+      if (o.image_to_probe) {
+        check_image_to_probe(*o.image_to_probe, name("image_to_probe"));
         image_to_probe = *o.image_to_probe;
-      else if (source.probe)
+      } else if (source.probe) {
         image_to_probe = image_to_probe_of(*source.probe);
-      else
+      } else
         throw InputError(source.name + ": 2D frames need the pixel-to-probe mapping (" +
                          name("image_to_probe") + " or " + name("probe") + ")");
     } else if (o.image_to_probe) {

@@ -1,12 +1,23 @@
 // The ITK edge of sonoslice: medical image formats in and out, geometry included.
 #include "ItkImageIO.h"
 
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <limits>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 
+#include <gdcmImageHelper.h>
+#include <gdcmReader.h>
+#include <gdcmTrace.h>
 #include <itkGDCMImageIO.h>
 #include <itkGDCMImageIOFactory.h>
 #include <itkGDCMSeriesFileNames.h>
@@ -26,6 +37,7 @@
 #include "NiftiData.h"
 #include "TextParse.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/core/Memory.h"
 
 namespace sonoslice {
 namespace itk_io {
@@ -42,13 +54,24 @@ class WarningWindow : public itk::OutputWindow {
   }
 };
 
-// MetaIO (MetaImage's library) reports short reads only on std::cerr and then returns success;
-// this captures what it prints during a read so it can be turned into an error.
+// MetaIO (MetaImage's library) reports trouble only on std::cerr: short reads, after which it
+// returns success, and header errors, after which ITK says "No such file or directory" about a
+// file that exists. This captures what it prints during a read so that it can become the error.
 class CerrCapture {
  public:
   CerrCapture() : old_(std::cerr.rdbuf(text_.rdbuf())) {}
   ~CerrCapture() { std::cerr.rdbuf(old_); }
   std::string text() const { return text::one_line_message(text_.str()); }
+  /// The first line printed: the cause; what follows is the library unwinding. A source location
+  /// in front ("./Modules/.../vnl_svd.hxx: ") goes.
+  std::string first_line() const {
+    const std::string all = text_.str();
+    std::string line = text::one_line_message(all.substr(0, all.find('\n')));
+    const size_t colon = line.find(": ");
+    if ((line.rfind("./", 0) == 0 || line.rfind("/", 0) == 0) && colon != std::string::npos)
+      line = line.substr(colon + 2);
+    return line;
+  }
 
  private:
   std::stringstream text_;
@@ -60,6 +83,10 @@ void register_factories() {
   static std::once_flag once;
   std::call_once(once, [] {
     itk::OutputWindow::SetInstance(WarningWindow::New());
+    // GDCM prints its warnings and errors to std::cerr, several lines each; its failures reach
+    // sonoslice as ITK exceptions, and the series checks say what its warnings would.
+    gdcm::Trace::WarningOff();
+    gdcm::Trace::ErrorOff();
     itk::NiftiImageIOFactory::RegisterOneFactory();
     itk::MetaImageIOFactory::RegisterOneFactory();
     itk::NrrdImageIOFactory::RegisterOneFactory();
@@ -68,9 +95,159 @@ void register_factories() {
   });
 }
 
-// ITK's exception text is several lines with source locations; keep its description.
+// ITK's exception text is several lines with source locations and object addresses
+// ("ITK ERROR: NrrdImageIO(0x55c3d78f3040): Read: Error reading ..."); keep what it says. Teem's
+// NRRD errors are a chain of "[nrrd] function: trouble" clauses whose last one is the cause.
 std::string describe(const itk::ExceptionObject& e) {
-  return text::one_line_message(e.GetDescription());
+  std::string s = text::one_line_message(e.GetDescription());
+  for (const char* prefix : {"ITK ERROR: ", "itk::ERROR: "})
+    if (s.rfind(prefix, 0) == 0) {
+      const size_t close = s.find("): ");
+      if (close != std::string::npos) s = s.substr(close + 3);
+    }
+  const size_t nrrd = s.rfind("[nrrd] ");
+  if (nrrd != std::string::npos) {
+    std::string cause = s.substr(nrrd + 7);
+    const size_t colon = cause.find(": ");  // "_nrrdCalloc: couldn't allocate ..."
+    if (colon != std::string::npos && cause.compare(0, 1, "_") == 0)
+      cause = cause.substr(colon + 2);
+    s = "NRRD: " + cause;
+  }
+  return s;
+}
+
+// ---- text headers (MetaImage, NRRD), checked before ITK reads them -----------------------------
+//
+// MetaIO keeps sizes in `int` and turns an unparsable number into a cascade of messages on
+// std::cerr ("ElementType required and not defined" for "ElementSpacing = nan 1 1"); ITK's NRRD
+// reader turns a NaN spacing into 1 mm. The few fields that carry sizes and geometry are checked
+// here so that the error names the field and its value.
+
+// `key → value` of the header lines: MetaImage `Key = Value` up to ElementDataFile, NRRD
+// `key: value` up to the blank line before the data. Keys are lower-case.
+std::map<std::string, std::string> header_fields(const std::string& path, bool nrrd) {
+  std::ifstream in(path, std::ios::binary);
+  std::map<std::string, std::string> fields;
+  std::string line;
+  size_t bytes = 0;
+  while (std::getline(in, line) && bytes < (size_t(1) << 20)) {
+    bytes += line.size() + 1;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (nrrd && line.empty()) break;
+    if (nrrd && line[0] == '#') continue;
+    const size_t at = line.find(nrrd ? ':' : '=');
+    if (at == std::string::npos || (nrrd && line.compare(at, 2, ":=") == 0)) continue;
+    const std::string key = text::lower(text::trim(line.substr(0, at)));
+    fields[key] = text::trim(line.substr(at + 1));
+    if (!nrrd && key == "elementdatafile") break;
+  }
+  return fields;
+}
+
+void check_numbers(const std::string& path, const std::string& field, const std::string& value,
+                   bool positive) {
+  // NRRD writes vectors as "(1,0,0) (0,1,0)" and "none" for axes without a direction.
+  std::string v = value;
+  for (char& c : v)
+    if (c == '(' || c == ')' || c == ',') c = ' ';
+  for (const std::string& t : text::split_ws(v)) {
+    double x = 0;
+    if (t == "none") continue;
+    if (!text::parse_double(t, &x) || (positive && !(x > 0)))
+      throw InputError(
+          "volume '" + path + "': " + field + " " + text::quote_value(value) + ": " +
+          (positive ? "spacings must be positive numbers of mm" : "expected finite numbers"));
+  }
+}
+
+void check_sizes(const std::string& path, const std::string& field, const std::string& value,
+                 int64_t limit) {
+  const std::vector<std::string> tokens = text::split_ws(value);
+  for (const std::string& t : tokens) {
+    int64_t n = 0;
+    if (!text::parse_int64(t, &n) || n < 1 || n > limit)
+      throw InputError("volume '" + path + "': " + field + " " + text::quote_value(value) +
+                       " is not a list of sizes (whole numbers from 1 to " + std::to_string(limit) +
+                       ")");
+  }
+  if (tokens.empty()) throw InputError("volume '" + path + "': " + field + " is empty");
+}
+
+// A detached header's data file must exist: ITK reports its absence as the header's ("File cannot
+// be read: x.mhd ... No such file or directory").
+void check_data_file(const std::string& path, const std::string& field, const std::string& name) {
+  const std::string lower = text::lower(name);
+  if (name.empty() || lower == "local" || lower.rfind("list", 0) == 0 ||
+      name.find('%') != std::string::npos)
+    return;  // inline data, or one file per slice (ITK lists them)
+  const std::filesystem::path data = std::filesystem::path(name).is_absolute()
+                                         ? std::filesystem::path(name)
+                                         : std::filesystem::path(path).parent_path() / name;
+  std::error_code ec;
+  if (!std::filesystem::exists(data, ec))
+    throw FileError("cannot read volume '" + path + "': its data file '" + data.string() + "' (" +
+                    field + ") does not exist");
+}
+
+void check_text_header(const std::string& path, ImageFormat format) {
+  if (format == ImageFormat::MetaImage) {
+    const auto f = header_fields(path, false);
+    if (auto it = f.find("elementdatafile"); it != f.end())
+      check_data_file(path, "ElementDataFile", it->second);
+    if (auto it = f.find("dimsize"); it != f.end())
+      check_sizes(path, "DimSize", it->second, std::numeric_limits<int>::max());
+    for (const char* key : {"elementspacing", "elementsize"})
+      if (auto it = f.find(key); it != f.end())
+        check_numbers(path, key == std::string("elementspacing") ? "ElementSpacing" : "ElementSize",
+                      it->second, true);
+    for (const char* key : {"offset", "origin", "position", "transformmatrix", "rotation",
+                            "orientation", "centerofrotation"})
+      if (auto it = f.find(key); it != f.end()) check_numbers(path, key, it->second, false);
+  } else if (format == ImageFormat::Nrrd) {
+    std::ifstream in(path, std::ios::binary);
+    char magic[4] = {0};
+    in.read(magic, 4);
+    if (std::memcmp(magic, "NRRD", 4) != 0) return;  // ITK says what it is not
+    const auto f = header_fields(path, true);
+    for (const char* key : {"data file", "datafile"})
+      if (auto it = f.find(key); it != f.end()) check_data_file(path, key, it->second);
+    if (auto it = f.find("sizes"); it != f.end())
+      check_sizes(path, "sizes", it->second, std::numeric_limits<int64_t>::max());
+    int64_t dimension = 0;
+    auto dim = f.find("dimension");
+    // NaN is NRRD's "unknown", legitimate for a non-spatial axis (vector components, time); a
+    // scalar image of up to three dimensions has spatial axes only.
+    if (dim == f.end() || !text::parse_int64(dim->second, &dimension) || dimension > 3) return;
+    if (auto it = f.find("spacings"); it != f.end())
+      check_numbers(path, "spacings", it->second, true);
+    for (const char* key : {"space directions", "space origin"})
+      if (auto it = f.find(key); it != f.end()) check_numbers(path, key, it->second, false);
+  }
+}
+
+// The byte count of the image a header describes, checked for overflow before ITK multiplies the
+// sizes itself (a MetaImage "DimSize = -5 4 4" reached ITK as 2^64 - 5 voxels).
+uint64_t checked_image_bytes(itk::ImageIOBase* io, const std::string& path) {
+  uint64_t bytes = uint64_t(io->GetComponentSize()) * io->GetNumberOfComponents();
+  std::ostringstream sizes;
+  for (unsigned d = 0; d < io->GetNumberOfDimensions(); ++d)
+    sizes << (d ? " x " : "") << io->GetDimensions(d);
+  for (unsigned d = 0; d < io->GetNumberOfDimensions(); ++d) {
+    const uint64_t n = io->GetDimensions(d);
+    if (n == 0 || n > uint64_t(std::numeric_limits<int64_t>::max()) ||
+        (bytes != 0 && n > uint64_t(std::numeric_limits<int64_t>::max()) / bytes))
+      throw InputError("volume '" + path + "': the header's sizes (" + sizes.str() +
+                       ") are not a valid image size");
+    bytes *= n;
+  }
+  const unsigned long long available = available_memory_bytes();
+  if (bytes > available) {
+    std::ostringstream s;
+    s << "volume '" << path << "': its header describes " << sizes.str() << " voxels ("
+      << bytes / kMiB << " MiB), more than the " << available / kMiB << " MiB of memory available";
+    throw ResourceError(s.str());
+  }
+  return bytes;
 }
 
 PixelType to_pixel_type(itk::IOComponentEnum component, const std::string& path) {
@@ -178,10 +355,144 @@ void write_typed(const std::string& path, const void* data, const std::vector<in
   writer->Update();
 }
 
+// ---- DICOM series, checked slice by slice before ITK stacks them -------------------------------
+//
+// ITK's series reader reads a slice whose pixel data is cut short with zeros (GDCM reads the short
+// element and carries on), stacks two slices found at one position, and, when a slice is missing,
+// only warns while it stretches or keeps the spacing. The slices' headers are read here with GDCM
+// (up to the pixel data) and checked: each pixel data element must fit in its file, and the
+// positions along the slice normal must be distinct and evenly spaced.
+
+struct DicomSlice {
+  std::string file;
+  double z = 0;  // ImagePositionPatient along the slice normal, mm
+  std::vector<double> cosines;
+  bool has_position = false;
+};
+
+std::string file_name(const std::string& path) {
+  return std::filesystem::path(path).filename().string();
+}
+
+// The pixel data element whose value starts at `value_offset` of `file` (where GDCM stopped,
+// having read its header): its declared length must fit in the file and hold the slice's pixels.
+void check_pixel_data(const std::string& directory, const std::string& file, uint64_t value_offset,
+                      uint64_t pixel_bytes) {
+  const std::string where = "DICOM series in '" + directory + "': slice '" + file_name(file) + "'";
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(file, ec);
+  // Implicit VR: tag, 32-bit length; explicit VR (OB, OW): tag, VR, 2 reserved bytes, 32-bit
+  // length. Either way the length is the 4 bytes before the value, the tag 8 or 12 before.
+  unsigned char h[12] = {0};
+  std::ifstream in(file, std::ios::binary);
+  if (value_offset >= 12) in.seekg(std::streamoff(value_offset - 12));
+  in.read(reinterpret_cast<char*>(h), sizeof h);
+  static const unsigned char kTag[4] = {0xe0, 0x7f, 0x10, 0x00};
+  if (value_offset > size || in.gcount() < 12 ||
+      (std::memcmp(h + 4, kTag, 4) != 0 && std::memcmp(h, kTag, 4) != 0))
+    throw FileError("cannot read " + where + ": truncated or corrupt file (no pixel data)");
+  const uint64_t length =
+      uint64_t(h[8]) | uint64_t(h[9]) << 8 | uint64_t(h[10]) << 16 | uint64_t(h[11]) << 24;
+  if (length == 0xffffffffu) return;  // encapsulated (compressed) fragments: GDCM decodes them
+  if (value_offset + length > size) {
+    std::ostringstream s;
+    s << "cannot read " << where << ": truncated or corrupt file (its pixel data needs "
+      << value_offset + length << " bytes, the file has " << size << ")";
+    throw FileError(s.str());
+  }
+  if (length < pixel_bytes) {
+    std::ostringstream s;
+    s << "cannot read " << where << ": corrupt file (" << length << " bytes of pixel data for "
+      << pixel_bytes << " bytes of pixels)";
+    throw FileError(s.str());
+  }
+}
+
+void check_dicom_slices(const std::string& directory, const std::vector<std::string>& files) {
+  const std::string where = "DICOM series in '" + directory + "'";
+  std::vector<DicomSlice> slices;
+  for (const std::string& file : files) {
+    gdcm::Reader reader;
+    reader.SetFileName(file.c_str());
+    // Reads every element before the pixel data and that element's header, not its value.
+    const gdcm::Tag pixel_data(0x7fe0, 0x0010);
+    if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
+      throw FileError("cannot read " + where + ": slice '" + file_name(file) +
+                      "' is not a readable DICOM file");
+    const gdcm::File& f = reader.GetFile();
+    const std::vector<unsigned int> dims = gdcm::ImageHelper::GetDimensionsValue(f);
+    const gdcm::PixelFormat format = gdcm::ImageHelper::GetPixelFormatValue(f);
+    uint64_t pixel_bytes =
+        (uint64_t(format.GetBitsAllocated()) + 7) / 8 * format.GetSamplesPerPixel();
+    for (unsigned int d : dims) pixel_bytes *= d;
+    check_pixel_data(directory, file, reader.GetStreamCurrentPosition(), pixel_bytes);
+    DicomSlice slice;
+    slice.file = file;
+    slice.has_position = f.GetDataSet().FindDataElement(gdcm::Tag(0x0020, 0x0032)) &&
+                         f.GetDataSet().FindDataElement(gdcm::Tag(0x0020, 0x0037));
+    if (slice.has_position) {
+      const std::vector<double> p = gdcm::ImageHelper::GetOriginValue(f);
+      slice.cosines = gdcm::ImageHelper::GetDirectionCosinesValue(f);
+      const Vec3 row{slice.cosines[0], slice.cosines[1], slice.cosines[2]};
+      const Vec3 column{slice.cosines[3], slice.cosines[4], slice.cosines[5]};
+      slice.z = dot(cross(row, column), Vec3{p[0], p[1], p[2]});
+    }
+    slices.push_back(std::move(slice));
+  }
+  if (slices.size() < 2) return;
+  for (const DicomSlice& s : slices)
+    if (!s.has_position) return;  // no geometry to check: ITK stacks them 1 mm apart
+  for (const DicomSlice& s : slices)
+    for (size_t i = 0; i < 6; ++i)
+      if (std::fabs(s.cosines[i] - slices.front().cosines[i]) > 1e-3)
+        throw InputError(where + ": slices '" + file_name(slices.front().file) + "' and '" +
+                         file_name(s.file) + "' have different orientations");
+  std::sort(slices.begin(), slices.end(), [](const DicomSlice& a, const DicomSlice& b) {
+    return a.z < b.z || (a.z == b.z && a.file < b.file);
+  });
+  std::vector<double> gaps;
+  for (size_t k = 0; k + 1 < slices.size(); ++k) gaps.push_back(slices[k + 1].z - slices[k].z);
+  std::vector<double> sorted = gaps;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const double spacing = sorted[sorted.size() / 2];
+  // Positions are decimal strings rounded to about a micrometre: a tolerance of 1% of the
+  // spacing (at least 0.01 mm) tells rounding from a missing or misplaced slice.
+  const double tolerance = std::max(0.01 * spacing, 0.01);
+  for (size_t k = 0; k < gaps.size(); ++k) {
+    const std::string pair =
+        "'" + file_name(slices[k].file) + "' and '" + file_name(slices[k + 1].file) + "'";
+    std::ostringstream s;
+    s << where << ": ";
+    if (gaps[k] < tolerance) {
+      s << "slices " << pair << " are at the same position (" << slices[k].z
+        << " mm along the slice normal)";
+      throw InputError(s.str());
+    }
+    if (std::fabs(gaps[k] - spacing) > tolerance) {
+      const double ratio = gaps[k] / spacing;
+      if (std::fabs(ratio - std::round(ratio)) * spacing < tolerance)
+        s << "missing slice(s) between " << pair << ": they are " << gaps[k]
+          << " mm apart, the other slices " << spacing << " mm";
+      else
+        s << "uneven slice spacing: " << pair << " are " << gaps[k] << " mm apart, the other "
+          << "slices " << spacing << " mm";
+      throw InputError(s.str());
+    }
+  }
+}
+
 }  // namespace
 
 Volume read_image_file(const std::string& path) {
   register_factories();
+  const ImageFormat format = image_format(path, "volume");
+  if (format == ImageFormat::Nifti) check_nifti_header(path);
+  check_text_header(path, format);
+  // ITK's libraries print to std::cerr (MetaIO's header errors, VNL's remarks on a near-singular
+  // orientation): held here, to become the error's cause or one warning.
+  std::optional<Volume> volume;
+  bool header_read = false;
+  CerrCapture capture;
   try {
     itk::ImageIOBase::Pointer io =
         itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
@@ -190,6 +501,8 @@ Volume read_image_file(const std::string& path) {
                       "': not a readable image format (or corrupt)");
     io->SetFileName(path);
     io->ReadImageInformation();
+    header_read = true;
+    checked_image_bytes(io, path);
     const unsigned dims = io->GetNumberOfDimensions();
     if (dims > 3) {
       for (unsigned d = 3; d < dims; ++d)
@@ -214,12 +527,21 @@ Volume read_image_file(const std::string& path) {
           grid.direction.m[b][a] =
               a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
       }
-      if (auto v = read_nifti_voxels(path, grid, type)) return std::move(*v);
+      volume = read_nifti_voxels(path, grid, type);
     }
-    return visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });
+    if (!volume)
+      volume =
+          visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });
   } catch (const itk::ExceptionObject& e) {
+    // A header MetaIO could not parse: its first words are the cause, and ITK's exception then
+    // blames errno ("No such file or directory") left over from some earlier call.
+    const std::string cause = capture.first_line();
+    if (!header_read && !cause.empty())
+      throw FileError("cannot read volume '" + path + "': corrupt header (" + cause + ")");
     throw FileError("cannot read volume '" + path + "': " + describe(e));
   }
+  if (!capture.first_line().empty()) warn("volume '" + path + "': " + capture.first_line());
+  return std::move(*volume);
 }
 
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
@@ -266,6 +588,7 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
       }
     }
     const std::vector<std::string> files = names->GetFileNames(chosen);
+    check_dicom_slices(directory, files);
     // The pixel type after rescale slope/intercept, as GDCM reports it for the first file.
     auto io = itk::GDCMImageIO::New();
     io->SetFileName(files.front());

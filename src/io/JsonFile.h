@@ -11,6 +11,26 @@
 
 namespace sonoslice {
 
+/// The JSON library's message, fit for one line of an error: printable ASCII only. A parse error
+/// quotes the bytes it last read, which need not be valid UTF-8 (Python decodes messages as such).
+inline std::string json_detail(const nlohmann::json::exception& e) {
+  std::string s = e.what();
+  for (char& c : s)
+    if (c < 0x20 || c > 0x7e) c = '?';
+  return s;
+}
+
+/// Runs `read`, which reads a parsed document; a JSON library exception it lets escape (a value
+/// of the wrong type somewhere a check was missed) becomes an InputError that names the file.
+template <typename F>
+auto with_json_errors_named(const std::string& where, F read) -> decltype(read()) {
+  try {
+    return read();
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(where + ": " + json_detail(e));
+  }
+}
+
 /// Whether a failure to open the file names the system's reason.
 enum class OpenErrorReason { Omit, Append };
 
@@ -30,7 +50,7 @@ inline nlohmann::json read_json_file(const std::string& path, const std::string&
   try {
     return nlohmann::json::parse(in);
   } catch (const nlohmann::json::parse_error& e) {
-    throw FileError(what + " '" + path + "': invalid JSON (" + e.what() + ")");
+    throw FileError(what + " '" + path + "': invalid JSON (" + json_detail(e) + ")");
   }
 }
 

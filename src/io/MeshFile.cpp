@@ -1,7 +1,16 @@
 // The VTK edge of sonoslice: surface meshes in and out.
 #include "sonoslice/io/MeshFile.h"
 
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <sstream>
+#include <vector>
 
 #include "TextParse.h"
 #include "sonoslice/core/Error.h"
@@ -13,6 +22,7 @@
 #include <vtkCellArray.h>
 #include <vtkCleanPolyData.h>
 #include <vtkIdList.h>
+#include <vtkIdTypeArray.h>
 #include <vtkLogger.h>
 #include <vtkNew.h>
 #include <vtkOBJReader.h>
@@ -23,7 +33,6 @@
 #include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
-#include <vtkPolyDataReader.h>
 #include <vtkPolyDataWriter.h>
 #include <vtkSTLReader.h>
 #include <vtkSTLWriter.h>
@@ -91,12 +100,495 @@ std::string trimmed(const std::string& s) {
   return s.size() > 2 ? s.substr(0, s.size() - 2) : s;
 }
 
-vtkSmartPointer<vtkAlgorithm> reader_for(const std::string& path, const std::string& ext) {
-  if (ext == ".vtk") {
-    auto r = vtkSmartPointer<vtkPolyDataReader>::New();
-    r->SetFileName(path.c_str());
-    return r;
+[[noreturn]] void corrupt(const std::string& path, const std::string& why) {
+  throw FileError("cannot read mesh '" + path + "': " + why);
+}
+
+std::string read_whole_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) corrupt(path, std::strerror(errno));
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) corrupt(path, "read error");
+  return bytes;
+}
+
+// ---- legacy VTK ---------------------------------------------------------------------------
+//
+// Legacy .vtk files are parsed here rather than by vtkPolyDataReader, which trusts the counts in
+// the file: a truncated binary file or a polygon naming point 99999 of 3 crashed it or read
+// beyond its arrays (issue 10). sonoslice needs only the points and the polygons and triangle
+// strips; they are checked against the file's size, the point count and for finite coordinates
+// while they are read, and reach VTK's triangulation and point merging as a vtkPolyData. The
+// grammar is VTK's (IO/Legacy/vtkDataReader.cxx, vtkPolyDataReader.cxx): keywords in any case,
+// binary values big-endian and starting after the line that announces them, cells as
+// "n size" + counted lists before file version 5 and as OFFSETS + CONNECTIVITY arrays from 5.0.
+// Attribute data (POINT_DATA, CELL_DATA and what follows) is not read.
+
+// The value types a legacy file may name for an array, with their size in binary files.
+struct ValueType {
+  const char* name;
+  int bytes;
+  bool is_float, is_signed;
+};
+constexpr ValueType kValueTypes[] = {
+    {"bit", 0, false, false},  // packed bits: never coordinates or ids, refused below
+    {"char", 1, false, true},
+    {"signed_char", 1, false, true},
+    {"unsigned_char", 1, false, false},
+    {"short", 2, false, true},
+    {"unsigned_short", 2, false, false},
+    {"int", 4, false, true},
+    {"unsigned_int", 4, false, false},
+    {"long", 8, false, true},
+    {"unsigned_long", 8, false, false},
+    {"vtktypeint64", 8, false, true},
+    {"vtktypeuint64", 8, false, false},
+    {"vtkidtype", 8, false, true},
+    {"vtktypeint32", 4, false, true},
+    {"vtktypeuint32", 4, false, false},
+    {"float", 4, true, true},
+    {"double", 8, true, true},
+};
+
+class LegacyVtkParser {
+ public:
+  LegacyVtkParser(std::string path, std::string bytes)
+      : path_(std::move(path)), bytes_(std::move(bytes)), at_(0) {}
+
+  vtkSmartPointer<vtkPolyData> parse() {
+    header();
+    while (true) {
+      std::string keyword;
+      if (!token(&keyword)) break;
+      keyword = text::lower(keyword);
+      if (keyword == "field") {
+        field_data();
+      } else if (keyword == "points") {
+        points();
+      } else if (keyword == "vertices" || keyword == "lines" || keyword == "polygons" ||
+                 keyword == "triangle_strips") {
+        cells(keyword);
+      } else if (keyword == "point_data" || keyword == "cell_data") {
+        break;  // attributes: sonoslice uses none of them
+      } else {
+        corrupt(path_, "unrecognized keyword " + text::quote_value(keyword) + " at byte " +
+                           std::to_string(at_ - keyword.size()));
+      }
+    }
+    auto poly = vtkSmartPointer<vtkPolyData>::New();
+    vtkNew<vtkPoints> points;
+    points->SetDataTypeToDouble();
+    points->SetNumberOfPoints(vtkIdType(points_.size() / 3));
+    for (size_t i = 0; i < points_.size() / 3; ++i)
+      points->SetPoint(vtkIdType(i), points_[3 * i], points_[3 * i + 1], points_[3 * i + 2]);
+    poly->SetPoints(points);
+    poly->SetPolys(cell_array(polys_));
+    poly->SetStrips(cell_array(strips_));
+    return poly;
   }
+
+ private:
+  // Cells as offsets into a connectivity list (n + 1 offsets for n cells).
+  struct Cells {
+    std::vector<vtkIdType> offsets{0}, connectivity;
+  };
+
+  void header() {
+    const std::string first = line();
+    if (first.rfind("# vtk DataFile Version", 0) != 0)
+      corrupt(path_, "not a legacy VTK file (its first line is not '# vtk DataFile Version')");
+    int major = 0, minor = 0;
+    if (std::sscanf(first.c_str() + 22, "%d.%d", &major, &minor) == 2) major_version_ = major;
+    line();  // the title
+    std::string format, dataset, type;
+    if (!token(&format)) truncated("the header");
+    format = text::lower(format);
+    if (format != "ascii" && format != "binary")
+      corrupt(path_, "file type " + text::quote_value(format) + " (expected ASCII or BINARY)");
+    binary_ = format == "binary";
+    if (!token(&dataset) || text::lower(dataset) != "dataset" || !token(&type) ||
+        text::lower(type) != "polydata")
+      corrupt(path_, "not a legacy VTK POLYDATA file");
+  }
+
+  void points() {
+    if (have_points_) corrupt(path_, "two POINTS sections");
+    have_points_ = true;
+    const int64_t n = count("POINTS", "number of points");
+    // TriangleMesh indexes vertices with int32.
+    if (n > int64_t(std::numeric_limits<int32_t>::max()))
+      throw InputError("mesh '" + path_ + "': " + std::to_string(n) +
+                       " points (sonoslice meshes hold at most 2^31 - 1)");
+    const ValueType& type = value_type("POINTS");
+    points_ = values(type, uint64_t(n) * 3, "POINTS");
+    for (size_t i = 0; i < points_.size(); ++i)
+      if (!std::isfinite(points_[i]))
+        throw InputError("mesh '" + path_ + "': point " + std::to_string(i / 3) +
+                         " has a non-finite coordinate");
+  }
+
+  void cells(const std::string& keyword) {
+    const std::string section = text::upper(keyword);
+    Cells c;
+    if (major_version_ >= 5) {
+      const int64_t n_offsets = count(section, "number of offsets");
+      const int64_t n_ids = count(section, "connectivity size");
+      expect_keyword("offsets", section);
+      const std::vector<int64_t> offsets =
+          ids(value_type(section + " OFFSETS"), uint64_t(n_offsets), section + " OFFSETS");
+      expect_keyword("connectivity", section);
+      const std::vector<int64_t> connectivity =
+          ids(value_type(section + " CONNECTIVITY"), uint64_t(n_ids), section + " CONNECTIVITY");
+      if (!offsets.empty() && (offsets.front() != 0 || offsets.back() != n_ids))
+        corrupt(path_, section + ": the offsets must run from 0 to the connectivity size " +
+                           std::to_string(n_ids));
+      if (offsets.empty() && n_ids != 0) corrupt(path_, section + ": connectivity without offsets");
+      for (size_t k = 0; k + 1 < offsets.size(); ++k) {
+        if (offsets[k + 1] < offsets[k])
+          corrupt(path_, section + ": the offsets decrease at cell " + std::to_string(k));
+        add_cell(&c, connectivity.data() + offsets[k], offsets[k + 1] - offsets[k], section, k);
+      }
+    } else {
+      const int64_t n = count(section, "number of cells");
+      const int64_t size = count(section, "size");
+      const std::vector<int64_t> list = ids(find_type("int"), uint64_t(size), section);
+      int64_t at = 0;
+      for (int64_t k = 0; k < n; ++k) {
+        if (at >= size || list[size_t(at)] < 0 || list[size_t(at)] > size - at - 1)
+          corrupt(path_, section + " " + std::to_string(n) + " " + std::to_string(size) +
+                             ": cell " + std::to_string(k) + " runs past the announced size");
+        add_cell(&c, list.data() + at + 1, list[size_t(at)], section, size_t(k));
+        at += 1 + list[size_t(at)];
+      }
+      if (at != size)
+        corrupt(path_, section + " " + std::to_string(n) + " " + std::to_string(size) + ": the " +
+                           std::to_string(n) + " cells fill " + std::to_string(at) +
+                           " of the announced size");
+    }
+    if (keyword == "polygons") polys_ = std::move(c);
+    if (keyword == "triangle_strips") strips_ = std::move(c);
+  }
+
+  // Checks a cell's point ids and keeps it when it can make a triangle (VTK's triangulation
+  // ignores shorter cells too).
+  void add_cell(Cells* c, const int64_t* cell, int64_t n, const std::string& section, size_t k) {
+    const int64_t points = int64_t(points_.size() / 3);
+    for (int64_t i = 0; i < n; ++i)
+      if (cell[i] < 0 || cell[i] >= points)
+        corrupt(path_, section + ": cell " + std::to_string(k) + " uses point " +
+                           std::to_string(cell[i]) + ", but the file has " +
+                           std::to_string(points) + " points");
+    if (n < 3) return;
+    c->connectivity.insert(c->connectivity.end(), cell, cell + n);
+    c->offsets.push_back(vtkIdType(c->connectivity.size()));
+  }
+
+  static vtkSmartPointer<vtkCellArray> cell_array(const Cells& c) {
+    vtkNew<vtkIdTypeArray> offsets, connectivity;
+    offsets->SetNumberOfValues(vtkIdType(c.offsets.size()));
+    for (size_t i = 0; i < c.offsets.size(); ++i) offsets->SetValue(vtkIdType(i), c.offsets[i]);
+    connectivity->SetNumberOfValues(vtkIdType(c.connectivity.size()));
+    for (size_t i = 0; i < c.connectivity.size(); ++i)
+      connectivity->SetValue(vtkIdType(i), c.connectivity[i]);
+    auto cells = vtkSmartPointer<vtkCellArray>::New();
+    cells->SetData(offsets, connectivity);
+    return cells;
+  }
+
+  // "FIELD name n" and n arrays "name components tuples type" + values (skipped over).
+  void field_data() {
+    std::string name;
+    if (!token(&name)) truncated("FIELD");
+    const int64_t arrays = count("FIELD", "number of arrays");
+    for (int64_t a = 0; a < arrays; ++a) {
+      std::string array;
+      if (!token(&array)) truncated("FIELD");
+      if (array == "NULL_ARRAY") continue;
+      const int64_t components = count("FIELD array " + array, "number of components");
+      const int64_t tuples = count("FIELD array " + array, "number of tuples");
+      const uint64_t n = checked_product(uint64_t(components), uint64_t(tuples), "FIELD " + array);
+      values(value_type("FIELD array " + array), n, "FIELD array " + array);
+    }
+  }
+
+  // ---- tokens, lines and values ----
+
+  size_t left() const { return bytes_.size() - at_; }
+
+  bool token(std::string* out) {
+    while (at_ < bytes_.size() && std::isspace(static_cast<unsigned char>(bytes_[at_]))) ++at_;
+    const size_t begin = at_;
+    while (at_ < bytes_.size() && !std::isspace(static_cast<unsigned char>(bytes_[at_]))) ++at_;
+    out->assign(bytes_, begin, at_ - begin);
+    return at_ > begin;
+  }
+
+  std::string line() {
+    const size_t end = bytes_.find('\n', at_);
+    std::string s = bytes_.substr(at_, end == std::string::npos ? std::string::npos : end - at_);
+    at_ = end == std::string::npos ? bytes_.size() : end + 1;
+    if (!s.empty() && s.back() == '\r') s.pop_back();
+    return s;
+  }
+
+  [[noreturn]] void truncated(const std::string& where) const {
+    corrupt(path_, "truncated or corrupt file (it ends inside " + where + ")");
+  }
+
+  int64_t count(const std::string& section, const char* what) {
+    std::string t;
+    int64_t v = 0;
+    if (!token(&t)) truncated(section);
+    if (!text::parse_int64(t, &v) || v < 0)
+      corrupt(path_, section + ": " + what + " " + text::quote_value(t) +
+                         " is not a count (a whole number >= 0)");
+    return v;
+  }
+
+  void expect_keyword(const char* keyword, const std::string& section) {
+    std::string t;
+    if (!token(&t)) truncated(section);
+    if (text::lower(t) != keyword)
+      corrupt(path_,
+              section + ": expected " + text::upper(keyword) + ", found " + text::quote_value(t));
+  }
+
+  static const ValueType& find_type(const std::string& name) {
+    for (const ValueType& t : kValueTypes)
+      if (name == t.name) return t;
+    return kValueTypes[0];
+  }
+
+  const ValueType& value_type(const std::string& section) {
+    std::string t;
+    if (!token(&t)) truncated(section);
+    const ValueType& type = find_type(text::lower(t));
+    if (type.bytes == 0)
+      corrupt(path_, section + ": value type " + text::quote_value(t) + " is not supported");
+    return type;
+  }
+
+  uint64_t checked_product(uint64_t a, uint64_t b, const std::string& section) const {
+    if (b != 0 && a > std::numeric_limits<uint64_t>::max() / b)
+      corrupt(path_, section + ": the announced sizes overflow");
+    return a * b;
+  }
+
+  // `n` numbers announced by `section` (binary ones start after the current line).
+  std::vector<double> values(const ValueType& type, uint64_t n, const std::string& section) {
+    std::vector<double> out;
+    read_values(type, n, section, &out, [&](const unsigned char* p, const std::string& t) {
+      if (p) return decode_float(type, p);
+      char* end = nullptr;
+      const double v = std::strtod(t.c_str(), &end);
+      if (end != t.c_str() + t.size())
+        corrupt(path_, section + ": " + text::quote_value(t) + " is not a number");
+      return v;
+    });
+    return out;
+  }
+
+  // `n` point ids or counts announced by `section`.
+  std::vector<int64_t> ids(const ValueType& type, uint64_t n, const std::string& section) {
+    if (type.is_float)
+      corrupt(path_, section + ": ids of type " + std::string(type.name) + " (expected integers)");
+    std::vector<int64_t> out;
+    read_values(type, n, section, &out, [&](const unsigned char* p, const std::string& t) {
+      if (p) return decode_integer(type, p);
+      int64_t v = 0;
+      if (!text::parse_int64(t, &v))
+        corrupt(path_, section + ": " + text::quote_value(t) + " is not a whole number");
+      return v;
+    });
+    return out;
+  }
+
+  // Checks that `n` values fit in what is left of the file before anything is allocated, then
+  // hands each to `parse` (the bytes of a binary value, or the token of an ASCII one).
+  template <typename T, typename Parse>
+  void read_values(const ValueType& type, uint64_t n, const std::string& section,
+                   std::vector<T>* out, Parse parse) {
+    if (binary_) {
+      line();  // the rest of the line that names the type
+      const uint64_t bytes = checked_product(n, uint64_t(type.bytes), section);
+      if (bytes > left()) {
+        std::ostringstream s;
+        s << "truncated or corrupt file: " << section << " announces " << n << " values (" << bytes
+          << " bytes), the file has " << left() << " bytes left";
+        corrupt(path_, s.str());
+      }
+      out->reserve(size_t(n));
+      const auto* p = reinterpret_cast<const unsigned char*>(bytes_.data() + at_);
+      for (uint64_t i = 0; i < n; ++i, p += type.bytes) out->push_back(parse(p, std::string()));
+      at_ += size_t(bytes);
+    } else {
+      // Each ASCII value takes at least two bytes (a digit and a separator).
+      if (n > (left() + 1) / 2) truncated(section);
+      out->reserve(size_t(n));
+      std::string t;
+      for (uint64_t i = 0; i < n; ++i) {
+        if (!token(&t)) truncated(section);
+        out->push_back(parse(nullptr, t));
+      }
+    }
+    skip_metadata();
+  }
+
+  static uint64_t big_endian(const ValueType& type, const unsigned char* p) {
+    uint64_t u = 0;
+    for (int i = 0; i < type.bytes; ++i) u = (u << 8) | p[i];
+    return u;
+  }
+
+  static double decode_float(const ValueType& type, const unsigned char* p) {
+    if (!type.is_float) return double(decode_integer(type, p));
+    const uint64_t u = big_endian(type, p);
+    if (type.bytes == 4) {
+      const uint32_t u32 = uint32_t(u);
+      float f;
+      std::memcpy(&f, &u32, 4);
+      return f;
+    }
+    double d;
+    std::memcpy(&d, &u, 8);
+    return d;
+  }
+
+  // Unsigned values beyond int64 become -1: no valid id or count is that large either.
+  static int64_t decode_integer(const ValueType& type, const unsigned char* p) {
+    uint64_t u = big_endian(type, p);
+    if (!type.is_signed) return u > uint64_t(std::numeric_limits<int64_t>::max()) ? -1 : int64_t(u);
+    if (type.bytes < 8 && (u >> (8 * type.bytes - 1)) != 0)
+      u |= ~uint64_t(0) << (8 * type.bytes);  // sign-extend
+    return int64_t(u);
+  }
+
+  // An array may be followed by a METADATA block, which ends at an empty line.
+  void skip_metadata() {
+    const size_t before = at_;
+    std::string t;
+    if (!token(&t) || text::lower(t) != "metadata") {
+      at_ = before;
+      return;
+    }
+    line();
+    while (at_ < bytes_.size() && !text::trim(line()).empty()) {
+    }
+  }
+
+  std::string path_;
+  std::string bytes_;
+  size_t at_;
+  int major_version_ = 0;
+  bool binary_ = false, have_points_ = false;
+  std::vector<double> points_;
+  Cells polys_, strips_;
+};
+
+// ---- STL and OBJ checks (the files then go to VTK's readers) -----------------------------------
+
+// VTK's STL reader takes a file for binary when over 5% of its first 256 bytes are not text
+// (vtksys::SystemTools::DetectFileType), then reads the triangle count of its header and trusts
+// it: the count must fit in the file (80-byte header, 4-byte count, 50 bytes per triangle).
+void check_stl(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  char head[256];
+  in.read(head, sizeof head);
+  const size_t got = size_t(in.gcount());
+  size_t text_bytes = 0;
+  for (size_t i = 0; i < got; ++i) {
+    const auto c = static_cast<unsigned char>(head[i]);
+    text_bytes += (c >= 0x20 && c <= 0x7f) || c == '\n' || c == '\r' || c == '\t';
+  }
+  const bool binary = got == 0 || double(got - text_bytes) / double(got) >= 0.05;
+  if (!binary) return;  // ASCII: VTK's parser reports its own errors
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(path, ec);
+  if (size < 84) corrupt(path, "truncated binary STL (" + std::to_string(size) + " bytes)");
+  const auto* b = reinterpret_cast<const unsigned char*>(head + 80);
+  const uint64_t triangles =
+      uint64_t(b[0]) | uint64_t(b[1]) << 8 | uint64_t(b[2]) << 16 | uint64_t(b[3]) << 24;
+  if (84 + 50 * triangles > size) {
+    std::ostringstream s;
+    s << "truncated or corrupt binary STL: its header announces " << triangles << " triangles ("
+      << 84 + 50 * triangles << " bytes), the file has " << size << " bytes";
+    corrupt(path, s.str());
+  }
+}
+
+// vtkOBJReader skips what it cannot parse; a file of garbage became "no triangles" and a face
+// naming a vertex that does not exist was dropped without a word. Vertices must have finite
+// coordinates and faces must name vertices that exist (1-based, or negative: counted back).
+void check_obj(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  int64_t vertices = 0, faces = 0, line_number = 0;
+  std::vector<std::pair<int64_t, int64_t>> forward;  // (line, index) checked at the end
+  while (std::getline(in, line)) {
+    ++line_number;
+    const std::vector<std::string> t = text::split_ws(line);
+    if (t.empty()) continue;
+    const std::string where = "line " + std::to_string(line_number);
+    if (t[0] == "v") {
+      if (t.size() < 4) corrupt(path, where + ": a vertex needs three coordinates");
+      for (size_t i = 1; i < 4; ++i) {
+        double x = 0;
+        char* end = nullptr;
+        x = std::strtod(t[i].c_str(), &end);
+        if (end != t[i].c_str() + t[i].size())
+          corrupt(path, where + ": " + text::quote_value(t[i]) + " is not a number");
+        if (!std::isfinite(x))
+          throw InputError("mesh '" + path + "': " + where + ": a vertex is not finite");
+      }
+      ++vertices;
+    } else if (t[0] == "f") {
+      if (t.size() < 4) corrupt(path, where + ": a face needs at least three vertices");
+      for (size_t i = 1; i < t.size(); ++i) {
+        int64_t index = 0;
+        if (!text::parse_int64(t[i].substr(0, t[i].find('/')), &index) || index == 0)
+          corrupt(path, where + ": " + text::quote_value(t[i]) + " is not a vertex index");
+        if (index < 0 && -index > vertices)
+          corrupt(path, where + ": vertex " + std::to_string(index) + " counts back past the " +
+                            std::to_string(vertices) + " vertices before it");
+        if (index > 0) forward.emplace_back(line_number, index);
+      }
+      ++faces;
+    }
+  }
+  if (vertices == 0 || faces == 0)
+    corrupt(path, std::string("not an OBJ mesh (no ") +
+                      (vertices == 0 ? "vertex ('v')" : "face ('f')") + " lines)");
+  for (const auto& [at, index] : forward)
+    if (index > vertices)
+      corrupt(path, "line " + std::to_string(at) + ": a face uses vertex " + std::to_string(index) +
+                        ", but the file has " + std::to_string(vertices) + " vertices");
+}
+
+// What any reader produced, checked before VTK's filters work on it: finite points, and cells
+// that name existing points.
+void check_poly(const std::string& path, vtkPolyData* poly) {
+  const vtkIdType n = poly->GetNumberOfPoints();
+  for (vtkIdType i = 0; i < n; ++i) {
+    double p[3];
+    poly->GetPoint(i, p);
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
+      throw InputError("mesh '" + path + "': point " + std::to_string(i) +
+                       " has a non-finite coordinate");
+  }
+  for (vtkCellArray* cells : {poly->GetPolys(), poly->GetStrips()}) {
+    if (!cells) continue;
+    vtkNew<vtkIdList> ids;
+    cells->InitTraversal();
+    while (cells->GetNextCell(ids))
+      for (vtkIdType k = 0; k < ids->GetNumberOfIds(); ++k)
+        if (ids->GetId(k) < 0 || ids->GetId(k) >= n)
+          corrupt(path, "a cell uses point " + std::to_string(ids->GetId(k)) + " of " +
+                            std::to_string(n));
+  }
+}
+
+// The VTK reader of the formats sonoslice does not parse itself.
+vtkSmartPointer<vtkAlgorithm> reader_for(const std::string& path, const std::string& ext) {
   if (ext == ".vtp") {
     auto r = vtkSmartPointer<vtkXMLPolyDataReader>::New();
     r->SetFileName(path.c_str());
@@ -129,14 +621,22 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
     throw FileError("cannot read mesh '" + path + "': no such file");
   const std::string ext = file_extension(path);
   WindowScope scope;
-  auto reader = reader_for(path, ext);
+  vtkSmartPointer<vtkPolyData> input;
   if (ext == ".vtk") {
-    auto* legacy = vtkPolyDataReader::SafeDownCast(reader);
-    if (!legacy || !legacy->IsFilePolyData())
-      throw FileError("cannot read mesh '" + path + "': not a legacy VTK POLYDATA file");
+    input = LegacyVtkParser(path, read_whole_file(path)).parse();
+  } else {
+    auto reader = reader_for(path, ext);
+    if (ext == ".stl") check_stl(path);
+    if (ext == ".obj") check_obj(path);
+    reader->Update();
+    if (!scope.window->errors.empty())
+      throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->errors));
+    input = vtkPolyData::SafeDownCast(reader->GetOutputDataObject(0));
+    if (!input) throw FileError("cannot read mesh '" + path + "': no polygonal data");
+    check_poly(path, input);
   }
   vtkNew<vtkTriangleFilter> triangles;
-  triangles->SetInputConnection(reader->GetOutputPort());
+  triangles->SetInputData(input);
   triangles->PassVertsOff();
   triangles->PassLinesOff();
   vtkNew<vtkCleanPolyData> clean;  // merge coincident points: shared edges share vertices

@@ -3,8 +3,11 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include "ByteOrder.h"
@@ -86,7 +89,170 @@ std::optional<PixelType> pixel_type_of(int datatype) {
   }
 }
 
+// The NIfTI datatype codes (nifti1.h) and their bytes per voxel; the C library prints a line to
+// stderr and ITK fails obscurely for any other code.
+int datatype_bytes(int datatype) {
+  switch (datatype) {
+    case 2:
+    case 256:
+      return 1;
+    case 4:
+    case 512:
+      return 2;
+    case 8:
+    case 16:
+    case 128:  // RGB24: 3 bytes, rounded up (only the overflow check uses this)
+    case 768:
+    case 2304:
+      return 4;
+    case 32:
+    case 64:
+    case 1024:
+    case 1280:
+      return 8;
+    case 1536:
+    case 1792:
+      return 16;
+    case 2048:
+      return 32;
+    case 1:  // DT_BINARY: bits, refused later as a pixel type
+      return 1;
+    default:
+      return 0;
+  }
+}
+
+// Up to 540 header bytes of a .nii, .nii.gz, .hdr (or .hdr.gz); `got` is how many there were.
+size_t read_header_bytes(const std::string& path, unsigned char (&raw)[540]) {
+  gzFile f = gzopen(path.c_str(), "rb");  // reads uncompressed files as they are, too
+  if (!f) truncated(path, "cannot open it");
+  const int n = gzread(f, raw, sizeof raw);
+  gzclose(f);
+  return n > 0 ? size_t(n) : 0;
+}
+
 }  // namespace
+
+void check_nifti_header(const std::string& path) {
+  std::string header_path = path;
+  const std::string ext = file_extension(path);
+  if (ext == ".img") {  // a header/image pair: the header is beside the image
+    header_path = path.substr(0, path.size() - 4) +
+                  (path.substr(path.size() - 4) == ".IMG" ? ".HDR" : ".hdr");
+    std::error_code ec;
+    if (!std::filesystem::exists(header_path, ec)) return;  // ITK says what is missing
+  }
+  unsigned char raw[540] = {0};
+  const size_t got = read_header_bytes(header_path, raw);
+  if (got < 348) truncated(header_path, "the header is shorter than 348 bytes");
+  const int32_t size_native = load<int32_t>(raw, false), size_swapped = load<int32_t>(raw, true);
+  const bool swap = size_native != 348 && size_native != 540;
+  const int32_t size = swap ? size_swapped : size_native;
+  if (size != 348 && size != 540)
+    throw FileError("cannot read volume '" + path +
+                    "': not a NIfTI or Analyze file (its header does not start with 348 or 540)");
+  if (size == 540 && got < 540)
+    truncated(header_path, "the NIfTI-2 header is shorter than 540 bytes");
+  const bool v2 = size == 540;
+  const bool nifti =
+      v2 || std::memcmp(raw + 344, "n+1", 4) == 0 || std::memcmp(raw + 344, "ni1", 4) == 0;
+  const std::string where = "volume '" + path + "': ";
+
+  int64_t dim[8];
+  double pixdim[8];
+  for (int i = 0; i < 8; ++i) {
+    dim[i] = v2 ? load<int64_t>(raw + 16 + 8 * i, swap) : load<int16_t>(raw + 40 + 2 * i, swap);
+    pixdim[i] = v2 ? load<double>(raw + 104 + 8 * i, swap) : load<float>(raw + 76 + 4 * i, swap);
+  }
+  const int datatype = load<int16_t>(raw + (v2 ? 12 : 70), swap);
+  if (dim[0] < 1 || dim[0] > 7)
+    throw FileError("cannot read volume '" + path + "': corrupt header: dim[0] is " +
+                    std::to_string(dim[0]) + " (the number of dimensions, 1 to 7)");
+  const int bytes_per_voxel = datatype_bytes(datatype);
+  if (bytes_per_voxel == 0)
+    throw FileError("cannot read volume '" + path + "': corrupt header: datatype " +
+                    std::to_string(datatype) + " is not a NIfTI data type");
+  // The voxel count and byte count, checked for overflow: the C library and ITK multiply the
+  // dimensions without checks.
+  uint64_t bytes = uint64_t(bytes_per_voxel);
+  for (int i = 1; i <= dim[0]; ++i) {
+    if (dim[i] < 1)
+      throw FileError("cannot read volume '" + path + "': corrupt header: dim[" +
+                      std::to_string(i) + "] is " + std::to_string(dim[i]) +
+                      " (sizes must be at least 1)");
+    if (bytes > uint64_t(std::numeric_limits<int64_t>::max()) / uint64_t(dim[i]))
+      throw InputError(where + "the header's sizes overflow (more bytes than a file can hold)");
+    bytes *= uint64_t(dim[i]);
+  }
+  // Spacing: the C library and ITK turn a zero or NaN pixdim into 1 mm without a word.
+  for (int i = 1; i <= std::min<int64_t>(dim[0], 3); ++i)
+    if (!(pixdim[i] > 0) || !std::isfinite(pixdim[i])) {
+      std::ostringstream s;
+      s << where << "pixdim[" << i << "] is " << pixdim[i] << ": the voxel spacing along axis "
+        << i - 1 << " must be a positive number of mm";
+      throw InputError(s.str());
+    }
+  if (!nifti) return;  // Analyze 7.5: no scaling or orientation fields
+
+  // Scaling, y = scl_slope · x + scl_inter when scl_slope is not 0 (nifti1.h). Readers disagree
+  // on the rest: ITK adds the intercept when the slope is 0 or NaN, other readers ignore both.
+  const double slope = v2 ? load<double>(raw + 176, swap) : load<float>(raw + 112, swap);
+  const double inter = v2 ? load<double>(raw + 184, swap) : load<float>(raw + 116, swap);
+  if (!std::isfinite(slope) && inter != 0 && !std::isnan(inter)) {
+    std::ostringstream s;
+    s << where << "scl_slope is " << slope << " with scl_inter " << inter
+      << " (give a finite slope, or 0 for no scaling)";
+    throw InputError(s.str());
+  }
+  if (std::isfinite(slope) && slope != 0 && !std::isfinite(inter)) {
+    std::ostringstream s;
+    s << where << "scl_inter is " << inter << " (scaling by " << slope
+      << " needs a finite intercept)";
+    throw InputError(s.str());
+  }
+  if (slope == 0 && inter != 0 && std::isfinite(inter)) {
+    std::ostringstream s;
+    s << where << "scl_slope is 0 (no scaling) but scl_inter is " << inter
+      << ": readers disagree on whether to add it; set scl_slope to 1 or scl_inter to 0";
+    throw InputError(s.str());
+  }
+  // Orientation: a NaN here aborted the process inside ITK's matrix code (vnl_matrix).
+  const int qform = v2 ? load<int32_t>(raw + 344, swap) : load<int16_t>(raw + 252, swap);
+  const int sform = v2 ? load<int32_t>(raw + 348, swap) : load<int16_t>(raw + 254, swap);
+  static const char* const kQuatern[] = {"quatern_b", "quatern_c", "quatern_d",
+                                         "qoffset_x", "qoffset_y", "qoffset_z"};
+  if (qform > 0)
+    for (int i = 0; i < 6; ++i) {
+      const double v =
+          v2 ? load<double>(raw + 352 + 8 * i, swap) : load<float>(raw + 256 + 4 * i, swap);
+      if (!std::isfinite(v))
+        throw InputError(where + kQuatern[i] + " is not a finite number (qform_code " +
+                         std::to_string(qform) + ")");
+    }
+  static const char* const kRows[] = {"srow_x", "srow_y", "srow_z"};
+  if (sform > 0)
+    for (int i = 0; i < 12; ++i) {
+      const double v =
+          v2 ? load<double>(raw + 400 + 8 * i, swap) : load<float>(raw + 280 + 4 * i, swap);
+      if (!std::isfinite(v))
+        throw InputError(where + kRows[i / 4] + "[" + std::to_string(i % 4) +
+                         "] is not a finite number (sform_code " + std::to_string(sform) + ")");
+    }
+  // An uncompressed single file must hold its voxels (the C library zero-fills a short one).
+  if (ext == ".nii") {
+    const double offset =
+        v2 ? double(load<int64_t>(raw + 168, swap)) : load<float>(raw + 108, swap);
+    std::error_code ec;
+    const uint64_t file_size = std::filesystem::file_size(path, ec);
+    if (!ec && std::isfinite(offset) && offset >= 0 && offset < 1e18 &&
+        file_size < uint64_t(std::max(offset, double(v2 ? 544 : 352))) + bytes) {
+      std::ostringstream s;
+      s << "the file has " << file_size << " bytes, its header describes "
+        << uint64_t(std::max(offset, double(v2 ? 544 : 352))) + bytes;
+      truncated(path, s.str());
+    }
+  }
+}
 
 std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGrid& grid,
                                         PixelType type) {

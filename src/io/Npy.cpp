@@ -1,9 +1,11 @@
 #include "sonoslice/io/Npy.h"
 
 #include <algorithm>
+#include <cerrno>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <regex>
 #include <sstream>
 
@@ -111,11 +113,25 @@ NpyArray parse_header(std::ifstream& in, const std::string& path) {
     item.erase(std::remove_if(item.begin(), item.end(), ::isspace), item.end());
     if (item.empty()) continue;
     char* end = nullptr;
+    errno = 0;
     const long long v = std::strtoll(item.c_str(), &end, 10);
-    if (*end != '\0' || v < 0) throw FileError("'" + path + "': corrupt .npy shape");
+    if (*end != '\0' || v < 0 || errno == ERANGE)
+      throw FileError("'" + path + "': corrupt .npy shape (" + m[1].str() + ")");
     a.shape.push_back(v);
   }
   a.type = parse_descr(descr, &a.swapped_on_disk, path);
+  // The shape's byte count must be representable: an overflowed product once mapped 0 bytes of a
+  // "(2^32, 2^32, 1)" array and read it as a volume.
+  uint64_t bytes = pixel_size(a.type);
+  for (int64_t d : a.shape) {
+    if (d != 0 && bytes > uint64_t(std::numeric_limits<int64_t>::max()) / uint64_t(d)) {
+      std::ostringstream s;
+      s << "'" << path << "': the shape (" << m[1].str() << ") of " << to_string(a.type)
+        << " values is more bytes than a file can hold";
+      throw InputError(s.str());
+    }
+    bytes *= uint64_t(d);
+  }
   return a;
 }
 

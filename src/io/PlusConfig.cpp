@@ -140,8 +140,14 @@ void read_coordinate_definitions(const pugi::xml_node& root, const std::string& 
       throw InputError(where + " (" + from + "To" + to + "): no Matrix attribute");
     Mat4 m;
     if (!parse_matrix16(t.attribute("Matrix").value(), &m))
-      throw InputError(where + " (" + from + "To" + to + ")/@Matrix: expected 16 numbers, got " +
+      throw InputError(where + " (" + from + "To" + to +
+                       ")/@Matrix: expected 16 finite numbers, got " +
                        quote_value(trim(t.attribute("Matrix").value())));
+    // An all-zero calibration (or one whose axes collapse) would place every frame's pixels on
+    // a point or a line: the reconstruction would be empty or absurd, without a word.
+    const std::string problem = transform_problem(m);
+    if (!problem.empty())
+      throw InputError(where + " (" + from + "To" + to + ")/@Matrix " + problem);
     config->coordinate_definitions.set(from, to, m);
   }
 }

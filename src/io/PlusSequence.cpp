@@ -61,7 +61,7 @@ std::optional<Mat4> PlusSequence::transform(int frame, const std::string& name) 
   Mat4 m;
   if (!parse_matrix16(it->second, &m))
     throw InputError(path + ": frame " + std::to_string(frame) + ": " + name +
-                     "Transform: expected 16 numbers, got " + quote_value(it->second));
+                     "Transform: expected 16 finite numbers, got " + quote_value(it->second));
   return m;
 }
 

@@ -19,6 +19,7 @@
 #include "sonoslice/core/Error.h"
 #include "sonoslice/core/Memory.h"
 #include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/volume/Volume.h"
 
 #ifdef SONOSLICE_PLUS_HAVE_ZLIB
 #include <zlib.h>
@@ -241,7 +242,7 @@ void validate_frame_fields(const PlusSequence& seq) {
       if (status != fields.end() && !iequals(trim(status->second), "OK")) continue;
       Mat4 m;
       if (!parse_matrix16(value, &m))
-        throw InputError(where + ": expected 16 numbers (a row-major 4x4 matrix), got " +
+        throw InputError(where + ": expected 16 finite numbers (a row-major 4x4 matrix), got " +
                          quote_value(value));
     }
   }
@@ -295,6 +296,11 @@ PlusSequence read_plus_sequence(const std::string& path) {
   validate_frame_fields(seq);
 
   read_pixels(layout, in, &seq);
+  // NaN and infinite samples are splatted like any other (into NaN voxels): said once.
+  const int64_t samples = int64_t(seq.width) * seq.height * seq.frame_count;
+  if (const int64_t bad = count_non_finite(seq.pixels.data(), seq.pixel_type, samples))
+    warn(path + ": " + std::to_string(bad) + " of " + std::to_string(samples) +
+         " pixels are NaN or infinite; they are used as they are");
   const size_t frame_bytes = seq.frame_bytes();
   if (frame_bytes > 0)
     for (int f = 0; f < seq.frame_count; ++f)

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <sstream>
@@ -43,10 +44,10 @@ Mat4 matrix_from_row_major(const std::vector<double>& values) {
   return m;
 }
 
-std::vector<Pose> poses_from_npy(const std::string& path) {
+std::vector<Pose> poses_from_npy(const std::string& path, const std::string& what) {
   const NpyArray a = read_npy(path);
   if (a.type != PixelType::Float32 && a.type != PixelType::Float64)
-    throw InputError("poses '" + path + "': dtype " + to_string(a.type) +
+    throw InputError(what + " '" + path + "': dtype " + to_string(a.type) +
                      " (expected float32 or float64)");
   // Element (r, c) of pose n, honouring C or Fortran order.
   const std::vector<int64_t> strides = npy_element_strides(a);
@@ -72,15 +73,15 @@ std::vector<Pose> poses_from_npy(const std::string& path) {
       poses.push_back(p);
     }
   } else {
-    throw InputError("poses '" + path + "': shape " + shape_string(a.shape) +
+    throw InputError(what + " '" + path + "': shape " + shape_string(a.shape) +
                      " (expected (N, 4, 4) or fan-slicer's (4, 4N))");
   }
   return poses;
 }
 
-std::vector<Pose> poses_from_text(const std::string& path) {
+std::vector<Pose> poses_from_text(const std::string& path, const std::string& what) {
   std::ifstream in(path);
-  if (!in) throw FileError("cannot open poses '" + path + "': " + std::strerror(errno));
+  if (!in) throw FileError("cannot open " + what + " '" + path + "': " + std::strerror(errno));
   std::vector<Pose> poses;
   std::string line;
   int line_number = 0;
@@ -100,7 +101,7 @@ std::vector<Pose> poses_from_text(const std::string& path) {
       if (end == p) {
         std::string token(p);
         token = token.substr(0, token.find(' '));
-        throw InputError("poses '" + path + "': line " + std::to_string(line_number) + ": '" +
+        throw InputError(what + " '" + path + "': line " + std::to_string(line_number) + ": '" +
                          token + "' is not a number");
       }
       values.push_back(v);
@@ -108,7 +109,7 @@ std::vector<Pose> poses_from_text(const std::string& path) {
     }
     if (values.empty()) continue;
     if (values.size() != 16 && values.size() != 12)
-      throw InputError("poses '" + path + "': line " + std::to_string(line_number) + " has " +
+      throw InputError(what + " '" + path + "': line " + std::to_string(line_number) + " has " +
                        std::to_string(values.size()) +
                        " numbers (expected 16 for a 4x4 or 12 for a 3x4 row-major matrix)");
     poses.push_back(matrix_from_row_major(values));
@@ -116,16 +117,16 @@ std::vector<Pose> poses_from_text(const std::string& path) {
   return poses;
 }
 
-std::vector<Pose> poses_from_json(const std::string& path) {
-  nlohmann::json root = read_json_file(path, "poses", OpenErrorReason::Append);
+std::vector<Pose> poses_from_json(const std::string& path, const std::string& what) {
+  nlohmann::json root = read_json_file(path, what, OpenErrorReason::Append);
   if (!root.is_object() || !root.contains("poses") || !root["poses"].is_array())
-    throw InputError("poses '" + path + "': expected {\"poses\": [[16 numbers], ...]}");
+    throw InputError(what + " '" + path + "': expected {\"poses\": [[16 numbers], ...]}");
   for (auto it = root.begin(); it != root.end(); ++it)
     if (it.key() != "poses")
-      throw InputError("poses '" + path + "': unknown key '" + it.key() + "'");
+      throw InputError(what + " '" + path + "': unknown key '" + it.key() + "'");
   std::vector<Pose> poses;
   for (const auto& entry : root["poses"]) {
-    const std::string where = "poses '" + path + "': pose " + std::to_string(poses.size());
+    const std::string where = what + " '" + path + "': pose " + std::to_string(poses.size());
     std::vector<double> values;
     auto take = [&](const nlohmann::json& v) {
       if (!v.is_number()) throw InputError(where + ": entries must be numbers");
@@ -144,22 +145,27 @@ std::vector<Pose> poses_from_json(const std::string& path) {
   return poses;
 }
 
-}  // namespace
-
-std::vector<Mat4> read_matrices(const std::string& path) {
+// Matrices from a pose file; errors call the file `what` ("poses", "--image-to-probe").
+std::vector<Mat4> matrices_from_file(const std::string& path, const std::string& what) {
   const std::string ext = lower_extension(path);
   std::vector<Mat4> matrices;
   if (ext == ".npy")
-    matrices = poses_from_npy(path);
+    matrices = poses_from_npy(path, what);
   else if (ext == ".txt" || ext == ".csv")
-    matrices = poses_from_text(path);
+    matrices = poses_from_text(path, what);
   else if (ext == ".json")
-    matrices = poses_from_json(path);
+    matrices = poses_from_json(path, what);
   else
-    throw InputError("poses '" + path +
+    throw InputError(what + " '" + path +
                      "': unknown extension (expected .npy, .txt, .csv or .json)");
-  if (matrices.empty()) throw InputError("poses '" + path + "': no poses in the file");
+  if (matrices.empty()) throw InputError(what + " '" + path + "': no poses in the file");
   return matrices;
+}
+
+}  // namespace
+
+std::vector<Mat4> read_matrices(const std::string& path) {
+  return matrices_from_file(path, "poses");
 }
 
 Mat4 read_matrix(const std::string& text, const std::string& what) {
@@ -174,7 +180,15 @@ Mat4 read_matrix(const std::string& text, const std::string& what) {
   // operator>> never yields inf or nan, so these numbers are finite.
   if (in.eof() && (values.size() == 16 || values.size() == 12))
     return matrix_from_row_major(values);
-  const std::vector<Mat4> m = read_matrices(text);
+  // Numbers only, but not 12 or 16 of them: a miscounted matrix, not a file name.
+  if (in.eof() && !values.empty())
+    throw InputError(what + " '" + text + "': " + std::to_string(values.size()) +
+                     " numbers (expected 16 for a 4x4 or 12 for a 3x4 matrix, row by row)");
+  std::error_code ec;
+  if (!std::filesystem::exists(text, ec))
+    throw InputError(what + " '" + text +
+                     "': neither 16 (or 12) numbers nor an existing matrix file");
+  const std::vector<Mat4> m = matrices_from_file(text, what);
   if (m.size() != 1)
     throw InputError(what + " '" + text + "': expected one 4x4 matrix, the file has " +
                      std::to_string(m.size()));

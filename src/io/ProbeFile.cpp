@@ -6,6 +6,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "JsonFile.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -183,11 +184,13 @@ ProbeGeometry parse_probe_json(const std::string& text, const std::string& sourc
   try {
     root = json::parse(text);
   } catch (const json::parse_error& e) {
-    throw FileError("probe '" + source + "': invalid JSON (" + e.what() + ")");
+    throw FileError("probe '" + source + "': invalid JSON (" + json_detail(e) + ")");
   }
   if (!root.is_object()) throw InputError("probe '" + source + "': expected a JSON object");
-  ProbeGeometry p = root.contains("simulation") ? parse_fanslicer(root, source, downsampling)
-                                                : parse_native(root, source, downsampling);
+  ProbeGeometry p = with_json_errors_named("probe '" + source + "'", [&] {
+    return root.contains("simulation") ? parse_fanslicer(root, source, downsampling)
+                                       : parse_native(root, source, downsampling);
+  });
   p.validate("probe '" + source + "'");
   return p;
 }

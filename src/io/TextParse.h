@@ -55,9 +55,14 @@ inline std::string one_line_message(std::string s, bool drop_location = false) {
   return s;
 }
 
-/// A value quoted for an error message, shortened when long.
+/// A value quoted for an error message, shortened when long. Bytes outside printable ASCII
+/// become '?': the value may come from a binary or corrupt file, and a message must stay one line
+/// of valid text (Python decodes it as UTF-8).
 inline std::string quote_value(const std::string& s) {
-  return "'" + (s.size() > 120 ? s.substr(0, 117) + "..." : s) + "'";
+  std::string shown = s.size() > 120 ? s.substr(0, 117) + "..." : s;
+  for (char& c : shown)
+    if (c < 0x20 || c > 0x7e) c = '?';
+  return "'" + shown + "'";
 }
 
 inline bool parse_double(const std::string& token, double* out) {

@@ -2,9 +2,11 @@
 // selection of a sequence's frames for a reconstruction.
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <deque>
 #include <map>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -134,11 +136,39 @@ std::optional<Mat4> TransformRepository::get(const std::string& from, const std:
   return result;
 }
 
+std::string transform_problem(const Mat4& m) {
+  bool zero = true;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) {
+      if (!std::isfinite(m.m[r][c])) return "has a non-finite entry";
+      zero = zero && m.m[r][c] == 0;
+    }
+  if (zero) return "is all zero";
+  if (m.m[3][0] != 0 || m.m[3][1] != 0 || m.m[3][2] != 0 || m.m[3][3] != 1) {
+    std::ostringstream s;
+    s << "has the last row " << m.m[3][0] << " " << m.m[3][1] << " " << m.m[3][2] << " "
+      << m.m[3][3] << " (expected 0 0 0 1)";
+    return s.str();
+  }
+  const Vec3 x = m.column3(0), y = m.column3(1);
+  const double nx = norm(x), ny = norm(y);
+  if (nx == 0 || ny == 0)
+    return std::string("maps the image's ") + (nx == 0 ? "x" : "y") + " axis to a point (column " +
+           (nx == 0 ? "0" : "1") + " is zero)";
+  // Pixel axes at less than about 2.5 degrees from each other put a frame's pixels on a line.
+  if (std::fabs(dot(x, y)) > 0.999 * nx * ny) return "maps the image's x and y axes onto one line";
+  return "";
+}
+
 std::string PlusFrameSelection::skipped_reason(const std::string& from,
                                                const std::string& to) const {
   std::string why;
   if (bad_transform)
     why += std::to_string(bad_transform) + " with an invalid " + from + "To" + to + " transform";
+  if (!unusable.empty())
+    why += (why.empty() ? "" : ", ") + std::to_string(unusable.size()) +
+           " whose transforms cannot place them (frame " + std::to_string(unusable[0].first) +
+           ": " + unusable[0].second + (unusable.size() > 1 ? "; ..." : "") + ")";
   if (bad_image)
     why += (why.empty() ? "" : ", ") + std::to_string(bad_image) + " with an image status not OK";
   return why;
@@ -150,26 +180,41 @@ PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
                                       const std::string& hint) {
   if (skip < 1) throw InputError("skip interval " + std::to_string(skip) + ": must be >= 1");
   PlusFrameSelection sel;
+  // A frame whose own transforms cannot place it (one missing, zero or non-invertible) is left
+  // out and named; a tracker writes such frames when it loses a tool. When no frame has a chain
+  // at all, the calibration is what is missing: that is an error.
+  int considered = 0, without_chain = 0;
+  std::string first_without_chain;
   for (int k = 0; k < sequence.frame_count; k += skip) {
     if (!sequence.image_ok(k)) {
       ++sel.bad_image;
       continue;
     }
+    ++considered;
     TransformRepository repo = calibration;
     repo.set_frame(sequence, k);
     std::optional<Mat4> m;
     try {
       m = repo.get(from, to);
     } catch (const InputError& e) {
-      throw InputError(sequence.path + ": " + e.what() + hint);
+      if (without_chain++ == 0)
+        first_without_chain = sequence.path + ": frame " + std::to_string(k) + ": " + e.what();
+      sel.unusable.emplace_back(k, e.what());
+      continue;
     }
     if (!m) {
       ++sel.bad_transform;
       continue;
     }
+    const std::string problem = transform_problem(*m);
+    if (!problem.empty()) {
+      sel.unusable.emplace_back(k, "its " + from + "To" + to + " " + problem);
+      continue;
+    }
     sel.frames.push_back(k);
     sel.to_reference.push_back(*m);
   }
+  if (considered > 0 && without_chain == considered) throw InputError(first_without_chain + hint);
   return sel;
 }
 

@@ -268,6 +268,18 @@ void check_image_output(const std::string& path, const std::string& what) {
   check_writable(path, what, true);
 }
 
+namespace {
+// NaN and infinite voxels are sampled like any other value (NaN reaches float output, 0 integer
+// output): said once, with the count, rather than discovered in the slices.
+Volume warn_non_finite(Volume v, const std::string& path) {
+  if (const int64_t bad = v.non_finite_count())
+    warn("volume '" + path + "': " + std::to_string(bad) + " of " +
+         std::to_string(v.grid().voxel_count()) +
+         " voxels are NaN or infinite; they are sampled as they are");
+  return v;
+}
+}  // namespace
+
 Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileError("cannot read volume '" + path + "': no such file");
@@ -279,14 +291,14 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
         "volume '" + path +
         "': spacing, origin, direction and a fan-slicer npy config apply to .npy volumes only "
         "(this file carries its own geometry)");
-  if (format == ImageFormat::Npy) return read_npy_volume(path, options);
+  if (format == ImageFormat::Npy) return warn_non_finite(read_npy_volume(path, options), path);
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
     throw ParameterError("series_uid", "applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
   Volume v = fs::is_directory(path, ec) ? itk_io::read_dicom_directory(path, options.series_uid)
                                         : itk_io::read_image_file(path);
   v.grid().validate("volume '" + path + "'");
-  return v;
+  return warn_non_finite(std::move(v), path);
 #else
   no_itk(path);
 #endif

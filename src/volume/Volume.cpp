@@ -1,6 +1,7 @@
 #include "sonoslice/volume/Volume.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <limits>
 #include <sstream>
@@ -73,6 +74,28 @@ std::pair<double, double> Volume::value_range() const {
   }
   if (mn > mx) mn = mx = std::numeric_limits<double>::quiet_NaN();  // all NaN
   return {mn, mx};
+}
+
+int64_t count_non_finite(const void* data, PixelType type, int64_t n) {
+  if (type != PixelType::Float32 && type != PixelType::Float64) return 0;  // integers are finite
+  const int64_t chunks = (n + kRangeChunkVoxels - 1) / kRangeChunkVoxels;
+  std::vector<int64_t> counts(size_t(chunks), 0);
+  visit_pixel_type(type, [&](auto zero) {
+    using T = decltype(zero);
+    const T* p = static_cast<const T*>(data);
+    backend::parallel_for_chunks(n, kRangeChunkVoxels, [&](int64_t c, int64_t begin, int64_t end) {
+      int64_t bad = 0;
+      for (int64_t i = begin; i < end; ++i) bad += !std::isfinite(double(p[i]));
+      counts[size_t(c)] = bad;
+    });
+  });
+  int64_t total = 0;
+  for (int64_t c : counts) total += c;
+  return total;
+}
+
+int64_t Volume::non_finite_count() const {
+  return count_non_finite(data_, type_, grid_.voxel_count());
 }
 
 Volume Volume::converted(PixelType type) const {

@@ -1,8 +1,11 @@
 // Meshes through VTK, fan-slicer surface configurations, and the real fan-slicer meshes.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <fstream>
+#include <iterator>
 #include <random>
 
 #include "../common/TestUtil.h"
@@ -89,6 +92,192 @@ TEST(MeshFile, BadFilesNameTheFile) {
   EXPECT_NE(error_of(dir.file("m.xyz")).find("unknown format"), std::string::npos);
 }
 
+// ---- broken mesh files (issue 10): an error naming the file, never a crash --------------------
+
+std::string mesh_error(const std::string& path) {
+  try {
+    read_mesh(path);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+void write_bytes(const std::string& path, const std::string& bytes) {
+  std::ofstream(path, std::ios::binary) << bytes;
+}
+
+// Big-endian bytes of a value, as legacy VTK binary files store them.
+template <typename T>
+std::string big_endian(T value) {
+  std::string b(sizeof(T), '\0');
+  std::memcpy(&b[0], &value, sizeof(T));
+  std::reverse(b.begin(), b.end());
+  return b;
+}
+
+// The tetrahedron as a binary legacy file, version 3.0 (counted cell lists) or 5.1 (offsets and
+// connectivity), with `ids` as its triangles' point ids.
+std::string binary_legacy_tet(bool version5, const std::vector<int>& ids) {
+  const TriangleMesh tet = tetrahedron();
+  std::string b = std::string("# vtk DataFile Version ") + (version5 ? "5.1" : "3.0") +
+                  "\ntet\nBINARY\nDATASET POLYDATA\nPOINTS 4 float\n";
+  for (const Vec3& v : tet.vertices)
+    for (double x : v) b += big_endian(float(x));
+  const size_t n = ids.size() / 3;
+  if (version5) {
+    b += "\nPOLYGONS " + std::to_string(n + 1) + " " + std::to_string(ids.size()) +
+         "\nOFFSETS vtktypeint64\n";
+    for (size_t k = 0; k <= n; ++k) b += big_endian(int64_t(3 * k));
+    b += "\nCONNECTIVITY vtktypeint64\n";
+    for (int id : ids) b += big_endian(int64_t(id));
+  } else {
+    b += "\nPOLYGONS " + std::to_string(n) + " " + std::to_string(4 * n) + "\n";
+    for (size_t k = 0; k < n; ++k) {
+      b += big_endian(int32_t(3));
+      for (size_t j = 0; j < 3; ++j) b += big_endian(int32_t(ids[3 * k + j]));
+    }
+  }
+  return b + "\n";
+}
+
+const std::vector<int> kTetIds = {0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3};
+
+// What issue 10 found: `head -c 308216 liver.vtk` crashed VTK's reader (SIGSEGV).
+TEST(MeshFile, TruncatedBinaryLegacyVtkIsAnError) {
+  SONOSLICE_REQUIRE_DATA();
+  test::TempDir dir;
+  std::ifstream in(test::data_dir() + "/fanslicer/liver.vtk", std::ios::binary);
+  const std::string liver((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_GT(liver.size(), 484247u);  // POINT_DATA starts there
+  write_bytes(dir.file("cut.vtk"), liver.substr(0, 308216));
+  const std::string e = mesh_error(dir.file("cut.vtk"));
+  EXPECT_NE(e.find(dir.file("cut.vtk")), std::string::npos) << e;
+  EXPECT_NE(e.find("POLYGONS announces 88000 values"), std::string::npos) << e;
+  EXPECT_THROW(read_mesh(dir.file("cut.vtk")), FileError);
+  // Cut anywhere in the header, the points or the polygons: an error, never a crash.
+  for (size_t n = 0; n < 484247; n += 4999) {
+    write_bytes(dir.file("cut.vtk"), liver.substr(0, n));
+    EXPECT_THROW(read_mesh(dir.file("cut.vtk")), Error) << n << " bytes";
+  }
+}
+
+// What issue 10 found: a polygon naming point 99999 of 3 crashed VTK's clean-up; point 100 read
+// outside VTK's arrays (valgrind), with results that changed from run to run.
+TEST(MeshFile, LegacyVtkIndexOutOfRangeIsAnError) {
+  test::TempDir dir;
+  for (const char* index : {"99999", "100", "3", "-1"}) {
+    write_bytes(dir.file("bad.vtk"),
+                std::string("# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\n") +
+                    "POINTS 3 float\n0 0 0 1 0 0 0 1 0\nPOLYGONS 1 4\n3 0 1 " + index + "\n");
+    const std::string e = mesh_error(dir.file("bad.vtk"));
+    EXPECT_NE(e.find("uses point " + std::string(index) + ", but the file has 3 points"),
+              std::string::npos)
+        << e;
+    EXPECT_NE(e.find(dir.file("bad.vtk")), std::string::npos) << e;
+  }
+  // The same in binary files, both cell layouts.
+  for (bool version5 : {false, true}) {
+    std::vector<int> ids = kTetIds;
+    write_bytes(dir.file("tet.vtk"), binary_legacy_tet(version5, ids));
+    EXPECT_EQ(read_mesh(dir.file("tet.vtk")).triangles.size(), 4u);
+    ids[7] = 99999;
+    write_bytes(dir.file("tet.vtk"), binary_legacy_tet(version5, ids));
+    EXPECT_NE(mesh_error(dir.file("tet.vtk")).find("cell 2 uses point 99999"), std::string::npos)
+        << mesh_error(dir.file("tet.vtk"));
+  }
+}
+
+TEST(MeshFile, LegacyVtkCountsAndCoordinatesAreChecked) {
+  test::TempDir dir;
+  const std::string head = "# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\n";
+  auto error_for = [&](const std::string& body) {
+    write_bytes(dir.file("m.vtk"), head + body);
+    return mesh_error(dir.file("m.vtk"));
+  };
+  // A cell list longer than its announced size, one that does not fill it, a count past the end.
+  EXPECT_NE(error_for("POINTS 3 float\n0 0 0 1 0 0 0 1 0\nPOLYGONS 1 3\n3 0 1 2\n")
+                .find("runs past the announced size"),
+            std::string::npos);
+  EXPECT_NE(error_for("POINTS 3 float\n0 0 0 1 0 0 0 1 0\nPOLYGONS 1 5\n3 0 1 2 2\n")
+                .find("fill 4 of the announced size"),
+            std::string::npos);
+  EXPECT_NE(error_for("POINTS 40000 float\n0 0 0\n").find("truncated"), std::string::npos);
+  // Coordinates: finite numbers only.
+  EXPECT_NE(error_for("POINTS 3 float\n0 0 0 1 nan 0 0 1 0\nPOLYGONS 1 4\n3 0 1 2\n")
+                .find("point 1 has a non-finite coordinate"),
+            std::string::npos);
+  EXPECT_NE(error_for("POINTS 3 float\n0 0 0 1 x 0 0 1 0\n").find("'x' is not a number"),
+            std::string::npos);
+  EXPECT_NE(error_for("POINTS 3 float\n0 0 0 1 0 0 0 1 0\nSPHERES 1\n").find("'spheres'"),
+            std::string::npos);
+  // Version 5 ASCII, with field data before the points, metadata after them and attributes
+  // after the cells (which are not read): all accepted.
+  EXPECT_EQ(error_for("FIELD FieldData 1\nTimeValue 1 1 double\n0.5\n"
+                      "POINTS 3 float\n0 0 0 1 0 0 0 1 0\nMETADATA\nINFORMATION 0\n\n"
+                      "POLYGONS 1 4\n3 0 1 2\nPOINT_DATA 3\nSCALARS s float\nbroken"),
+            "");
+  write_bytes(dir.file("v5.vtk"),
+              "# vtk DataFile Version 5.1\nt\nASCII\nDATASET POLYDATA\nPOINTS 4 float\n"
+              "0 0 0 10 0 0 0 10 0 0 0 10\nPOLYGONS 5 12\nOFFSETS vtktypeint64\n0 3 6 9 12\n"
+              "CONNECTIVITY vtktypeint64\n0 2 1 0 1 3 0 3 2 1 2 3\n");
+  EXPECT_TRUE(mesh_topology(read_mesh(dir.file("v5.vtk"))).closed());
+  write_bytes(dir.file("v5.vtk"),
+              "# vtk DataFile Version 5.1\nt\nASCII\nDATASET POLYDATA\nPOINTS 4 float\n"
+              "0 0 0 10 0 0 0 10 0 0 0 10\nPOLYGONS 3 6\nOFFSETS vtktypeint64\n0 6 3\n"
+              "CONNECTIVITY vtktypeint64\n0 2 1 0 1 3\n");
+  EXPECT_NE(mesh_error(dir.file("v5.vtk")).find("offsets must run from 0 to"), std::string::npos);
+}
+
+// What issue 10 found: a binary STL whose header claims 4.29e9 triangles was read as far as it
+// went, without a word.
+TEST(MeshFile, BinaryStlTriangleCountMustFitTheFile) {
+  test::TempDir dir;
+  write_mesh(dir.file("tet.stl"), tetrahedron());
+  std::string stl;
+  {
+    std::ifstream in(dir.file("tet.stl"), std::ios::binary);
+    stl.assign((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  }
+  ASSERT_EQ(stl.size(), 84u + 50 * 4);
+  for (uint32_t claimed : {uint32_t(4294967295u), uint32_t(5)}) {
+    std::string bad = stl;
+    std::memcpy(&bad[80], &claimed, 4);  // little-endian, as STL stores it
+    write_bytes(dir.file("bad.stl"), bad);
+    const std::string e = mesh_error(dir.file("bad.stl"));
+    EXPECT_NE(e.find("announces " + std::to_string(claimed) + " triangles"), std::string::npos)
+        << e;
+    EXPECT_NE(e.find(dir.file("bad.stl")), std::string::npos) << e;
+  }
+  write_bytes(dir.file("cut.stl"), stl.substr(0, 200));
+  EXPECT_THROW(read_mesh(dir.file("cut.stl")), FileError);
+}
+
+// What issue 10 found: garbage named .obj became "no triangles", faces naming vertices that do
+// not exist were dropped and "nan" coordinates were read.
+TEST(MeshFile, ObjGarbageAndBadIndicesAreRefused) {
+  test::TempDir dir;
+  auto error_for = [&](const std::string& text) {
+    write_bytes(dir.file("m.obj"), text);
+    return mesh_error(dir.file("m.obj"));
+  };
+  EXPECT_NE(error_for("hello world\nthis is not an obj\n").find("not an OBJ mesh"),
+            std::string::npos);
+  EXPECT_NE(error_for(std::string("\x89PNG\r\n\x1a\n\0\0\0", 11)).find("not an OBJ mesh"),
+            std::string::npos);
+  const std::string v = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+  EXPECT_NE(error_for(v + "f 1 2 99\n").find("a face uses vertex 99, but the file has 3"),
+            std::string::npos);
+  EXPECT_NE(error_for(v + "f 1 2 -7\n").find("vertex -7 counts back past the 3"),
+            std::string::npos);
+  EXPECT_NE(error_for(v + "f 1 2 0\n").find("'0' is not a vertex index"), std::string::npos);
+  EXPECT_NE(error_for("v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n").find("line 2: a vertex is not"),
+            std::string::npos);
+  EXPECT_NE(error_for(v).find("no face ('f') lines"), std::string::npos);
+  // Good files still read: negative (relative) indices, v/vt/vn triples.
+  EXPECT_EQ(error_for(v + "vt 0 0\nf -3/1 -2/1 -1/1\n"), "");
+}
+
 TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
   SONOSLICE_REQUIRE_DATA();
   const std::string d = test::data_dir() + "/fanslicer";
@@ -105,6 +294,26 @@ TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
   EXPECT_THROW(read_fanslicer_models(d + "/models_binary_LUS_config.json", dir.path().string()),
                FileError);
   EXPECT_THROW(read_fanslicer_models(d + "/models_intensity_LUS_config.json", d), InputError);
+  // What issue 10 found: a colour that is not a number escaped as the JSON library's own
+  // exception ("[json.exception.type_error.302] type must be number"), without the file.
+  std::ifstream in(d + "/models_binary_LUS_config.json");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto error_for = [&](const std::string& from, const std::string& to) {
+    std::string t = text;
+    t.replace(t.find(from), from.size(), to);
+    std::ofstream(dir.file("cfg.json")) << t;
+    try {
+      read_fanslicer_models(dir.file("cfg.json"), d);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  std::string e = error_for("[0, 200, 0]", "[\"green\", 200, 0]");
+  EXPECT_NE(e.find("cfg.json': colour of 'hepatic veins' must be [r, g, b]"), std::string::npos)
+      << e;
+  e = error_for("[0, 1, 1, 1]", "[0, \"yes\", 1, 1]");
+  EXPECT_NE(e.find("cfg.json': \"simulation_models\"[1] must be 0 or 1"), std::string::npos) << e;
 }
 
 // The real meshes: closed, volumes preserved by voxelisation, and voxel vs exact label images

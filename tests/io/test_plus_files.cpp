@@ -14,6 +14,7 @@
 #include <itkMetaImageIO.h>
 
 #include "../common/TestUtil.h"
+#include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/PlusConfig.h"
 #include "sonoslice/io/PlusSequence.h"
@@ -584,7 +585,16 @@ TEST(PlusSequenceFields, MalformedTransformNamesTheFrame) {
   write_file(path, meta_header(2, 2, 1, "MET_UCHAR", "",
                                "Seq_Frame0000_ReferenceToTrackerTransform = 1 2 3\n") +
                        std::string(4, '\0'));
-  EXPECT_NE(error_of<InputError>([&] { read_plus_sequence(path); }).find("16 numbers"),
+  EXPECT_NE(error_of<InputError>([&] { read_plus_sequence(path); }).find("16 finite numbers"),
+            std::string::npos);
+  // A NaN with status OK is a corrupt file, not a tracking dropout (PLUS marks those INVALID).
+  write_file(path, meta_header(2, 2, 1, "MET_UCHAR", "",
+                               "Seq_Frame0000_ProbeToTrackerTransform = nan 0 0 0 0 1 0 0 0 0 1 0 "
+                               "0 0 0 1\n") +
+                       std::string(4, '\0'));
+  EXPECT_NE(error_of<InputError>([&] {
+              read_plus_sequence(path);
+            }).find("frame 0: Seq_Frame0000_ProbeToTrackerTransform: expected 16 finite numbers"),
             std::string::npos);
 }
 
@@ -635,6 +645,95 @@ TEST(PlusTransformRepository, RealInvalidStylus) {
   EXPECT_FALSE(repo.get("Stylus", "Tracker").has_value());
   EXPECT_FALSE(repo.get("Stylus", "Reference").has_value());
   EXPECT_TRUE(repo.get("Probe", "Reference").has_value());
+}
+
+TEST(PlusTransformRepository, TransformProblems) {
+  EXPECT_EQ(transform_problem(Mat4::identity()), "");
+  EXPECT_EQ(transform_problem(row_major({0.1, 0, 0, 5, 0, 0.1, 0, 2, 0, 0, 0, 0, 0, 0, 0, 1})), "");
+  EXPECT_EQ(transform_problem(Mat4::from_row_major(std::vector<double>(16, 0.0).data())),
+            "is all zero");
+  Mat4 m = Mat4::identity();
+  m.m[0][0] = std::nan("");
+  EXPECT_EQ(transform_problem(m), "has a non-finite entry");
+  m = Mat4::identity();
+  m.m[3][3] = 0;
+  EXPECT_NE(transform_problem(m).find("last row"), std::string::npos);
+  m = Mat4::identity();
+  m.m[1][1] = 0;
+  EXPECT_NE(transform_problem(m).find("y axis to a point"), std::string::npos);
+  m = Mat4::identity();
+  m.m[0][1] = 1, m.m[1][1] = 0;  // y axis along x
+  EXPECT_NE(transform_problem(m).find("onto one line"), std::string::npos);
+}
+
+// What issue 10 found: one all-zero ProbeToTracker turned the Nwire sweep's 101x105x74 grid into
+// 519x689x4084 voxels (33 s, 12.9 GB) without a word; one frame missing its ProbeToTracker failed
+// the whole sweep without naming the frame. Such frames are now left out and named.
+TEST(PlusFrameSelection, FramesTheirTransformsCannotPlaceAreSkippedAndNamed) {
+  REQUIRE_PLUS_DATA();
+  REQUIRE_PUGIXML();
+  PlusSequence s = read_plus_sequence(plus_data("NwirePhantomFreehand.igs.mha"));
+  const PlusReconstructionConfig config = read_plus_config(
+      plus_data("PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml"));
+  const std::string zeros = "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0";
+  s.frame_fields[5]["ProbeToTrackerTransform"] = "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 1";
+  s.frame_fields[9]["ProbeToTrackerTransform"] = zeros;
+  s.frame_fields[12].erase("ProbeToTrackerTransform");
+  s.frame_fields[20]["ReferenceToTrackerTransform"] = zeros;  // cannot be inverted
+  WarningCapture warnings;
+  const Reconstruction recon(FrameSource::plus(s), &config, ReconstructionOptions{});
+  EXPECT_EQ(recon.grid().dims, (std::array<int64_t, 3>{101, 105, 74}));
+  EXPECT_EQ(recon.report().frames_used, 93);
+  EXPECT_EQ(recon.report().skipped_unusable_transform, 4);
+  const std::string w = warnings.all();
+  EXPECT_NE(w.find("skipped 4 of 97 frames"), std::string::npos) << w;
+  EXPECT_NE(w.find("frame 5: its ImageToReference maps the image's x axis to a point"),
+            std::string::npos)
+      << w;
+  EXPECT_NE(w.find("frame 9: its ImageToReference is all zero"), std::string::npos) << w;
+  EXPECT_NE(w.find("frame 12: no chain of transforms from 'Image' to 'Reference'"),
+            std::string::npos)
+      << w;
+  EXPECT_NE(w.find("1 more"), std::string::npos) << w;
+  const PlusFrameSelection sel =
+      select_plus_frames(s, config.coordinate_definitions, "Image", "Reference");
+  ASSERT_EQ(sel.unusable.size(), 4u);
+  EXPECT_EQ(sel.unusable[3].first, 20);
+  EXPECT_NE(sel.unusable[3].second.find("ReferenceToTracker is not invertible"), std::string::npos);
+  // No frame with a chain at all: the calibration is missing, an error naming the first frame.
+  for (auto& fields : s.frame_fields) fields.erase("ProbeToTrackerTransform");
+  const std::string e =
+      error_of<InputError>([&] { Reconstruction(FrameSource::plus(s), &config, {}); });
+  EXPECT_NE(e.find("NwirePhantomFreehand.igs.mha: frame 0: no chain of transforms"),
+            std::string::npos)
+      << e;
+}
+
+// A calibration applies to every frame: an all-zero one (XML, option or Python) is refused.
+TEST(PlusFrameSelection, DegenerateCalibrationIsRefused) {
+  REQUIRE_PLUS_DATA();
+  const PlusSequence s = read_plus_sequence(plus_data("NwirePhantomFreehand.igs.mha"));
+  ReconstructionOptions o;
+  o.spacing_mm = Vec3{1, 1, 1};
+  o.image_to_probe = Mat4::from_row_major(std::vector<double>(16, 0.0).data());
+  EXPECT_NE(error_of<InputError>([&] {
+              Reconstruction(FrameSource::plus(s), nullptr, o);
+            }).find("image_to_probe: the pixel-to-probe matrix is all zero"),
+            std::string::npos);
+  o.image_to_probe->m[3][3] = 1;
+  EXPECT_NE(error_of<InputError>([&] {
+              Reconstruction(FrameSource::plus(s), nullptr, o);
+            }).find("x axis to a point"),
+            std::string::npos);
+  // The same for 2D frames placed by poses.
+  VolumeGrid g;
+  g.dims = {8, 6, 2};
+  const Volume frames = Volume::allocate(PixelType::UInt8, g);
+  const FrameSource images = FrameSource::images(frames, {Pose{}, Pose{}}, "frames.npy");
+  EXPECT_NE(error_of<InputError>([&] {
+              Reconstruction(images, nullptr, o);
+            }).find("image_to_probe: the pixel-to-probe matrix"),
+            std::string::npos);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -747,6 +846,19 @@ TEST(PlusSequenceErrors, UnsupportedContents) {
                  std::string(4, '\0'));
   EXPECT_NE(error_of<InputError>([&] { read_plus_sequence(nrrd); }).find("encoding"),
             std::string::npos);
+}
+
+// Float frames holding NaN or infinite pixels are read as they are, with one warning.
+TEST(PlusSequenceFormats, NonFinitePixelsAreCounted) {
+  test::TempDir dir;
+  PlusSequence s = make_sequence(PixelType::Float32, 4, 3, 2, "MF");
+  reinterpret_cast<float*>(s.pixels.data())[5] = std::nanf("");
+  write_plus_sequence(dir.file("f.mha"), s, false);
+  WarningCapture warnings;
+  read_plus_sequence(dir.file("f.mha"));
+  ASSERT_EQ(warnings.list().size(), 1u);
+  EXPECT_NE(warnings.list()[0].find("1 of 24 pixels are NaN or infinite"), std::string::npos)
+      << warnings.all();
 }
 
 TEST(PlusSequenceFormats, TwoDimensionalAndOtherTypes) {
@@ -989,13 +1101,24 @@ TEST_F(PlusConfigSynthetic, BadValuesAreInputErrors) {
     EXPECT_NE(e.find(c.needle), std::string::npos) << c.xml << "\n" << e;
     EXPECT_NE(e.find(path), std::string::npos) << e;
   }
+  // An all-zero calibration would put every pixel of every frame at one point.
+  write(R"(<VolumeReconstruction CompoundingMode="MEAN"/>)");
+  const std::string zero = dir_.file("zero.xml");
+  write_file(zero,
+             "<PlusConfiguration><CoordinateDefinitions><Transform From=\"Image\" To=\"Probe\" "
+             "Matrix=\"0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0\"/></CoordinateDefinitions>"
+             "<VolumeReconstruction CompoundingMode=\"MEAN\"/></PlusConfiguration>");
+  EXPECT_NE(error_of<InputError>([&] {
+              read_plus_config(zero);
+            }).find("Transform[1] (ImageToProbe)/@Matrix is all zero"),
+            std::string::npos);
   // A malformed calibration matrix.
   const std::string path = dir_.file("matrix.xml");
   write_file(path,
              "<PlusConfiguration><CoordinateDefinitions><Transform From=\"Image\" To=\"Probe\" "
              "Matrix=\"1 0 0 0 1 0\"/></CoordinateDefinitions><VolumeReconstruction "
              "CompoundingMode=\"MEAN\"/></PlusConfiguration>");
-  EXPECT_NE(error_of<InputError>([&] { read_plus_config(path); }).find("16 numbers"),
+  EXPECT_NE(error_of<InputError>([&] { read_plus_config(path); }).find("16 finite numbers"),
             std::string::npos);
 }
 

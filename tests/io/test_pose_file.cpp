@@ -146,5 +146,32 @@ TEST(PoseFile, Errors) {
   EXPECT_NE(error_of(dir.file("flat.txt")).find(dir.file("flat.txt")), std::string::npos);
 }
 
+// What issue 10 found: "--image-to-probe" with 7 numbers was taken for a file name and reported
+// as "poses '1,0,...': unknown extension".
+TEST(PoseFile, ReadMatrixCountsNumbersAndNamesTheFlag) {
+  test::TempDir dir;
+  auto error_for = [](const std::string& text) {
+    try {
+      read_matrix(text, "--image-to-probe");
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_EQ(read_matrix("2,0,0,1, 0,3,0,2, 0,0,1,0", "m").m[1][1], 3.0);
+  EXPECT_EQ(error_for("1,0,0,0,0,1,0"),
+            "--image-to-probe '1,0,0,0,0,1,0': 7 numbers (expected 16 for a 4x4 or 12 for a 3x4 "
+            "matrix, row by row)");
+  EXPECT_NE(error_for("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1 5").find("17 numbers"), std::string::npos);
+  EXPECT_NE(error_for(dir.file("cal.txt")).find("nor an existing matrix file"), std::string::npos);
+  // A file's errors name the flag, not "poses".
+  write_text(dir.file("cal.txt"), "1 0 0 0 0 1 0\n");
+  EXPECT_NE(error_for(dir.file("cal.txt")).find("--image-to-probe '" + dir.file("cal.txt") + "'"),
+            std::string::npos)
+      << error_for(dir.file("cal.txt"));
+  write_text(dir.file("two.txt"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 0 0 0 0 1 0 0 0 0 1 0\n");
+  EXPECT_NE(error_for(dir.file("two.txt")).find("the file has 2"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace sonoslice

@@ -92,6 +92,15 @@ TEST(ProbeFile, ErrorsNameTheKey) {
   EXPECT_NE(error_of(R"({"type": "curvilinear", )" + base + "}").find("p.json"), std::string::npos);
 }
 
+// A parse error quotes the bytes it read; from a broken file they need not be UTF-8, and the
+// message must stay one line of printable text naming the file.
+TEST(ProbeFile, InvalidJsonMessageIsPrintable) {
+  const std::string e = error_of("{\"type\": \"linear\xff\xfe\", \n}");
+  EXPECT_NE(e.find("invalid JSON"), std::string::npos) << e;
+  EXPECT_NE(e.find("p.json"), std::string::npos) << e;
+  for (char c : e) EXPECT_TRUE(c >= 0x20 && c <= 0x7e) << int(static_cast<unsigned char>(c));
+}
+
 TEST(ProbeFile, MissingFileIsFileError) {
   EXPECT_THROW(read_probe("/nonexistent/probe.json"), FileError);
 }

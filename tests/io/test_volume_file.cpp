@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 #include <itkExtractImageFilter.h>
 #include <itkGDCMImageIO.h>
@@ -88,8 +89,9 @@ INSTANTIATE_TEST_SUITE_P(Formats, ItkRoundTrip,
 
 // Writes `volume` as a DICOM series of 2-D slices with explicit position/orientation tags and a
 // rescale (stored = (HU - intercept) / slope), the way scanners do.
+// `slice_at[k]`, when given, is where slice k is placed along the third axis (in slices).
 void write_dicom_series(const Volume& volume, const std::string& dir, const std::string& series_uid,
-                        double slope, double intercept) {
+                        double slope, double intercept, const std::vector<double>& slice_at = {}) {
   using Image2 = itk::Image<int16_t, 2>;
   const VolumeGrid& g = volume.grid();
   for (int64_t k = 0; k < g.dims[2]; ++k) {
@@ -106,7 +108,7 @@ void write_dicom_series(const Volume& volume, const std::string& dir, const std:
     std::memcpy(slice->GetBufferPointer(), volume.data_as<int16_t>() + k * g.dims[0] * g.dims[1],
                 size_t(g.dims[0] * g.dims[1]) * sizeof(int16_t));
     auto& dict = slice->GetMetaDataDictionary();
-    const Vec3 pos = g.index_to_world({0, 0, double(k)});
+    const Vec3 pos = g.index_to_world({0, 0, slice_at.empty() ? double(k) : slice_at[size_t(k)]});
     std::ostringstream ipp, iop, sp_str;
     ipp.precision(12);
     iop.precision(12);
@@ -170,6 +172,53 @@ TEST(DicomSeries, WrittenWithItkThenReadBack) {
   EXPECT_NE(error_of(dir.path().string(), o).find("no series '1.2.3'"), std::string::npos);
 }
 
+// What issue 10 found: a slice cut short was read with zeros, slices at one position were both
+// used, and a missing slice stretched the spacing; each is now an error naming the series' files.
+TEST(DicomSeries, BrokenSeriesAreRefused) {
+  VolumeGrid grid;
+  grid.dims = {16, 12, 6};
+  grid.spacing_mm = {0.8, 0.8, 2.0};
+  grid.origin_mm = {-5.0, 3.0, 40.0};
+  const Volume hu = test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[2] - p[0]; });
+  const std::string uid = "1.2.826.0.1.3680043.2.1125.2.33";
+  {
+    // A missing slice: positions 0 1 2 4 5 6 (the gap is two spacings).
+    test::TempDir dir;
+    write_dicom_series(hu, dir.path().string(), uid, 1.0, 0.0, {0, 1, 2, 4, 5, 6});
+    const std::string e = error_of(dir.path().string());
+    EXPECT_NE(e.find("missing slice"), std::string::npos) << e;
+    EXPECT_NE(e.find(dir.path().string()), std::string::npos) << e;
+    EXPECT_NE(e.find(".dcm"), std::string::npos) << e;
+    EXPECT_THROW(read_volume(dir.path().string()), InputError);
+  }
+  {
+    // Two slices at one position.
+    test::TempDir dir;
+    write_dicom_series(hu, dir.path().string(), uid, 1.0, 0.0, {0, 1, 2, 2, 3, 4});
+    const std::string e = error_of(dir.path().string());
+    EXPECT_NE(e.find("same position"), std::string::npos) << e;
+    EXPECT_NE(e.find(".dcm"), std::string::npos) << e;
+  }
+  {
+    // A slice file cut short inside its pixel data.
+    test::TempDir dir;
+    write_dicom_series(hu, dir.path().string(), uid, 1.0, 0.0);
+    const std::string victim = dir.file("33_3.dcm");
+    ASSERT_TRUE(fs::exists(victim));
+    fs::resize_file(victim, fs::file_size(victim) - 100);
+    const std::string e = error_of(dir.path().string());
+    EXPECT_NE(e.find("33_3.dcm"), std::string::npos) << e;
+    EXPECT_NE(e.find("truncated"), std::string::npos) << e;
+    EXPECT_THROW(read_volume(dir.path().string()), FileError);
+  }
+  {
+    // Unevenly spaced slices (not a multiple of a spacing): refused too.
+    test::TempDir dir;
+    write_dicom_series(hu, dir.path().string(), uid, 1.0, 0.0, {0, 1, 2, 3, 4, 5.5});
+    EXPECT_NE(error_of(dir.path().string()).find("spacing"), std::string::npos);
+  }
+}
+
 // A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path
 // steps aside for it.
 TEST(VolumeFile, NiftiRescaleSlopeAndIntercept) {
@@ -189,6 +238,206 @@ TEST(VolumeFile, NiftiRescaleSlopeAndIntercept) {
   ASSERT_EQ(r.pixel_type(), PixelType::Float32);
   for (int64_t i = 0; i < grid.voxel_count(); ++i)
     ASSERT_EQ(r.data_as<float>()[i], 2.0f * v.data_as<int16_t>()[i] - 5.0f) << i;
+}
+
+// Overwrites `bytes` at `offset` of `path` (a header field).
+void patch(const std::string& path, std::streamoff offset, const void* bytes, size_t n) {
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekp(offset);
+  f.write(static_cast<const char*>(bytes), std::streamsize(n));
+}
+void patch_float(const std::string& path, std::streamoff offset, float v) {
+  patch(path, offset, &v, sizeof v);
+}
+void patch_int16(const std::string& path, std::streamoff offset, int16_t v) {
+  patch(path, offset, &v, sizeof v);
+}
+
+// The error of reading `path`, with what the libraries print to stderr meanwhile (nothing
+// allowed: sonoslice's one line is the error).
+std::string quiet_error_of(const std::string& path) {
+  ::testing::internal::CaptureStderr();
+  const std::string e = error_of(path);
+  const std::string printed = ::testing::internal::GetCapturedStderr();
+  EXPECT_EQ(printed, "") << "while reading " << path;
+  return e;
+}
+
+// What issue 10 found: NIfTI pixdim 0 or NaN became 1 mm; a NaN scl_slope with an intercept was
+// applied as a slope of 1; a NaN in the sform aborted the process in ITK's matrix code; a bad
+// dimension printed a line from the NIfTI C library before the error.
+TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
+  test::TempDir dir;
+  VolumeGrid grid;
+  grid.dims = {6, 5, 4};
+  grid.spacing_mm = {0.5, 0.75, 2.0};
+  const Volume v = test::make_volume<int16_t>(grid, [](const Vec3& p) { return p[0] + p[2]; });
+  const std::string good = dir.file("good.nii");
+  write_volume(good, v);
+  auto variant = [&](const std::string& name) {
+    fs::copy_file(good, dir.file(name), fs::copy_options::overwrite_existing);
+    return dir.file(name);
+  };
+  const float nan = std::nanf("");
+  // pixdim[1..3] at byte 80, 84, 88.
+  for (const auto& [offset, value, needle] :
+       std::vector<std::tuple<int, float, std::string>>{{80, 0.0f, "pixdim[1] is 0"},
+                                                        {84, nan, "pixdim[2] is nan"},
+                                                        {88, -2.0f, "pixdim[3] is -2"}}) {
+    const std::string p = variant("pixdim.nii");
+    patch_float(p, offset, value);
+    const std::string e = quiet_error_of(p);
+    EXPECT_NE(e.find(needle), std::string::npos) << e;
+    EXPECT_NE(e.find(p), std::string::npos) << e;
+    EXPECT_THROW(read_volume(p), InputError);
+  }
+  // scl_slope (112) and scl_inter (116).
+  std::string p = variant("scl.nii");
+  patch_float(p, 112, nan);
+  patch_float(p, 116, 5.0f);
+  EXPECT_NE(quiet_error_of(p).find("scl_slope is nan with scl_inter 5"), std::string::npos);
+  patch_float(p, 112, 0.0f);
+  EXPECT_NE(quiet_error_of(p).find("scl_slope is 0 (no scaling) but scl_inter is 5"),
+            std::string::npos);
+  patch_float(p, 112, 2.0f);
+  patch_float(p, 116, nan);
+  EXPECT_NE(quiet_error_of(p).find("scl_inter is nan"), std::string::npos);
+  patch_float(p, 116, 5.0f);
+  EXPECT_EQ(read_volume(p).pixel_type(), PixelType::Float32);  // a valid rescale still reads
+  // A NaN in the sform (srow_x[0] at 280) with sform_code 1, in the quaternion with qform_code 1.
+  p = variant("sform.nii");
+  patch_int16(p, 254, 1);
+  patch_float(p, 280, nan);
+  EXPECT_NE(quiet_error_of(p).find("srow_x[0] is not a finite number"), std::string::npos);
+  p = variant("qform.nii");
+  patch_int16(p, 252, 1);
+  patch_float(p, 268, nan);
+  EXPECT_NE(quiet_error_of(p).find("qoffset_x is not a finite number"), std::string::npos);
+  // Corrupt dimensions and data type: FileErrors, and the C library says nothing.
+  p = variant("dim.nii");
+  patch_int16(p, 42, 0);
+  EXPECT_NE(quiet_error_of(p).find("dim[1] is 0"), std::string::npos);
+  patch_int16(p, 40, 9);
+  EXPECT_NE(quiet_error_of(p).find("dim[0] is 9"), std::string::npos);
+  EXPECT_THROW(read_volume(p), FileError);
+  p = variant("type.nii");
+  patch_int16(p, 70, 999);
+  EXPECT_NE(quiet_error_of(p).find("datatype 999"), std::string::npos);
+  // Sizes whose byte count overflows (dim[1..3] = 32767, dim[4..7] = 32767: 2^105 bytes).
+  p = variant("huge.nii");
+  patch_int16(p, 40, 7);
+  for (int i = 1; i <= 7; ++i) patch_int16(p, 40 + 2 * i, 32767);
+  EXPECT_NE(quiet_error_of(p).find("sizes overflow"), std::string::npos);
+  // A rescaled (so ITK-read) uncompressed file cut short: ITK's reader zero-filled it.
+  p = variant("short.nii");
+  patch_float(p, 112, 2.0f);
+  fs::resize_file(p, fs::file_size(p) - 20);
+  EXPECT_NE(quiet_error_of(p).find("truncated"), std::string::npos);
+  // The same checks through .nii.gz.
+  write_volume(dir.file("z.nii.gz"), v);
+  EXPECT_EQ(read_volume(dir.file("z.nii.gz")).grid().spacing_mm, grid.spacing_mm);
+}
+
+// What issue 10 found: a MetaImage "ElementSpacing = nan 1 1" printed MetaIO's complaints, then
+// "No such file or directory" for a file that exists; negative and huge sizes reached ITK's
+// allocator; a NaN NRRD spacing became 1 mm.
+TEST(VolumeFile, MetaImageAndNrrdHeadersNameTheField) {
+  test::TempDir dir;
+  const std::string voxels(64, '\1');
+  auto mha = [&](const std::string& name, const std::string& fields) {
+    std::ofstream(dir.file(name), std::ios::binary)
+        << "ObjectType = Image\nNDims = 3\n"
+        << fields << "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n"
+        << voxels;
+    return dir.file(name);
+  };
+  EXPECT_EQ(read_volume(mha("ok.mha", "DimSize = 4 4 4\n")).grid().dims[0], 4);
+  std::string e = quiet_error_of(mha("nan.mha", "DimSize = 4 4 4\nElementSpacing = nan 1 1\n"));
+  EXPECT_NE(e.find("ElementSpacing 'nan 1 1'"), std::string::npos) << e;
+  EXPECT_EQ(e.find("No such file"), std::string::npos) << e;
+  EXPECT_THROW(read_volume(dir.file("nan.mha")), InputError);
+  e = quiet_error_of(mha("zero.mha", "DimSize = 4 4 4\nElementSpacing = 0 1 1\n"));
+  EXPECT_NE(e.find("ElementSpacing '0 1 1'"), std::string::npos) << e;
+  e = quiet_error_of(mha("neg.mha", "DimSize = -5 4 4\n"));
+  EXPECT_NE(e.find("DimSize '-5 4 4' is not a list of sizes"), std::string::npos) << e;
+  e = quiet_error_of(mha("big.mha", "DimSize = -9223372036854775807 1 1\n"));
+  EXPECT_NE(e.find("DimSize"), std::string::npos) << e;
+  e = quiet_error_of(mha("huge.mha", "DimSize = 4294967296 4294967296 1\n"));
+  EXPECT_NE(e.find("DimSize"), std::string::npos) << e;
+  e = quiet_error_of(mha("origin.mha", "DimSize = 4 4 4\nOffset = 0 inf 0\n"));
+  EXPECT_NE(e.find("offset '0 inf 0'"), std::string::npos) << e;
+  // A detached header whose data file is missing: named, not "No such file" about the header.
+  std::ofstream(dir.file("d.mhd")) << "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\n"
+                                      "ElementType = MET_UCHAR\nElementDataFile = d.raw\n";
+  e = quiet_error_of(dir.file("d.mhd"));
+  EXPECT_NE(e.find("data file '" + dir.file("d.raw") + "'"), std::string::npos) << e;
+  EXPECT_THROW(read_volume(dir.file("d.mhd")), FileError);
+  auto nrrd = [&](const std::string& name, const std::string& fields) {
+    std::ofstream(dir.file(name), std::ios::binary) << "NRRD0004\ntype: uchar\ndimension: 3\n"
+                                                    << fields << "encoding: raw\n\n"
+                                                    << voxels;
+    return dir.file(name);
+  };
+  EXPECT_EQ(read_volume(nrrd("ok.nrrd", "sizes: 4 4 4\nspacings: 1 2 3\n")).grid().spacing_mm,
+            (Vec3{1, 2, 3}));
+  e = quiet_error_of(nrrd("nan.nrrd", "sizes: 4 4 4\nspacings: nan 1 1\n"));
+  EXPECT_NE(e.find("spacings 'nan 1 1'"), std::string::npos) << e;
+  e = quiet_error_of(nrrd("huge.nrrd", "sizes: 9223372036854775809 1 1\n"));
+  EXPECT_NE(e.find("sizes '9223372036854775809 1 1'"), std::string::npos) << e;
+  EXPECT_THROW(read_volume(dir.file("huge.nrrd")), InputError);
+}
+
+// What issue 10 found: a .npy of shape (2^32, 2^32, 1) overflowed its byte count, mapped 0 bytes
+// and was read as a volume ("info" said 0 MiB); Fortran-ordered, it crashed.
+TEST(VolumeFile, NpyShapeOverflowIsAnInputError) {
+  test::TempDir dir;
+  auto npy = [&](const std::string& name, const std::string& dict) {
+    std::string header = dict;
+    header.append(size_t(63 - (10 + header.size()) % 64), ' ');
+    header += '\n';
+    std::ofstream out(dir.file(name), std::ios::binary);
+    out << "\x93NUMPY\x01" << '\0' << char(header.size() & 0xff) << char(header.size() >> 8)
+        << header << std::string(102, '\0');
+    return dir.file(name);
+  };
+  for (const char* order : {"False", "True"}) {
+    const std::string p = npy(std::string("over_") + order + ".npy",
+                              std::string("{'descr': '<f4', 'fortran_order': ") + order +
+                                  ", 'shape': (4294967296, 4294967296, 1), }");
+    const std::string e = error_of(p);
+    EXPECT_NE(e.find("(4294967296, 4294967296, 1)"), std::string::npos) << e;
+    EXPECT_THROW(read_volume(p), InputError);
+    EXPECT_THROW(read_npy_header(p), InputError);
+  }
+  const std::string p = npy("range.npy",
+                            "{'descr': '<f4', 'fortran_order': False, 'shape': "
+                            "(99999999999999999999, 2, 1), }");
+  EXPECT_NE(error_of(p).find("corrupt .npy shape"), std::string::npos);
+}
+
+// NaN and infinite voxels are sampled as they are; the reader says so once, with the count.
+TEST(VolumeFile, NonFiniteVoxelsAreCountedOnce) {
+  test::TempDir dir;
+  std::vector<float> data(2 * 3 * 4, 1.0f);
+  data[5] = std::nanf("");
+  data[7] = -INFINITY;
+  write_npy(dir.file("v.npy"), PixelType::Float32, {2, 3, 4}, data.data());
+  std::vector<std::string> warnings;
+  static std::vector<std::string>* sink = nullptr;
+  sink = &warnings;
+  set_warning_handler([](const std::string& m) { sink->push_back(m); });
+  VolumeReadOptions o;
+  o.spacing_mm = Vec3{1, 1, 1};
+  const Volume v = read_volume(dir.file("v.npy"), o);
+  write_volume(dir.file("v.nii"), v);
+  read_volume(dir.file("v.nii"));
+  set_warning_handler(nullptr);
+  ASSERT_EQ(warnings.size(), 2u);
+  EXPECT_NE(warnings[0].find("2 of 24 voxels are NaN or infinite"), std::string::npos)
+      << warnings[0];
+  EXPECT_NE(warnings[1].find("v.nii"), std::string::npos) << warnings[1];
+  EXPECT_EQ(v.non_finite_count(), 2);
+  EXPECT_EQ(v.converted(PixelType::Int16).non_finite_count(), 0);
 }
 
 TEST(VolumeFile, NpyWithFlagsSidecarAndDefaults) {

@@ -131,6 +131,10 @@ struct ReconstructionReport {
   int64_t frames_used = 0;
   int64_t skipped_bad_image = 0;      ///< image status not OK (PLUS)
   int64_t skipped_bad_transform = 0;  ///< transform chain through an invalid link (PLUS)
+  /// PLUS frames whose own transforms cannot place them: one missing, not invertible, or a
+  /// result that is all zero, non-finite or collapses the image axes (docs/compounding.md §3).
+  int64_t skipped_unusable_transform = 0;
+  std::string skipped_frames;  ///< the first of those, named: "frame 5: its ImageToReference ..."
   int skip = 1;
   std::string transform;          ///< PLUS: "ImageToReference"; others: ""
   bool grid_from_config = false;  ///< the configuration's OutputOrigin/Extent, not fitted

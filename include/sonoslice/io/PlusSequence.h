@@ -6,6 +6,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "sonoslice/geometry/Math.h"
@@ -87,20 +88,30 @@ class TransformRepository {
   std::map<std::pair<std::string, std::string>, Entry> transforms_;
 };
 
+/// Why `m` cannot place image pixels (or probe points) in space, "" when it can: a non-finite
+/// entry, a last row other than 0 0 0 1 (an all-zero matrix), or columns 0 and 1 (the image's x
+/// and y axes) that are zero or parallel, which would put a frame's pixels on a line or a point.
+std::string transform_problem(const Mat4& m);
+
 /// The frames of a sequence that go into a reconstruction, as PLUS picks them.
 struct PlusFrameSelection {
   std::vector<int> frames;         ///< indices into the sequence
   std::vector<Mat4> to_reference;  ///< their `from`→`to` transforms
   int bad_image = 0;               ///< frames whose image status is not OK
   int bad_transform = 0;           ///< frames whose chain passes through an invalid transform
+  /// Frames left out because their own transforms cannot place them, with the reason: no chain
+  /// (a transform missing from the frame), a link that cannot be inverted, or a `from`→`to`
+  /// transform with a transform_problem() (an all-zero ProbeToTracker).
+  std::vector<std::pair<int, std::string>> unusable;
   /// "2 with an invalid ImageToReference transform, 1 with an image status not OK" ("" if none).
   std::string skipped_reason(const std::string& from, const std::string& to) const;
 };
 
 /// Every `skip`-th frame (0, skip, 2·skip, ...) whose image status is OK and whose `from`→`to`
 /// chain, through the frame's transforms and `calibration` (e.g. a configuration's
-/// CoordinateDefinitions), has no invalid link. InputError (prefixed with the sequence's path,
-/// followed by `hint`) when no chain exists at all.
+/// CoordinateDefinitions), has no invalid link and gives a usable transform; the others are
+/// counted or listed (`unusable`, with the frame). InputError (prefixed with the sequence's path
+/// and the first frame, followed by `hint`) when no considered frame has a chain at all.
 PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
                                       const TransformRepository& calibration,
                                       const std::string& from, const std::string& to, int skip = 1,

@@ -1,5 +1,6 @@
 #pragma once
 /// @file A 3D volume in its native pixel type with its world geometry.
+#include <cstdint>
 #include <memory>
 #include <string>
 
@@ -42,6 +43,9 @@ class Volume {
   /// Minimum and maximum voxel value (NaNs ignored), computed in parallel.
   std::pair<double, double> value_range() const;
 
+  /// How many voxels are NaN or infinite (0 for integer types), counted in parallel.
+  int64_t non_finite_count() const;
+
   /// A copy converted to another pixel type (saturating, rounding to nearest).
   Volume converted(PixelType type) const;
 
@@ -51,5 +55,8 @@ class Volume {
   void* data_ = nullptr;
   std::shared_ptr<void> owner_;
 };
+
+/// How many of the `count` values of `type` at `data` are NaN or infinite (0 for integer types).
+int64_t count_non_finite(const void* data, PixelType type, int64_t count);
 
 }  // namespace sonoslice
