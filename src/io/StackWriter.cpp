@@ -89,7 +89,7 @@ class ItkStackWriter : public StackWriter {
 class PngStackWriter : public StackWriter {
  public:
   PngStackWriter(const std::string& path, const StackSpec& spec)
-      : spec_(spec), dir_(path, /*directory=*/true) {
+      : spec_(spec), dir_(path, OutputKind::Folder) {
     if (!built_with_itk()) throw Error("output '" + path + "': PNG output needs a build with ITK");
     digits_ = std::max<int>(5, int(std::to_string(std::max<int64_t>(spec.count - 1, 0)).size()));
     if (spec.window) window_ = spec.window;

@@ -1,7 +1,7 @@
 #pragma once
 /// @file NumPy .npy arrays (format versions 1–3): whole-array reading and streamed writing.
+#include <cstddef>
 #include <cstdint>
-#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
@@ -44,8 +44,7 @@ class NpyWriter {
  private:
   std::string path_;
   std::unique_ptr<class AtomicFile> file_;
-  std::FILE* stream_ = nullptr;
-  uint64_t expected_ = 0, written_ = 0;
+  uint64_t expected_ = 0, written_ = 0, header_bytes_ = 0;
 };
 
 /// Convenience: writes a whole C-order array at once.
