@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -160,20 +161,47 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
 }
 
 #ifdef SONOSLICE_HAVE_ITK
-// ITK writes under a temporary name that is renamed into place; errors name the user's path.
+// ITK writes into a private temporary folder, under the final name (and any companion file: a
+// .mhd's .raw); the file is then read back in full before it replaces anything, because ITK's
+// NIfTI and MetaImage writers print a line and report success when the disk fills. Errors name
+// the user's path.
 void write_itk_atomic(const std::string& path, const void* data, PixelType type,
                       const std::vector<int64_t>& dims, const std::vector<double>& spacing,
                       const std::vector<double>& origin, const std::vector<double>& direction,
                       int components = 1) {
-  AtomicFile file(path);
+  AtomicFile file(path, OutputKind::Staged);
+  const std::string& temp = file.temp_path();
+  std::string failure, printed;
+  errno = 0;
   try {
-    itk_io::write_image(file.temp_path(), data, type, dims, spacing, origin, direction, components);
-  } catch (const FileError& e) {
-    std::string msg = e.what();
-    const size_t at = msg.find(file.temp_path());
-    if (at != std::string::npos) msg.replace(at, file.temp_path().size(), path);
-    throw FileError(msg);
+    printed = itk_io::write_image(temp, data, type, dims, spacing, origin, direction, components);
+  } catch (const Error& e) {
+    failure = e.what();
   }
+  const int write_errno = errno;  // what the writer's last failed call left, if anything
+  // A library that prints an error has not written what it was asked to (NIfTI's "** ERROR").
+  if (failure.empty() && printed.find("ERROR") != std::string::npos) failure = printed;
+  if (failure.empty()) {
+    try {
+      itk_io::verify_image_file(temp, type, dims, components);
+    } catch (const Error& e) {
+      failure = e.what();
+    }
+  }
+  if (!failure.empty()) {
+    std::string why;
+    if (write_errno == ENOSPC || write_errno == EDQUOT || write_errno == EFBIG)
+      why = write_error_reason(write_errno);
+    else
+      why = incomplete_write_reason(temp);
+    if (why.empty()) {
+      why = printed.empty() ? failure : printed;
+      for (size_t at; (at = why.find(temp)) != std::string::npos;)
+        why.replace(at, temp.size(), path);
+    }
+    throw FileError("cannot write '" + path + "': " + why);
+  }
+  if (!printed.empty()) warn("writing '" + path + "': " + printed);
   file.commit();
 }
 #endif
