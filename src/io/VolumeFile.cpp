@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <climits>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -13,6 +14,7 @@
 #include "../core/Text.h"
 #include "JsonFile.h"
 #include "MappedFile.h"
+#include "PngFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
@@ -282,7 +284,9 @@ void check_writable(const std::string& path, const std::string& what, bool two_d
   if (format == ImageFormat::Png && !two_d)
     throw InputError(what + " '" + path + "': PNG holds 2-D images; write a volume as .nii.gz, " +
                      ".mha, .nrrd or .npy");
-  if (needs_itk(format) && !built_with_itk())
+  if (format == ImageFormat::Png && !built_with_png())
+    throw Error(what + " '" + path + "': this sonoslice was built without libpng; write .npy");
+  if (format != ImageFormat::Png && needs_itk(format) && !built_with_itk())
     throw Error(what + " '" + path + "': this sonoslice was built without ITK; write .npy");
   check_output_path(path);
 }
@@ -340,6 +344,17 @@ void write_image(const std::string& path, const void* data, PixelType type,
     std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
     if (components == 3) shape.push_back(3);
     write_npy(path, type, shape, data);
+    return;
+  }
+  if (format == ImageFormat::Png) {  // libpng, which reports every failed write
+    if (dims.size() != 2 || spacing.size() < 2)
+      throw InputError("output '" + path + "': PNG holds 2-D images; write .nii.gz or .npy");
+    if (dims[0] > INT_MAX || dims[1] > INT_MAX)
+      throw InputError("output '" + path + "': too large for a PNG");
+    AtomicFile file(path);
+    const double spacing_mm[2] = {spacing[0], spacing[1]};
+    write_png(file.fd(), path, data, type, int(dims[0]), int(dims[1]), components, spacing_mm);
+    file.commit();
     return;
   }
 #ifdef SONOSLICE_HAVE_ITK
