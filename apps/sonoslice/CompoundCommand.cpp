@@ -98,7 +98,17 @@ void run_compound(const CompoundFlags& f) {
   options.device = setup_device(f.device, f.threads);
   if (!f.config.empty() && f.sequence.empty())
     throw InputError("--config: a PLUS configuration goes with --sequence");
-  // Refuse unwritable outputs before the (possibly long) reading and splatting.
+  // Refuse unwritable outputs before the (possibly long) reading and splatting, and outputs that
+  // would overwrite each other or an input.
+  check_distinct_outputs({{"--out", f.out}, {"--weights", f.weights}},
+                         {{"--sequence", f.sequence},
+                          {"--config", f.config},
+                          {"--frames", f.frames},
+                          {"--poses", f.poses},
+                          {"--image-to-probe", f.image_to_probe},
+                          {"--probe", f.probe},
+                          {"--beam-frames", f.beam_frames},
+                          {"--beam-geometry", f.beam_geometry}});
   check_volume_output(f.out, "--out");
   if (!f.weights.empty()) check_volume_output(f.weights, "--weights");
 
