@@ -145,8 +145,11 @@ void run_compound(const CompoundFlags& f) {
   const ReconstructionResult result =
       recon.run(!f.weights.empty(), [&](int64_t done, int64_t) { progress.update(done); });
   Stopwatch write_clock;
-  write_volume(f.out, result.volume);
-  if (!f.weights.empty()) write_volume(f.weights, result.weights);
+  // Both or neither: a failure writing --weights leaves the old --out in place.
+  OutputSet outputs;
+  write_volume(f.out, result.volume, &outputs);
+  if (!f.weights.empty()) write_volume(f.weights, result.weights, &outputs);
+  outputs.commit();
   const double write_seconds = write_clock.seconds();
   progress.finish();
 

@@ -229,9 +229,12 @@ void run_slice(const SliceFlags& f) {
     progress.update(first + count);
   }
   Stopwatch commit_clock;
-  writer->commit();
-  if (color_writer) color_writer->commit();
-  if (!f.mask.empty()) write_mask(f.mask, probe, source.mask());
+  // All outputs or none: a failure writing the last leaves the earlier ones' old files in place.
+  OutputSet outputs;
+  writer->finish(outputs);
+  if (color_writer) color_writer->finish(outputs);
+  if (!f.mask.empty()) write_mask(f.mask, probe, source.mask(), &outputs);
+  outputs.commit();
   write_seconds += commit_clock.seconds();
   progress.finish();
 

@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <random>
 #include <string>
 
@@ -399,9 +400,8 @@ void AtomicFile::discard() noexcept {
   slot_ = -1;
 }
 
-void AtomicFile::commit() {
-  if (committed_) throw Error("'" + path_ + "': output committed twice");
-  const fs::path parent = parent_of(target_);
+void AtomicFile::prepare() {
+  if (prepared_) return;
   switch (kind_) {
     case OutputKind::File: {
       if (fd_ < 0) throw FileError("cannot write '" + path_ + "': the temporary is closed");
@@ -414,27 +414,20 @@ void AtomicFile::commit() {
       fd_ = -1;
       if (!synced) throw FileError(write_error_message(path_, sync_errno));
       if (closed != 0) throw FileError(write_error_message(path_, close_errno));
-      if (::rename(temp_.c_str(), target_.c_str()) != 0)
-        throw FileError(write_error_message(path_, errno));
       break;
     }
     case OutputKind::Staged: {
       const std::string name = fs::path(target_).filename().string();
-      std::vector<std::string> names;
       std::error_code ec;
       for (fs::directory_iterator it(temp_, ec), end; !ec && it != end; it.increment(ec))
-        names.push_back(it->path().filename().string());
+        staged_.push_back(it->path().filename().string());
       if (ec) throw FileError("cannot write '" + path_ + "': " + ec.message());
-      if (std::find(names.begin(), names.end(), name) == names.end())
+      if (std::find(staged_.begin(), staged_.end(), name) == staged_.end())
         throw FileError("cannot write '" + path_ + "': nothing was written");
-      for (const std::string& n : names) sync_file((fs::path(temp_) / n).string(), path_);
+      for (const std::string& n : staged_) sync_file((fs::path(temp_) / n).string(), path_);
       // Companions first: the named file appears only once the data it refers to is in place.
-      std::stable_partition(names.begin(), names.end(),
+      std::stable_partition(staged_.begin(), staged_.end(),
                             [&](const std::string& n) { return n != name; });
-      for (const std::string& n : names)
-        if (::rename((fs::path(temp_) / n).c_str(), (parent / n).c_str()) != 0)
-          throw FileError(write_error_message(path_, errno));
-      ::rmdir(temp_.c_str());
       break;
     }
     case OutputKind::Folder: {
@@ -446,6 +439,28 @@ void AtomicFile::commit() {
       const int sync_errno = errno;
       ::close(dir_fd);
       if (!synced) throw FileError(write_error_message(path_, sync_errno));
+      break;
+    }
+  }
+  prepared_ = true;
+}
+
+void AtomicFile::commit() {
+  if (committed_) throw Error("'" + path_ + "': output committed twice");
+  prepare();
+  const fs::path parent = parent_of(target_);
+  switch (kind_) {
+    case OutputKind::File:
+      if (::rename(temp_.c_str(), target_.c_str()) != 0)
+        throw FileError(write_error_message(path_, errno));
+      break;
+    case OutputKind::Staged:
+      for (const std::string& n : staged_)
+        if (::rename((fs::path(temp_) / n).c_str(), (parent / n).c_str()) != 0)
+          throw FileError(write_error_message(path_, errno));
+      ::rmdir(temp_.c_str());
+      break;
+    case OutputKind::Folder: {
       // A new folder: never replace one that appeared since the check.
       if (rename_with_flags(temp_, target_, kRenameNoReplace) == 0) break;
       if (errno != EEXIST && errno != ENOTEMPTY && errno != EINVAL && errno != ENOSYS)
@@ -492,10 +507,23 @@ void AtomicFile::commit() {
   committed_ = true;
 }
 
-void write_text_file(const std::string& path, const std::string& text) {
-  AtomicFile file(path);
-  write_fully(file.fd(), text.data(), text.size(), path);
-  file.commit();
+void OutputSet::add(std::unique_ptr<AtomicFile> file) {
+  files_.push_back(std::move(file));
+}
+
+void OutputSet::commit() {
+  for (const auto& file : files_) file->prepare();  // where a full disk shows, before any rename
+  for (const auto& file : files_) file->commit();
+  files_.clear();
+}
+
+void write_text_file(const std::string& path, const std::string& text, OutputSet* together) {
+  auto file = std::make_unique<AtomicFile>(path);
+  write_fully(file->fd(), text.data(), text.size(), path);
+  if (together)
+    together->add(std::move(file));
+  else
+    file->commit();
 }
 
 unsigned long long free_disk_bytes(const std::string& path) {

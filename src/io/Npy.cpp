@@ -207,7 +207,7 @@ void NpyWriter::write(const void* data, size_t bytes) {
   written_ += bytes;
 }
 
-void NpyWriter::commit() {
+void NpyWriter::commit(OutputSet* together) {
   if (written_ != expected_) throw Error("'" + path_ + "': incomplete data");
   // Every write was checked; the size on disk is the last word before the rename.
   struct stat st;
@@ -215,16 +215,19 @@ void NpyWriter::commit() {
   if (uint64_t(st.st_size) != header_bytes_ + expected_)
     throw FileError("cannot write '" + path_ + "': " + std::to_string(st.st_size) +
                     " bytes on disk, " + std::to_string(header_bytes_ + expected_) + " expected");
-  file_->commit();
+  if (together)
+    together->add(std::move(file_));
+  else
+    file_->commit();
 }
 
 void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
-               const void* data) {
+               const void* data, OutputSet* together) {
   NpyWriter w(path, type, shape);
   uint64_t bytes = pixel_size(type);
   for (int64_t d : shape) bytes *= uint64_t(d);
   w.write(data, bytes);
-  w.commit();
+  w.commit(together);
 }
 
 }  // namespace sonoslice

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -170,9 +171,9 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
 void write_itk_atomic(const std::string& path, const void* data, PixelType type,
                       const std::vector<int64_t>& dims, const std::vector<double>& spacing,
                       const std::vector<double>& origin, const std::vector<double>& direction,
-                      int components = 1) {
-  AtomicFile file(path, OutputKind::Staged);
-  const std::string& temp = file.temp_path();
+                      int components, OutputSet* together) {
+  auto file = std::make_unique<AtomicFile>(path, OutputKind::Staged);
+  const std::string temp = file->temp_path();
   std::string failure, printed;
   errno = 0;
   try {
@@ -204,7 +205,10 @@ void write_itk_atomic(const std::string& path, const void* data, PixelType type,
     throw FileError("cannot write '" + path + "': " + why);
   }
   if (!printed.empty()) warn("writing '" + path + "': " + printed);
-  file.commit();
+  if (together)
+    together->add(std::move(file));
+  else
+    file->commit();
 }
 #endif
 
@@ -334,7 +338,7 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
 
 void write_image(const std::string& path, const void* data, PixelType type,
                  const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                 int components) {
+                 int components, OutputSet* together) {
   if (components != 1 && components != 3)
     throw InputError("'" + path + "': images have 1 or 3 (RGB) components");
   const ImageFormat format = image_format(path, "output");
@@ -343,7 +347,7 @@ void write_image(const std::string& path, const void* data, PixelType type,
   if (format == ImageFormat::Npy) {
     std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
     if (components == 3) shape.push_back(3);
-    write_npy(path, type, shape, data);
+    write_npy(path, type, shape, data, together);
     return;
   }
   if (format == ImageFormat::Png) {  // libpng, which reports every failed write
@@ -351,36 +355,43 @@ void write_image(const std::string& path, const void* data, PixelType type,
       throw InputError("output '" + path + "': PNG holds 2-D images; write .nii.gz or .npy");
     if (dims[0] > INT_MAX || dims[1] > INT_MAX)
       throw InputError("output '" + path + "': too large for a PNG");
-    AtomicFile file(path);
+    auto file = std::make_unique<AtomicFile>(path);
     const double spacing_mm[2] = {spacing[0], spacing[1]};
-    write_png(file.fd(), path, data, type, int(dims[0]), int(dims[1]), components, spacing_mm);
-    file.commit();
+    write_png(file->fd(), path, data, type, int(dims[0]), int(dims[1]), components, spacing_mm);
+    if (together)
+      together->add(std::move(file));
+    else
+      file->commit();
     return;
   }
 #ifdef SONOSLICE_HAVE_ITK
   const size_t n = dims.size();
   std::vector<double> origin(n, 0.0), direction(n * n, 0.0);
   for (size_t i = 0; i < n; ++i) direction[i * n + i] = 1.0;
-  write_itk_atomic(path, data, type, dims, spacing, origin, direction, components);
+  write_itk_atomic(path, data, type, dims, spacing, origin, direction, components, together);
 #else
   (void)type, (void)spacing, (void)data;
   no_itk(path);
 #endif
 }
 
-void write_volume(const std::string& path, const Volume& volume) {
+void write_volume(const std::string& path, const Volume& volume, OutputSet* together) {
   const VolumeGrid& g = volume.grid();
   const ImageFormat format = image_format(path, "output");
   if (format == ImageFormat::Directory || format == ImageFormat::Png)
     throw InputError("output '" + path + "': write a volume as .nii.gz, .mha, .nrrd or .npy");
   if (format == ImageFormat::Npy) {
-    write_npy(path, volume.pixel_type(), {g.dims[2], g.dims[1], g.dims[0]}, volume.data());
+    // The array and its sidecar go into place together (a run's own set, or one for the two).
+    OutputSet pair;
+    OutputSet* both = together ? together : &pair;
+    write_npy(path, volume.pixel_type(), {g.dims[2], g.dims[1], g.dims[0]}, volume.data(), both);
     nlohmann::json j;
     j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};
     j["origin"] = {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]};
     j["direction"] = g.direction.row_major();
     const std::string sidecar = fs::path(path).replace_extension(".json").string();
-    write_text_file(sidecar, j.dump(2) + "\n");
+    write_text_file(sidecar, j.dump(2) + "\n", both);
+    if (!together) pair.commit();
     return;
   }
 #ifdef SONOSLICE_HAVE_ITK
@@ -389,7 +400,7 @@ void write_volume(const std::string& path, const Volume& volume) {
   const auto d = g.direction.row_major();
   const std::vector<double> direction(d.begin(), d.end());
   write_itk_atomic(path, volume.data(), volume.pixel_type(), {g.dims[0], g.dims[1], g.dims[2]},
-                   spacing, origin, direction);
+                   spacing, origin, direction, 1, together);
 #else
   no_itk(path);
 #endif

@@ -825,6 +825,29 @@ TEST_F(Cli, PngFolderNeverDeletesSomeoneElsesFiles) {
   EXPECT_EQ(entries(out), (std::vector<std::string>{"pngs", "three.txt", "work"}));
 }
 
+// The outputs of one run go into place together: --weights failing (a file-size limit that the
+// uint8 volume fits under and its float32 weights do not) leaves the old --out too. Before, --out
+// was replaced and the run then failed.
+TEST_F(Cli, CompoundOutputsGoIntoPlaceTogether) {
+  SONOSLICE_REQUIRE_DATA();
+  test::TempDir out;
+  const std::string plus = test::data_dir() + "/plus/";
+  const std::string inputs =
+      "compound --sequence " + quote(plus + "NwirePhantomFreehand.igs.mha") + " --config " +
+      quote(plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml") + " -q";
+  fs::create_directory(out.file("o"));
+  for (const char* ext : {".npy", ".nii"}) {
+    const std::string v = out.file(std::string("o/v") + ext),
+                      w = out.file(std::string("o/w") + ext);
+    const std::string outputs = " --out " + quote(v) + " --weights " + quote(w);
+    ASSERT_EQ(run(inputs + " --spacing 2" + outputs, out).code, 0);
+    const auto before = snapshot(out.file("o"));
+    // 101x105x74 voxels: 0.78 MB of uint8 fit under 1 MB, 3.1 MB of float32 weights do not.
+    const CliRun r = run_in_child(inputs + outputs, out, 1 << 20);
+    expect_failed_write_changed_nothing(r, w, "file too large", before, out.file("o"));
+  }
+}
+
 // Needs `sonoslice::install_output_cleanup_on_signals();` in apps/sonoslice/main.cpp; enabled
 // (the DISABLED_ prefix dropped) with that line.
 TEST_F(Cli, DISABLED_SigtermDuringALongSliceLeavesNoTemporary) {

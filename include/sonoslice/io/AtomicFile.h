@@ -5,6 +5,7 @@
 /// destination. A failure removes the temporary and leaves whatever was at the destination
 /// untouched; once install_output_cleanup_on_signals() has run, so do SIGINT, SIGTERM and SIGHUP.
 #include <cstddef>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -43,8 +44,11 @@ class AtomicFile {
   /// File: the temporary, open for writing (closed by commit()); -1 for the other kinds.
   int fd() const { return fd_; }
 
-  /// Flushes the temporary to disk (fsync; checked), closes it (checked) and renames it over the
-  /// destination. FileError naming path() on any failure, the destination then untouched.
+  /// The part of commit() where a full disk shows: flushes the temporary to disk (fsync) and
+  /// closes it, both checked. FileError naming path() on failure.
+  void prepare();
+  /// prepare() when it has not run, then renames the temporary over the destination. FileError
+  /// naming path() on any failure, the destination then untouched.
   void commit();
 
  private:
@@ -57,7 +61,21 @@ class AtomicFile {
   OutputKind kind_;
   int fd_ = -1;
   int slot_ = -1;  // the signal-cleanup registry entry
-  bool committed_ = false;
+  bool prepared_ = false, committed_ = false;
+  std::vector<std::string> staged_;  // Staged: the files to move out, the named one last
+};
+
+/// Outputs of one run that go into place together: commit() prepares every one (flush and
+/// close, where a full disk shows), then renames them all. A failure before the renames leaves
+/// every destination as it was; destroying the set uncommitted discards the temporaries. (The
+/// renames themselves do not fail short of the folder changing under the run.)
+class OutputSet {
+ public:
+  void add(std::unique_ptr<AtomicFile> file);
+  void commit();
+
+ private:
+  std::vector<std::unique_ptr<AtomicFile>> files_;
 };
 
 /// Writes all `n` bytes to `fd` (retrying short writes and EINTR); FileError naming `path` and
@@ -73,8 +91,9 @@ std::string write_error_message(const std::string& path, int error_number);
 /// filesystem is full, the file-size limit (ulimit -f) was reached, or "" when neither explains it.
 std::string incomplete_write_reason(const std::string& written_file);
 
-/// Writes a small text file atomically.
-void write_text_file(const std::string& path, const std::string& text);
+/// Writes a small text file atomically; with `together`, leaves it to that set's commit().
+void write_text_file(const std::string& path, const std::string& text,
+                     OutputSet* together = nullptr);
 
 /// Throws FileError when `path` could not be created as an output: its folder missing or not
 /// writable, `path` an existing folder where a file is expected (or a file where a folder is).

@@ -10,6 +10,8 @@
 
 namespace sonoslice {
 
+class OutputSet;
+
 struct NpyArray {
   PixelType type = PixelType::Float32;
   std::vector<int64_t> shape;
@@ -39,7 +41,9 @@ class NpyWriter {
   NpyWriter(const NpyWriter&) = delete;
   NpyWriter& operator=(const NpyWriter&) = delete;
   void write(const void* data, size_t bytes);
-  void commit();  ///< checks that exactly the announced bytes arrived, then renames
+  /// Checks that exactly the announced bytes arrived, then renames; with `together`, leaves the
+  /// rename to that set's commit() (several outputs of one run go into place together).
+  void commit(OutputSet* together = nullptr);
 
  private:
   std::string path_;
@@ -47,8 +51,8 @@ class NpyWriter {
   uint64_t expected_ = 0, written_ = 0, header_bytes_ = 0;
 };
 
-/// Convenience: writes a whole C-order array at once.
+/// Convenience: writes a whole C-order array at once (`together`: as NpyWriter::commit).
 void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
-               const void* data);
+               const void* data, OutputSet* together = nullptr);
 
 }  // namespace sonoslice
