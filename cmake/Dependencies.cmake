@@ -68,6 +68,15 @@ sonoslice_find_optional(ITK SONOSLICE_WITH_ITK SONOSLICE_HAVE_ITK
   ITKCommon ITKIOImageBase ITKIONIFTI ITKIOMeta ITKIONRRD ITKIOGDCM ITKIOPNG ITKImageGrid
   ITKImageFunction ITKGDCM)  # ITKGDCM: GDCM itself, to check DICOM slices before ITK reads them
 
+# libpng: PNG outputs (stacks, masks) are written with it directly, so that a failed write (a full
+# disk) is reported; ITK's 2-D writer did not check. Debian's libpng-dev. Optional: without it
+# PNG outputs are refused with "built without libpng".
+find_package(PNG QUIET)
+set(SONOSLICE_HAVE_PNG ${PNG_FOUND})
+if(NOT SONOSLICE_HAVE_PNG)
+  message(STATUS "libpng not found: PNG outputs are disabled")
+endif()
+
 # VTK: surface meshes.
 sonoslice_find_optional(VTK SONOSLICE_WITH_VTK SONOSLICE_HAVE_VTK
   CommonCore CommonDataModel CommonExecutionModel IOLegacy IOXML IOGeometry IOPLY FiltersCore)

@@ -12,6 +12,7 @@ packages=(
   libinsighttoolkit5-dev libgdcm-tools   # ITK 5.2 (NIfTI, MetaImage, NRRD, DICOM, PNG); gdcm tools
                                          # only so GDCM's CMake config finds the files it lists
   zlib1g-dev
+  libpng-dev                             # PNG outputs, written with libpng so errors are seen
   libvtk9-dev                            # VTK 9.1: surface meshes (.vtk, .vtp, .stl, .obj, .ply)
   nlohmann-json3-dev libcli11-dev
   libpugixml-dev                         # PLUS configuration XML

@@ -138,12 +138,12 @@ void ProgressBar::finish() {
 }
 
 void write_mask(const std::string& path, const ProbeGeometry& probe,
-                const std::vector<uint8_t>& mask) {
+                const std::vector<uint8_t>& mask, OutputSet* together) {
   std::vector<uint8_t> out(mask);
   if (image_format(path, "--mask") == ImageFormat::Png)
     for (auto& v : out) v = v ? 255 : 0;
   write_image(path, out.data(), PixelType::UInt8, {probe.image.width, probe.image.height},
-              {probe.image.spacing_mm[0], probe.image.spacing_mm[1]});
+              {probe.image.spacing_mm[0], probe.image.spacing_mm[1]}, 1, together);
 }
 
 }  // namespace cli

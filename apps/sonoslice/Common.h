@@ -79,9 +79,10 @@ class ProgressBar {
   int64_t last_done_ = -1;
 };
 
-/// Writes the H×W probe mask: .png scaled to 0/255, other formats as 0/1 uint8.
+/// Writes the H×W probe mask: .png scaled to 0/255, other formats as 0/1 uint8 (`together`: as
+/// for write_image).
 void write_mask(const std::string& path, const ProbeGeometry& probe,
-                const std::vector<uint8_t>& mask);
+                const std::vector<uint8_t>& mask, OutputSet* together = nullptr);
 
 }  // namespace cli
 }  // namespace sonoslice

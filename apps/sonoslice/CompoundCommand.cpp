@@ -98,7 +98,17 @@ void run_compound(const CompoundFlags& f) {
   options.device = setup_device(f.device, f.threads);
   if (!f.config.empty() && f.sequence.empty())
     throw InputError("--config: a PLUS configuration goes with --sequence");
-  // Refuse unwritable outputs before the (possibly long) reading and splatting.
+  // Refuse unwritable outputs before the (possibly long) reading and splatting, and outputs that
+  // would overwrite each other or an input.
+  check_distinct_outputs({{"--out", f.out}, {"--weights", f.weights}},
+                         {{"--sequence", f.sequence},
+                          {"--config", f.config},
+                          {"--frames", f.frames},
+                          {"--poses", f.poses},
+                          {"--image-to-probe", f.image_to_probe},
+                          {"--probe", f.probe},
+                          {"--beam-frames", f.beam_frames},
+                          {"--beam-geometry", f.beam_geometry}});
   check_volume_output(f.out, "--out");
   if (!f.weights.empty()) check_volume_output(f.weights, "--weights");
 
@@ -135,8 +145,11 @@ void run_compound(const CompoundFlags& f) {
   const ReconstructionResult result =
       recon.run(!f.weights.empty(), [&](int64_t done, int64_t) { progress.update(done); });
   Stopwatch write_clock;
-  write_volume(f.out, result.volume);
-  if (!f.weights.empty()) write_volume(f.weights, result.weights);
+  // Both or neither: a failure writing --weights leaves the old --out in place.
+  OutputSet outputs;
+  write_volume(f.out, result.volume, &outputs);
+  if (!f.weights.empty()) write_volume(f.weights, result.weights, &outputs);
+  outputs.commit();
   const double write_seconds = write_clock.seconds();
   progress.finish();
 

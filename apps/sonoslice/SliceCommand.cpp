@@ -152,6 +152,12 @@ void run_slice(const SliceFlags& f) {
   }
 
   // Everything small and checkable first, so a typo fails in milliseconds, not after loading a CT.
+  // Outputs on one path overwrite each other, an output on an input destroys it: refused here.
+  std::vector<NamedPath> inputs = {
+      {"--volume", f.volume.path}, {"--labels", f.labels}, {"--mesh-dir", f.mesh_dir},
+      {"--probe", f.probe},        {"--poses", f.poses},   {"--npy-config", f.volume.npy_config}};
+  for (const std::string& mesh : f.meshes) inputs.push_back({"--meshes", mesh});
+  check_distinct_outputs({{"--out", f.out}, {"--mask", f.mask}, {"--colors", f.colors}}, inputs);
   const ProbeGeometry probe = read_probe(f.probe, f.downsampling);
   const std::vector<Pose> poses = read_poses(f.poses, parse_world_frame(f.world));
   const StackFormat format = stack_format(f.out);
@@ -224,9 +230,12 @@ void run_slice(const SliceFlags& f) {
     progress.update(first + count);
   }
   Stopwatch commit_clock;
-  writer->commit();
-  if (color_writer) color_writer->commit();
-  if (!f.mask.empty()) write_mask(f.mask, probe, source.mask());
+  // All outputs or none: a failure writing the last leaves the earlier ones' old files in place.
+  OutputSet outputs;
+  writer->finish(outputs);
+  if (color_writer) color_writer->finish(outputs);
+  if (!f.mask.empty()) write_mask(f.mask, probe, source.mask(), &outputs);
+  outputs.commit();
   write_seconds += commit_clock.seconds();
   progress.finish();
 

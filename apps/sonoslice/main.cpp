@@ -11,6 +11,7 @@
 #include "Commands.h"
 #include "Common.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
 
 namespace {
 
@@ -71,6 +72,9 @@ int main(int argc, char** argv) {
   sonoslice::cli::add_compound_command(app);
   sonoslice::cli::add_bench_command(app);
   sonoslice::set_warning_handler(&print_warning);
+  // Ctrl-C, SIGTERM or a file-size limit mid-write: the half-written temporaries go, good outputs
+  // stay.
+  sonoslice::install_output_cleanup_on_signals();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

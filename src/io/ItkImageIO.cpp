@@ -1,9 +1,15 @@
 // The ITK edge of sonoslice: medical image formats in and out, geometry included.
 #include "ItkImageIO.h"
 
+#include <sys/mman.h>
+#include <unistd.h>
+#include <zlib.h>
+
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -76,6 +82,54 @@ class CerrCapture {
  private:
   std::stringstream text_;
   std::streambuf* old_;
+};
+
+// Everything a library prints on the process's standard error while ITK writes: NIfTI's C library
+// prints "** ERROR: NWAD: wrote only N of M bytes" with C stdio and carries on, MetaIO prints on
+// std::cerr. Captured (fd 2 into a memory file, std::cerr into a string) so the caller can say it
+// in its one line, or pass it on as a warning, instead of the library's lines reaching the
+// terminal. Process-wide while it lasts: meant for the short write and re-read of one file.
+class StderrCapture {
+ public:
+  StderrCapture() : cerr_(std::cerr.rdbuf(text_.rdbuf())) {
+    std::fflush(stderr);
+    saved_ = ::dup(STDERR_FILENO);
+    memory_ = ::memfd_create("sonoslice-stderr", MFD_CLOEXEC);
+    if (saved_ < 0 || memory_ < 0 || ::dup2(memory_, STDERR_FILENO) < 0) release_fds();
+  }
+  ~StderrCapture() { finish(); }
+  StderrCapture(const StderrCapture&) = delete;
+  StderrCapture& operator=(const StderrCapture&) = delete;
+
+  /// Stops capturing; what was printed, as one line.
+  std::string finish() {
+    if (cerr_) std::cerr.rdbuf(cerr_);
+    cerr_ = nullptr;
+    std::string captured = text_.str();
+    if (saved_ >= 0) {
+      std::fflush(stderr);
+      ::dup2(saved_, STDERR_FILENO);
+      char buffer[4096];
+      for (off_t at = 0;;) {
+        const ssize_t n = ::pread(memory_, buffer, sizeof buffer, at);
+        if (n <= 0 || captured.size() > 16384) break;
+        captured.append(buffer, size_t(n));
+        at += n;
+      }
+    }
+    release_fds();
+    return text::one_line_message(captured);
+  }
+
+ private:
+  void release_fds() {
+    if (saved_ >= 0) ::close(saved_);
+    if (memory_ >= 0) ::close(memory_);
+    saved_ = memory_ = -1;
+  }
+  std::stringstream text_;
+  std::streambuf* cerr_;
+  int saved_ = -1, memory_ = -1;
 };
 
 // Registered explicitly so the formats work however the executable was linked.
@@ -481,6 +535,40 @@ void check_dicom_slices(const std::string& directory, const std::vector<std::str
   }
 }
 
+// ITK's NIfTI reader takes a short RGB file without a word (a scalar one goes through
+// read_nifti_voxels, which checks). Counts the bytes after the header through zlib, which reads
+// an uncompressed .nii as it is.
+void check_nifti_length(const std::string& path, uint64_t data_bytes) {
+  gzFile f = gzopen(path.c_str(), "rb");
+  if (!f) throw FileError("cannot read '" + path + "' back: " + std::strerror(errno));
+  unsigned char header[540];
+  int n = gzread(f, header, 348);
+  uint64_t offset = 352, total = n > 0 ? uint64_t(n) : 0;
+  int32_t header_size = 0;
+  if (n == 348) std::memcpy(&header_size, header, 4);  // written here, so in native order
+  if (header_size == 348) {
+    float vox_offset;
+    std::memcpy(&vox_offset, header + 108, 4);
+    offset = std::max<uint64_t>(352, uint64_t(vox_offset));
+  } else if (header_size == 540) {
+    n = gzread(f, header + 348, 540 - 348);
+    total += n > 0 ? uint64_t(n) : 0;
+    int64_t vox_offset;
+    std::memcpy(&vox_offset, header + 168, 8);
+    offset = uint64_t(vox_offset);
+  }
+  std::vector<unsigned char> buffer(size_t(1) << 20);
+  while ((n = gzread(f, buffer.data(), unsigned(buffer.size()))) > 0) total += uint64_t(n);
+  int status = Z_OK;
+  const char* message = gzerror(f, &status);
+  const std::string why = status != Z_OK && status != Z_STREAM_END ? message : "";
+  gzclose(f);
+  if (!why.empty()) throw FileError("cannot read '" + path + "' back: " + why);
+  if (total < offset + data_bytes)
+    throw FileError("cannot read '" + path + "' back: truncated file (" + std::to_string(total) +
+                    " bytes, " + std::to_string(offset + data_bytes) + " needed)");
+}
+
 }  // namespace
 
 Volume read_image_file(const std::string& path) {
@@ -603,11 +691,12 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
   }
 }
 
-void write_image(const std::string& path, const void* data, PixelType type,
-                 const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                 const std::vector<double>& origin, const std::vector<double>& direction,
-                 int components) {
+std::string write_image(const std::string& path, const void* data, PixelType type,
+                        const std::vector<int64_t>& dims, const std::vector<double>& spacing,
+                        const std::vector<double>& origin, const std::vector<double>& direction,
+                        int components) {
   register_factories();
+  StderrCapture capture;
   try {
     if (components == 3) {  // RGB colour images
       if (type != PixelType::UInt8) throw InputError("'" + path + "': colour images are uint8");
@@ -616,7 +705,7 @@ void write_image(const std::string& path, const void* data, PixelType type,
         write_typed<Rgb, 2>(path, data, dims, spacing, origin, direction);
       else
         write_typed<Rgb, 3>(path, data, dims, spacing, origin, direction);
-      return;
+      return capture.finish();
     }
     visit_pixel_type(type, [&](auto zero) {
       using T = decltype(zero);
@@ -626,8 +715,60 @@ void write_image(const std::string& path, const void* data, PixelType type,
         write_typed<T, 3>(path, data, dims, spacing, origin, direction);
     });
   } catch (const itk::ExceptionObject& e) {
+    capture.finish();
     throw FileError("cannot write '" + path + "': " + describe(e));
   }
+  return capture.finish();
+}
+
+void verify_image_file(const std::string& path, PixelType type, const std::vector<int64_t>& dims,
+                       int components) {
+  register_factories();
+  StderrCapture capture;  // keeps the readers' lines off the terminal
+  std::string complaint;
+  try {
+    itk::ImageIOBase::Pointer io =
+        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
+    if (!io) throw FileError("cannot read '" + path + "' back: not a readable image");
+    io->SetFileName(path);
+    io->ReadImageInformation();
+    std::ostringstream found, expected;
+    bool same = io->GetNumberOfComponents() == unsigned(components) &&
+                to_pixel_type(io->GetComponentType(), path) == type;
+    const size_t axes = std::max<size_t>(io->GetNumberOfDimensions(), dims.size());
+    for (size_t a = 0; a < axes; ++a) {
+      const int64_t n =
+          a < io->GetNumberOfDimensions() ? int64_t(io->GetDimensions(unsigned(a))) : 1;
+      const int64_t want = a < dims.size() ? dims[a] : 1;
+      same = same && n == want;
+      found << (a ? "x" : "") << n;
+      expected << (a ? "x" : "") << want;
+    }
+    if (!same)
+      throw FileError("cannot read '" + path + "' back as written: " + found.str() + " " +
+                      itk::ImageIOBase::GetComponentTypeAsString(io->GetComponentType()) + " x" +
+                      std::to_string(io->GetNumberOfComponents()) + ", expected " + expected.str() +
+                      " " + to_string(type) + " x" + std::to_string(components));
+    // Every voxel must come back: a short file is what a full disk leaves.
+    if (components == 1) {
+      read_image_file(path);  // sonoslice's reader: catches truncated NIfTI, MetaImage, NRRD
+    } else {
+      std::vector<unsigned char> voxels(io->GetImageSizeInBytes());
+      itk::ImageIORegion region(unsigned(io->GetNumberOfDimensions()));
+      for (unsigned a = 0; a < io->GetNumberOfDimensions(); ++a) {
+        region.SetIndex(a, 0);
+        region.SetSize(a, io->GetDimensions(a));
+      }
+      io->SetIORegion(region);
+      io->Read(voxels.data());
+      complaint = capture.finish();  // MetaIO reports a short read only on std::cerr
+      if (std::string(io->GetNameOfClass()) == "NiftiImageIO")
+        check_nifti_length(path, uint64_t(voxels.size()));
+    }
+  } catch (const itk::ExceptionObject& e) {
+    throw FileError("cannot read '" + path + "' back: " + describe(e));
+  }
+  if (!complaint.empty()) throw FileError("cannot read '" + path + "' back: " + complaint);
 }
 
 }  // namespace itk_io

@@ -256,6 +256,8 @@ void check_nifti_header(const std::string& path) {
 
 std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGrid& grid,
                                         PixelType type) {
+  // A .hdr/.img pair keeps its voxels in the .img: ITK's reader knows where.
+  if (file_extension(path) == ".hdr" || file_extension(path) == ".img") return std::nullopt;
   const bool gz = file_extension(path) == ".nii.gz";
   unsigned char raw[540] = {0};
   gzFile f = nullptr;

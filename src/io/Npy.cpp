@@ -1,5 +1,7 @@
 #include "sonoslice/io/Npy.h"
 
+#include <sys/stat.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cstdlib>
@@ -198,8 +200,6 @@ NpyWriter::NpyWriter(const std::string& path, PixelType type, const std::vector<
   const size_t total = ((10 + header.size() + 1 + 63) / 64) * 64;
   header.append(total - 10 - header.size() - 1, ' ');
   header.push_back('\n');
-  stream_ = std::fopen(file_->temp_path().c_str(), "wb");
-  if (!stream_) throw FileError("cannot write '" + path + "': " + std::strerror(errno));
   unsigned char preamble[10] = {0x93,
                                 'N',
                                 'U',
@@ -210,37 +210,40 @@ NpyWriter::NpyWriter(const std::string& path, PixelType type, const std::vector<
                                 0,
                                 static_cast<unsigned char>(header.size() & 0xff),
                                 static_cast<unsigned char>(header.size() >> 8)};
-  if (std::fwrite(preamble, 1, 10, stream_) != 10 ||
-      std::fwrite(header.data(), 1, header.size(), stream_) != header.size())
-    throw FileError("cannot write '" + path + "': " + std::strerror(errno));
+  write_fully(file_->fd(), preamble, sizeof preamble, path_);
+  write_fully(file_->fd(), header.data(), header.size(), path_);
+  header_bytes_ = sizeof preamble + header.size();
 }
 
-NpyWriter::~NpyWriter() {
-  if (stream_) std::fclose(stream_);
-}
+NpyWriter::~NpyWriter() = default;  // an uncommitted temporary goes with file_
 
 void NpyWriter::write(const void* data, size_t bytes) {
   if (written_ + bytes > expected_) throw Error("'" + path_ + "': more data than the shape holds");
-  if (std::fwrite(data, 1, bytes, stream_) != bytes)
-    throw FileError("cannot write '" + path_ + "': " + std::strerror(errno));
+  write_fully(file_->fd(), data, bytes, path_);
   written_ += bytes;
 }
 
-void NpyWriter::commit() {
+void NpyWriter::commit(OutputSet* together) {
   if (written_ != expected_) throw Error("'" + path_ + "': incomplete data");
-  const int rc = std::fclose(stream_);
-  stream_ = nullptr;
-  if (rc != 0) throw FileError("cannot write '" + path_ + "': " + std::strerror(errno));
-  file_->commit();
+  // Every write was checked; the size on disk is the last word before the rename.
+  struct stat st;
+  if (::fstat(file_->fd(), &st) != 0) throw FileError(write_error_message(path_, errno));
+  if (uint64_t(st.st_size) != header_bytes_ + expected_)
+    throw FileError("cannot write '" + path_ + "': " + std::to_string(st.st_size) +
+                    " bytes on disk, " + std::to_string(header_bytes_ + expected_) + " expected");
+  if (together)
+    together->add(std::move(file_));
+  else
+    file_->commit();
 }
 
 void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
-               const void* data) {
+               const void* data, OutputSet* together) {
   NpyWriter w(path, type, shape);
   uint64_t bytes = pixel_size(type);
   for (int64_t d : shape) bytes *= uint64_t(d);
   w.write(data, bytes);
-  w.commit();
+  w.commit(together);
 }
 
 }  // namespace sonoslice

@@ -1,11 +1,15 @@
 #include "sonoslice/io/StackWriter.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <filesystem>
 
+#include "PngFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
@@ -48,7 +52,7 @@ class NpyStackWriter : public StackWriter {
   void write(int64_t, int64_t n) override {
     writer_.write(chunk_.data(), size_t(n) * image_bytes(spec_));
   }
-  void commit() override { writer_.commit(); }
+  void finish(OutputSet& together) override { writer_.commit(&together); }
 
  private:
   StackSpec spec_;
@@ -74,9 +78,9 @@ class ItkStackWriter : public StackWriter {
     return stack_.data() + size_t(first) * image_bytes(spec_);
   }
   void write(int64_t, int64_t) override {}
-  void commit() override {
+  void finish(OutputSet& together) override {
     write_image(path_, stack_.data(), spec_.type, {spec_.width, spec_.height, spec_.count},
-                {spec_.spacing_mm[0], spec_.spacing_mm[1], 1.0}, spec_.components);
+                {spec_.spacing_mm[0], spec_.spacing_mm[1], 1.0}, spec_.components, &together);
   }
 
  private:
@@ -85,12 +89,15 @@ class ItkStackWriter : public StackWriter {
   std::vector<unsigned char> stack_;
 };
 
-// A directory of 8-bit PNGs plus poses.txt, built in a temporary directory.
+// A directory of 8-bit PNGs plus poses.txt, built in a new temporary folder and renamed into
+// place (replacing only a folder of sonoslice's own images). libpng, not ITK, writes the images:
+// ITK's 2-D writer does not check its writes and crashed when the disk filled.
 class PngStackWriter : public StackWriter {
  public:
   PngStackWriter(const std::string& path, const StackSpec& spec)
-      : spec_(spec), dir_(path, /*directory=*/true) {
-    if (!built_with_itk()) throw Error("output '" + path + "': PNG output needs a build with ITK");
+      : path_(path), spec_(spec), dir_(std::make_unique<AtomicFile>(path, OutputKind::Folder)) {
+    if (!built_with_png())
+      throw Error("output '" + path + "': this sonoslice was built without libpng; write .npy");
     digits_ = std::max<int>(5, int(std::to_string(std::max<int64_t>(spec.count - 1, 0)).size()));
     if (spec.window) window_ = spec.window;
   }
@@ -111,25 +118,50 @@ class PngStackWriter : public StackWriter {
       char name[32];
       std::snprintf(name, sizeof name, "img_%0*lld.png", digits_,
                     static_cast<long long>(first + i));
-      write_image((fs::path(dir_.temp_path()) / name).string(), rgb ? image : png.data(),
-                  PixelType::UInt8, {spec_.width, spec_.height},
-                  {spec_.spacing_mm[0], spec_.spacing_mm[1]}, spec_.components);
+      // The folder is new and ours, yet O_EXCL all the same: nothing is written through a link.
+      const std::string file = (fs::path(dir_->temp_path()) / name).string();
+      const int fd =
+          ::open(file.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0666);
+      if (fd < 0) throw FileError(write_error_message(path_, errno));
+      try {
+        write_png(fd, path_, rgb ? image : png.data(), PixelType::UInt8, spec_.width, spec_.height,
+                  spec_.components, spec_.spacing_mm);
+      } catch (...) {
+        ::close(fd);
+        throw;
+      }
+      if (::close(fd) != 0) throw FileError(write_error_message(path_, errno));
     }
   }
-  void commit() override {
-    write_poses_text((fs::path(dir_.temp_path()) / "poses.txt").string(), spec_.poses);
-    dir_.commit();
+  void finish(OutputSet& together) override {
+    const std::string poses = (fs::path(dir_->temp_path()) / "poses.txt").string();
+    try {
+      write_poses_text(poses, spec_.poses);
+    } catch (const FileError& e) {  // named as the user will find it
+      std::string message = e.what();
+      const size_t at = message.find(dir_->temp_path());
+      if (at != std::string::npos) message.replace(at, dir_->temp_path().size(), path_);
+      throw FileError(message);
+    }
+    together.add(std::move(dir_));
   }
 
  private:
+  std::string path_;
   StackSpec spec_;
-  AtomicFile dir_;
+  std::unique_ptr<AtomicFile> dir_;
   int digits_ = 5;
   std::optional<std::pair<double, double>> window_;
   std::vector<unsigned char> chunk_;
 };
 
 }  // namespace
+
+void StackWriter::commit() {
+  OutputSet alone;
+  finish(alone);
+  alone.commit();
+}
 
 StackFormat stack_format(const std::string& path) {
   switch (image_format(path, "output")) {

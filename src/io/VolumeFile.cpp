@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
+#include <climits>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -12,6 +15,7 @@
 #include "../core/Text.h"
 #include "JsonFile.h"
 #include "MappedFile.h"
+#include "PngFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
@@ -160,21 +164,51 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
 }
 
 #ifdef SONOSLICE_HAVE_ITK
-// ITK writes under a temporary name that is renamed into place; errors name the user's path.
+// ITK writes into a private temporary folder, under the final name (and any companion file: a
+// .mhd's .raw); the file is then read back in full before it replaces anything, because ITK's
+// NIfTI and MetaImage writers print a line and report success when the disk fills. Errors name
+// the user's path.
 void write_itk_atomic(const std::string& path, const void* data, PixelType type,
                       const std::vector<int64_t>& dims, const std::vector<double>& spacing,
                       const std::vector<double>& origin, const std::vector<double>& direction,
-                      int components = 1) {
-  AtomicFile file(path);
+                      int components, OutputSet* together) {
+  auto file = std::make_unique<AtomicFile>(path, OutputKind::Staged);
+  const std::string temp = file->temp_path();
+  std::string failure, printed;
+  errno = 0;
   try {
-    itk_io::write_image(file.temp_path(), data, type, dims, spacing, origin, direction, components);
-  } catch (const FileError& e) {
-    std::string msg = e.what();
-    const size_t at = msg.find(file.temp_path());
-    if (at != std::string::npos) msg.replace(at, file.temp_path().size(), path);
-    throw FileError(msg);
+    printed = itk_io::write_image(temp, data, type, dims, spacing, origin, direction, components);
+  } catch (const Error& e) {
+    failure = e.what();
   }
-  file.commit();
+  const int write_errno = errno;  // what the writer's last failed call left, if anything
+  // A library that prints an error has not written what it was asked to (NIfTI's "** ERROR").
+  if (failure.empty() && printed.find("ERROR") != std::string::npos) failure = printed;
+  if (failure.empty()) {
+    try {
+      itk_io::verify_image_file(temp, type, dims, components);
+    } catch (const Error& e) {
+      failure = e.what();
+    }
+  }
+  if (!failure.empty()) {
+    std::string why;
+    if (write_errno == ENOSPC || write_errno == EDQUOT || write_errno == EFBIG)
+      why = write_error_reason(write_errno);
+    else
+      why = incomplete_write_reason(temp);
+    if (why.empty()) {
+      why = printed.empty() ? failure : printed;
+      for (size_t at; (at = why.find(temp)) != std::string::npos;)
+        why.replace(at, temp.size(), path);
+    }
+    throw FileError("cannot write '" + path + "': " + why);
+  }
+  if (!printed.empty()) warn("writing '" + path + "': " + printed);
+  if (together)
+    together->add(std::move(file));
+  else
+    file->commit();
 }
 #endif
 
@@ -254,7 +288,9 @@ void check_writable(const std::string& path, const std::string& what, bool two_d
   if (format == ImageFormat::Png && !two_d)
     throw InputError(what + " '" + path + "': PNG holds 2-D images; write a volume as .nii.gz, " +
                      ".mha, .nrrd or .npy");
-  if (needs_itk(format) && !built_with_itk())
+  if (format == ImageFormat::Png && !built_with_png())
+    throw Error(what + " '" + path + "': this sonoslice was built without libpng; write .npy");
+  if (format != ImageFormat::Png && needs_itk(format) && !built_with_itk())
     throw Error(what + " '" + path + "': this sonoslice was built without ITK; write .npy");
   check_output_path(path);
 }
@@ -314,7 +350,7 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
 
 void write_image(const std::string& path, const void* data, PixelType type,
                  const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                 int components) {
+                 int components, OutputSet* together) {
   if (components != 1 && components != 3)
     throw InputError("'" + path + "': images have 1 or 3 (RGB) components");
   const ImageFormat format = image_format(path, "output");
@@ -323,33 +359,51 @@ void write_image(const std::string& path, const void* data, PixelType type,
   if (format == ImageFormat::Npy) {
     std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
     if (components == 3) shape.push_back(3);
-    write_npy(path, type, shape, data);
+    write_npy(path, type, shape, data, together);
+    return;
+  }
+  if (format == ImageFormat::Png) {  // libpng, which reports every failed write
+    if (dims.size() != 2 || spacing.size() < 2)
+      throw InputError("output '" + path + "': PNG holds 2-D images; write .nii.gz or .npy");
+    if (dims[0] > INT_MAX || dims[1] > INT_MAX)
+      throw InputError("output '" + path + "': too large for a PNG");
+    auto file = std::make_unique<AtomicFile>(path);
+    const double spacing_mm[2] = {spacing[0], spacing[1]};
+    write_png(file->fd(), path, data, type, int(dims[0]), int(dims[1]), components, spacing_mm);
+    if (together)
+      together->add(std::move(file));
+    else
+      file->commit();
     return;
   }
 #ifdef SONOSLICE_HAVE_ITK
   const size_t n = dims.size();
   std::vector<double> origin(n, 0.0), direction(n * n, 0.0);
   for (size_t i = 0; i < n; ++i) direction[i * n + i] = 1.0;
-  write_itk_atomic(path, data, type, dims, spacing, origin, direction, components);
+  write_itk_atomic(path, data, type, dims, spacing, origin, direction, components, together);
 #else
   (void)type, (void)spacing, (void)data;
   no_itk(path);
 #endif
 }
 
-void write_volume(const std::string& path, const Volume& volume) {
+void write_volume(const std::string& path, const Volume& volume, OutputSet* together) {
   const VolumeGrid& g = volume.grid();
   const ImageFormat format = image_format(path, "output");
   if (format == ImageFormat::Directory || format == ImageFormat::Png)
     throw InputError("output '" + path + "': write a volume as .nii.gz, .mha, .nrrd or .npy");
   if (format == ImageFormat::Npy) {
-    write_npy(path, volume.pixel_type(), {g.dims[2], g.dims[1], g.dims[0]}, volume.data());
+    // The array and its sidecar go into place together (a run's own set, or one for the two).
+    OutputSet pair;
+    OutputSet* both = together ? together : &pair;
+    write_npy(path, volume.pixel_type(), {g.dims[2], g.dims[1], g.dims[0]}, volume.data(), both);
     nlohmann::json j;
     j["spacing"] = {g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]};
     j["origin"] = {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]};
     j["direction"] = g.direction.row_major();
     const std::string sidecar = fs::path(path).replace_extension(".json").string();
-    write_text_file(sidecar, j.dump(2) + "\n");
+    write_text_file(sidecar, j.dump(2) + "\n", both);
+    if (!together) pair.commit();
     return;
   }
 #ifdef SONOSLICE_HAVE_ITK
@@ -358,7 +412,7 @@ void write_volume(const std::string& path, const Volume& volume) {
   const auto d = g.direction.row_major();
   const std::vector<double> direction(d.begin(), d.end());
   write_itk_atomic(path, volume.data(), volume.pixel_type(), {g.dims[0], g.dims[1], g.dims[2]},
-                   spacing, origin, direction);
+                   spacing, origin, direction, 1, together);
 #else
   no_itk(path);
 #endif

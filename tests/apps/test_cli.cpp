@@ -2,13 +2,19 @@
 // exit (and no partial or overwritten output) for every kind of bad input.
 #include <gtest/gtest.h>
 
+#include <signal.h>
+#include <sys/mount.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <functional>
+#include <map>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -618,12 +624,266 @@ std::vector<BadCase> bad_cases() {
        "compound --beam-frames {DIR}/in_beams.npy --beam-geometry {DIR}/in_geom_ok.json "
        "--poses {DIR}/in_nan.txt --spacing 1 --out {OUT}",
        "in_nan.txt"},
+      // Outputs that cannot lie (issue 10): two outputs never share a file, an output is never an
+      // input, a PNG folder never holds anything but sonoslice's images.
+      {"MaskOnTheOutput", std::string(kSlice) + "--mask {OUT}", "would write the same file"},
+      {"OutputIsTheInput",
+       "slice --volume {DIR}/in_vol.npy --spacing 1,1,1 --probe {FAN} --poses {POSES} "
+       "--out {DIR}/in_vol.npy",
+       "is the input --volume"},
+      {"CompoundWeightsOnTheOutput", std::string(kCompound) + "--weights {OUT}",
+       "would write the same file"},
+      {"CompoundWeightsSidecarOnTheOutputs", std::string(kCompound) + "--weights {DIR}/out.NPY",
+       "would write the same file"},
+      {"CompoundOutputIsTheFrames",
+       "compound --frames {DIR}/in_vol.npy --poses {POSES} --probe {FAN} --spacing 1 "
+       "--out {DIR}/in_vol.npy",
+       "is the input --frames"},
+      {"PngFolderHoldingOtherFiles",
+       "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}",
+       "which sonoslice did not write"},
+      {"MaskInsideThePngFolder",
+       "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/pngs --mask "
+       "{DIR}/pngs/m.png",
+       "is inside the folder --out"},
   };
   return cases;
 }
 
 INSTANTIATE_TEST_SUITE_P(Cases, CliBadInput, ::testing::ValuesIn(bad_cases()),
                          [](const auto& info) { return info.param.name; });
+
+// --- outputs that cannot lie (issue 10) ---------------------------------------------------------
+
+// Runs the CLI like run(), in a child process: with a file-size limit and SIGXFSZ ignored (a write
+// past the limit then fails with EFBIG, as under `ulimit -f`), after `prepare` (which runs in the
+// child, whose pid the CLI keeps: exec).
+CliRun run_in_child(const std::string& args, const test::TempDir& dir,
+                    rlim_t limit_bytes = RLIM_INFINITY,
+                    const std::function<void()>& prepare = nullptr) {
+  const std::string out_file = dir.file(".stdout"), err_file = dir.file(".stderr");
+  const std::string cmd = "exec " + std::string(SONOSLICE_CLI) + " " + args + " >" +
+                          quote(out_file) + " 2>" + quote(err_file);
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    if (prepare) prepare();
+    ::signal(SIGXFSZ, SIG_IGN);
+    const rlimit limit{limit_bytes, limit_bytes};
+    ::setrlimit(RLIMIT_FSIZE, &limit);
+    ::execl("/bin/sh", "sh", "-c", cmd.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  int status = 0;
+  ::waitpid(pid, &status, 0);
+  auto slurp = [](const std::string& p) {
+    std::ifstream in(p);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  };
+  CliRun r{WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out_file), slurp(err_file)};
+  fs::remove(out_file);
+  fs::remove(err_file);
+  return r;
+}
+
+// Every file under `dir` with its bytes (folders as "<folder>").
+std::map<std::string, std::string> snapshot(const fs::path& dir) {
+  std::map<std::string, std::string> out;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    std::ifstream in(e.path(), std::ios::binary);
+    std::stringstream s;
+    s << in.rdbuf();
+    out[fs::relative(e.path(), dir).string()] = e.is_regular_file() ? s.str() : "<folder>";
+  }
+  return out;
+}
+
+// A failed write: one line naming the output, exit 1, everything on disk as it was.
+void expect_failed_write_changed_nothing(const CliRun& r, const std::string& path,
+                                         const std::string& why,
+                                         const std::map<std::string, std::string>& before,
+                                         const fs::path& dir) {
+  EXPECT_EQ(r.code, 1) << path << ": " << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_NE(r.err.find("'" + path), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(why), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find(".tmp-sonoslice"), std::string::npos) << r.err;
+  const auto after = snapshot(dir);
+  EXPECT_EQ(after.size(), before.size()) << path << ": files appeared or went";
+  EXPECT_TRUE(after == before) << path << ": the previous output changed";
+}
+
+const char* kOutputs[] = {"o.nii", "o.nii.gz", "o.mha", "o.mhd", "o.nrrd", "o.npy", "pngs"};
+
+// Before issue 10: .nii, .nii.gz and .mha exited 0 with the old output replaced by a truncated
+// one; the PNG folder was written with ITK's unchecked 2-D writer.
+TEST_F(Cli, FileSizeLimitKeepsEveryPreviousOutput) {
+  test::TempDir out;
+  write_poses_text(out.file("many.txt"), phantom_random_poses(300, 9));
+  fs::create_directory(out.file("o"));
+  for (const char* name : kOutputs) {
+    const std::string path = out.file(std::string("o/") + name);
+    ASSERT_EQ(run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() +
+                      " --out " + quote(path) + " -q",
+                  out)
+                  .code,
+              0);
+    const auto before = snapshot(out.file("o"));
+    // 4 KiB: less than one 120x100 PNG of the phantom, far less than 300 float images.
+    const CliRun r = run_in_child("slice --volume " + ct() + " --probe " + fan() + " --poses " +
+                                      quote(out.file("many.txt")) + " --out " + quote(path) + " -q",
+                                  out, 4096);
+    expect_failed_write_changed_nothing(r, path, "file too large", before, out.file("o"));
+  }
+}
+
+// A real full disk: a 2 MiB tmpfs, as in issue 10 (crash 1: SIGSEGV in ITK's PNG writer).
+TEST_F(Cli, FullDiskKeepsEveryPreviousOutput) {
+  test::TempDir out;
+  const std::string small = out.file("small");
+  fs::create_directory(small);
+  if (::mount("tmpfs", small.c_str(), "tmpfs", 0, "size=2m") != 0)
+    GTEST_SKIP() << "cannot mount a 2 MiB tmpfs here (" << std::strerror(errno)
+                 << "; needs root): the full-disk case is left to FileSizeLimitKeepsEvery"
+                    "PreviousOutput, which fails writes the same way";
+  struct Unmount {
+    std::string path;
+    ~Unmount() { ::umount2(path.c_str(), MNT_DETACH); }
+  } unmount{small};
+  write_poses_text(out.file("many.txt"), phantom_random_poses(2000, 9));
+  for (const char* name : kOutputs) {
+    const std::string path = small + "/" + name;
+    ASSERT_EQ(run("slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() +
+                      " --out " + quote(path) + " -q",
+                  out)
+                  .code,
+              0);
+    const auto before = snapshot(small);
+    const CliRun r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " +
+                             quote(out.file("many.txt")) + " --out " + quote(path) + " -q",
+                         out);
+    // .npy checks the free space before it starts; the others find out while writing.
+    expect_failed_write_changed_nothing(
+        r, path, std::string(name) == "o.npy" ? "on disk but only" : "no space left on device",
+        before, small);
+    for (const auto& e : fs::directory_iterator(small)) fs::remove_all(e.path());
+  }
+}
+
+TEST_F(Cli, PlantedLinkAtTheOldTemporaryNameIsNotFollowed) {
+  test::TempDir out;
+  std::ofstream(out.file("victim.txt")) << "precious";
+  const std::string victim = out.file("victim.txt"), dir = out.path().string();
+  // The names sonoslice used to open without O_EXCL: .tmp-sonoslice-<pid>-<n>.<name>.
+  const CliRun r = run_in_child(
+      "slice --volume " + ct() + " --probe " + fan() + " --poses " + poses() + " --out " +
+          quote(out.file("o.npy")) + " -q",
+      out, RLIM_INFINITY, [&] {
+        for (int n = 0; n < 4; ++n)
+          fs::create_symlink(victim, dir + "/.tmp-sonoslice-" + std::to_string(::getpid()) + "-" +
+                                         std::to_string(n) + ".o.npy");
+      });
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in(victim);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), "precious");
+  EXPECT_EQ(read_npy(out.file("o.npy")).shape, (std::vector<int64_t>{12, 100, 120}));
+}
+
+TEST_F(Cli, PngFolderNeverDeletesSomeoneElsesFiles) {
+  test::TempDir out;
+  const std::string work = out.file("work");
+  fs::create_directory(work);
+  fs::copy_file(data_->file("ph/ct.nii.gz"), work + "/ct.nii.gz");
+  std::ofstream(work + "/notes.txt") << "mine";
+  const std::string rest = " --probe " + fan() + " --poses " + poses() + " -q";
+  // The folder holding the input, named three ways from inside it, and from outside.
+  for (const std::string& out_flag : std::vector<std::string>{".", "../work", "./", quote(work)}) {
+    const CliRun r = run_in_child("slice --volume ct.nii.gz --out " + out_flag + rest, out,
+                                  RLIM_INFINITY, [&] { (void)!::chdir(work.c_str()); });
+    EXPECT_EQ(r.code, 1) << out_flag;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+  // A folder holding one foreign file: refused, the file survives.
+  fs::create_directory(out.file("pngs"));
+  std::ofstream(out.file("pngs/keep.txt")) << "keep";
+  CliRun r = run("slice --volume " + ct() + " --out " + quote(out.file("pngs")) + rest, out);
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("'keep.txt', which sonoslice did not write"), std::string::npos) << r.err;
+  EXPECT_EQ(snapshot(work).size(), 2u);
+  EXPECT_EQ(snapshot(out.file("pngs")).size(), 1u);
+  // A folder of sonoslice's own images is replaced as a whole.
+  fs::remove(out.file("pngs/keep.txt"));
+  ASSERT_EQ(run("slice --volume " + ct() + " --out " + quote(out.file("pngs")) + rest, out).code,
+            0);
+  write_poses_text(out.file("three.txt"), phantom_random_poses(3, 1));
+  r = run("slice --volume " + ct() + " --probe " + fan() + " --poses " +
+              quote(out.file("three.txt")) + " --out " + quote(out.file("pngs")) + " -q",
+          out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(snapshot(out.file("pngs")).size(), 4u);  // img_00000..2 and poses.txt
+  EXPECT_EQ(entries(out), (std::vector<std::string>{"pngs", "three.txt", "work"}));
+}
+
+// The outputs of one run go into place together: --weights failing (a file-size limit that the
+// uint8 volume fits under and its float32 weights do not) leaves the old --out too. Before, --out
+// was replaced and the run then failed.
+TEST_F(Cli, CompoundOutputsGoIntoPlaceTogether) {
+  SONOSLICE_REQUIRE_DATA();
+  test::TempDir out;
+  const std::string plus = test::data_dir() + "/plus/";
+  const std::string inputs =
+      "compound --sequence " + quote(plus + "NwirePhantomFreehand.igs.mha") + " --config " +
+      quote(plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml") + " -q";
+  fs::create_directory(out.file("o"));
+  for (const char* ext : {".npy", ".nii"}) {
+    const std::string v = out.file(std::string("o/v") + ext),
+                      w = out.file(std::string("o/w") + ext);
+    const std::string outputs = " --out " + quote(v) + " --weights " + quote(w);
+    ASSERT_EQ(run(inputs + " --spacing 2" + outputs, out).code, 0);
+    const auto before = snapshot(out.file("o"));
+    // 101x105x74 voxels: 0.78 MB of uint8 fit under 1 MB, 3.1 MB of float32 weights do not.
+    const CliRun r = run_in_child(inputs + outputs, out, 1 << 20);
+    expect_failed_write_changed_nothing(r, w, "file too large", before, out.file("o"));
+  }
+}
+
+// main.cpp installs install_output_cleanup_on_signals(): a signal mid-write removes the temporary.
+TEST_F(Cli, SigtermDuringALongSliceLeavesNoTemporary) {
+  test::TempDir out;
+  write_poses_npy(out.file("long.npy"), phantom_random_poses(20000, 3));
+  const ProbeGeometry big = test::curvilinear_probe(40, 120, 70, 400, 300, 0.3);
+  std::ofstream(out.file("big.json")) << probe_to_json(big);
+  std::ofstream(out.file("out.npy")) << "previous good data";
+  const std::string cmd = "exec " + std::string(SONOSLICE_CLI) + " slice --volume " + ct() +
+                          " --probe " + quote(out.file("big.json")) + " --poses " +
+                          quote(out.file("long.npy")) + " --threads 1 -q --out " +
+                          quote(out.file("out.npy")) + " 2>/dev/null";
+  for (int sig : {SIGTERM, SIGINT}) {
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+      ::execl("/bin/sh", "sh", "-c", cmd.c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    // Signal once the temporary exists: the slicing has started (20000 images of 400x300 take
+    // minutes on one thread).
+    bool started = false;
+    for (int i = 0; i < 3000 && !started; ++i) {
+      for (const std::string& name : entries(out))
+        started = started || name.rfind(".tmp-sonoslice", 0) == 0;
+      if (!started) ::usleep(10 * 1000);
+    }
+    ::kill(pid, sig);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    EXPECT_TRUE(started);
+    EXPECT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == sig) << strsignal(sig);
+    EXPECT_EQ(entries(out), (std::vector<std::string>{"big.json", "long.npy", "out.npy"}))
+        << strsignal(sig);
+  }
+  std::ifstream in(out.file("out.npy"));
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), "previous good data");
+}
 
 }  // namespace
 }  // namespace sonoslice

@@ -82,6 +82,35 @@ TEST(StackWriter, PngDirectoryReplacedAtomically) {
   EXPECT_EQ(std::distance(fs::directory_iterator(dir.path()), fs::directory_iterator()), 1);
 }
 
+// PNGs come from libpng (ITK's 2-D writer crashed on a full disk): the same pixels and the pixel
+// spacing (ITK's sCAL convention) come back through ITK's reader.
+TEST(StackWriter, PngImagesReadBackWithTheirPixelsAndSpacing) {
+  test::TempDir dir;
+  StackSpec s = spec(2);
+  s.window = std::make_pair(20.0, 40.0);  // [0, 40] → [0, 255]
+  write_stack(dir.file("pngs"), s, 0);
+  std::vector<float> values(20);
+  for (int i = 0; i < 20; ++i) values[size_t(i)] = float(20 + i);  // image 1 of write_stack
+  std::vector<uint8_t> expected(20);
+  apply_window(values.data(), PixelType::Float32, 20, 20.0, 40.0, expected.data());
+  const Volume v = read_volume(dir.file("pngs/img_00001.png"));
+  EXPECT_EQ(v.pixel_type(), PixelType::UInt8);
+  EXPECT_EQ(v.grid().dims, (std::array<int64_t, 3>{5, 4, 1}));
+  EXPECT_NEAR(v.grid().spacing_mm[0], 0.25, 1e-9);
+  EXPECT_NEAR(v.grid().spacing_mm[1], 0.5, 1e-9);
+  for (int i = 0; i < 20; ++i) EXPECT_EQ(v.data_as<uint8_t>()[i], expected[size_t(i)]) << i;
+  // Single images too, 16-bit included.
+  std::vector<uint16_t> deep(6);
+  for (int i = 0; i < 6; ++i) deep[size_t(i)] = uint16_t(1000 * i + 7);
+  write_image(dir.file("deep.png"), deep.data(), PixelType::UInt16, {3, 2}, {0.1, 0.2});
+  const Volume d = read_volume(dir.file("deep.png"));
+  EXPECT_EQ(d.pixel_type(), PixelType::UInt16);
+  EXPECT_EQ(d.grid().dims, (std::array<int64_t, 3>{3, 2, 1}));
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(d.data_as<uint16_t>()[i], deep[size_t(i)]) << i;
+  EXPECT_THROW(write_image(dir.file("f.png"), values.data(), PixelType::Float32, {5, 4}, {1, 1}),
+               InputError);
+}
+
 TEST(StackWriter, IncompleteNpyIsNeverCommitted) {
   test::TempDir dir;
   auto w = StackWriter::create(dir.file("s.npy"), spec(4));

@@ -1,7 +1,7 @@
 #pragma once
 /// @file NumPy .npy arrays (format versions 1–3): whole-array reading and streamed writing.
+#include <cstddef>
 #include <cstdint>
-#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
@@ -9,6 +9,8 @@
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
+
+class OutputSet;
 
 struct NpyArray {
   PixelType type = PixelType::Float32;
@@ -39,17 +41,18 @@ class NpyWriter {
   NpyWriter(const NpyWriter&) = delete;
   NpyWriter& operator=(const NpyWriter&) = delete;
   void write(const void* data, size_t bytes);
-  void commit();  ///< checks that exactly the announced bytes arrived, then renames
+  /// Checks that exactly the announced bytes arrived, then renames; with `together`, leaves the
+  /// rename to that set's commit() (several outputs of one run go into place together).
+  void commit(OutputSet* together = nullptr);
 
  private:
   std::string path_;
   std::unique_ptr<class AtomicFile> file_;
-  std::FILE* stream_ = nullptr;
-  uint64_t expected_ = 0, written_ = 0;
+  uint64_t expected_ = 0, written_ = 0, header_bytes_ = 0;
 };
 
-/// Convenience: writes a whole C-order array at once.
+/// Convenience: writes a whole C-order array at once (`together`: as NpyWriter::commit).
 void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
-               const void* data);
+               const void* data, OutputSet* together = nullptr);
 
 }  // namespace sonoslice

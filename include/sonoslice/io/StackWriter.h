@@ -16,6 +16,8 @@
 
 namespace sonoslice {
 
+class OutputSet;
+
 struct StackSpec {
   PixelType type = PixelType::Float32;
   int width = 0, height = 0;
@@ -47,8 +49,11 @@ class StackWriter {
   virtual void* buffer(int64_t first, int64_t n) = 0;
   /// The images of the last buffer() are complete.
   virtual void write(int64_t first, int64_t n) = 0;
-  /// All N images are written: move the output into place.
-  virtual void commit() = 0;
+  /// All N images are written: check them and move the output into place.
+  void commit();
+  /// The same, but the output goes into place with the other outputs of the run, when
+  /// `together.commit()` runs (a failure in any of them then leaves all of them as they were).
+  virtual void finish(OutputSet& together) = 0;
 };
 
 /// Bytes the writer holds in memory at most for a stack `spec` written in chunks of `chunk`.

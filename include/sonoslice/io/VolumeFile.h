@@ -11,6 +11,8 @@
 
 namespace sonoslice {
 
+class OutputSet;
+
 struct VolumeReadOptions {
   /// DICOM directory: the SeriesInstanceUID to read (default: the series with the most files).
   std::string series_uid;
@@ -37,15 +39,17 @@ struct DicomSeriesInfo {
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
 
 /// Writes a volume atomically: .npy (C order (nz, ny, nx), geometry in a sidecar .json) or any
-/// ITK format chosen by extension.
-void write_volume(const std::string& path, const Volume& volume);
+/// ITK format chosen by extension. With `together`, the checked output waits for that set's
+/// commit(), so that the outputs of one run go into place together or not at all.
+void write_volume(const std::string& path, const Volume& volume, OutputSet* together = nullptr);
 
 /// Writes an N-D (2 or 3) image atomically, through ITK or as .npy (C order, slowest axis
 /// first): dims/spacing per axis, zero origin, identity direction. `components` = 3 writes RGB
 /// (uint8; .npy gets a trailing axis of 3). Used for output stacks, masks and PNGs.
+/// `together`: as for write_volume.
 void write_image(const std::string& path, const void* data, PixelType type,
                  const std::vector<int64_t>& dims, const std::vector<double>& spacing,
-                 int components = 1);
+                 int components = 1, OutputSet* together = nullptr);
 
 /// True when this build reads and writes ITK formats (otherwise only .npy).
 bool built_with_itk();

@@ -1,0 +1,120 @@
+#include "PngFile.h"
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+
+#ifdef SONOSLICE_HAVE_PNG
+#include <png.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <csetjmp>
+#include <cstdio>
+#endif
+
+namespace sonoslice {
+
+#ifdef SONOSLICE_HAVE_PNG
+namespace {
+
+// What the callbacks tell the code after setjmp: libpng reports errors by longjmp, so no C++
+// object with a destructor may live between setjmp and png_destroy_write_struct.
+struct PngState {
+  int fd = -1;
+  int write_errno = 0;     // errno of the failed write, when writing failed
+  char message[256] = {};  // libpng's own complaint otherwise
+};
+
+extern "C" void on_png_error(png_structp png, png_const_charp message) {
+  auto* state = static_cast<PngState*>(png_get_error_ptr(png));
+  std::snprintf(state->message, sizeof state->message, "%s", message ? message : "libpng error");
+  png_longjmp(png, 1);
+}
+
+extern "C" void on_png_warning(png_structp, png_const_charp) {}  // nothing a user can act on
+
+extern "C" void on_png_write(png_structp png, png_bytep data, size_t n) {
+  auto* state = static_cast<PngState*>(png_get_io_ptr(png));
+  while (n > 0) {
+    const ssize_t written = ::write(state->fd, data, n);
+    if (written < 0 && errno == EINTR) continue;
+    if (written <= 0) {
+      state->write_errno = written < 0 ? errno : ENOSPC;
+      png_error(png, "write failed");
+    }
+    data += written;
+    n -= size_t(written);
+  }
+}
+
+extern "C" void on_png_flush(png_structp) {}  // unbuffered: every write went to the file
+
+// Returns 0 on success; on failure `state` says why. Plain C inside: see PngState.
+int encode(PngState* state, const unsigned char* pixels, int bit_depth, int width, int height,
+           int components, const double spacing_mm[2]) {
+  png_structp png =
+      png_create_write_struct(PNG_LIBPNG_VER_STRING, state, on_png_error, on_png_warning);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  if (!info) {
+    png_destroy_write_struct(&png, nullptr);
+    std::snprintf(state->message, sizeof state->message, "out of memory");
+    return 1;
+  }
+  if (setjmp(png_jmpbuf(png))) {
+    png_destroy_write_struct(&png, &info);
+    return 1;
+  }
+  png_set_write_fn(png, state, on_png_write, on_png_flush);
+  png_set_IHDR(png, info, png_uint_32(width), png_uint_32(height), bit_depth,
+               components == 3 ? PNG_COLOR_TYPE_RGB : PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE,
+               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+  // ITK's convention (the values are mm though the unit says metres): ITK's reader, and so
+  // read_volume, gets the pixel spacing back, as from the PNGs ITK wrote before.
+  png_set_sCAL(png, info, PNG_SCALE_METER, spacing_mm[0], spacing_mm[1]);
+  png_write_info(png, info);
+  if (bit_depth == 16) png_set_swap(png);  // PNG stores 16-bit samples big-endian
+  const size_t row_bytes = size_t(width) * size_t(components) * size_t(bit_depth / 8);
+  for (int row = 0; row < height; ++row)
+    png_write_row(png, const_cast<png_bytep>(pixels + size_t(row) * row_bytes));
+  png_write_end(png, nullptr);
+  png_destroy_write_struct(&png, &info);
+  return 0;
+}
+
+}  // namespace
+
+bool built_with_png() {
+  return true;
+}
+
+void write_png(int fd, const std::string& path, const void* pixels, PixelType type, int width,
+               int height, int components, const double spacing_mm[2]) {
+  if (type != PixelType::UInt8 && type != PixelType::UInt16)
+    throw InputError("'" + path + "': PNG holds uint8 or uint16 images, not " + to_string(type));
+  if (components != 1 && components != 3)
+    throw InputError("'" + path + "': PNG images here are grey or RGB");
+  if (width <= 0 || height <= 0)
+    throw InputError("'" + path + "': image size " + std::to_string(width) + "x" +
+                     std::to_string(height));
+  PngState state;
+  state.fd = fd;
+  if (encode(&state, static_cast<const unsigned char*>(pixels), type == PixelType::UInt16 ? 16 : 8,
+             width, height, components, spacing_mm) == 0)
+    return;
+  if (state.write_errno != 0) throw FileError(write_error_message(path, state.write_errno));
+  throw FileError("cannot write '" + path + "': " + state.message);
+}
+
+#else
+
+bool built_with_png() {
+  return false;
+}
+
+void write_png(int, const std::string& path, const void*, PixelType, int, int, int, const double*) {
+  throw Error("'" + path + "': this sonoslice was built without libpng; write .npy or .nii.gz");
+}
+
+#endif
+
+}  // namespace sonoslice

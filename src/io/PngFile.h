@@ -1,0 +1,22 @@
+#pragma once
+// Internal: PNG images written with libpng directly, so that every write error (a full disk, a
+// file-size limit) comes back as a FileError rather than a crash inside a library that does not
+// check its writes (ITK's 2-D writer crashed on a full disk, issue 10).
+#include <cstdint>
+#include <string>
+
+#include "sonoslice/volume/PixelType.h"
+
+namespace sonoslice {
+
+/// True when this build writes PNGs (libpng was found).
+bool built_with_png();
+
+/// Encodes a width×height image (rows top to bottom, `components` = 1 grey or 3 RGB, uint8 or
+/// uint16 samples in native byte order) into `fd`, which must be open for writing and empty.
+/// `spacing_mm` goes into the sCAL chunk as ITK writes it, so readers get the spacing back.
+/// FileError naming `path` when encoding or writing fails.
+void write_png(int fd, const std::string& path, const void* pixels, PixelType type, int width,
+               int height, int components, const double spacing_mm[2]);
+
+}  // namespace sonoslice
