@@ -30,7 +30,6 @@
 #include <vtkOutputWindow.h>
 #include <vtkPLYReader.h>
 #include <vtkPLYWriter.h>
-#include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
 #include <vtkPolyDataWriter.h>

@@ -3,6 +3,7 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -10,6 +11,7 @@
 #include <limits>
 #include <sstream>
 
+#include "../core/Text.h"
 #include "ByteOrder.h"
 #include "MappedFile.h"
 #include "sonoslice/core/Error.h"
@@ -43,8 +45,10 @@ struct Header {
   double scl_slope = 0, scl_inter = 0;
 };
 
-// The few NIfTI-1/2 header fields this path needs (ITK has read and checked the rest).
-Header parse_header(const unsigned char* h, size_t n, const std::string& path) {
+// The few NIfTI-1/2 header fields this path needs (check_nifti_header has checked them, ITK the
+// rest). In a single file the voxels start at byte 352 at the earliest; in a .hdr/.img pair they
+// are in the .img, from vox_offset (usually 0).
+Header parse_header(const unsigned char* h, size_t n, const std::string& path, bool single_file) {
   if (n < 348) truncated(path, "header shorter than 348 bytes");
   Header out;
   int32_t size = load<int32_t>(h, false);
@@ -52,7 +56,8 @@ Header parse_header(const unsigned char* h, size_t n, const std::string& path) {
   size = load<int32_t>(h, out.swapped);
   if (size == 348) {  // NIfTI-1
     out.datatype = load<int16_t>(h + 70, out.swapped);
-    out.vox_offset = uint64_t(std::max(352.0f, load<float>(h + 108, out.swapped)));
+    out.vox_offset =
+        uint64_t(std::max(single_file ? 352.0f : 0.0f, load<float>(h + 108, out.swapped)));
     out.scl_slope = load<float>(h + 112, out.swapped);
     out.scl_inter = load<float>(h + 116, out.swapped);
   } else if (size == 540 && n >= 540) {  // NIfTI-2
@@ -87,6 +92,13 @@ std::optional<PixelType> pixel_type_of(int datatype) {
     default:
       return std::nullopt;
   }
+}
+
+// The other file of a .hdr/.img pair, in the same letter case ("a.HDR" → "a.IMG").
+std::string pair_sibling(const std::string& path, const std::string& lower_ext) {
+  const std::string stem = path.substr(0, path.size() - 4);
+  const bool upper = std::isupper(static_cast<unsigned char>(path.back()));
+  return stem + (upper ? text::upper(lower_ext) : lower_ext);
 }
 
 // The NIfTI datatype codes (nifti1.h) and their bytes per voxel; the C library prints a line to
@@ -137,8 +149,7 @@ void check_nifti_header(const std::string& path) {
   std::string header_path = path;
   const std::string ext = file_extension(path);
   if (ext == ".img") {  // a header/image pair: the header is beside the image
-    header_path = path.substr(0, path.size() - 4) +
-                  (path.substr(path.size() - 4) == ".IMG" ? ".HDR" : ".hdr");
+    header_path = pair_sibling(path, ".hdr");
     std::error_code ec;
     if (!std::filesystem::exists(header_path, ec)) return;  // ITK says what is missing
   }
@@ -238,17 +249,24 @@ void check_nifti_header(const std::string& path) {
         throw InputError(where + kRows[i / 4] + "[" + std::to_string(i % 4) +
                          "] is not a finite number (sform_code " + std::to_string(sform) + ")");
     }
-  // An uncompressed single file must hold its voxels (the C library zero-fills a short one).
-  if (ext == ".nii") {
-    const double offset =
-        v2 ? double(load<int64_t>(raw + 168, swap)) : load<float>(raw + 108, swap);
+  // Where the voxels start: a NaN or absurd offset would reach an integer conversion.
+  const double offset = v2 ? double(load<int64_t>(raw + 168, swap)) : load<float>(raw + 108, swap);
+  if (!std::isfinite(offset) || offset < 0 || offset > 1e18) {
+    std::ostringstream s;
+    s << "corrupt header: vox_offset is " << offset;
+    truncated(path, s.str());
+  }
+  // An uncompressed file must hold its voxels (the C library zero-fills a short one).
+  const bool single = ext == ".nii";
+  if (single || ext == ".hdr" || ext == ".img") {
+    const std::string data_path = single ? path : pair_sibling(path, ".img");
+    const uint64_t start = uint64_t(single ? std::max(offset, double(v2 ? 544 : 352)) : offset);
     std::error_code ec;
-    const uint64_t file_size = std::filesystem::file_size(path, ec);
-    if (!ec && std::isfinite(offset) && offset >= 0 && offset < 1e18 &&
-        file_size < uint64_t(std::max(offset, double(v2 ? 544 : 352))) + bytes) {
+    const uint64_t file_size = std::filesystem::file_size(data_path, ec);
+    if (!ec && file_size < start + bytes) {
       std::ostringstream s;
-      s << "the file has " << file_size << " bytes, its header describes "
-        << uint64_t(std::max(offset, double(v2 ? 544 : 352))) + bytes;
+      s << "'" << data_path << "' has " << file_size << " bytes, the header describes "
+        << start + bytes;
       truncated(path, s.str());
     }
   }
@@ -256,9 +274,11 @@ void check_nifti_header(const std::string& path) {
 
 std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGrid& grid,
                                         PixelType type) {
-  // A .hdr/.img pair keeps its voxels in the .img: ITK's reader knows where.
-  if (file_extension(path) == ".hdr" || file_extension(path) == ".img") return std::nullopt;
-  const bool gz = file_extension(path) == ".nii.gz";
+  const std::string ext = file_extension(path);
+  const bool gz = ext == ".nii.gz";
+  const bool pair = ext == ".hdr" || ext == ".img";
+  const std::string header_path = ext == ".img" ? pair_sibling(path, ".hdr") : path;
+  const std::string data_path = ext == ".hdr" ? pair_sibling(path, ".img") : path;
   unsigned char raw[540] = {0};
   gzFile f = nullptr;
   size_t got = 0;
@@ -274,7 +294,7 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
       got += m > 0 ? size_t(m) : 0;
     }
   } else {
-    std::ifstream in(path, std::ios::binary);
+    std::ifstream in(header_path, std::ios::binary);
     in.read(reinterpret_cast<char*>(raw), sizeof raw);
     got = size_t(in.gcount());
   }
@@ -284,14 +304,14 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
       if (f) gzclose(f);
     }
   } closer{f};
-  const Header h = parse_header(raw, got, path);
+  const Header h = parse_header(raw, got, header_path, !pair);
   const bool rescaled = !(h.scl_slope == 0 || (h.scl_slope == 1 && h.scl_inter == 0));
   if (rescaled || pixel_type_of(h.datatype) != type) return std::nullopt;  // ITK converts: let it
 
   const uint64_t bytes = uint64_t(grid.voxel_count()) * pixel_size(type);
   if (!gz && !h.swapped) {
     // Uncompressed, native byte order: map the file; pages load as slicing touches them.
-    auto data = map_file_region(path, h.vox_offset, bytes);
+    auto data = map_file_region(data_path, h.vox_offset, bytes);
     return Volume::wrap(data.get(), type, grid, data);
   }
   Volume v = Volume::allocate(type, grid);
@@ -321,7 +341,7 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
       done += uint64_t(n);
     }
   } else {
-    std::ifstream in(path, std::ios::binary);
+    std::ifstream in(data_path, std::ios::binary);
     in.seekg(std::streamoff(h.vox_offset));
     in.read(static_cast<char*>(v.data()), std::streamsize(bytes));
     if (uint64_t(in.gcount()) != bytes)

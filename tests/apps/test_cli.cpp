@@ -14,6 +14,7 @@
 #include <cstring>
 #include <fstream>
 #include <functional>
+#include <iterator>
 #include <map>
 #include <sstream>
 
@@ -393,6 +394,38 @@ TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
   EXPECT_GT(reached, 500);
 }
 
+// Issue 10: one frame with an all-zero ProbeToTracker (a tracker that lost the probe) turned the
+// Nwire grid of 101x105x74 voxels into 519x689x4084 without a word; one frame without its
+// ProbeToTracker failed the sweep without naming the frame. Both frames are now left out, named.
+TEST_F(Cli, CompoundSkipsAndNamesFramesItsTransformsCannotPlace) {
+  SONOSLICE_REQUIRE_DATA();
+  test::TempDir out;
+  const std::string plus = test::data_dir() + "/plus/";
+  std::string bytes;
+  {
+    std::ifstream in(plus + "NwirePhantomFreehand.igs.mha", std::ios::binary);
+    bytes.assign((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  }
+  const std::string zero = "Seq_Frame0005_ProbeToTrackerTransform = ";
+  const size_t at = bytes.find(zero) + zero.size();
+  bytes.replace(at, bytes.find('\n', at) - at, "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 1");
+  const size_t gone = bytes.find("Seq_Frame0007_ProbeToTrackerTransform =");
+  bytes.erase(gone, bytes.find('\n', gone) + 1 - gone);
+  std::ofstream(out.file("sweep.igs.mha"), std::ios::binary) << bytes;
+  const CliRun r =
+      run("compound --sequence " + quote(out.file("sweep.igs.mha")) + " --config " +
+              quote(plus + "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml") +
+              " --out " + quote(out.file("v.nii")),
+          out);
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("skipped 2 of 97 frames: 2 whose transforms cannot place them (frame 5: "
+                       "its ImageToReference maps the image's x axis to a point"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("frame 7: no chain of transforms"), std::string::npos) << r.err;
+  EXPECT_EQ(read_volume(out.file("v.nii")).grid().dims, (std::array<int64_t, 3>{101, 105, 74}));
+}
+
 // --- bad input: one line on stderr naming the input, exit 1, nothing written -----------------
 
 struct BadCase {
@@ -406,6 +439,80 @@ class CliBadInput : public Cli, public ::testing::WithParamInterface<BadCase> {}
 
 void write_text(const std::string& path, const std::string& text) {
   std::ofstream(path) << text;
+}
+
+std::string slurp_binary(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// Issue 10's broken inputs for the readers: meshes, volume headers, JSON, PLUS transforms.
+void write_issue10_reader_inputs(const test::TempDir& dir) {
+  const std::string liver = test::data_dir() + "/fanslicer/liver.vtk";
+  if (fs::exists(liver))  // `head -c 308216 liver.vtk`: crashed VTK's reader
+    write_text(dir.file("in_cut.vtk"), slurp_binary(liver).substr(0, 308216));
+  write_text(dir.file("in_idx.vtk"),
+             "# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n"
+             "0 0 0 1 0 0 0 1 0\nPOLYGONS 1 4\n3 0 1 99999\n");
+  std::string stl = slurp_binary(dir.file("in_tet.stl"));
+  const uint32_t claimed = 4294967295u;
+  std::memcpy(&stl[80], &claimed, 4);
+  write_text(dir.file("in_big.stl"), stl);
+  write_text(dir.file("in_junk.obj"), "hello world\nthis is not an obj\n");
+  VolumeGrid grid;
+  grid.dims = {4, 4, 4};
+  std::vector<int16_t> voxels(64, 7);
+  write_volume(dir.file("in_good.nii"), Volume::wrap(voxels.data(), PixelType::Int16, grid, {}));
+  auto patched = [&](const std::string& name, std::streamoff at, const void* bytes, size_t n) {
+    fs::copy_file(dir.file("in_good.nii"), dir.file(name));
+    std::fstream f(dir.file(name), std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(at);
+    f.write(static_cast<const char*>(bytes), std::streamsize(n));
+  };
+  const float zero = 0.0f, nan_inter[2] = {std::nanf(""), 5.0f};
+  const int16_t no_size = 0;
+  patched("in_pix0.nii", 80, &zero, 4);
+  patched("in_sclnan.nii", 112, nan_inter, 8);
+  patched("in_dim.nii", 42, &no_size, 2);
+  write_text(dir.file("in_spnan.mha"),
+             "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementSpacing = nan 1 1\n"
+             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+                 std::string(64, '\1'));
+  write_text(dir.file("in_detached.mhd"),
+             "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementType = MET_UCHAR\n"
+             "ElementDataFile = in_gone.raw\n");
+  std::string dict =
+      "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296, 1), }";
+  dict.append(size_t(63 - (10 + dict.size()) % 64), ' ');
+  dict += '\n';
+  write_text(dir.file("in_over.npy"), std::string("\x93NUMPY\x01\x00", 8) +
+                                          char(dict.size() & 0xff) + char(dict.size() >> 8) + dict +
+                                          std::string(102, '\0'));
+  const std::string models = test::data_dir() + "/fanslicer/models_binary_LUS_config.json";
+  if (fs::exists(models)) {
+    std::string cfg = slurp_binary(models);
+    cfg.replace(cfg.find("[0, 200, 0]"), 11, "[\"green\", 200, 0]");
+    write_text(dir.file("in_colour.json"), cfg);
+  }
+  const std::string xml =
+      test::data_dir() + "/plus/PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml";
+  if (fs::exists(xml)) {
+    std::string x = slurp_binary(xml);
+    const size_t from = x.find("Matrix=\"", x.find("From=\"Image\" To=\"Probe\"")) + 8;
+    x.replace(from, x.find('"', from) - from, "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0");
+    write_text(dir.file("in_zero_cal.xml"), x);
+  }
+  // The Nwire sweep without any ProbeToTracker: no frame can be placed.
+  const std::string seq = test::data_dir() + "/plus/NwirePhantomFreehand.igs.mha";
+  if (fs::exists(seq)) {
+    const std::string bytes = slurp_binary(seq);
+    const size_t data = bytes.find("ElementDataFile");
+    std::istringstream header(bytes.substr(0, data));
+    std::string kept, line;
+    while (std::getline(header, line))
+      if (line.find("_ProbeToTrackerTransform =") == std::string::npos) kept += line + "\n";
+    write_text(dir.file("in_notrack.igs.mha"), kept + bytes.substr(data));
+  }
 }
 
 // The broken inputs the cases read (all named in_*).
@@ -462,6 +569,7 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
              R"({"r0_mm": 1, "dr_mm": 0.5, "azimuth0_deg": -5, "dazimuth_deg": 2.5,
                  "elevation0_deg": -4, "delevation_deg": 4})");
   write_text(dir.file("in_two.txt"), eye + eye);
+  write_issue10_reader_inputs(dir);
 }
 
 TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
@@ -545,6 +653,49 @@ std::vector<BadCase> bad_cases() {
        "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/in_dir.npy",
        "is an existing directory"},
       {"UnknownDtype", std::string(kSlice) + "--dtype float16", "--dtype float16"},
+      // Issue 10, readers: refused before a library crashes, prints or guesses.
+      {"VoxelizeTruncatedBinaryVtk", "voxelize {DIR}/in_cut.vtk --spacing 1 --out {OUT}",
+       "in_cut.vtk': truncated or corrupt file: POLYGONS announces 88000 values"},
+      {"SliceTruncatedBinaryVtk",
+       "slice --meshes {DIR}/in_cut.vtk --probe {FAN} --poses {POSES} --out {OUT}",
+       "in_cut.vtk': truncated"},
+      {"VtkIndexOutOfRange", "voxelize {DIR}/in_idx.vtk --spacing 1 --out {OUT}",
+       "in_idx.vtk': POLYGONS: cell 0 uses point 99999, but the file has 3 points"},
+      {"StlTriangleCountBeyondFile", "voxelize {DIR}/in_big.stl --spacing 1 --out {OUT}",
+       "in_big.stl': truncated or corrupt binary STL: its header announces 4294967295 triangles"},
+      {"ObjGarbage", "voxelize {DIR}/in_junk.obj --spacing 1 --out {OUT}",
+       "in_junk.obj': not an OBJ mesh"},
+      {"NiftiZeroPixdim",
+       "slice --volume {DIR}/in_pix0.nii --probe {FAN} --poses {POSES} --out {OUT}",
+       "in_pix0.nii': pixdim[1] is 0"},
+      {"NiftiNanSlopeWithIntercept", "info {DIR}/in_sclnan.nii",
+       "in_sclnan.nii': scl_slope is nan with scl_inter 5"},
+      {"NiftiBadDimensionNoLibraryLine", "info {DIR}/in_dim.nii", "in_dim.nii': corrupt header"},
+      {"MetaImageNanSpacingNoMetaIoNoise", "info {DIR}/in_spnan.mha",
+       "in_spnan.mha': ElementSpacing 'nan 1 1'"},
+      {"MetaImageMissingDataFile", "info {DIR}/in_detached.mhd", "in_gone.raw' (ElementDataFile)"},
+      {"NpyShapeOverflow",
+       "slice --volume {DIR}/in_over.npy --probe {FAN} --poses {POSES} --out {OUT}",
+       "in_over.npy': the shape (4294967296, 4294967296, 1)"},
+      {"FanSlicerColourNotANumber",
+       "slice --mesh-dir {SHARED}/fanslicer --probe {DIR}/in_colour.json --poses {POSES} "
+       "--out {OUT}",
+       "in_colour.json': colour of 'hepatic veins' must be [r, g, b]"},
+      {"ImageToProbeSevenNumbers",
+       "compound --sequence " + std::string(kNwire) +
+           " --image-to-probe 1,0,0,0,0,1,0 --spacing 1 --out {OUT}",
+       "--image-to-probe '1,0,0,0,0,1,0': 7 numbers"},
+      {"ImageToProbeAllZero",
+       "compound --sequence " + std::string(kNwire) +
+           " --image-to-probe 0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0 --spacing 1 --out {OUT}",
+       "--image-to-probe: the pixel-to-probe matrix is all zero"},
+      {"CompoundZeroCalibrationInXml",
+       "compound --sequence " + std::string(kNwire) + " --config {DIR}/in_zero_cal.xml --out {OUT}",
+       "in_zero_cal.xml: CoordinateDefinitions/Transform[2] (ImageToProbe)/@Matrix is all zero"},
+      {"CompoundNoFrameHasItsTransforms",
+       "compound --sequence {DIR}/in_notrack.igs.mha --config " + std::string(kNwireXml) +
+           " --out {OUT}",
+       "in_notrack.igs.mha: frame 0: no chain of transforms from 'Image' to 'Reference'"},
       {"UnknownInterp", std::string(kSlice) + "--interp cubic", "interpolation 'cubic'"},
       {"UnknownWorld", std::string(kSlice) + "--world XYZ", "world frame 'XYZ'"},
       {"BadWindow", std::string(kSlice) + "--window 40", "--window '40'"},

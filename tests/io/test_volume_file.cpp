@@ -3,7 +3,9 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 #include <tuple>
 
@@ -333,6 +335,26 @@ TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
   patch_float(p, 112, 2.0f);
   fs::resize_file(p, fs::file_size(p) - 20);
   EXPECT_NE(quiet_error_of(p).find("truncated"), std::string::npos);
+  // A .hdr/.img pair (vox_offset 0 in the .img): sonoslice's own voxel path mapped the .hdr as
+  // if it held the voxels after byte 352, and failed with "truncated".
+  {
+    std::ifstream in(good, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string header = bytes.substr(0, 348);
+    const float zero_offset = 0.0f;
+    std::memcpy(&header[108], &zero_offset, 4);
+    header.replace(344, 4, std::string("ni1\0", 4));
+    std::ofstream(dir.file("pair.hdr"), std::ios::binary) << header;
+    std::ofstream(dir.file("pair.img"), std::ios::binary) << bytes.substr(352);
+    for (const char* name : {"pair.hdr", "pair.img"}) {
+      const Volume r = read_volume(dir.file(name));
+      EXPECT_EQ(r.grid().spacing_mm, grid.spacing_mm) << name;
+      expect_same_voxels<int16_t>(v, r);
+    }
+    fs::resize_file(dir.file("pair.img"), 100);
+    EXPECT_NE(quiet_error_of(dir.file("pair.hdr")).find("'" + dir.file("pair.img") + "' has 100"),
+              std::string::npos);
+  }
   // The same checks through .nii.gz.
   write_volume(dir.file("z.nii.gz"), v);
   EXPECT_EQ(read_volume(dir.file("z.nii.gz")).grid().spacing_mm, grid.spacing_mm);
