@@ -14,7 +14,7 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
-#include <fstream>
+#include <set>
 #include <string>
 #include <typeinfo>
 
@@ -37,8 +37,22 @@ inline const std::filesystem::path& work_dir() {
   return dir;
 }
 
+// The input being run (for SONOSLICE_FUZZ_FOREIGN_DIR below).
+struct CurrentInput {
+  const uint8_t* data = nullptr;
+  size_t size = 0;
+};
+inline CurrentInput& current_input() {
+  static CurrentInput input;
+  return input;
+}
+inline void remember_input(const uint8_t* data, size_t size) {
+  current_input() = {data, size};
+}
+
 // Writes the fuzz input to `<work_dir>/<name>` and returns the path.
 inline std::string write_input(const uint8_t* data, size_t size, const std::string& name) {
+  remember_input(data, size);
   const std::string path = (work_dir() / name).string();
   std::FILE* f = std::fopen(path.c_str(), "wb");
   if (!f) std::abort();
@@ -47,12 +61,32 @@ inline std::string write_input(const uint8_t* data, size_t size, const std::stri
   return path;
 }
 
-inline bool starts_with(const uint8_t* data, size_t size, const char* magic) {
-  const std::string m(magic);
-  return size >= m.size() && std::string(reinterpret_cast<const char*>(data), m.size()) == m;
-}
-
 inline void quiet(const std::string&) {}
+
+// A foreign exception aborts: a finding. With SONOSLICE_FUZZ_FOREIGN_DIR set (long runs that
+// should look past a known one), each kind (type and message without its digits) is reported
+// once, its first input saved there as foreign-<n>, and the run carries on.
+inline void foreign_exception(const char* type, const std::string& what) {
+  std::fprintf(stderr, "\nFOREIGN EXCEPTION (%s, not a sonoslice::Error): %s\n", type,
+               what.c_str());
+  const char* dir = std::getenv("SONOSLICE_FUZZ_FOREIGN_DIR");
+  if (!dir) std::abort();
+  std::string kind = std::string(type) + ": ";
+  for (char c : what.substr(0, 80))
+    if (!(c >= '0' && c <= '9')) kind += c;
+  static std::set<std::string> seen;
+  if (!seen.insert(kind).second) return;
+  const std::string path = std::string(dir) + "/foreign-" + std::to_string(::getpid()) + "-" +
+                           std::to_string(seen.size());
+  if (std::FILE* f = std::fopen(path.c_str(), "wb")) {
+    std::fwrite(current_input().data, 1, current_input().size, f);
+    std::fclose(f);
+  }
+  if (std::FILE* f = std::fopen((path + ".txt").c_str(), "w")) {
+    std::fprintf(f, "%s\n", kind.c_str());
+    std::fclose(f);
+  }
+}
 
 // Runs `parse`; returns normally for no error or a sonoslice::Error, aborts (a finding) otherwise.
 template <typename F>
@@ -64,12 +98,9 @@ void expect_sonoslice_errors_only(F&& parse) {
   } catch (const Error&) {
     // The expected refusal of bad input.
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "\nFOREIGN EXCEPTION (%s, not a sonoslice::Error): %s\n", typeid(e).name(),
-                 e.what());
-    std::abort();
+    foreign_exception(typeid(e).name(), e.what());
   } catch (...) {
-    std::fprintf(stderr, "\nFOREIGN EXCEPTION of unknown type\n");
-    std::abort();
+    foreign_exception("unknown type", "");
   }
 }
 

@@ -10,6 +10,7 @@
 using namespace sonoslice;
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  fuzz::remember_input(data, size);
   const std::string text(reinterpret_cast<const char*>(data), size);
   for (int downsampling : {1, 3}) {
     fuzz::expect_sonoslice_errors_only([&] {

@@ -49,7 +49,7 @@ limits=(-timeout=30 -rss_limit_mb=3072 -malloc_limit_mb=2048)
 failed=()
 summary=()
 for t in "${targets[@]}"; do
-  exe=$build/fuzz/fuzz_$t
+  exe=$build/bin/fuzz_$t
   [[ -x $exe ]] || { echo "fuzz: no harness '$t' (have: ${all[*]})" >&2; exit 2; }
   seeds=$root/fuzz/corpus/$t
   regressions=$root/fuzz/regressions/$t
