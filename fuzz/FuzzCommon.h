@@ -7,6 +7,7 @@
 // of course, but also a foreign exception (a JSON library's, std::out_of_range from a stoi,
 // std::length_error from an absurd size): those reach users as a message that does not name the
 // file (issue 10).
+#include <fcntl.h>
 #include <unistd.h>
 
 #include <cstdint>
@@ -14,7 +15,7 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
-#include <set>
+#include <functional>
 #include <string>
 #include <typeinfo>
 
@@ -64,24 +65,29 @@ inline std::string write_input(const uint8_t* data, size_t size, const std::stri
 inline void quiet(const std::string&) {}
 
 // A foreign exception aborts: a finding. With SONOSLICE_FUZZ_FOREIGN_DIR set (long runs that
-// should look past a known one), each kind (type and message without its digits) is reported
-// once, its first input saved there as foreign-<n>, and the run carries on.
+// should look past a known one), each kind (type and message without its digits) has its first
+// input saved there as foreign-<hash> (with the kind in foreign-<hash>.txt), and the run carries
+// on.
 inline void foreign_exception(const char* type, const std::string& what) {
-  std::fprintf(stderr, "\nFOREIGN EXCEPTION (%s, not a sonoslice::Error): %s\n", type,
-               what.c_str());
   const char* dir = std::getenv("SONOSLICE_FUZZ_FOREIGN_DIR");
-  if (!dir) std::abort();
+  if (!dir) {
+    std::fprintf(stderr, "\nFOREIGN EXCEPTION (%s, not a sonoslice::Error): %s\n", type,
+                 what.c_str());
+    std::abort();
+  }
   std::string kind = std::string(type) + ": ";
   for (char c : what.substr(0, 80))
     if (!(c >= '0' && c <= '9')) kind += c;
-  static std::set<std::string> seen;
-  if (!seen.insert(kind).second) return;
-  const std::string path = std::string(dir) + "/foreign-" + std::to_string(::getpid()) + "-" +
-                           std::to_string(seen.size());
-  if (std::FILE* f = std::fopen(path.c_str(), "wb")) {
-    std::fwrite(current_input().data, 1, current_input().size, f);
-    std::fclose(f);
-  }
+  // One file per kind across processes (libFuzzer's fork mode runs many): created only once.
+  char name[32];
+  std::snprintf(name, sizeof name, "/foreign-%016zx", std::hash<std::string>()(kind));
+  const std::string path = std::string(dir) + name;
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL, 0644);
+  if (fd < 0) return;
+  [[maybe_unused]] const ssize_t written = ::write(fd, current_input().data, current_input().size);
+  ::close(fd);
+  std::fprintf(stderr, "\nFOREIGN EXCEPTION (%s, not a sonoslice::Error): %s (input saved as %s)\n",
+               type, what.c_str(), path.c_str());
   if (std::FILE* f = std::fopen((path + ".txt").c_str(), "w")) {
     std::fprintf(f, "%s\n", kind.c_str());
     std::fclose(f);

@@ -10,7 +10,9 @@
 #   JOBS=N            build jobs (default: nproc)
 #   FUZZ_FORK=N       run N fuzzing processes per parser that carry on after a crash (long runs
 #                     that collect several crashes); default 0: stop at the first crash
-#   FUZZ_REPLAY_ONLY=1  only step 1 (no clang build of the corpus, no mutation)
+#   FUZZ_FOREIGN=log  an exception that is not a sonoslice::Error is saved (one input per kind)
+#                     and the run carries on, instead of stopping there (long runs)
+#   FUZZ_REPLAY_ONLY=1  only step 1 (replay the regression inputs, no fuzzing)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$PWD
@@ -56,6 +58,7 @@ for t in "${targets[@]}"; do
   corpus=$build/corpus/$t
   artifacts=$build/artifacts/$t
   rm -rf "$TMPDIR" "$artifacts"
+  unset SONOSLICE_FUZZ_FOREIGN_DIR  # replays stop at a foreign exception
   mkdir -p "$TMPDIR" "$corpus" "$artifacts" "$regressions"
   log=$build/logs/$t.log
   mkdir -p "$(dirname "$log")"
@@ -88,6 +91,12 @@ for t in "${targets[@]}"; do
   [[ -d $seeds ]] && dirs+=("$seeds")
   # Regression inputs that still fail would only be found again: left out until fixed.
   [[ $bad -eq 0 ]] && dirs+=("$regressions")
+  foreign=$build/foreign/$t
+  rm -rf "$foreign"
+  if [[ ${FUZZ_FOREIGN:-} == log ]]; then
+    mkdir -p "$foreign"
+    export SONOSLICE_FUZZ_FOREIGN_DIR=$foreign
+  fi
   t0=$(date +%s)
   rc=0
   "$exe" "${limits[@]}" "${extra[@]}" -max_total_time="$seconds" -print_final_stats=1 \
@@ -95,7 +104,11 @@ for t in "${targets[@]}"; do
   runs=$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | tail -1 | grep -oE '[0-9]+$' || echo "?")
   found=()
   shopt -s nullglob
-  for a in "$artifacts"/{crash,leak,oom,timeout}-*; do
+  for f in "$foreign"/foreign-*; do
+    [[ $f == *.txt ]] && continue
+    cp "$f" "$artifacts/foreign-$(sha1sum "$f" | cut -c1-40)"
+  done
+  for a in "$artifacts"/{crash,leak,oom,timeout,foreign}-*; do
     name=fuzz/regressions/$t/$(basename "$a")
     if [[ -e $root/$name ]]; then
       found+=("$name (known)")
