@@ -9,6 +9,8 @@ set -euo pipefail
 packages=(
   build-essential cmake pkg-config ninja-build
   clang-format                           # scripts/check-format.sh (CI checks, never rewrites)
+  clang libclang-rt-14-dev llvm          # scripts/fuzz.sh (libFuzzer, sanitizer runtimes) and
+                                         # llvm-symbolizer for readable sanitizer stacks
   libinsighttoolkit5-dev libgdcm-tools   # ITK 5.2 (NIfTI, MetaImage, NRRD, DICOM, PNG); gdcm tools
                                          # only so GDCM's CMake config finds the files it lists
   zlib1g-dev

@@ -49,7 +49,9 @@ inline nlohmann::json read_json_file(const std::string& path, const std::string&
   }
   try {
     return nlohmann::json::parse(in);
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {
+    // parse_error, and out_of_range for a number beyond double's range (1e400): both say the
+    // text is not JSON sonoslice can read.
     throw FileError(what + " '" + path + "': invalid JSON (" + json_detail(e) + ")");
   }
 }

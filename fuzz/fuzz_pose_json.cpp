@@ -1,0 +1,16 @@
+// libFuzzer harness: Pose JSON files ({"poses": [[16 numbers], ...]}) through read_poses and
+// read_matrices.
+#include "sonoslice/io/PoseFile.h"
+
+#include <algorithm>
+
+#include "FuzzCommon.h"
+
+using namespace sonoslice;
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  const std::string path = fuzz::write_input(data, size, "poses.json");
+  fuzz::expect_sonoslice_errors_only([&] { read_poses(path); });
+  fuzz::expect_sonoslice_errors_only([&] { read_matrices(path); });
+  return 0;
+}
