@@ -521,8 +521,15 @@ void check_stl(const std::string& path) {
 void check_obj(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::string line;
-  int64_t vertices = 0, faces = 0, line_number = 0;
-  std::vector<std::pair<int64_t, int64_t>> forward;  // (line, index) checked at the end
+  // Counts of v, vt and vn lines so far; a face's texture and normal indices are checked too
+  // (vtkOBJReader reads a missing normal out of bounds: a fuzzer found the crash).
+  int64_t counts[3] = {0, 0, 0}, faces = 0, line_number = 0;
+  const char* kinds[3] = {"vertex", "texture coordinate", "normal"};
+  struct Forward {
+    int64_t line, index;
+    int kind;
+  };
+  std::vector<Forward> forward;  // positive indices, checked at the end
   while (std::getline(in, line)) {
     ++line_number;
     const std::vector<std::string> t = text::split_ws(line);
@@ -539,28 +546,44 @@ void check_obj(const std::string& path) {
         if (!std::isfinite(x))
           throw InputError("mesh '" + path + "': " + where + ": a vertex is not finite");
       }
-      ++vertices;
+      ++counts[0];
+    } else if (t[0] == "vt") {
+      ++counts[1];
+    } else if (t[0] == "vn") {
+      ++counts[2];
     } else if (t[0] == "f") {
       if (t.size() < 4) corrupt(path, where + ": a face needs at least three vertices");
       for (size_t i = 1; i < t.size(); ++i) {
-        int64_t index = 0;
-        if (!text::parse_int64(t[i].substr(0, t[i].find('/')), &index) || index == 0)
-          corrupt(path, where + ": " + text::quote_value(t[i]) + " is not a vertex index");
-        if (index < 0 && -index > vertices)
-          corrupt(path, where + ": vertex " + std::to_string(index) + " counts back past the " +
-                            std::to_string(vertices) + " vertices before it");
-        if (index > 0) forward.emplace_back(line_number, index);
+        // "v", "v/vt", "v//vn" or "v/vt/vn": the vertex is required, the others optional.
+        size_t from = 0;
+        for (int kind = 0; kind < 3 && from <= t[i].size(); ++kind) {
+          const size_t slash = t[i].find('/', from);
+          const std::string part =
+              t[i].substr(from, slash == std::string::npos ? std::string::npos : slash - from);
+          from = slash == std::string::npos ? t[i].size() + 1 : slash + 1;
+          if (part.empty() && kind > 0) continue;
+          int64_t index = 0;
+          if (!text::parse_int64(part, &index) || index == 0)
+            corrupt(path,
+                    where + ": " + text::quote_value(t[i]) + " is not a " + kinds[kind] + " index");
+          if (index < 0 && -index > counts[kind])
+            corrupt(path, where + ": " + kinds[kind] + " " + std::to_string(index) +
+                              " counts back past the " + std::to_string(counts[kind]) +
+                              " before it");
+          if (index > 0) forward.push_back({line_number, index, kind});
+        }
       }
       ++faces;
     }
   }
-  if (vertices == 0 || faces == 0)
+  if (counts[0] == 0 || faces == 0)
     corrupt(path, std::string("not an OBJ mesh (no ") +
-                      (vertices == 0 ? "vertex ('v')" : "face ('f')") + " lines)");
-  for (const auto& [at, index] : forward)
-    if (index > vertices)
-      corrupt(path, "line " + std::to_string(at) + ": a face uses vertex " + std::to_string(index) +
-                        ", but the file has " + std::to_string(vertices) + " vertices");
+                      (counts[0] == 0 ? "vertex ('v')" : "face ('f')") + " lines)");
+  for (const Forward& f : forward)
+    if (f.index > counts[f.kind])
+      corrupt(path, "line " + std::to_string(f.line) + ": a face uses " + kinds[f.kind] + " " +
+                        std::to_string(f.index) + ", but the file has " +
+                        std::to_string(counts[f.kind]));
 }
 
 // What any reader produced, checked before VTK's filters work on it: finite points, and cells

@@ -183,7 +183,7 @@ ProbeGeometry parse_probe_json(const std::string& text, const std::string& sourc
   json root;
   try {
     root = json::parse(text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, or out_of_range for a number like 1e999
     throw FileError("probe '" + source + "': invalid JSON (" + json_detail(e) + ")");
   }
   if (!root.is_object()) throw InputError("probe '" + source + "': expected a JSON object");
