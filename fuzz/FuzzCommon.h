@@ -10,6 +10,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -65,7 +66,7 @@ inline std::string write_input(const uint8_t* data, size_t size, const std::stri
 inline void quiet(const std::string&) {}
 
 // A foreign exception aborts: a finding. With SONOSLICE_FUZZ_FOREIGN_DIR set (long runs that
-// should look past a known one), each kind (type and message without its digits) has its first
+// should look past a known one), each kind of exception has its first
 // input saved there as foreign-<hash> (with the kind in foreign-<hash>.txt), and the run carries
 // on.
 inline void foreign_exception(const char* type, const std::string& what) {
@@ -75,8 +76,9 @@ inline void foreign_exception(const char* type, const std::string& what) {
                  what.c_str());
     std::abort();
   }
+  // The kind: the type and the message up to its first quoted value, without digits.
   std::string kind = std::string(type) + ": ";
-  for (char c : what.substr(0, 80))
+  for (char c : what.substr(0, std::min<size_t>(80, what.find_first_of("'\""))))
     if (!(c >= '0' && c <= '9')) kind += c;
   // One file per kind across processes (libFuzzer's fork mode runs many): created only once.
   char name[32];

@@ -549,13 +549,16 @@ void check_nifti_length(const std::string& path, uint64_t data_bytes) {
   if (header_size == 348) {
     float vox_offset;
     std::memcpy(&vox_offset, header + 108, 4);
-    offset = std::max<uint64_t>(352, uint64_t(vox_offset));
+    // Written here, but converted with care: a float beyond uint64_t is undefined behaviour.
+    offset = std::isfinite(vox_offset) && vox_offset > 352 && vox_offset < 9.0e15f
+                 ? uint64_t(vox_offset)
+                 : 352;
   } else if (header_size == 540) {
     n = gzread(f, header + 348, 540 - 348);
     total += n > 0 ? uint64_t(n) : 0;
     int64_t vox_offset;
     std::memcpy(&vox_offset, header + 168, 8);
-    offset = uint64_t(vox_offset);
+    offset = vox_offset > 0 ? uint64_t(vox_offset) : 0;
   }
   std::vector<unsigned char> buffer(size_t(1) << 20);
   while ((n = gzread(f, buffer.data(), unsigned(buffer.size()))) > 0) total += uint64_t(n);

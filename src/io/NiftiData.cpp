@@ -24,6 +24,9 @@ namespace {
 // zlib's default buffer is 8 KiB; a larger one means fewer read calls on volumes of hundreds of MB.
 constexpr unsigned kGzipBufferBytes = 1u << 20;
 
+// The largest vox_offset taken (2^53 bytes, 8 PiB): exact in a double, far beyond any file.
+constexpr double kMaxVoxOffset = 9007199254740992.0;
+
 [[noreturn]] void truncated(const std::string& path, const std::string& why) {
   throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + why + ")");
 }
@@ -56,13 +59,16 @@ Header parse_header(const unsigned char* h, size_t n, const std::string& path, b
   size = load<int32_t>(h, out.swapped);
   if (size == 348) {  // NIfTI-1
     out.datatype = load<int16_t>(h + 70, out.swapped);
-    out.vox_offset =
-        uint64_t(std::max(single_file ? 352.0f : 0.0f, load<float>(h + 108, out.swapped)));
+    const float offset = load<float>(h + 108, out.swapped);
+    if (!(offset <= kMaxVoxOffset)) truncated(path, "vox_offset out of range");  // NaN too
+    out.vox_offset = uint64_t(std::max(single_file ? 352.0f : 0.0f, offset));
     out.scl_slope = load<float>(h + 112, out.swapped);
     out.scl_inter = load<float>(h + 116, out.swapped);
   } else if (size == 540 && n >= 540) {  // NIfTI-2
     out.datatype = load<int16_t>(h + 12, out.swapped);
-    out.vox_offset = uint64_t(load<int64_t>(h + 168, out.swapped));
+    const int64_t offset = load<int64_t>(h + 168, out.swapped);
+    if (offset < 0 || double(offset) > kMaxVoxOffset) truncated(path, "vox_offset out of range");
+    out.vox_offset = uint64_t(offset);
     out.scl_slope = load<double>(h + 176, out.swapped);
     out.scl_inter = load<double>(h + 184, out.swapped);
   } else {
@@ -203,6 +209,16 @@ void check_nifti_header(const std::string& path) {
         << i - 1 << " must be a positive number of mm";
       throw InputError(s.str());
     }
+  // Where the voxels start: a float in NIfTI-1 (NaN, infinite or beyond any file size here would
+  // be undefined behaviour in the conversion to an offset), a signed 64-bit count in NIfTI-2.
+  const double vox_offset =
+      v2 ? double(load<int64_t>(raw + 168, swap)) : load<float>(raw + 108, swap);
+  if (!std::isfinite(vox_offset) || vox_offset < 0 || vox_offset > kMaxVoxOffset) {
+    std::ostringstream s;
+    s << "cannot read volume '" << path << "': corrupt header: vox_offset is " << vox_offset
+      << " (the byte where the voxels start)";
+    throw FileError(s.str());
+  }
   if (!nifti) return;  // Analyze 7.5: no scaling or orientation fields
 
   // Scaling, y = scl_slope · x + scl_inter when scl_slope is not 0 (nifti1.h). Readers disagree
@@ -249,18 +265,12 @@ void check_nifti_header(const std::string& path) {
         throw InputError(where + kRows[i / 4] + "[" + std::to_string(i % 4) +
                          "] is not a finite number (sform_code " + std::to_string(sform) + ")");
     }
-  // Where the voxels start: a NaN or absurd offset would reach an integer conversion.
-  const double offset = v2 ? double(load<int64_t>(raw + 168, swap)) : load<float>(raw + 108, swap);
-  if (!std::isfinite(offset) || offset < 0 || offset > 1e18) {
-    std::ostringstream s;
-    s << "corrupt header: vox_offset is " << offset;
-    truncated(path, s.str());
-  }
   // An uncompressed file must hold its voxels (the C library zero-fills a short one).
   const bool single = ext == ".nii";
   if (single || ext == ".hdr" || ext == ".img") {
     const std::string data_path = single ? path : pair_sibling(path, ".img");
-    const uint64_t start = uint64_t(single ? std::max(offset, double(v2 ? 544 : 352)) : offset);
+    const uint64_t start =
+        uint64_t(single ? std::max(vox_offset, double(v2 ? 544 : 352)) : vox_offset);
     std::error_code ec;
     const uint64_t file_size = std::filesystem::file_size(data_path, ec);
     if (!ec && file_size < start + bytes) {
@@ -305,8 +315,38 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
     }
   } closer{f};
   const Header h = parse_header(raw, got, header_path, !pair);
+  // Reads `count` bytes of the gzip stream into dst (or past them when dst is null).
+  auto gz_read = [&](char* dst, uint64_t count, const char* what) {
+    char skip[4096];
+    for (uint64_t done = 0; done < count;) {
+      const unsigned want =
+          unsigned(std::min<uint64_t>(count - done, dst ? 1u << 30 : sizeof skip));
+      const int n = gzread(f, dst ? dst + done : skip, want);
+      if (n <= 0) {
+        int err = Z_OK;
+        const char* msg = gzerror(f, &err);
+        std::ostringstream s;
+        s << "the gzip stream ends after " << done << " of " << count << " " << what;
+        if (err != Z_OK && msg && *msg) s << ": " << msg;
+        truncated(path, s.str());
+      }
+      done += uint64_t(n);
+    }
+  };
+  const uint64_t header_end = std::max<uint64_t>(got, h.vox_offset);
+
   const bool rescaled = !(h.scl_slope == 0 || (h.scl_slope == 1 && h.scl_inter == 0));
-  if (rescaled || pixel_type_of(h.datatype) != type) return std::nullopt;  // ITK converts: let it
+  if (rescaled || pixel_type_of(h.datatype) != type) {
+    // ITK converts: let it, but only once the voxels are known to be all there (ITK's gzip
+    // reader fills a short stream with zeros; an uncompressed file was checked by
+    // check_nifti_header).
+    if (gz) {
+      gz_read(nullptr, header_end - got, "header bytes");
+      gz_read(nullptr, uint64_t(grid.voxel_count()) * uint64_t(datatype_bytes(h.datatype)),
+              "voxel bytes");
+    }
+    return std::nullopt;
+  }
 
   const uint64_t bytes = uint64_t(grid.voxel_count()) * pixel_size(type);
   if (!gz && !h.swapped) {
@@ -317,29 +357,8 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
   Volume v = Volume::allocate(type, grid);
   if (gz) {
     // Skip to vox_offset (extensions may sit between the header and the voxels).
-    uint64_t position = got;
-    char skip[4096];
-    while (position < h.vox_offset) {
-      const int n =
-          gzread(f, skip, unsigned(std::min<uint64_t>(sizeof skip, h.vox_offset - position)));
-      if (n <= 0) truncated(path, "ends inside its header");
-      position += uint64_t(n);
-    }
-    auto* dst = static_cast<char*>(v.data());
-    uint64_t done = 0;
-    while (done < bytes) {
-      const unsigned want = unsigned(std::min<uint64_t>(bytes - done, 1u << 30));
-      const int n = gzread(f, dst + done, want);
-      if (n <= 0) {
-        int err = Z_OK;
-        const char* msg = gzerror(f, &err);
-        std::ostringstream s;
-        s << "the gzip stream ends after " << done << " of " << bytes << " voxel bytes";
-        if (err != Z_OK && msg && *msg) s << ": " << msg;
-        truncated(path, s.str());
-      }
-      done += uint64_t(n);
-    }
+    gz_read(nullptr, header_end - got, "header bytes");
+    gz_read(static_cast<char*>(v.data()), bytes, "voxel bytes");
   } else {
     std::ifstream in(data_path, std::ios::binary);
     in.seekg(std::streamoff(h.vox_offset));

@@ -184,15 +184,37 @@ NpyArray read_npy(const std::string& path) {
   return a;
 }
 
+namespace {
+
+// The byte count of an array of this shape, refused (naming the output) when a size is negative
+// or the count overflows: an overflowed product once wrote a 102-byte "volume".
+uint64_t checked_byte_count(PixelType type, const std::vector<int64_t>& shape,
+                            const std::string& path) {
+  uint64_t bytes = pixel_size(type);
+  for (int64_t d : shape) {
+    if (d < 0 || (d != 0 && bytes > uint64_t(std::numeric_limits<int64_t>::max()) / uint64_t(d))) {
+      std::ostringstream s;
+      s << "cannot write '" << path << "': the shape (";
+      for (size_t i = 0; i < shape.size(); ++i) s << (i ? ", " : "") << shape[i];
+      s << ") of " << to_string(type) << " values "
+        << (d < 0 ? "has a negative size" : "is more bytes than a file can hold");
+      throw InputError(s.str());
+    }
+    bytes *= uint64_t(d);
+  }
+  return bytes;
+}
+
+}  // namespace
+
 NpyWriter::NpyWriter(const std::string& path, PixelType type, const std::vector<int64_t>& shape)
-    : path_(path), file_(std::make_unique<AtomicFile>(path)) {
+    : path_(path), expected_(checked_byte_count(type, shape, path)) {
+  file_ = std::make_unique<AtomicFile>(path);  // only once the shape is known to be sound
   std::ostringstream dict;
   dict << "{'descr': '" << descr_of(type) << "', 'fortran_order': False, 'shape': (";
-  expected_ = pixel_size(type);
   for (size_t i = 0; i < shape.size(); ++i) {
     dict << shape[i] << (shape.size() == 1 || i + 1 < shape.size() ? "," : "");
     if (i + 1 < shape.size()) dict << " ";
-    expected_ *= uint64_t(shape[i]);
   }
   dict << "), }";
   std::string header = dict.str();
@@ -240,9 +262,7 @@ void NpyWriter::commit(OutputSet* together) {
 void write_npy(const std::string& path, PixelType type, const std::vector<int64_t>& shape,
                const void* data, OutputSet* together) {
   NpyWriter w(path, type, shape);
-  uint64_t bytes = pixel_size(type);
-  for (int64_t d : shape) bytes *= uint64_t(d);
-  w.write(data, bytes);
+  w.write(data, w.expected_bytes());
   w.commit(together);
 }
 

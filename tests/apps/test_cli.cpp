@@ -305,7 +305,7 @@ TEST_F(Cli, CompoundIsTheLibraryRecipeAndHonoursDtype) {
   // Not all zeros, and a float64 volume keeps the fractions a uint8 one would round away.
   const double* v = static_cast<const double*>(lib.data());
   size_t fractional = 0;
-  for (size_t i = 0; i < lib.grid().voxel_count(); ++i) fractional += v[i] != std::floor(v[i]);
+  for (int64_t i = 0; i < lib.grid().voxel_count(); ++i) fractional += v[i] != std::floor(v[i]);
   EXPECT_GT(fractional, 1000u);
 }
 
@@ -441,20 +441,15 @@ void write_text(const std::string& path, const std::string& text) {
   std::ofstream(path) << text;
 }
 
-std::string slurp_binary(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
 // Issue 10's broken inputs for the readers: meshes, volume headers, JSON, PLUS transforms.
 void write_issue10_reader_inputs(const test::TempDir& dir) {
   const std::string liver = test::data_dir() + "/fanslicer/liver.vtk";
   if (fs::exists(liver))  // `head -c 308216 liver.vtk`: crashed VTK's reader
-    write_text(dir.file("in_cut.vtk"), slurp_binary(liver).substr(0, 308216));
+    write_text(dir.file("in_cut.vtk"), test::read_file_bytes(liver).substr(0, 308216));
   write_text(dir.file("in_idx.vtk"),
              "# vtk DataFile Version 3.0\nt\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n"
              "0 0 0 1 0 0 0 1 0\nPOLYGONS 1 4\n3 0 1 99999\n");
-  std::string stl = slurp_binary(dir.file("in_tet.stl"));
+  std::string stl = test::read_file_bytes(dir.file("in_tet.stl"));
   const uint32_t claimed = 4294967295u;
   std::memcpy(&stl[80], &claimed, 4);
   write_text(dir.file("in_big.stl"), stl);
@@ -490,14 +485,14 @@ void write_issue10_reader_inputs(const test::TempDir& dir) {
                                           std::string(102, '\0'));
   const std::string models = test::data_dir() + "/fanslicer/models_binary_LUS_config.json";
   if (fs::exists(models)) {
-    std::string cfg = slurp_binary(models);
+    std::string cfg = test::read_file_bytes(models);
     cfg.replace(cfg.find("[0, 200, 0]"), 11, "[\"green\", 200, 0]");
     write_text(dir.file("in_colour.json"), cfg);
   }
   const std::string xml =
       test::data_dir() + "/plus/PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml";
   if (fs::exists(xml)) {
-    std::string x = slurp_binary(xml);
+    std::string x = test::read_file_bytes(xml);
     const size_t from = x.find("Matrix=\"", x.find("From=\"Image\" To=\"Probe\"")) + 8;
     x.replace(from, x.find('"', from) - from, "0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0");
     write_text(dir.file("in_zero_cal.xml"), x);
@@ -505,7 +500,7 @@ void write_issue10_reader_inputs(const test::TempDir& dir) {
   // The Nwire sweep without any ProbeToTracker: no frame can be placed.
   const std::string seq = test::data_dir() + "/plus/NwirePhantomFreehand.igs.mha";
   if (fs::exists(seq)) {
-    const std::string bytes = slurp_binary(seq);
+    const std::string bytes = test::read_file_bytes(seq);
     const size_t data = bytes.find("ElementDataFile");
     std::istringstream header(bytes.substr(0, data));
     std::string kept, line;

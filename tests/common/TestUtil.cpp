@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <atomic>
+#include <fstream>
+#include <iterator>
 #include <random>
 
 namespace sonoslice {
@@ -27,6 +29,11 @@ TempDir::~TempDir() {
 ScopedCpuSettings::~ScopedCpuSettings() {
   reset_cpu_threads();
   set_cpu_kernel_isa("auto");
+}
+
+std::string read_file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
 std::string data_dir() {

@@ -42,6 +42,9 @@ class ScopedCpuSettings {
   ScopedCpuSettings& operator=(const ScopedCpuSettings&) = delete;
 };
 
+/// A file's whole content, byte for byte ("" when it cannot be read).
+std::string read_file_bytes(const std::string& path);
+
 /// The repository's data/ folder of real files (CMake passes its location; see data/README.md);
 /// empty when it is not there.
 std::string data_dir();

@@ -28,19 +28,12 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // Every file and folder under `dir`, with the bytes of the files.
 std::map<std::string, std::string> snapshot(const fs::path& dir) {
   std::map<std::string, std::string> out;
   for (const auto& e : fs::recursive_directory_iterator(dir))
     out[fs::relative(e.path(), dir).string()] =
-        e.is_regular_file() ? slurp(e.path().string()) : "<folder>";
+        e.is_regular_file() ? test::read_file_bytes(e.path().string()) : "<folder>";
   return out;
 }
 
@@ -137,8 +130,31 @@ TEST(AtomicOutput, PlantedLinksAtTheOldTemporaryNamesAreNotFollowed) {
   for (int n = 0; n < 3; ++n)
     write_npy(dir.file("o.npy"), PixelType::Float32, {2, 3, 4}, data.data());
   write_text_file(dir.file("o.npy.txt"), "text");
-  EXPECT_EQ(slurp(dir.file("victim.txt")), "precious");
+  EXPECT_EQ(test::read_file_bytes(dir.file("victim.txt")), "precious");
   EXPECT_EQ(read_npy(dir.file("o.npy")).shape, (std::vector<int64_t>{2, 3, 4}));
+}
+
+// A shape whose byte count overflows once wrote a 102-byte file (the product wrapped to 0): it is
+// refused before anything is created, and the old file stays.
+TEST(AtomicOutput, NpyShapesThatOverflowAreRefusedBeforeAnythingIsWritten) {
+  test::TempDir dir;
+  std::ofstream(dir.file("o.npy")) << "old";
+  const float one = 1.0f;
+  for (const std::vector<int64_t>& shape :
+       {std::vector<int64_t>{int64_t(1) << 32, int64_t(1) << 32, 1},
+        {int64_t(1) << 62, 2},
+        {4, -1}}) {
+    try {
+      write_npy(dir.file("o.npy"), PixelType::Float32, shape, &one);
+      ADD_FAILURE() << "a shape of " << shape[0] << " was taken";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("cannot write '" + dir.file("o.npy") + "': the shape ("),
+                std::string::npos)
+          << e.what();
+    }
+  }
+  EXPECT_EQ(test::read_file_bytes(dir.file("o.npy")), "old");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir.path()), fs::directory_iterator()), 1);
 }
 
 class FailedWrite : public ::testing::TestWithParam<std::string> {};
@@ -213,7 +229,7 @@ TEST(AtomicOutput, ImageFolderReplacedOnlyWhenItHoldsNothingButSonoslicesImages)
     EXPECT_NE(std::string(e.what()).find("'notes.txt'"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("'" + out + "'"), std::string::npos) << e.what();
   }
-  EXPECT_EQ(slurp(out + "/notes.txt"), "mine");
+  EXPECT_EQ(test::read_file_bytes(out + "/notes.txt"), "mine");
   EXPECT_EQ(entries(out).size(), 4u);
   EXPECT_EQ(entries(dir.path()), (std::vector<std::string>{"pngs"}));  // no temporary
 
@@ -335,7 +351,7 @@ TEST(AtomicOutput, SignalsRemoveLiveTemporariesAndStillEndTheProcess) {
     ::waitpid(pid, &status, 0);
     EXPECT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == sig) << strsignal(sig);
     EXPECT_EQ(entries(dir.path()), (std::vector<std::string>{"o.npy"})) << strsignal(sig);
-    EXPECT_EQ(slurp(dir.file("o.npy")), "previous good data");
+    EXPECT_EQ(test::read_file_bytes(dir.file("o.npy")), "previous good data");
   }
 }
 

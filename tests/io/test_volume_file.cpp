@@ -6,8 +6,11 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <sstream>
 #include <tuple>
+
+#include <zlib.h>
 
 #include <itkExtractImageFilter.h>
 #include <itkGDCMImageIO.h>
@@ -315,6 +318,15 @@ TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
   patch_int16(p, 252, 1);
   patch_float(p, 268, nan);
   EXPECT_NE(quiet_error_of(p).find("qoffset_x is not a finite number"), std::string::npos);
+  // vox_offset (108) infinite, NaN or beyond any file: converting it was undefined behaviour
+  // (found by fuzz_nifti).
+  for (float bad : {std::numeric_limits<float>::infinity(), nan, 3.0e38f, -1.0f}) {
+    p = variant("vox_offset.nii");
+    patch_float(p, 108, bad);
+    const std::string e = quiet_error_of(p);
+    EXPECT_NE(e.find("corrupt header: vox_offset is"), std::string::npos) << e;
+    EXPECT_THROW(read_volume(p), FileError);
+  }
   // Corrupt dimensions and data type: FileErrors, and the C library says nothing.
   p = variant("dim.nii");
   patch_int16(p, 42, 0);
@@ -568,6 +580,36 @@ TEST(VolumeFile, BadInputsNameTheFile) {
     fs::resize_file(dir.file(name), fs::file_size(dir.file(name)) / 2);
     const std::string e = error_of(dir.file(name));
     EXPECT_NE(e.find(dir.file(name)), std::string::npos) << name << ": '" << e << "'";
+  }
+  // A truncated .nii.gz that ITK converts (scl_slope 2, scl_inter 10 at bytes 112/116): ITK's
+  // gzip reader filled the missing half with zeros and the read succeeded. Once as a gzip stream
+  // of half the file, once as the whole stream cut in half.
+  write_volume(dir.file("r.nii"), v);
+  patch_float(dir.file("r.nii"), 112, 2.0f);
+  patch_float(dir.file("r.nii"), 116, 10.0f);
+  const std::string nii = test::read_file_bytes(dir.file("r.nii"));
+  for (const bool cut_stream : {false, true}) {
+    const std::string name = dir.file(cut_stream ? "cut.nii.gz" : "half.nii.gz");
+    gzFile gz = gzopen(name.c_str(), "wb");
+    const size_t n = cut_stream ? nii.size() : nii.size() / 2;
+    ASSERT_EQ(gzwrite(gz, nii.data(), unsigned(n)), int(n));
+    gzclose(gz);
+    if (cut_stream) fs::resize_file(name, fs::file_size(name) / 2);
+    const std::string e = error_of(name);
+    EXPECT_NE(e.find("cannot read volume '" + name + "': truncated or corrupt file"),
+              std::string::npos)
+        << e;
+  }
+  // The whole stream reads, rescaled.
+  {
+    const std::string name = dir.file("whole.nii.gz");
+    gzFile gz = gzopen(name.c_str(), "wb");
+    gzwrite(gz, nii.data(), unsigned(nii.size()));
+    gzclose(gz);
+    const Volume r = read_volume(name);
+    ASSERT_EQ(r.pixel_type(), PixelType::Float32);
+    EXPECT_EQ(static_cast<const float*>(r.data())[7],
+              2.0f * static_cast<const int16_t*>(v.data())[7] + 10.0f);
   }
   // Truncated .npy.
   write_volume(dir.file("t.npy"), v);

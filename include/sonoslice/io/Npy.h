@@ -41,6 +41,8 @@ class NpyWriter {
   NpyWriter(const NpyWriter&) = delete;
   NpyWriter& operator=(const NpyWriter&) = delete;
   void write(const void* data, size_t bytes);
+  /// The data bytes the shape announces (refused at construction if they overflow).
+  uint64_t expected_bytes() const { return expected_; }
   /// Checks that exactly the announced bytes arrived, then renames; with `together`, leaves the
   /// rename to that set's commit() (several outputs of one run go into place together).
   void commit(OutputSet* together = nullptr);
