@@ -67,6 +67,11 @@ endmacro()
 sonoslice_find_optional(ITK SONOSLICE_WITH_ITK SONOSLICE_HAVE_ITK
   ITKCommon ITKIOImageBase ITKIONIFTI ITKIOMeta ITKIONRRD ITKIOGDCM ITKIOPNG ITKImageGrid
   ITKImageFunction ITKGDCM)  # ITKGDCM: GDCM itself, to check DICOM slices before ITK reads them
+if(SONOSLICE_HAVE_ITK AND CMAKE_CXX_COMPILER_ID MATCHES "Clang")
+  # Debian's ITK headers refuse clang; cmake/ItkClangCompat.h says why and works around it. Every
+  # C++ source gets it (the library, the CLI, the tests, the fuzz harnesses).
+  add_compile_options($<$<COMPILE_LANGUAGE:CXX>:-include${PROJECT_SOURCE_DIR}/cmake/ItkClangCompat.h>)
+endif()
 
 # libpng: PNG outputs (stacks, masks) are written with it directly, so that a failed write (a full
 # disk) is reported; ITK's 2-D writer did not check. Debian's libpng-dev. Optional: without it

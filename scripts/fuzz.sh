@@ -12,11 +12,24 @@
 #                     that collect several crashes); default 0: stop at the first crash
 #   FUZZ_FOREIGN=log  an exception that is not a sonoslice::Error is saved (one input per kind)
 #                     and the run carries on, instead of stopping there (long runs)
+#   FUZZ_SEED=N       libFuzzer's random seed (default: a new one each run); CI fixes it, so
+#                     that its runs follow the same mutations (how far each gets still varies)
 #   FUZZ_REPLAY_ONLY=1  only step 1 (replay the regression inputs, no fuzzing)
+#   FUZZ_BUILD_DIR=dir  use the harnesses of an existing build instead of configuring build-fuzz:
+#                     scripts/sanitize.sh's build-asan holds them when it was built with clang
+#                     (.ci/run: one instrumented build of the library for both stages)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$PWD
 build=$root/build-fuzz
+if [[ -n ${FUZZ_BUILD_DIR:-} ]]; then
+  build=$(realpath "$FUZZ_BUILD_DIR")
+  [[ -f $build/fuzz-targets.txt ]] || {
+    echo "fuzz: $FUZZ_BUILD_DIR has no libFuzzer harnesses (configure it with clang and" \
+      "-DSONOSLICE_BUILD_FUZZERS=ON, as scripts/sanitize.sh does)" >&2
+    exit 2
+  }
+fi
 seconds=${1:-20}
 shift || true
 jobs=${JOBS:-$(nproc)}
@@ -29,13 +42,15 @@ command -v clang++ >/dev/null || {
 }
 launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
-cmake -S . -B "$build" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
-  -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g" "${launcher[@]}" \
-  -DSONOSLICE_BUILD_FUZZERS=ON -DSONOSLICE_WITH_CUDA=OFF -DSONOSLICE_BUILD_TESTS=OFF \
-  -DSONOSLICE_BUILD_APPS=OFF -DSONOSLICE_BUILD_BENCHMARKS=OFF -DSONOSLICE_BUILD_PYTHON=OFF >/dev/null
-cmake --build "$build" -j "$jobs"
-
+if [[ -z ${FUZZ_BUILD_DIR:-} ]]; then
+  cmake -S . -B "$build" -G Ninja -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+    -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1" "${launcher[@]}" \
+    -DSONOSLICE_BUILD_FUZZERS=ON -DSONOSLICE_WITH_CUDA=OFF -DSONOSLICE_BUILD_TESTS=OFF \
+    -DSONOSLICE_BUILD_APPS=OFF -DSONOSLICE_BUILD_BENCHMARKS=OFF -DSONOSLICE_BUILD_PYTHON=OFF >/dev/null
+fi
 read -r -a all <<<"$(tr ';' ' ' <"$build/fuzz-targets.txt")"
+cmake --build "$build" -j "$jobs" --target "${all[@]/#/fuzz_}"
+
 targets=("$@")
 [[ ${#targets[@]} -eq 0 ]] && targets=("${all[@]}")
 
@@ -87,6 +102,7 @@ for t in "${targets[@]}"; do
   extra=()
   [[ -f $root/fuzz/dict/$t.dict ]] && extra+=(-dict="$root/fuzz/dict/$t.dict")
   [[ $fork -gt 0 ]] && extra+=(-fork="$fork" -ignore_crashes=1 -ignore_ooms=1 -ignore_timeouts=1)
+  [[ -n ${FUZZ_SEED:-} ]] && extra+=(-seed="$FUZZ_SEED")
   dirs=("$corpus")
   [[ -d $seeds ]] && dirs+=("$seeds")
   # Regression inputs that still fail would only be found again: left out until fixed.
@@ -132,7 +148,7 @@ rm -rf "$TMPDIR"
 echo "fuzz: summary after $(($(date +%s) - start)) s:"
 printf '  %s\n' "${summary[@]}"
 if [[ ${#failed[@]} -gt 0 ]]; then
-  echo "fuzz: FAILED: ${failed[*]} (logs in build-fuzz/logs/; new inputs in fuzz/regressions/)" >&2
+  echo "fuzz: FAILED: ${failed[*]} (logs in ${build#"$root"/}/logs/; new inputs in fuzz/regressions/)" >&2
   exit 1
 fi
 echo "fuzz: clean"

@@ -8,7 +8,10 @@
 # to build-asan/sanitizer-logs/; UBSan's (GCC's runtime ignores log_path for them) are looked for
 # in every test's output (build-asan/Testing/Temporary/LastTest.log). The script prints every
 # report and fails when there is any, or when a test fails.
-# The compiler is CMake's default (Debian: GCC 12); CXX=clang++ in a fresh build-asan/ uses clang.
+# The compiler: Debian's clang when installed (scripts/install-deps.sh installs it), and then the
+# same build also holds the libFuzzer harnesses, so that scripts/fuzz.sh can fuzz without a second
+# build of the library (FUZZ_BUILD_DIR=build-asan; .ci/run does this). Without clang: GCC, tests
+# only. SANITIZE_CXX=g++ picks GCC (in a fresh build-asan/).
 #   scripts/sanitize.sh [extra cmake -D options]
 #   JOBS=N       parallel build and test jobs (default: nproc)
 #   CTEST_ARGS   extra ctest arguments, e.g. CTEST_ARGS="-R Cli" for a quick look
@@ -20,12 +23,23 @@ jobs=${JOBS:-$(nproc)}
 launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
 start=$(date +%s)
+mkdir -p "$build"
+cxx=${SANITIZE_CXX:-$(command -v clang++ || command -v g++)}
+compiler=(-DCMAKE_CXX_COMPILER="$cxx")
+if [[ $(basename "$cxx") == clang* ]]; then
+  compiler+=(-DCMAKE_C_COMPILER="${cxx%++}" -DSONOSLICE_BUILD_FUZZERS=ON)
+else
+  compiler+=(-DSONOSLICE_BUILD_FUZZERS=OFF)
+fi
 
-# -O1 -g: readable stacks at a bearable speed; assertions stay on (no NDEBUG).
+# -O1 (and line tables, CMakeLists.txt): readable stacks at a bearable speed; assertions stay on
+# (no NDEBUG).
 cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g" "${launcher[@]}" \
+  -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1" "${compiler[@]}" "${launcher[@]}" \
   -DSONOSLICE_SANITIZE=ON -DSONOSLICE_WITH_CUDA=OFF -DSONOSLICE_BUILD_BENCHMARKS=OFF \
-  -DSONOSLICE_BUILD_PYTHON=OFF -DSONOSLICE_BUILD_TESTS=ON "$@"
+  -DSONOSLICE_BUILD_PYTHON=OFF -DSONOSLICE_BUILD_TESTS=ON "$@" >"$build/configure.log" \
+  || { cat "$build/configure.log"; exit 1; }
+grep -E "^-- sonoslice:" "$build/configure.log" || true
 cmake --build "$build" -j "$jobs"
 
 logs=$root/$build/sanitizer-logs
