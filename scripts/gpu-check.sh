@@ -1,26 +1,132 @@
 #!/usr/bin/env bash
-# For a machine with an NVIDIA GPU and none of Debian's packages (the lent H200 machine): builds
-# the core and the CLI without ITK (volumes and outputs in .npy), runs every test (the CUDA ones
-# included: slicing and compounding) and the GPU benchmarks. Needs GoogleTest's sources: GTEST_SRC, default
-# .carry/googletest (copy /usr/src/googletest there and carry it). bench/peers_cuda.py needs the
-# fan-slicer configs: FANSLICER_CONFIGS, default .carry/fanslicer.
+# The CUDA path on a machine with an NVIDIA GPU (issue 11): the lent H100/H200 machine has the CUDA
+# toolkit, CMake, ninja and a Python with torch, numpy and nanobind, but none of Debian's packages
+# and no network. What the build needs beyond that travels in .carry/ (scripts/gpu-carry.sh fills
+# it on a Debian machine): GoogleTest's sources and the wheels of pytest and its dependencies.
+#
+#   scripts/gpu-check.sh test       build (C++ core, CLI, tests, the Python extension), check that a
+#                                   GPU is used, every test with SONOSLICE_REQUIRE_CUDA=1 (a CUDA
+#                                   skip is a failure), compute-sanitizer on the CUDA tests
+#   scripts/gpu-check.sh measure    the benchmarks (slicing, compounding, torch grid_sample on the
+#                                   same GPU), compute-sanitizer on a short benchmark run and on
+#                                   bench/peers_cuda.py, an ncu Speed-of-Light pass on the slicing
+#                                   kernel
+#   scripts/gpu-check.sh all        both (default); each step alone fits a 10-minute command
+#   DRY_RUN=1 scripts/gpu-check.sh  print the commands instead of running them (any machine)
+#
+# Everything goes to $OUT (default build-gpu/results): one log per step, summary.txt last. The
+# script stops at the first failing step of `test`; `measure` records a failing profiler (ncu
+# needs GPU performance-counter permission) in the summary and goes on.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-gtest="${GTEST_SRC:-.carry/googletest}"
-configs="${FANSLICER_CONFIGS:-.carry/fanslicer}"
-out="${OUT:-build-gpu/results}"
+root=$PWD
+step=${1:-all}
+case $step in test | measure | all) ;; *)
+  echo "gpu-check: unknown step '$step' (test, measure or all)" >&2
+  exit 2
+  ;;
+esac
+out=${OUT:-$root/build-gpu/results}
+build=$root/build-gpu
+gtest=${GTEST_SRC:-$root/.carry/googletest}
+wheels=${WHEELS:-$root/.carry/wheels}
+python=${PYTHON:-$(command -v python3 || true)}
+dry=${DRY_RUN:-0}
 mkdir -p "$out"
-generator=()
-command -v ninja >/dev/null && generator=(-G Ninja)
-cmake -S . -B build-gpu "${generator[@]}" -DCMAKE_BUILD_TYPE=Release -DSONOSLICE_WITH_ITK=OFF \
-  -DSONOSLICE_WITH_CUDA=ON -DCMAKE_CUDA_ARCHITECTURES="${CUDA_ARCHS:-90}" \
-  -DSONOSLICE_GTEST_SOURCE_DIR="$(realpath "$gtest")"
-cmake --build build-gpu -j "$(nproc)"
-build-gpu/bin/sonoslice info --devices | tee "$out/devices.txt"
-ctest --test-dir build-gpu --output-on-failure -j 4 2>&1 | tee "$out/ctest.txt"
-build-gpu/bin/test_core --gtest_filter='Cuda*:*cuda*' 2>&1 | grep -E "cuda vs cpu|accuracy|OK|FAILED" | tee "$out/cuda_equivalence.txt"
-build-gpu/bin/sonoslice bench --device cuda --repeat 5 | tee "$out/bench_cuda.txt"
-# Compounding: Jauer's workload (target: under 0.2 s on one H200) and the 2D sweep.
-build-gpu/bin/sonoslice bench --compound --device cuda --repeat 3 | tee "$out/bench_compound_cuda.txt"
-python3 bench/peers_cuda.py --sonoslice build-gpu/bin/sonoslice --shared "$configs" --json "$out/peers_cuda.json" \
-  | tee "$out/peers_cuda.txt"
+summary=$out/summary.txt
+[[ $step == measure ]] || : >"$summary"
+note() { echo "gpu-check: $*" | tee -a "$summary"; }
+# run <log name> <command...>: the command's output to the terminal and $out/<log name>.txt.
+run() {
+  local name=$1
+  shift
+  if [[ $dry == 1 ]]; then
+    printf 'would run (%s):' "$name"
+    printf ' %q' "$@"
+    printf '\n'
+    return 0
+  fi
+  local t0=$SECONDS rc=0
+  "$@" 2>&1 | tee "$out/$name.txt" || rc=${PIPESTATUS[0]}
+  note "$name: exit $rc, $((SECONDS - t0)) s"
+  return "$rc"
+}
+
+# nvcc on PATH: the toolkit's usual homes.
+if ! command -v nvcc >/dev/null; then
+  for d in /usr/local/cuda/bin /usr/local/cuda-*/bin /opt/cuda/bin; do
+    [[ -x $d/nvcc ]] && export PATH="$d:$PATH" && break
+  done
+fi
+if [[ $dry != 1 ]]; then
+  command -v nvcc >/dev/null || { note "FAILED: no nvcc (CUDA toolkit) found"; exit 1; }
+  [[ -f $gtest/CMakeLists.txt ]] || {
+    note "FAILED: no GoogleTest sources at $gtest: run scripts/gpu-carry.sh on a Debian machine" \
+      "and carry .carry/ (GTEST_SRC names another copy)"
+    exit 1
+  }
+  [[ -n $python ]] || { note "FAILED: no python3"; exit 1; }
+fi
+export SONOSLICE_REQUIRE_CUDA=1
+pkg=$build/python-package  # the package as it would be installed: the .py files and the module
+export PYTHONPATH=$pkg:$build/python-deps${PYTHONPATH:+:$PYTHONPATH}
+sanitizer=${COMPUTE_SANITIZER:-$(command -v compute-sanitizer || echo "$(dirname "$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)")/compute-sanitizer")}
+ncu=${NCU:-$(command -v ncu || echo "$(dirname "$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)")/ncu")}
+
+if [[ $step == test || $step == all ]]; then
+  note "$(date -u +%FT%TZ) test on $(hostname)"
+  generator=()
+  command -v ninja >/dev/null && generator=(-G Ninja)
+  run configure cmake -S . -B "$build" "${generator[@]}" -DCMAKE_BUILD_TYPE=Release \
+    -DSONOSLICE_WITH_ITK=OFF -DSONOSLICE_WITH_VTK=OFF -DSONOSLICE_WITH_CUDA=ON \
+    -DCMAKE_CUDA_ARCHITECTURES="${CUDA_ARCHS:-90}" -DSONOSLICE_GTEST_SOURCE_DIR="$gtest" \
+    -DSONOSLICE_BUILD_PYTHON=ON -DPython_EXECUTABLE="$python"
+  run build cmake --build "$build" -j "$(nproc)"
+  # The Python package from the build tree: python/sonoslice/*.py plus the extension module.
+  run python-package bash -c "rm -rf '$pkg' && mkdir -p '$pkg' && cp -r python/sonoslice '$pkg/' &&
+    cp '$build'/python/_sonoslice*.so '$pkg/sonoslice/'"
+  if [[ $dry != 1 ]] && ! "$python" -c "import pytest" 2>/dev/null; then
+    run python-deps "$python" -m pip install --no-index --find-links "$wheels" \
+      --target "$build/python-deps" pytest
+  fi
+  # A GPU must actually be there and used: the CUDA line of `info --devices` names it.
+  run devices "$build/bin/sonoslice" info --devices
+  if [[ $dry != 1 ]] && ! grep -q '^cuda:0: ' "$out/devices.txt"; then
+    note "FAILED: no GPU seen (sonoslice info --devices above)"
+    exit 1
+  fi
+  run ctest ctest --test-dir "$build" --output-on-failure -j 4
+  run pytest env SONOSLICE_CLI="$build/bin/sonoslice" "$python" -m pytest -q -rs -p no:cacheprovider \
+    python/tests
+  # The CUDA tests under compute-sanitizer: out-of-bounds and misaligned accesses, then reads of
+  # uninitialised device memory.
+  run sanitizer-memcheck "$sanitizer" --tool memcheck --error-exitcode 1 \
+    "$build/bin/test_core" --gtest_filter='Cuda*:*cuda*:*Cuda*'
+  run sanitizer-initcheck "$sanitizer" --tool initcheck --error-exitcode 1 \
+    "$build/bin/test_core" --gtest_filter='Cuda*:*cuda*:*Cuda*'
+fi
+
+if [[ $step == measure || $step == all ]]; then
+  note "$(date -u +%FT%TZ) measure on $(hostname)"
+  [[ $dry == 1 || -x $build/bin/sonoslice ]] || { note "FAILED: run the test step first"; exit 1; }
+  run bench-slice "$build/bin/sonoslice" bench --device cuda --repeat 5
+  run bench-slice-json "$build/bin/sonoslice" bench --device cuda --repeat 5 --json
+  # Compounding: Jauer's workload end to end (target: under 0.2 s) and the 1000-frame 2D sweep.
+  run bench-compound "$build/bin/sonoslice" bench --compound --device cuda --repeat 3
+  run peers-cuda "$python" bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" \
+    --json "$out/peers_cuda.json"
+  run sanitizer-bench "$sanitizer" --tool memcheck --error-exitcode 1 \
+    "$build/bin/sonoslice" bench --device cuda --count 50 --repeat 1
+  run sanitizer-bench-compound "$sanitizer" --tool memcheck --error-exitcode 1 \
+    "$build/bin/sonoslice" bench --compound --device cuda --repeat 1
+  run sanitizer-peers "$sanitizer" --tool memcheck --error-exitcode 1 \
+    "$python" bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" --count 50 --repeat 1
+  # Speed of Light of the slicing kernel (rows_kernel: SliceImpl.h through parallel_for_rows),
+  # W1 float32, one launch after warm-up; the report file opens in Nsight Compute.
+  run ncu-slice "$ncu" --section SpeedOfLight --section MemoryWorkloadAnalysis \
+    --section Occupancy --kernel-name regex:rows_kernel --launch-skip 2 --launch-count 1 \
+    --export "$out/slice-kernel" --force-overwrite \
+    "$build/bin/sonoslice" bench --device cuda --count 1000 --repeat 1 ||
+    note "ncu failed (no permission for GPU performance counters?): see ncu-slice.txt"
+fi
+note "done"

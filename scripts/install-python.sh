@@ -10,5 +10,16 @@ if ! command -v nvcc >/dev/null && [[ -x /usr/local/cuda/bin/nvcc ]]; then
 fi
 [[ -x build/venv/bin/python ]] || /usr/bin/python3 -m venv --system-site-packages build/venv
 build/venv/bin/python -m pip install -q --upgrade pip
-build/venv/bin/python -m pip install -q .
+# After scripts/build.sh, pip builds the module inside build/ (the libraries are already there, so
+# only the bindings compile; the options pyproject.toml turns off for a wheel keep build/'s values,
+# so its tests, CLI and benchmarks stay). Without build/, pip builds in its own folder.
+options=()
+if [[ -f build/CMakeCache.txt ]]; then
+  options+=(-Cbuild-dir=build)
+  for o in SONOSLICE_BUILD_TESTS SONOSLICE_BUILD_APPS SONOSLICE_BUILD_BENCHMARKS; do
+    v=$(sed -n "s/^$o:BOOL=//p" build/CMakeCache.txt)
+    [[ -n $v ]] && options+=("-Ccmake.define.$o=$v")
+  done
+fi
+build/venv/bin/python -m pip install -q "${options[@]}" .
 build/venv/bin/python -c "import sonoslice; print('sonoslice', sonoslice.__version__, 'installed in build/venv')"

@@ -348,6 +348,20 @@ def _out_array(out):
     return _native(out, "out", in_place=True)
 
 
+def _current_stream(out) -> int:
+    """The raw cudaStream_t that ``out``'s library queues its work on now: torch's or CuPy's current
+    stream for their CUDA arrays, else 0 (the legacy default stream, which orders with every
+    blocking stream)."""
+    if _is_torch(out) and out.is_cuda:
+        import torch
+        return int(torch.cuda.current_stream(out.device).cuda_stream)
+    if type(out).__module__.split(".")[0] == "cupy":
+        import cupy
+        with cupy.cuda.Device(out.device.id):
+            return int(cupy.cuda.get_current_stream().ptr)
+    return 0
+
+
 def _renamed_keyword(value, old_value, name: str, old_name: str, default, where: str):
     """``value`` of the keyword ``name``, or of ``old_name`` (its deprecated spelling: a
     DeprecationWarning pointing at the caller's caller) when that was given instead."""
@@ -394,8 +408,11 @@ class Slicer(_ImageSlicer):
         * otherwise on the CPU: a new NumPy array (a torch tensor if ``poses`` is one);
           on CUDA: a new torch tensor on the slicer's GPU (torch required).
 
-        CUDA work is queued on ``stream`` (a raw cudaStream_t), by default torch's current stream
-        for torch tensors, so later torch operations see the images without a synchronisation.
+        CUDA work is queued on ``stream`` (a raw cudaStream_t; 0 is the legacy default stream), by
+        default the current stream of the array's library (torch, CuPy; else 0), so that the
+        library's later operations see the images without a synchronisation and its caching
+        allocator never hands out ``out`` memory still being written. ``out`` must sit on the
+        slicer's GPU (checked: host or another GPU's memory is refused).
         ``progress``: True for a tqdm bar, or a callable ``(done, total)``.
         """
         p = _as_pose_array(poses, world)
@@ -415,10 +432,7 @@ class Slicer(_ImageSlicer):
             else:
                 out = np.empty((n, self.height, self.width), dtype=self.dtype)
         if stream is None:
-            stream = 0
-            if _is_torch(out) and out.is_cuda:
-                import torch
-                stream = torch.cuda.current_stream(out.device).cuda_stream
+            stream = _current_stream(out)
         callback, chunk = _progress_and_chunk(progress, n, chunk)
         self._cpp.slice_into(p, out, stream, callback, chunk)
         if not mask:

@@ -35,11 +35,20 @@ def cli():
     return path
 
 
+def cuda_required() -> bool:
+    """SONOSLICE_REQUIRE_CUDA=1 (scripts/gpu-check.sh): a CUDA test that would skip fails instead,
+    so a broken GPU setup can never look green."""
+    return os.environ.get("SONOSLICE_REQUIRE_CUDA", "") not in ("", "0")
+
+
 @pytest.fixture
 def cuda():
     if not sonoslice.cuda_available():
         # devices() ends with the CUDA line, e.g. "cuda: not available (no NVIDIA driver found ...)".
-        pytest.skip(sonoslice.devices().strip().splitlines()[-1])
+        why = sonoslice.devices().strip().splitlines()[-1]
+        if cuda_required():
+            pytest.fail(f"SONOSLICE_REQUIRE_CUDA=1, but the test would skip: {why}")
+        pytest.skip(why)
     return "cuda:0"
 
 

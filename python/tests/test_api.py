@@ -193,3 +193,22 @@ def test_devices_report():
     sonoslice.set_threads(1)
     assert sonoslice.threads() == 1
     sonoslice.set_threads(None)
+
+
+def test_require_cuda_turns_cuda_skips_into_failures(tmp_path):
+    """SONOSLICE_REQUIRE_CUDA=1 (scripts/gpu-check.sh): a CUDA test without a GPU fails, never skips."""
+    import subprocess
+    import sys
+    if sonoslice.cuda_available():
+        pytest.skip("a GPU is present: the CUDA tests run")
+    test = tmp_path / "test_needs_gpu.py"
+    test.write_text("def test_gpu(cuda):\n    assert cuda == 'cuda:0'\n")
+    conftest = os.path.join(os.path.dirname(__file__), "conftest.py")
+    (tmp_path / "conftest.py").write_text(open(conftest).read())
+    run = lambda env: subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(test)],
+                                     cwd=tmp_path, env=env, capture_output=True, text=True)
+    plain = {k: v for k, v in os.environ.items() if k != "SONOSLICE_REQUIRE_CUDA"}
+    skipped = run(plain)
+    assert skipped.returncode == 0 and "1 skipped" in skipped.stdout, skipped.stdout
+    failed = run(dict(plain, SONOSLICE_REQUIRE_CUDA="1"))
+    assert failed.returncode == 1 and "SONOSLICE_REQUIRE_CUDA=1, but the test would skip" in failed.stdout, failed.stdout

@@ -5,6 +5,7 @@
 #include <mutex>
 #include <sstream>
 
+#include "CudaChecks.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -143,6 +144,42 @@ void Stream::synchronize(const std::string& what) const {
 
 void synchronize(void* stream, const std::string& what) {
   check(cudaStreamSynchronize(static_cast<cudaStream_t>(stream)), what);
+}
+
+Event::Event() {
+  cudaEvent_t e = nullptr;
+  check(cudaEventCreateWithFlags(&e, cudaEventDisableTiming), "cuda: creating an event");
+  event_ = e;
+}
+
+Event::~Event() {
+  if (event_) cudaEventDestroy(static_cast<cudaEvent_t>(event_));
+}
+
+void Event::record(void* stream, const std::string& what) {
+  check(cudaEventRecord(static_cast<cudaEvent_t>(event_), static_cast<cudaStream_t>(stream)), what);
+}
+
+void Event::make_wait(void* stream, const std::string& what) const {
+  check(cudaStreamWaitEvent(static_cast<cudaStream_t>(stream), static_cast<cudaEvent_t>(event_), 0),
+        what);
+}
+
+void check_device_pointer(const void* p, int device, const std::string& what) {
+  cudaPointerAttributes a{};
+  const cudaError_t err = cudaPointerGetAttributes(&a, p);
+  PointerKind kind = PointerKind::Unregistered;
+  if (err != cudaSuccess) {
+    cudaGetLastError();  // an unknown pointer is not a sticky error
+  } else if (a.type == cudaMemoryTypeDevice) {
+    kind = PointerKind::Device;
+  } else if (a.type == cudaMemoryTypeManaged) {
+    kind = PointerKind::Managed;
+  } else if (a.type == cudaMemoryTypeHost) {
+    kind = PointerKind::Host;
+  }
+  const std::string problem = pointer_problem(kind, a.device, device, what);
+  if (!problem.empty()) throw InputError(problem);
 }
 
 void* malloc_async(size_t bytes, void* stream, const std::string& what) {

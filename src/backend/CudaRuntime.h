@@ -67,6 +67,26 @@ class Stream {
   void* stream_ = nullptr;
 };
 
+/// An event without timing, for ordering work between streams.
+class Event {
+ public:
+  Event();
+  ~Event();
+  Event(const Event&) = delete;
+  Event& operator=(const Event&) = delete;
+  /// Marks the work queued on `stream` so far.
+  void record(void* stream, const std::string& what);
+  /// Makes later work on `stream` wait for the recorded work (the host does not wait).
+  void make_wait(void* stream, const std::string& what) const;
+
+ private:
+  void* event_ = nullptr;
+};
+
+/// InputError (via pointer_problem, CudaChecks.h) unless kernels on cuda:`device` can write the
+/// `bytes` at `p`: GPU memory of that device, or managed memory. `what` names the pointer.
+void check_device_pointer(const void* p, int device, const std::string& what);
+
 /// Stream-ordered scratch memory (cudaMallocAsync / cudaFreeAsync): safe to free right after
 /// queuing the kernels that use it, whatever the caller's stream.
 void* malloc_async(size_t bytes, void* stream, const std::string& what);

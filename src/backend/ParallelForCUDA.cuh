@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <string>
 
+#include "CudaChecks.h"
 #include "sonoslice/backend/HostDevice.h"
 #include "sonoslice/core/Error.h"
 
@@ -14,10 +15,17 @@ namespace backend {
 inline namespace SONOSLICE_KERNEL_ISA {
 
 namespace detail {
-inline void check_launch(const char* what) {
-  const cudaError_t err = cudaGetLastError();
+inline void check_launch(const char* what, void* stream) {
+  cudaError_t err = cudaGetLastError();
   if (err != cudaSuccess)
     throw Error(std::string("cuda: launching ") + what + " failed: " + cudaGetErrorString(err));
+  // SONOSLICE_CUDA_DEBUG=1: wait for the kernel, so that a fault is reported at its launch.
+  if (::sonoslice::cuda::debug_sync_enabled()) {
+    err = cudaStreamSynchronize(static_cast<cudaStream_t>(stream));
+    if (err != cudaSuccess)
+      throw Error(std::string("cuda: ") + what +
+                  " failed (SONOSLICE_CUDA_DEBUG): " + cudaGetErrorString(err));
+  }
 }
 
 template <typename F>
@@ -47,7 +55,7 @@ void parallel_for(int64_t n, const F& f, void* stream = nullptr) {
   const int64_t blocks = (n + block - 1) / block;
   detail::for_kernel<<<unsigned(blocks < 65535 * 16 ? blocks : 65535 * 16), block, 0,
                        static_cast<cudaStream_t>(stream)>>>(n, f);
-  detail::check_launch("parallel_for");
+  detail::check_launch("parallel_for", stream);
 }
 
 /// The rows × width index space of ParallelFor.h, one thread per element.
@@ -58,7 +66,7 @@ void parallel_for_rows(int64_t rows, int width, const F& f, void* stream = nullp
   const int64_t row_blocks = (rows + block.y - 1) / block.y;
   const dim3 grid(unsigned((width + 31) / 32), unsigned(row_blocks < 65535 ? row_blocks : 65535));
   detail::rows_kernel<<<grid, block, 0, static_cast<cudaStream_t>(stream)>>>(rows, width, f);
-  detail::check_launch("parallel_for_rows");
+  detail::check_launch("parallel_for_rows", stream);
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

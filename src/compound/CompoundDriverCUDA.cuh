@@ -23,7 +23,9 @@ __device__ __forceinline__ void apply_atomic(const AccumulatorView& g, int64_t i
   Accumulator& a = g.cells[i];
   if (M == Mode::Max) {
     if (!counts_for_max(w)) return;
-    backend::atomic_max_float(&a.value, sample);
+    // As gather() on the CPU: a NaN sample never wins the maximum (its bits would, as integers),
+    // but its weight counts.
+    if (sample == sample) backend::atomic_max_float(&a.value, sample);
   } else {
     atomicAdd(&a.value, w * sample);
   }
@@ -31,14 +33,17 @@ __device__ __forceinline__ void apply_atomic(const AccumulatorView& g, int64_t i
 }
 
 /// One thread per sample: row() finds the row's line and values, pixel() splats one sample.
-/// `reset_latest` is the first of latest mode's two passes per frame: it clears the voxels this
-/// frame will write (all threads write the same values), the second pass accumulates.
+/// Latest mode takes two passes over the whole batch. `claim_latest`, the first, stamps each voxel
+/// with the newest frame that reaches it (atomicMax) and clears a voxel that still holds an
+/// earlier batch's frame (every thread that clears writes the same zeros, and nothing adds in
+/// this pass); the second adds only the samples of the frame the voxel is stamped with. The
+/// result is the CPU's frame-by-frame "newest frame replaces", in two launches per batch.
 template <typename T, Mode M, bool Linear>
 struct SplatSamples {
   AccumulatorView g;
   FrameBatch b;
   int64_t first_row;  // rows first_row, first_row + 1, ... of the batch (all frames' rows)
-  bool reset_latest;
+  bool claim_latest;
 
   struct Row {
     const RowLine* line;
@@ -52,10 +57,17 @@ struct SplatSamples {
                b.first_frame_id + int32_t(fr / b.rows)};
   }
   __device__ void touch(const Row& row, int64_t i, float s, float w) const {
-    if (reset_latest)
-      restart_for_frame(g, i, row.frame_id);
-    else
+    if (M != Mode::Latest) {
       apply_atomic<M>(g, i, s, w);
+    } else if (claim_latest) {
+      const int32_t before = atomicMax(&g.stamp[i], row.frame_id);
+      if (before < b.first_frame_id && before < row.frame_id) {
+        g.cells[i].value = 0.f;
+        g.cells[i].weight = 0.f;
+      }
+    } else if (g.stamp[i] == row.frame_id) {
+      apply_atomic<M>(g, i, s, w);
+    }
   }
   __device__ void pixel(const Row& row, int u) const {
     const RowSpans& sp = *row.spans;
@@ -86,20 +98,14 @@ struct SplatSamples {
 };
 
 /// Mean and max do not depend on the order of the samples (to float rounding, for the mean):
-/// one launch for the whole batch. Latest goes frame by frame, each frame first clearing the
-/// voxels it reaches, then accumulating into them.
+/// one launch for the whole batch. Latest: two launches for the whole batch (SplatSamples).
 template <typename T, Mode M, bool Linear>
 void compound_batch_cuda(const AccumulatorView& g, const FrameBatch& b, void* stream) {
   using Kernel = SplatSamples<T, M, Linear>;
-  if constexpr (M != Mode::Latest) {
-    backend::parallel_for_rows(int64_t(b.frames) * b.rows, b.width, Kernel{g, b, 0, false}, stream);
-  } else {
-    for (int f = 0; f < b.frames; ++f) {
-      const int64_t first = int64_t(f) * b.rows;
-      backend::parallel_for_rows(b.rows, b.width, Kernel{g, b, first, true}, stream);
-      backend::parallel_for_rows(b.rows, b.width, Kernel{g, b, first, false}, stream);
-    }
-  }
+  const int64_t rows = int64_t(b.frames) * b.rows;
+  if constexpr (M == Mode::Latest)
+    backend::parallel_for_rows(rows, b.width, Kernel{g, b, 0, true}, stream);
+  backend::parallel_for_rows(rows, b.width, Kernel{g, b, 0, false}, stream);
 }
 
 /// Calls the driver instantiated for the batch's sample type, mode and interpolation.

@@ -3,6 +3,7 @@
 // (CompoundCUDA.cu).
 #include <string>
 
+#include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
 #include "CompoundBackends.h"
 
@@ -12,6 +13,7 @@ namespace compound_impl {
 struct CudaCompounding::State {
   int device = 0;
   std::string name;
+  long process = 0;      // the process that made it: CUDA state does not survive fork()
   AccumulatorView grid;  // device pointers
   Mode mode = Mode::Mean;
   cuda::DeviceBuffer cells, stamp, samples, lines, spans;
@@ -24,6 +26,7 @@ CudaCompounding::CudaCompounding(int device, int nx, int ny, int nz, Mode mode)
   cuda::use_device(device);
   st.device = device;
   st.name = "cuda:" + std::to_string(device);
+  st.process = cuda::current_process();
   st.mode = mode;
   st.stream = std::make_unique<cuda::Stream>();
   const size_t voxels = size_t(nx) * size_t(ny) * size_t(nz);
@@ -43,6 +46,7 @@ CudaCompounding::~CudaCompounding() = default;
 
 void CudaCompounding::add(const FrameBatch& host, bool linear) {
   State& st = *state_;
+  cuda::check_not_forked(st.process, st.name + " compounder");
   cuda::use_device(st.device);
   void* s = st.stream->get();
   const size_t sample_bytes = size_t(host.frames) * host.rows * host.width * pixel_size(host.type);
@@ -68,6 +72,7 @@ void CudaCompounding::add(const FrameBatch& host, bool linear) {
 
 void CudaCompounding::download(Accumulator* cells, int32_t* stamp) {
   State& st = *state_;
+  cuda::check_not_forked(st.process, st.name + " compounder");
   cuda::use_device(st.device);
   const size_t voxels = size_t(st.grid.nx) * st.grid.ny * st.grid.nz;
   cuda::copy_to_host(cells, st.cells.data(), voxels * sizeof(Accumulator), st.stream->get(),

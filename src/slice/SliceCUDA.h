@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "SliceTypes.h"
+#include "sonoslice/slice/Slicer.h"
 #include "sonoslice/volume/Volume.h"
 
 namespace sonoslice {
@@ -16,13 +17,17 @@ struct CudaSliceState;
 std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::vector<uint8_t>& mask,
                                              int device);
 
-/// `launch` carries everything but the device pointers, which the state provides.
-void cuda_slice_into_device(const CudaSliceState& state, SliceLaunch launch,
+/// `launch` carries everything but the device pointers, which the state provides. `device_out`
+/// is checked to be memory of the state's GPU; `stream` says where the work goes (Slicer.h).
+void cuda_slice_into_device(CudaSliceState& state, SliceLaunch launch,
                             const std::vector<PixelToIndex>& affines, void* device_out,
-                            void* stream);
-/// Into the state's own (growing) device buffer; returns it and the stream used.
-void* cuda_slice_to_own_buffer(CudaSliceState& state, SliceLaunch launch,
-                               const std::vector<PixelToIndex>& affines, void** stream);
+                            CudaStream stream);
+/// Into a new device buffer of its own (freed, stream-ordered, when the last owner goes), on the
+/// state's stream; returns the buffer's owner and the stream used.
+std::shared_ptr<void> cuda_slice_to_new_buffer(const std::shared_ptr<CudaSliceState>& state,
+                                               SliceLaunch launch,
+                                               const std::vector<PixelToIndex>& affines,
+                                               void** stream);
 /// Into host memory, in chunks, copies overlapping the next chunk's kernel.
 void cuda_slice_to_host(CudaSliceState& state, SliceLaunch launch,
                         const std::vector<PixelToIndex>& affines, void* host_out);

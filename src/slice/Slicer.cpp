@@ -142,14 +142,16 @@ DeviceImages Slicer::slice_on_device(const Pose* poses, size_t count, size_t fir
   images.type = settings_.output_type;
   images.device = device_;
 #ifdef SONOSLICE_HAVE_CUDA
-  if (count > 0)
-    images.data =
-        slice_impl::cuda_slice_to_own_buffer(*cuda_, launch_template(), affines, &images.stream);
+  if (count > 0) {
+    images.owner =
+        slice_impl::cuda_slice_to_new_buffer(cuda_, launch_template(), affines, &images.stream);
+    images.data = images.owner.get();
+  }
 #endif
   return images;
 }
 
-void Slicer::slice_into_device(const Pose* poses, size_t count, void* device_out, void* stream,
+void Slicer::slice_into_device(const Pose* poses, size_t count, void* device_out, CudaStream stream,
                                size_t first_index) const {
   require_cuda("slice_into_device");
   if (count == 0) return;

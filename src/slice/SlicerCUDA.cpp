@@ -4,6 +4,7 @@
 #include <cstring>
 #include <memory>
 
+#include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
 #include "SliceCUDA.h"
 
@@ -15,10 +16,19 @@ void slice_cuda_launch(const SliceLaunch& launch);  // SliceCUDA.cu
 struct CudaSliceState {
   int device = 0;
   std::string name;  // "cuda:K", for messages
+  long process = 0;  // the process that made it: CUDA state does not survive fork()
   cuda::DeviceBuffer volume, mask;
-  cuda::DeviceBuffer out[2];      // the slicer's own output buffers (grow with the batch)
+  cuda::DeviceBuffer out[2];      // chunks on their way to host memory (grow with the batch)
   cuda::PinnedBuffer staging[2];  // page-locked landing zones for device → host copies
   std::unique_ptr<cuda::Stream> streams[2];
+  // Orders the slicer's stream after the caller's and back (CudaStream::own_then_join).
+  std::unique_ptr<cuda::Event> caller_done, slicing_done;
+
+  // Every entry point: the right process, the right device.
+  void enter() const {
+    cuda::check_not_forked(process, name + " slicer");
+    cuda::use_device(device);
+  }
 };
 
 namespace {
@@ -53,7 +63,10 @@ std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::ve
   auto st = std::make_shared<CudaSliceState>();
   st->device = device;
   st->name = "cuda:" + std::to_string(device);
+  st->process = cuda::current_process();
   for (auto& s : st->streams) s = std::make_unique<cuda::Stream>();
+  st->caller_done = std::make_unique<cuda::Event>();
+  st->slicing_done = std::make_unique<cuda::Event>();
   const size_t bytes = volume.byte_size();
   // The volume keeps its pixel type on the GPU: an int16 CT costs 2 bytes per voxel there too.
   st->volume.reserve(bytes, st->name + ": the volume (" + std::to_string(bytes >> 20) + " MiB, " +
@@ -67,30 +80,53 @@ std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::ve
   return st;
 }
 
-void cuda_slice_into_device(const CudaSliceState& st, SliceLaunch l,
+void cuda_slice_into_device(CudaSliceState& st, SliceLaunch l,
                             const std::vector<PixelToIndex>& affines, void* device_out,
-                            void* stream) {
-  cuda::use_device(st.device);
-  queue_slice(st, l, affines.data(), affines.size(), device_out,
-              stream ? stream : st.streams[0]->get());
+                            CudaStream stream) {
+  st.enter();
+  cuda::check_device_pointer(device_out, st.device, "out");
+  if (!stream.slicer_stream) {
+    // The caller's stream, the legacy default one (null) included: torch, CuPy and the caller's
+    // own kernels are ordered with the slicing by the stream itself.
+    queue_slice(st, l, affines.data(), affines.size(), device_out, stream.handle);
+    return;
+  }
+  void* own = st.streams[0]->get();
+  st.caller_done->record(stream.handle, st.name + ": ordering after the caller's stream");
+  st.caller_done->make_wait(own, st.name + ": ordering after the caller's stream");
+  queue_slice(st, l, affines.data(), affines.size(), device_out, own);
+  st.slicing_done->record(own, st.name + ": ordering the caller's stream after the slicing");
+  st.slicing_done->make_wait(stream.handle, st.name + ": ordering the caller's stream");
 }
 
-void* cuda_slice_to_own_buffer(CudaSliceState& st, SliceLaunch l,
-                               const std::vector<PixelToIndex>& affines, void** stream) {
-  cuda::use_device(st.device);
-  const size_t bytes = affines.size() * image_bytes(l);
+std::shared_ptr<void> cuda_slice_to_new_buffer(const std::shared_ptr<CudaSliceState>& state,
+                                               SliceLaunch l,
+                                               const std::vector<PixelToIndex>& affines,
+                                               void** stream) {
+  CudaSliceState& st = *state;
+  st.enter();
+  const size_t bytes = std::max<size_t>(affines.size() * image_bytes(l), 1);
   *stream = st.streams[0]->get();
-  st.streams[0]->synchronize(st.name);  // the previous batch may still be in use by this stream
-  st.out[0].reserve(std::max<size_t>(bytes, 1), st.name + ": " + std::to_string(affines.size()) +
-                                                    " output images (" +
-                                                    std::to_string(bytes >> 20) + " MiB)");
-  queue_slice(st, l, affines.data(), affines.size(), st.out[0].data(), *stream);
-  return st.out[0].data();
+  size_t free_bytes = 0, total = 0;
+  cuda::memory_info(&free_bytes, &total);
+  if (bytes > free_bytes)
+    throw ResourceError(st.name + ": " + std::to_string(affines.size()) + " output images need " +
+                        std::to_string(bytes >> 20) + " MiB of GPU memory, " +
+                        std::to_string(free_bytes >> 20) + " MiB free");
+  void* data = cuda::malloc_async(bytes, *stream,
+                                  st.name + ": " + std::to_string(affines.size()) +
+                                      " output images (" + std::to_string(bytes >> 20) + " MiB)");
+  // Freed on the stream that wrote it, after everything queued there; the deleter holds the
+  // state, so the stream outlives the buffer.
+  std::shared_ptr<void> owner(data,
+                              [state](void* p) { cuda::free_async(p, state->streams[0]->get()); });
+  queue_slice(st, l, affines.data(), affines.size(), data, *stream);
+  return owner;
 }
 
 void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<PixelToIndex>& affines,
                         void* host_out) {
-  cuda::use_device(st.device);
+  st.enter();
   const size_t ib = image_bytes(l), count = affines.size();
   // Chunks small enough for any batch size to stream through (GPU memory is never asked for the
   // whole output) and large enough to keep the GPU busy.

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdlib>
 #include <fstream>
 #include <iterator>
 #include <random>
@@ -29,6 +30,11 @@ TempDir::~TempDir() {
 ScopedCpuSettings::~ScopedCpuSettings() {
   reset_cpu_threads();
   set_cpu_kernel_isa("auto");
+}
+
+bool cuda_required() {
+  const char* v = std::getenv("SONOSLICE_REQUIRE_CUDA");
+  return v && std::string(v) != "" && std::string(v) != "0";
 }
 
 std::string read_file_bytes(const std::string& path) {
@@ -198,11 +204,11 @@ std::vector<std::string> all_backends() {
 void BackendTest::SetUp() {
   const std::string& b = GetParam();
   if (b == "cuda") {
-    if (!built_with_cuda()) GTEST_SKIP() << "cuda: not available (built without CUDA)";
+    if (!built_with_cuda()) SONOSLICE_SKIP_WITHOUT_CUDA("cuda: not available (built without CUDA)");
     try {
       require_device(Device{DeviceType::CUDA, 0});
     } catch (const std::exception& e) {
-      GTEST_SKIP() << e.what();
+      SONOSLICE_SKIP_WITHOUT_CUDA(e.what());
     }
   } else if (b == "cpu-avx2") {
     try {

@@ -42,6 +42,20 @@ class ScopedCpuSettings {
   ScopedCpuSettings& operator=(const ScopedCpuSettings&) = delete;
 };
 
+/// SONOSLICE_REQUIRE_CUDA=1 (set by scripts/gpu-check.sh on GPU machines): a CUDA test that would
+/// skip for want of a GPU fails instead, so a broken GPU setup can never look green.
+bool cuda_required();
+
+/// Skips the current test (`why`: the reason), or fails it under SONOSLICE_REQUIRE_CUDA=1. Use in
+/// place of GTEST_SKIP() wherever the reason is a missing GPU or a build without CUDA.
+#define SONOSLICE_SKIP_WITHOUT_CUDA(why)                                              \
+  do {                                                                                \
+    if (::sonoslice::test::cuda_required()) {                                         \
+      GTEST_FAIL() << "SONOSLICE_REQUIRE_CUDA=1, but the test would skip: " << (why); \
+    }                                                                                 \
+    GTEST_SKIP() << (why);                                                            \
+  } while (0)
+
 /// A file's whole content, byte for byte ("" when it cannot be read).
 std::string read_file_bytes(const std::string& path);
 

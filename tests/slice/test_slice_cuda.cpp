@@ -3,9 +3,13 @@
 // Everything needing a GPU reports itself as skipped where there is none.
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <cmath>
 #include <cstring>
 
+#include "../../src/backend/CudaChecks.h"
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/phantom/Phantom.h"
@@ -35,7 +39,7 @@ class Cuda : public ::testing::Test {
  protected:
   void SetUp() override {
     std::string why;
-    if (!gpu_available(&why)) GTEST_SKIP() << why;
+    if (!gpu_available(&why)) SONOSLICE_SKIP_WITHOUT_CUDA(why);
   }
 };
 
@@ -156,11 +160,97 @@ TEST_F(Cuda, DeviceResidentOutputs) {
   gpu.slice_into_device(shifted.data(), shifted.size(), target.data);
   std::vector<float> into(expected.size());
   DeviceImages view = target;
-  view.stream = images.stream;  // queued on the slicer's own stream
+  view.stream = nullptr;  // queued on the legacy default stream, slice_into_device's default
   view.copy_to_host(into.data());
   EXPECT_LE(compare(cpu.slice<float>(shifted), into).max_abs, 0.05);
 
   EXPECT_THROW(cpu.slice_on_device(poses.data(), 1), InputError);
+}
+
+// Each slice_on_device result owns its buffer: a later, larger batch neither overwrites nor
+// frees an earlier one (before, every result was the slicer's one growing buffer).
+TEST_F(Cuda, EachDeviceResultOwnsItsBuffer) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const ProbeGeometry probe = half_w1();
+  const Slicer cpu(ph.ct, probe);
+  const Slicer gpu(ph.ct, probe, {}, kCuda);
+  const auto first_poses = phantom_random_poses(10, 3), later_poses = phantom_random_poses(500, 4);
+  const DeviceImages first = gpu.slice_on_device(first_poses.data(), first_poses.size());
+  const DeviceImages later = gpu.slice_on_device(later_poses.data(), later_poses.size());
+  EXPECT_NE(first.data, later.data);
+  std::vector<float> back(first_poses.size() * size_t(probe.image.pixel_count()));
+  first.copy_to_host(back.data());
+  EXPECT_LE(compare(cpu.slice<float>(first_poses), back).max_abs, 0.05);
+  std::vector<float> back_later(later_poses.size() * size_t(probe.image.pixel_count()));
+  later.copy_to_host(back_later.data());
+  EXPECT_LE(compare(cpu.slice<float>(later_poses), back_later).max_abs, 0.05);
+}
+
+// The caller's stream, the legacy default one, and the slicer's own stream joined back to the
+// caller's: all three give the CPU's images when the caller then reads on its stream.
+TEST_F(Cuda, StreamsTheCallerNames) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const ProbeGeometry probe = workload_w2_linear_probe();
+  const Slicer cpu(ph.ct, probe);
+  const Slicer gpu(ph.ct, probe, {}, kCuda);
+  const auto poses = phantom_random_poses(200, 5);
+  const auto expected = cpu.slice<float>(poses);
+  const DeviceImages target = gpu.slice_on_device(poses.data(), poses.size());
+  target.synchronize();
+  for (const CudaStream& stream :
+       {CudaStream::legacy_default(), CudaStream::own_then_join(nullptr)}) {
+    std::vector<Pose> moved = poses;
+    for (Pose& p : moved) p.m[0][3] += 3;  // something else first, then the poses wanted
+    gpu.slice_into_device(moved.data(), moved.size(), target.data, stream);
+    gpu.slice_into_device(poses.data(), poses.size(), target.data, stream);
+    DeviceImages view = target;
+    view.stream = nullptr;  // the caller reads on the legacy default stream
+    std::vector<float> back(expected.size(), std::nanf(""));
+    view.copy_to_host(back.data());
+    EXPECT_LE(compare(expected, back).max_abs, 0.05) << "own stream: " << stream.slicer_stream;
+  }
+}
+
+// Output pointers are checked: host memory is refused with a message naming `out`.
+TEST_F(Cuda, HostMemoryAsDeviceOutputIsRefused) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const Slicer gpu(ph.ct, half_w1(), {}, kCuda);
+  const auto poses = phantom_random_poses(2, 1);
+  std::vector<float> host(2 * size_t(half_w1().image.pixel_count()));
+  try {
+    gpu.slice_into_device(poses.data(), poses.size(), host.data());
+    FAIL() << "host memory was taken as device memory";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("out: is host memory"), std::string::npos) << e.what();
+  }
+}
+
+// A CUDA slicer made before fork() fails clearly in the child (a torch DataLoader worker),
+// instead of crashing or hanging there.
+TEST_F(Cuda, SlicerMadeBeforeForkFailsClearlyInTheChild) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const Slicer gpu(ph.ct, half_w1(), {}, kCuda);
+  const auto poses = phantom_random_poses(2, 1);
+  std::vector<float> out(2 * size_t(half_w1().image.pixel_count()));
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    int code = 3;
+    try {
+      gpu.slice(poses.data(), poses.size(), out.data());
+      code = 1;
+    } catch (const Error& e) {
+      code = std::string(e.what()).find("CUDA cannot be used across fork()") != std::string::npos
+                 ? 0
+                 : 2;
+    }
+    _exit(code);
+  }
+  int status = 0;
+  ASSERT_EQ(waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0) << "1: the child sliced; 2: another error";
+  gpu.slice(poses.data(), poses.size(), out.data());  // the parent carries on
 }
 
 // A batch far larger than one GPU chunk streams through in pieces, copies overlapping kernels.
@@ -199,6 +289,50 @@ TEST(CudaAvailability, CpuOnlyMachineSaysNotAvailable) {
   }
   EXPECT_EQ(Slicer(ph.ct, half_w1()).slice<float>(phantom_random_poses(2)).size(),
             size_t(2 * half_w1().image.pixel_count()));
+}
+
+}  // namespace
+}  // namespace sonoslice
+
+namespace sonoslice {
+namespace {
+
+// The decisions behind the CUDA checks, on every machine (CudaChecks.h: plain C++).
+TEST(CudaChecks, PointerKindsAndDevices) {
+  using cuda::PointerKind;
+  EXPECT_EQ(cuda::pointer_problem(PointerKind::Device, 0, 0, "out"), "");
+  EXPECT_EQ(cuda::pointer_problem(PointerKind::Managed, -2, 1, "out"), "");
+  EXPECT_EQ(cuda::pointer_problem(PointerKind::Device, 1, 0, "out"),
+            "out: is memory of cuda:1 but the slicer runs on cuda:0");
+  for (PointerKind host : {PointerKind::Host, PointerKind::Unregistered})
+    EXPECT_EQ(cuda::pointer_problem(host, -1, 0, "out")
+                  .rfind("out: is host memory, not GPU memory "
+                         "of cuda:0",
+                         0),
+              0u);
+}
+
+TEST(CudaChecks, ForkedChildIsRefused) {
+  const long parent = cuda::current_process();
+  EXPECT_NO_THROW(cuda::check_not_forked(parent, "cuda:0 slicer"));
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    try {
+      cuda::check_not_forked(parent, "cuda:0 slicer");
+      _exit(1);
+    } catch (const Error& e) {
+      const std::string m = e.what();
+      _exit(m.rfind("cuda:0 slicer: was created in process " + std::to_string(parent), 0) == 0 &&
+                    m.find("'spawn'") != std::string::npos
+                ? 0
+                : 2);
+    }
+  }
+  int status = 0;
+  ASSERT_EQ(waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0);
 }
 
 }  // namespace

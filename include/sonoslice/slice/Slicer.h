@@ -30,13 +30,35 @@ struct SliceSettings {
   PixelType output_type = PixelType::Float32;
 };
 
-/// A batch of images in GPU memory (CUDA devices).
+/// Which CUDA stream slice_into_device() queues its work on.
+struct CudaStream {
+  /// A cudaStream_t of the caller; null is the legacy default stream (a valid stream, which
+  /// orders with every blocking stream), as torch reports for its default stream.
+  void* handle = nullptr;
+  /// Run on the slicer's own stream instead: it first waits for the work queued on `handle`
+  /// (so that the output memory is free), and `handle` then waits for the slicing (so that its
+  /// later work sees the images). Neither makes the host wait.
+  bool slicer_stream = false;
+
+  CudaStream() = default;
+  /* implicit */ CudaStream(void* caller_stream) : handle(caller_stream) {}
+  static CudaStream legacy_default() { return CudaStream(); }
+  static CudaStream own_then_join(void* caller_stream) {
+    CudaStream s(caller_stream);
+    s.slicer_stream = true;
+    return s;
+  }
+};
+
+/// A batch of images in GPU memory (CUDA devices). Each result owns its buffer (shared by its
+/// copies), so a later slice never overwrites or frees it.
 struct DeviceImages {
   void* data = nullptr;  ///< device pointer to a C-order (count, height, width) array of `type`
   int64_t count = 0, height = 0, width = 0;
   PixelType type = PixelType::Float32;
   Device device;
   void* stream = nullptr;  ///< the cudaStream_t the kernel was queued on (not yet synchronized)
+  std::shared_ptr<void> owner;  ///< keeps `data` alive; freed after the work on `stream`
   size_t bytes() const { return size_t(count * height * width) * pixel_size(type); }
   /// Waits for the kernel and copies the images into host memory of bytes() bytes.
   void copy_to_host(void* host_out) const;
@@ -68,15 +90,16 @@ class Slicer {
   /// counted from `first_index`); nothing is written when one is bad.
   void slice(const Pose* poses, size_t count, void* out, size_t first_index = 0) const;
 
-  /// CUDA: slices into GPU memory the slicer owns (it grows with the batch and stays valid until
-  /// the next call). InputError on a CPU slicer.
+  /// CUDA: slices into a new GPU buffer that the result owns (valid as long as the result or a
+  /// copy of it lives), queued on the slicer's own stream. InputError on a CPU slicer.
   DeviceImages slice_on_device(const Pose* poses, size_t count, size_t first_index = 0) const;
 
-  /// CUDA: slices into caller-owned GPU memory (count·H·W elements of output_type), queued on
-  /// `stream` (a cudaStream_t; null: the slicer's own) without waiting for it. For handing the
-  /// images to PyTorch and friends without a copy.
-  void slice_into_device(const Pose* poses, size_t count, void* device_out, void* stream = nullptr,
-                         size_t first_index = 0) const;
+  /// CUDA: slices into caller-owned GPU memory (count·H·W elements of output_type) without
+  /// waiting for it, queued on `stream` (default: the legacy default stream; see CudaStream).
+  /// `device_out` must be memory of the slicer's GPU (or managed memory): InputError otherwise.
+  /// For handing the images to PyTorch and friends without a copy.
+  void slice_into_device(const Pose* poses, size_t count, void* device_out,
+                         CudaStream stream = CudaStream(), size_t first_index = 0) const;
 
   /// Convenience: slices into a new buffer of count·H·W elements of type T (T must match
   /// settings().output_type).

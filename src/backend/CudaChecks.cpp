@@ -1,0 +1,54 @@
+#include "CudaChecks.h"
+
+#include <unistd.h>
+
+#include <cstdlib>
+#include <string>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace cuda {
+
+std::string pointer_problem(PointerKind kind, int pointer_device, int slicer_device,
+                            const std::string& what) {
+  const std::string gpu = "cuda:" + std::to_string(slicer_device);
+  switch (kind) {
+    case PointerKind::Unregistered:
+    case PointerKind::Host:
+      return what + ": is host memory, not GPU memory of " + gpu +
+             " (give a CUDA array, or slice into host memory with slice())";
+    case PointerKind::Device:
+      if (pointer_device != slicer_device)
+        return what + ": is memory of cuda:" + std::to_string(pointer_device) +
+               " but the slicer runs on " + gpu;
+      return "";
+    case PointerKind::Managed:
+      return "";  // reachable from every GPU
+  }
+  return what + ": unknown kind of memory";
+}
+
+long current_process() {
+  return long(::getpid());
+}
+
+void check_not_forked(long creator, const std::string& what) {
+  if (creator == current_process()) return;
+  throw Error(what + ": was created in process " + std::to_string(creator) +
+              " and is used in process " + std::to_string(current_process()) +
+              ", a fork of it: CUDA cannot be used across fork(). Create it in the child (for a "
+              "torch DataLoader: in worker_init_fn or the dataset's first __getitem__), or use "
+              "the 'spawn' start method");
+}
+
+bool debug_sync_enabled() {
+  static const bool on = [] {
+    const char* v = std::getenv("SONOSLICE_CUDA_DEBUG");
+    return v && *v && std::string(v) != "0";
+  }();
+  return on;
+}
+
+}  // namespace cuda
+}  // namespace sonoslice
