@@ -1,6 +1,6 @@
 #pragma once
-// Forced into every C++ source of a clang build (cmake/Dependencies.cmake): Debian's ITK 5.2 ships the
-// compiler-detection header generated for the compiler it was built with (GCC) and stops with
+// Forced into every C++ source of a clang build (cmake/Dependencies.cmake): Debian's ITK 5.2 ships
+// the compiler-detection header generated for the compiler it was built with (GCC) and stops with
 // "Unsupported compiler" under clang. clang implements the GNU dialect ITK asks about, so the
 // header is read once as if by GCC 12 (its include guard keeps later includes out), and clang's
 // own macros are put back.
