@@ -212,3 +212,44 @@ def test_require_cuda_turns_cuda_skips_into_failures(tmp_path):
     assert skipped.returncode == 0 and "1 skipped" in skipped.stdout, skipped.stdout
     failed = run(dict(plain, SONOSLICE_REQUIRE_CUDA="1"))
     assert failed.returncode == 1 and "SONOSLICE_REQUIRE_CUDA=1, but the test would skip" in failed.stdout, failed.stdout
+
+
+def test_cuda_work_goes_on_the_current_stream_of_the_arrays_library(monkeypatch):
+    """slice(out=...) on CUDA queues on torch's or CuPy's current stream (0: the legacy default
+    stream, which orders with every blocking stream), so that the library's next operation sees
+    the images and its allocator never reuses out= memory still being written (issue 11)."""
+    import sys
+    import types
+    from sonoslice import _current_stream
+    assert _current_stream(np.zeros((1, 2, 3), np.float32)) == 0
+
+    # torch: its current stream on the tensor's device, whatever stream that is.
+    torch = pytest.importorskip("torch")
+    assert _current_stream(torch.zeros(2)) == 0  # host memory: no stream
+    asked = []
+
+    class FakeStream:
+        cuda_stream = 0x7F00
+
+    monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: asked.append(device) or FakeStream())
+    FakeCudaTensor = type("Tensor", (), {"__module__": "torch", "is_cuda": True, "device": "cuda:1"})
+    assert _current_stream(FakeCudaTensor()) == 0x7F00 and asked == ["cuda:1"]
+
+    # CuPy: its current stream, asked on the array's device.
+    entered = []
+
+    class Device:
+        def __init__(self, index):
+            self.index = index
+
+        def __enter__(self):
+            entered.append(self.index)
+
+        def __exit__(self, *exc):
+            return False
+
+    cupy = types.ModuleType("cupy")
+    cupy.cuda = types.SimpleNamespace(Device=Device, get_current_stream=lambda: types.SimpleNamespace(ptr=0x5A00))
+    monkeypatch.setitem(sys.modules, "cupy", cupy)
+    FakeCupyArray = type("ndarray", (), {"__module__": "cupy._core.core", "device": types.SimpleNamespace(id=2)})
+    assert _current_stream(FakeCupyArray()) == 0x5A00 and entered == [2]
