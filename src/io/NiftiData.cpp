@@ -171,8 +171,12 @@ void check_nifti_header(const std::string& path) {
   if (size == 540 && got < 540)
     truncated(header_path, "the NIfTI-2 header is shorter than 540 bytes");
   const bool v2 = size == 540;
-  const bool nifti =
-      v2 || std::memcmp(raw + 344, "n+1", 4) == 0 || std::memcmp(raw + 344, "ni1", 4) == 0;
+  // NIfTI or Analyze 7.5, decided as the NIfTI C library (and so ITK) decides (NIFTI_VERSION in
+  // nifti1.h): any magic "n+K" or "niK", K = 1..9, makes a 348-byte header NIfTI, whose orientation
+  // fields ITK then reads ("n+2" in a 348-byte header once reached ITK's matrix code unchecked).
+  const unsigned char* magic = raw + 344;
+  const bool nifti = v2 || (magic[0] == 'n' && (magic[1] == '+' || magic[1] == 'i') &&
+                            magic[2] >= '1' && magic[2] <= '9' && magic[3] == '\0');
   const std::string where = "volume '" + path + "': ";
 
   int64_t dim[8];
