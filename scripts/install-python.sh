@@ -13,9 +13,12 @@ build/venv/bin/python -m pip install -q --upgrade pip
 # After scripts/build.sh, pip builds the module inside build/ (the libraries are already there, so
 # only the bindings compile; the options pyproject.toml turns off for a wheel keep build/'s values,
 # so its tests, CLI and benchmarks stay). Without build/, pip builds in its own folder.
+# The build requirements go into the venv itself (no isolated build environment): build/ then
+# keeps a nanobind that stays, and a later `cmake --build build` can reconfigure.
 options=()
 if [[ -f build/CMakeCache.txt ]]; then
-  options+=(-Cbuild-dir=build)
+  build/venv/bin/python -m pip install -q "scikit-build-core>=0.10" "nanobind>=2.4"
+  options+=(--no-build-isolation -Cbuild-dir=build)
   for o in SONOSLICE_BUILD_TESTS SONOSLICE_BUILD_APPS SONOSLICE_BUILD_BENCHMARKS; do
     v=$(sed -n "s/^$o:BOOL=//p" build/CMakeCache.txt)
     [[ -n $v ]] && options+=("-Ccmake.define.$o=$v")
