@@ -165,6 +165,10 @@ void Event::make_wait(void* stream, const std::string& what) const {
         what);
 }
 
+void Event::synchronize(const std::string& what) const {
+  check(cudaEventSynchronize(static_cast<cudaEvent_t>(event_)), what);
+}
+
 void check_device_pointer(const void* p, int device, const std::string& what) {
   cudaPointerAttributes a{};
   const cudaError_t err = cudaPointerGetAttributes(&a, p);

@@ -78,6 +78,8 @@ class Event {
   void record(void* stream, const std::string& what);
   /// Makes later work on `stream` wait for the recorded work (the host does not wait).
   void make_wait(void* stream, const std::string& what) const;
+  /// Makes the host wait for the recorded work.
+  void synchronize(const std::string& what) const;
 
  private:
   void* event_ = nullptr;

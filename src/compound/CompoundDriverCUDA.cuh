@@ -26,10 +26,11 @@ __device__ __forceinline__ void apply_atomic(const AccumulatorView& g, int64_t i
     // As gather() on the CPU: a NaN sample never wins the maximum (its bits would, as integers),
     // but its weight counts.
     if (sample == sample) backend::atomic_max_float(&a.value, sample);
+    atomicAdd(&a.weight, w);
   } else {
-    atomicAdd(&a.value, w * sample);
+    // value and weight side by side (Accumulator is 8-byte aligned): one atomic on sm_90.
+    backend::atomic_add_pair(&a.value, w * sample, w);
   }
-  atomicAdd(&a.weight, w);
 }
 
 /// One thread per sample: row() finds the row's line and values, pixel() splats one sample.

@@ -13,10 +13,12 @@ namespace compound_impl {
 /// One accumulator per voxel: the running value (weighted sum for mean and latest, maximum for
 /// max) and the summed splat weight (0: no sample yet). Interleaved so that a splat touches one
 /// cache line per voxel.
-struct Accumulator {
+// 8-byte aligned: the CUDA kernels add to value and weight with one float2 atomic (sm_90).
+struct alignas(8) Accumulator {
   float value;
   float weight;
 };
+static_assert(sizeof(Accumulator) == 8, "value and weight side by side");
 
 /// The accumulator grid: x fastest. `stamp` (latest mode only) holds the last frame that wrote
 /// each voxel, so a newer frame replaces older samples instead of averaging with them.

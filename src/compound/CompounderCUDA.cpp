@@ -1,6 +1,7 @@
 // Host side of the CUDA compounding backend: the accumulators resident on the GPU and the
 // buffers frames travel through. The kernels are CompoundDriverCUDA.cuh compiled by nvcc
 // (CompoundCUDA.cu).
+#include <cstring>
 #include <string>
 
 #include "../backend/CudaChecks.h"
@@ -16,8 +17,19 @@ struct CudaCompounding::State {
   long process = 0;      // the process that made it: CUDA state does not survive fork()
   AccumulatorView grid;  // device pointers
   Mode mode = Mode::Mean;
-  cuda::DeviceBuffer cells, stamp, samples, lines, spans;
-  std::unique_ptr<cuda::Stream> stream;
+  cuda::DeviceBuffer cells, stamp;
+  // Batches alternate between two slots: while the GPU splats one, the host copies the next into
+  // the other slot's page-locked staging buffer and the copy stream uploads it.
+  struct Slot {
+    cuda::DeviceBuffer samples, lines, spans;
+    cuda::PinnedBuffer staging;         // samples | lines | spans, packed
+    std::unique_ptr<cuda::Event> done;  // the slot's kernels have run (its buffers are free)
+    bool used = false;
+  } slots[2];
+  int next_slot = 0;
+  std::unique_ptr<cuda::Stream> stream;  // the kernels, in batch order (latest mode needs it)
+  std::unique_ptr<cuda::Stream> copies;  // the uploads
+  std::unique_ptr<cuda::Event> uploaded;
 };
 
 CudaCompounding::CudaCompounding(int device, int nx, int ny, int nz, Mode mode)
@@ -29,6 +41,9 @@ CudaCompounding::CudaCompounding(int device, int nx, int ny, int nz, Mode mode)
   st.process = cuda::current_process();
   st.mode = mode;
   st.stream = std::make_unique<cuda::Stream>();
+  st.copies = std::make_unique<cuda::Stream>();
+  st.uploaded = std::make_unique<cuda::Event>();
+  for (auto& slot : st.slots) slot.done = std::make_unique<cuda::Event>();
   const size_t voxels = size_t(nx) * size_t(ny) * size_t(nz);
   st.cells.reserve(voxels * sizeof(Accumulator),
                    st.name + ": the accumulators (" + std::to_string((voxels * 8) >> 20) + " MiB)");
@@ -52,22 +67,35 @@ void CudaCompounding::add(const FrameBatch& host, bool linear) {
   const size_t sample_bytes = size_t(host.frames) * host.rows * host.width * pixel_size(host.type);
   const size_t line_bytes = size_t(host.frames) * host.rows * sizeof(RowLine);
   const size_t span_bytes = size_t(host.rows) * sizeof(RowSpans);
-  // The previous batch's kernels read these buffers: wait before overwriting them.
-  st.stream->synchronize(st.name + ": compounding");
-  st.samples.reserve(sample_bytes, st.name + ": frame buffer");
-  st.lines.reserve(line_bytes, st.name + ": row geometry");
-  st.spans.reserve(span_bytes, st.name + ": clip spans");
-  cuda::copy_to_device(st.samples.data(), host.samples, sample_bytes, s,
+  State::Slot& slot = st.slots[st.next_slot];
+  st.next_slot ^= 1;
+  // The batch before the previous one used this slot: wait for its kernels (the other slot's
+  // batch may still be running: that is the overlap).
+  if (slot.used) slot.done->synchronize(st.name + ": compounding");
+  slot.samples.reserve(sample_bytes, st.name + ": frame buffer");
+  slot.lines.reserve(line_bytes, st.name + ": row geometry");
+  slot.spans.reserve(span_bytes, st.name + ": clip spans");
+  slot.staging.reserve(sample_bytes + line_bytes + span_bytes, st.name + ": pinned frame buffer");
+  auto* staged = static_cast<char*>(slot.staging.data());
+  std::memcpy(staged, host.samples, sample_bytes);
+  std::memcpy(staged + sample_bytes, host.lines, line_bytes);
+  std::memcpy(staged + sample_bytes + line_bytes, host.spans, span_bytes);
+  void* c = st.copies->get();
+  cuda::copy_to_device(slot.samples.data(), staged, sample_bytes, c,
                        st.name + ": uploading frames");
-  cuda::copy_to_device(st.lines.data(), host.lines, line_bytes, s,
+  cuda::copy_to_device(slot.lines.data(), staged + sample_bytes, line_bytes, c,
                        st.name + ": uploading row geometry");
-  cuda::copy_to_device(st.spans.data(), host.spans, span_bytes, s,
+  cuda::copy_to_device(slot.spans.data(), staged + sample_bytes + line_bytes, span_bytes, c,
                        st.name + ": uploading clip spans");
+  st.uploaded->record(c, st.name + ": uploading frames");
+  st.uploaded->make_wait(s, st.name + ": uploading frames");
   FrameBatch b = host;
-  b.samples = st.samples.data();
-  b.lines = static_cast<const RowLine*>(st.lines.data());
-  b.spans = static_cast<const RowSpans*>(st.spans.data());
+  b.samples = slot.samples.data();
+  b.lines = static_cast<const RowLine*>(slot.lines.data());
+  b.spans = static_cast<const RowSpans*>(slot.spans.data());
   compound_cuda_launch(st.grid, b, st.mode, linear, s);
+  slot.done->record(s, st.name + ": compounding");
+  slot.used = true;
 }
 
 void CudaCompounding::download(Accumulator* cells, int32_t* stamp) {
