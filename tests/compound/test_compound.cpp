@@ -369,7 +369,10 @@ TEST(HoleFilling, NearestNeighborUsesTheSmallestCubeWithKnownVoxels) {
   EXPECT_NEAR(v[offset(g, 4, 5, 4)], sum / n, 1e-4);
 }
 
-TEST(HoleFilling, StickInterpolatesAlongTheShortestLine) {
+// PLUS's stick value (vtkIGSIOFillHolesInVolume::applySticks): the forward end weighs
+// (back + 1) / (forward + back + 1), the backward end the rest; not the linear interpolation
+// back / (forward + back) it approximates.
+TEST(HoleFilling, StickWeighsItsEndsAsPlusDoes) {
   const VolumeGrid g = unit_grid(9, 3, 3);
   std::map<std::array<int, 3>, float> known{{{0, 1, 1}, 10.f}, {{4, 1, 1}, 50.f}};
   HoleFillingKernel k;
@@ -378,14 +381,71 @@ TEST(HoleFilling, StickInterpolatesAlongTheShortestLine) {
   k.sticks_to_use = 1;
   const Compounder c = with_known_voxels(g, known, {k});
   const auto v = as_floats(c.volume(PixelType::Float32));
-  EXPECT_FLOAT_EQ(v[offset(g, 1, 1, 1)], 20.f);
-  EXPECT_FLOAT_EQ(v[offset(g, 2, 1, 1)], 30.f);
-  EXPECT_FLOAT_EQ(v[offset(g, 3, 1, 1)], 40.f);
-  EXPECT_EQ(v[offset(g, 5, 1, 1)], 0.f);  // only one known end
+  EXPECT_FLOAT_EQ(v[offset(g, 1, 1, 1)], 26.f);  // forward 3, back 1: 0.6·10 + 0.4·50
+  EXPECT_FLOAT_EQ(v[offset(g, 2, 1, 1)], 34.f);  // 2 and 2: 0.4·10 + 0.6·50
+  EXPECT_FLOAT_EQ(v[offset(g, 3, 1, 1)], 42.f);  // 1 and 3: 0.2·10 + 0.8·50
+  // Integer output: each stick's value, then their mean, truncated toward zero (PLUS's casts).
+  std::map<std::array<int, 3>, float> odd{{{0, 1, 1}, 10.f}, {{3, 1, 1}, 21.f}};
+  const Compounder t = with_known_voxels(g, odd, {k});
+  const Volume u8 = t.volume(PixelType::UInt8);
+  // (1, 1, 1): forward 2, back 1: 0.5·10 + 0.5·21 = 15.5 → 15; (2, 1, 1): 0.25·10 + 0.75·21.
+  EXPECT_EQ(static_cast<const uint8_t*>(u8.data())[offset(g, 1, 1, 1)], 15);
+  EXPECT_EQ(static_cast<const uint8_t*>(u8.data())[offset(g, 2, 1, 1)], 18);  // 18.25
+  EXPECT_EQ(v[offset(g, 5, 1, 1)], 0.f);                                      // only one known end
   // A stick longer than the limit is not used.
   k.stick_length_limit = 4;
   const Compounder shorter = with_known_voxels(g, known, {k});
   EXPECT_EQ(as_floats(shorter.volume(PixelType::Float32))[offset(g, 2, 1, 1)], 0.f);
+}
+
+// PLUS's ratio test counts the known voxels found against the whole size³ cube, also for the
+// nearest-neighbour element (whose search stops at the first radius with any): 2 known voxels
+// pass 0.01 of 125 but not 0.02 (they would pass 0.02 of the radius-1 cube, 2/27).
+TEST(HoleFilling, NearestNeighborRatioIsOverTheWholeCube) {
+  const VolumeGrid g = unit_grid(9, 9, 9);
+  std::map<std::array<int, 3>, float> known{{{5, 4, 4}, 10.f}, {{3, 4, 4}, 21.f}};
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::NearestNeighbor;
+  k.size = 5;
+  k.minimum_known_ratio = 0.01;
+  EXPECT_FLOAT_EQ(
+      as_floats(with_known_voxels(g, known, {k}).volume(PixelType::Float32))[offset(g, 4, 4, 4)],
+      15.5f);
+  // Integer output: truncated, 15 (not rounded to 16).
+  EXPECT_EQ(
+      static_cast<const uint8_t*>(
+          with_known_voxels(g, known, {k}).volume(PixelType::UInt8).data())[offset(g, 4, 4, 4)],
+      15);
+  k.minimum_known_ratio = 0.02;
+  EXPECT_EQ(
+      as_floats(with_known_voxels(g, known, {k}).volume(PixelType::Float32))[offset(g, 4, 4, 4)],
+      0.f);
+}
+
+// Which voxels are holes is PLUS's test: the accumulation buffer (256 per unit of splat weight,
+// rounded) is 0. A voxel that a linear splat reaches with a weight below 1/512 is a hole and is
+// filled (or emptied); without hole filling it keeps its value.
+TEST(HoleFilling, HolesAreWherePlusAccumulationBufferIsZero) {
+  const VolumeGrid g = unit_grid(5, 5, 5);
+  CompoundSettings s = settings(Interpolation::Linear, CompoundingMode::Mean);
+  s.fill_holes = true;
+  HoleFillingKernel k;
+  k.type = HoleFillingKernel::NearestNeighbor;
+  k.size = 3;
+  k.minimum_known_ratio = 0.5;  // cannot fill here: the hole stays a hole
+  s.hole_filling = {k};
+  // One sample at (2.999, 2, 2): voxel (2, 2, 2) gets 0.001 of it (0.256 of 256: rounds to 0),
+  // voxel (3, 2, 2) the rest.
+  const float sample = 80.f;
+  for (bool fill : {true, false}) {
+    s.fill_holes = fill;
+    Compounder c(g, s);
+    c.add_image(&sample, PixelType::Float32, 1, 1, translation(2.999, 2, 2));
+    const auto v = as_floats(c.volume(PixelType::Float32));
+    // A hole that no element fills: 0, as in PLUS; its own sample without hole filling.
+    EXPECT_FLOAT_EQ(v[offset(g, 2, 2, 2)], fill ? 0.f : 80.f) << "fill " << fill;
+    EXPECT_FLOAT_EQ(v[offset(g, 3, 2, 2)], 80.f);
+  }
 }
 
 TEST(HoleFilling, ElementsApplyInOrder) {
@@ -396,7 +456,7 @@ TEST(HoleFilling, ElementsApplyInOrder) {
   HoleFillingKernel stick;
   stick.type = HoleFillingKernel::Stick;
   const Compounder c = with_known_voxels(g, known, {gauss, stick});
-  EXPECT_FLOAT_EQ(as_floats(c.volume(PixelType::Float32))[offset(g, 2, 1, 1)], 30.f);
+  EXPECT_FLOAT_EQ(as_floats(c.volume(PixelType::Float32))[offset(g, 2, 1, 1)], 34.f);
   HoleFillingKernel loose = gauss;  // can fill: wins over the stick
   loose.minimum_known_ratio = 0.0;
   const Compounder d = with_known_voxels(g, known, {loose, stick});

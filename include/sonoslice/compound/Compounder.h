@@ -26,9 +26,10 @@ enum class CompoundingMode {
 const char* to_string(CompoundingMode mode);                      ///< "mean", "max", "latest"
 CompoundingMode parse_compounding_mode(const std::string& name);  ///< also "maximum"; any case
 
-/// One hole-filling element (PLUS's HoleFillingElement). A hole is a voxel no sample reached;
-/// holes are filled from the voxels samples did reach (never from other filled holes), by the
-/// first element of the list that can.
+/// One hole-filling element (PLUS's HoleFillingElement), with PLUS's rules (docs/compounding.md
+/// §4a). A hole is a voxel where PLUS's accumulation buffer would be 0 (no sample, or linear
+/// splat weights below 1/512); holes are filled from the voxels samples did reach (never from
+/// other filled holes), by the first element of the list that can.
 struct HoleFillingKernel {
   enum Type {
     NearestNeighbor,        ///< mean of the known voxels in the smallest cube around the hole
@@ -36,13 +37,14 @@ struct HoleFillingKernel {
     Gaussian,               ///< Gaussian-weighted mean of the known voxels in the size³ cube
     GaussianAccumulation,   ///< the same, each voxel's weight also scaled by its splat weight
     DistanceWeightInverse,  ///< 1/distance-weighted mean of the known voxels in the size³ cube
-    Stick                   ///< linear interpolation along the shortest of 13 lines through the
+    Stick                   ///< PLUS's weighted ends of the shortest of 13 lines through the
                             ///< hole with known voxels at both ends
   } type = Gaussian;
   int size = 3;           ///< cube edge in voxels (odd)
   double stdev = 0.6667;  ///< Gaussian, in voxels
-  /// The element applies only when more than this fraction of the cube's voxels are known
-  /// (voxels outside the grid count as unknown).
+  /// The element applies only when more than this fraction of the size³ cube's voxels are known
+  /// (voxels outside the grid count as unknown; nearest neighbour: those of the first radius with
+  /// any, still over size³).
   double minimum_known_ratio = 0.5;
   int stick_length_limit = 9;  ///< Stick: the longest stick, in voxels, ends included
   int sticks_to_use = 1;       ///< Stick: how many of the shortest sticks are averaged
