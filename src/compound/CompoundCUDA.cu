@@ -7,6 +7,7 @@
 #include "../backend/ParallelForCUDA.cuh"
 #include "CompoundBackends.h"
 #include "CompoundDriverCUDA.cuh"
+#include "FinishImpl.h"
 
 namespace sonoslice {
 namespace compound_impl {
@@ -27,6 +28,28 @@ struct ClearAccumulators {
   }
 };
 }  // namespace
+
+namespace {
+// One thread per voxel, x fastest: neighbouring threads read neighbouring accumulators.
+template <typename T>
+struct FinishVoxels {
+  FinishInput in;
+  T* out;
+  __device__ void operator()(int64_t i) const {
+    const int64_t nx = in.g.nx, ny = in.g.ny;
+    const int x = int(i % nx), y = int((i / nx) % ny), z = int(i / (nx * ny));
+    out[i] = finished_voxel<T>(in, x, y, z, true);
+  }
+};
+}  // namespace
+
+void compound_cuda_finish(const FinishInput& in, PixelType type, void* out, void* stream) {
+  const int64_t n = int64_t(in.g.nx) * in.g.ny * in.g.nz;
+  visit_pixel_type(type, [&](auto zero) {
+    using T = decltype(zero);
+    backend::parallel_for(n, FinishVoxels<T>{in, static_cast<T*>(out)}, stream);
+  });
+}
 
 void compound_cuda_clear(const AccumulatorView& grid, Mode mode, void* stream) {
   const int64_t n = int64_t(grid.nx) * grid.ny * grid.nz;

@@ -424,12 +424,17 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
 
 Volume Compounder::volume(PixelType type) const {
   Impl& im = *impl_;
-  im.accumulators_to_host();
   Volume out = Volume::allocate(type, im.grid);
   static const std::vector<HoleFillingKernel> no_kernels;
-  compound_impl::finish_volume(im.view(), im.mode,
-                               im.settings.fill_holes ? im.settings.hole_filling : no_kernels, type,
-                               out.data());
+  const auto& kernels = im.settings.fill_holes ? im.settings.hole_filling : no_kernels;
+#ifdef SONOSLICE_HAVE_CUDA
+  if (im.cuda) {  // finished on the GPU: only the output type travels back
+    im.cuda->finish(kernels, type, out.data());
+    return out;
+  }
+#endif
+  im.accumulators_to_host();
+  compound_impl::finish_volume(im.view(), im.mode, kernels, type, out.data());
   return out;
 }
 

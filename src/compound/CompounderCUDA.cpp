@@ -1,12 +1,16 @@
 // Host side of the CUDA compounding backend: the accumulators resident on the GPU and the
 // buffers frames travel through. The kernels are CompoundDriverCUDA.cuh compiled by nvcc
 // (CompoundCUDA.cu).
+#include <algorithm>
 #include <cstring>
+#include <memory>
 #include <string>
+#include <vector>
 
 #include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
 #include "CompoundBackends.h"
+#include "Finish.h"
 
 namespace sonoslice {
 namespace compound_impl {
@@ -109,6 +113,46 @@ void CudaCompounding::download(Accumulator* cells, int32_t* stamp) {
     cuda::copy_to_host(stamp, st.stamp.data(), voxels * sizeof(int32_t), st.stream->get(),
                        st.name + ": downloading the stamps");
   st.stream->synchronize(st.name + ": downloading the accumulators");
+}
+
+void CudaCompounding::finish(const std::vector<HoleFillingKernel>& kernels, PixelType type,
+                             void* host_out) {
+  State& st = *state_;
+  cuda::check_not_forked(st.process, st.name + " compounder");
+  cuda::use_device(st.device);
+  void* s = st.stream->get();
+  // The elements and their kernels (PLUS's float weights, set up on the host) on the GPU.
+  FillSetup setup = setup_fill_elements(kernels);
+  std::vector<std::unique_ptr<cuda::DeviceBuffer>> kernel_buffers;
+  for (size_t k = 0; k < setup.elements.size(); ++k) {
+    if (setup.kernels[k].empty()) continue;
+    const size_t bytes = setup.kernels[k].size() * sizeof(float);
+    kernel_buffers.push_back(std::make_unique<cuda::DeviceBuffer>());
+    kernel_buffers.back()->reserve(bytes, st.name + ": hole-filling kernel");
+    cuda::copy_to_device(kernel_buffers.back()->data(), setup.kernels[k].data(), bytes, s,
+                         st.name + ": uploading a hole-filling kernel");
+    setup.elements[k].kernel = static_cast<const float*>(kernel_buffers.back()->data());
+  }
+  cuda::DeviceBuffer elements, out;
+  const size_t element_bytes = std::max<size_t>(1, setup.elements.size() * sizeof(FillElement));
+  elements.reserve(element_bytes, st.name + ": hole-filling elements");
+  if (!setup.elements.empty())
+    cuda::copy_to_device(elements.data(), setup.elements.data(),
+                         setup.elements.size() * sizeof(FillElement), s,
+                         st.name + ": uploading the hole-filling elements");
+  const size_t voxels = size_t(st.grid.nx) * st.grid.ny * st.grid.nz;
+  const size_t bytes = voxels * pixel_size(type);
+  out.reserve(std::max<size_t>(bytes, 1),
+              st.name + ": the finished volume (" + std::to_string(bytes >> 20) + " MiB)");
+  FinishInput in;
+  in.g = st.grid;
+  in.mode = st.mode;
+  in.elements = static_cast<const FillElement*>(elements.data());
+  in.element_count = int(setup.elements.size());
+  compound_cuda_finish(in, type, out.data(), s);
+  cuda::copy_to_host(host_out, out.data(), bytes, s, st.name + ": downloading the volume");
+  // The uploads above read host memory that goes when this returns, and the buffers go too.
+  st.stream->synchronize(st.name + ": finishing the volume");
 }
 
 }  // namespace compound_impl
