@@ -355,7 +355,7 @@ std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGri
   const uint64_t bytes = uint64_t(grid.voxel_count()) * pixel_size(type);
   if (!gz && !h.swapped) {
     // Uncompressed, native byte order: map the file; pages load as slicing touches them.
-    auto data = map_file_region(data_path, h.vox_offset, bytes);
+    auto data = map_file_region(data_path, h.vox_offset, bytes, pixel_size(type));
     return Volume::wrap(data.get(), type, grid, data);
   }
   Volume v = Volume::allocate(type, grid);

@@ -158,7 +158,8 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
   g.dims = {a.shape[2], a.shape[1], a.shape[0]};
   g.validate("volume '" + path + "'");
   if (mappable)
-    a.data = map_file_region(path, a.data_offset, uint64_t(a.element_count()) * pixel_size(a.type));
+    a.data = map_file_region(path, a.data_offset, uint64_t(a.element_count()) * pixel_size(a.type),
+                             pixel_size(a.type));
   void* data = a.data.get();
   return Volume::wrap(data, a.type, g, a.data);  // zero-copy: the Volume owns the buffer or map
 }
