@@ -9,6 +9,7 @@
 
 #include "bindings.h"
 #include "sonoslice/backend/Device.h"
+#include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/VolumeFile.h"
 
 namespace nb = nanobind;
@@ -42,6 +43,7 @@ NB_MODULE(_sonoslice, m) {
   m.def("describe_devices", &describe_devices);
   m.def("built_with_cuda", &built_with_cuda);
   m.def("built_with_itk", &built_with_itk);
+  m.def("built_with_vtk", &built_with_vtk);
   m.def("require_device", [](const std::string& d) { require_device(Device::parse(d)); });
   m.def("cpu_threads", &cpu_threads);
   m.def("set_cpu_threads", &set_cpu_threads, "n"_a);
