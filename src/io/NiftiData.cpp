@@ -223,6 +223,35 @@ void check_nifti_header(const std::string& path) {
       << " (the byte where the voxels start)";
     throw FileError(s.str());
   }
+  // An uncompressed file must hold its voxels (the C library zero-fills a short one, and ITK
+  // first allocates what the header claims: an Analyze header of 373 bytes once asked for 6 GB).
+  const bool single = ext == ".nii";
+  if (single || ext == ".hdr" || ext == ".img") {
+    const std::string data_path = single ? path : pair_sibling(path, ".img");
+    const uint64_t start =
+        uint64_t(single ? std::max(vox_offset, double(v2 ? 544 : 352)) : vox_offset);
+    std::error_code ec;
+    const uint64_t file_size = std::filesystem::file_size(data_path, ec);
+    if (!ec && file_size < start + bytes) {
+      std::ostringstream s;
+      s << "'" << data_path << "' has " << file_size << " bytes, the header describes "
+        << start + bytes;
+      truncated(path, s.str());
+    }
+  }
+  // A gzip stream cannot hold more than 1032 bytes per compressed byte (deflate's limit): a header
+  // claiming more is refused before anything allocates for it.
+  if (ext == ".nii.gz") {
+    std::error_code ec;
+    const uint64_t file_size = std::filesystem::file_size(path, ec);
+    const double most = double(file_size) * 1032.0 + 1024.0;
+    if (!ec && most < double(bytes) + vox_offset) {
+      std::ostringstream s;
+      s << "its " << file_size << " compressed bytes cannot hold the " << bytes
+        << " voxel bytes the header describes";
+      truncated(path, s.str());
+    }
+  }
   if (!nifti) return;  // Analyze 7.5: no scaling or orientation fields
 
   // Scaling, y = scl_slope · x + scl_inter when scl_slope is not 0 (nifti1.h). Readers disagree
@@ -269,21 +298,6 @@ void check_nifti_header(const std::string& path) {
         throw InputError(where + kRows[i / 4] + "[" + std::to_string(i % 4) +
                          "] is not a finite number (sform_code " + std::to_string(sform) + ")");
     }
-  // An uncompressed file must hold its voxels (the C library zero-fills a short one).
-  const bool single = ext == ".nii";
-  if (single || ext == ".hdr" || ext == ".img") {
-    const std::string data_path = single ? path : pair_sibling(path, ".img");
-    const uint64_t start =
-        uint64_t(single ? std::max(vox_offset, double(v2 ? 544 : 352)) : vox_offset);
-    std::error_code ec;
-    const uint64_t file_size = std::filesystem::file_size(data_path, ec);
-    if (!ec && file_size < start + bytes) {
-      std::ostringstream s;
-      s << "'" << data_path << "' has " << file_size << " bytes, the header describes "
-        << start + bytes;
-      truncated(path, s.str());
-    }
-  }
 }
 
 std::optional<Volume> read_nifti_voxels(const std::string& path, const VolumeGrid& grid,

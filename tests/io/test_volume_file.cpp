@@ -327,6 +327,24 @@ TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
     EXPECT_NE(e.find("corrupt header: vox_offset is"), std::string::npos) << e;
     EXPECT_THROW(read_volume(p), FileError);
   }
+  // Sizes the file cannot hold, in an Analyze header too (found by fuzz_nifti: a 373-byte file
+  // made ITK allocate 6 GB), and in a gzip stream (at most 1032 bytes per compressed byte).
+  for (const bool analyze : {true, false}) {
+    p = variant("huge.nii");
+    for (int d = 1; d <= 3; ++d) patch_int16(p, 40 + 2 * d, 30000);
+    if (analyze) patch(p, 344, "xx1", 4);
+    std::string e = quiet_error_of(p);
+    EXPECT_NE(e.find("the header describes 54000000000352"), std::string::npos) << e;
+    const std::string bytes = test::read_file_bytes(p);
+    const std::string gz = dir.file("huge.nii.gz");
+    gzFile f = gzopen(gz.c_str(), "wb");
+    gzwrite(f, bytes.data(), unsigned(bytes.size()));
+    gzclose(f);
+    e = quiet_error_of(gz);
+    EXPECT_NE(e.find("compressed bytes cannot hold the 54000000000000 voxel bytes"),
+              std::string::npos)
+        << e;
+  }
   // Corrupt dimensions and data type: FileErrors, and the C library says nothing.
   p = variant("dim.nii");
   patch_int16(p, 42, 0);
