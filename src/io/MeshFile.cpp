@@ -554,13 +554,21 @@ void check_obj(const std::string& path) {
     } else if (t[0] == "f") {
       if (t.size() < 4) corrupt(path, where + ": a face needs at least three vertices");
       for (size_t i = 1; i < t.size(); ++i) {
-        // "v", "v/vt", "v//vn" or "v/vt/vn": the vertex is required, the others optional.
-        size_t from = 0;
-        for (int kind = 0; kind < 3 && from <= t[i].size(); ++kind) {
+        // Exactly "v", "v/vt", "v//vn" or "v/vt/vn". vtkOBJReader reads "v/" or "v//" as
+        // texture or normal index 0, one before its array (a fuzzer found the SIGSEGV).
+        std::vector<std::string> parts;
+        for (size_t from = 0;;) {
           const size_t slash = t[i].find('/', from);
-          const std::string part =
-              t[i].substr(from, slash == std::string::npos ? std::string::npos : slash - from);
-          from = slash == std::string::npos ? t[i].size() + 1 : slash + 1;
+          parts.push_back(t[i].substr(from, slash == std::string::npos ? slash : slash - from));
+          if (slash == std::string::npos) break;
+          from = slash + 1;
+        }
+        if (parts.size() > 3 || (parts.size() == 2 && parts[1].empty()) ||
+            (parts.size() == 3 && parts[2].empty()))
+          corrupt(path, where + ": " + text::quote_value(t[i]) +
+                            " is not a face vertex (v, v/vt, v//vn or v/vt/vn)");
+        for (int kind = 0; kind < int(parts.size()); ++kind) {
+          const std::string& part = parts[size_t(kind)];
           if (part.empty() && kind > 0) continue;
           int64_t index = 0;
           if (!text::parse_int64(part, &index) || index == 0)

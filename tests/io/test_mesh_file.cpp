@@ -274,8 +274,15 @@ TEST(MeshFile, ObjGarbageAndBadIndicesAreRefused) {
   EXPECT_NE(error_for("v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n").find("line 2: a vertex is not"),
             std::string::npos);
   EXPECT_NE(error_for(v).find("no face ('f') lines"), std::string::npos);
-  // Good files still read: negative (relative) indices, v/vt/vn triples.
+  // "v/" and "v//" (an empty last index): vtkOBJReader read index 0, before its array
+  // (SIGSEGV, found by fuzz_mesh_obj).
+  for (const char* face : {"f 1 2/ 3\n", "f 1 2// 3\n", "f 1 2/1/1/1 3\n"})
+    EXPECT_NE(error_for(v + "vt 0 0\nvn 0 0 1\n" + face).find("is not a face vertex"),
+              std::string::npos)
+        << face;
+  // Good files still read: negative (relative) indices, v/vt/vn triples, v//vn.
   EXPECT_EQ(error_for(v + "vt 0 0\nf -3/1 -2/1 -1/1\n"), "");
+  EXPECT_EQ(error_for(v + "vn 0 0 1\nf 1//1 2//1 3//1\n"), "");
 }
 
 TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
