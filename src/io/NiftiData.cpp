@@ -24,6 +24,16 @@ namespace {
 // zlib's default buffer is 8 KiB; a larger one means fewer read calls on volumes of hundreds of MB.
 constexpr unsigned kGzipBufferBytes = 1u << 20;
 
+// Geometry beyond this (1000 km, in mm) is no scanner's: a header field near FLT_MAX once made
+// ITK's orientation SVD (vnl_svd, netlib ssvdc) loop without end.
+constexpr double kMaxGeometryMm = 1e9;
+
+[[noreturn]] void throw_absurd(const std::string& where, const std::string& field, double v) {
+  std::ostringstream s;
+  s << where << field << " is " << v << ": beyond any scanner's extent (at most 1e9 mm)";
+  throw InputError(s.str());
+}
+
 // The largest vox_offset taken (2^53 bytes, 8 PiB): exact in a double, far beyond any file.
 constexpr double kMaxVoxOffset = 9007199254740992.0;
 
@@ -206,13 +216,16 @@ void check_nifti_header(const std::string& path) {
     bytes *= uint64_t(dim[i]);
   }
   // Spacing: the C library and ITK turn a zero or NaN pixdim into 1 mm without a word.
-  for (int i = 1; i <= std::min<int64_t>(dim[0], 3); ++i)
+  for (int i = 1; i <= std::min<int64_t>(dim[0], 3); ++i) {
     if (!(pixdim[i] > 0) || !std::isfinite(pixdim[i])) {
       std::ostringstream s;
       s << where << "pixdim[" << i << "] is " << pixdim[i] << ": the voxel spacing along axis "
         << i - 1 << " must be a positive number of mm";
       throw InputError(s.str());
     }
+    if (pixdim[i] > kMaxGeometryMm)
+      throw_absurd(where, "pixdim[" + std::to_string(i) + "]", pixdim[i]);
+  }
   // Where the voxels start: a float in NIfTI-1 (NaN, infinite or beyond any file size here would
   // be undefined behaviour in the conversion to an offset), a signed 64-bit count in NIfTI-2.
   const double vox_offset =
@@ -288,15 +301,18 @@ void check_nifti_header(const std::string& path) {
       if (!std::isfinite(v))
         throw InputError(where + kQuatern[i] + " is not a finite number (qform_code " +
                          std::to_string(qform) + ")");
+      if (std::fabs(v) > kMaxGeometryMm) throw_absurd(where, kQuatern[i], v);
     }
   static const char* const kRows[] = {"srow_x", "srow_y", "srow_z"};
   if (sform > 0)
     for (int i = 0; i < 12; ++i) {
       const double v =
           v2 ? load<double>(raw + 400 + 8 * i, swap) : load<float>(raw + 280 + 4 * i, swap);
+      const std::string name = kRows[i / 4] + ("[" + std::to_string(i % 4) + "]");
       if (!std::isfinite(v))
-        throw InputError(where + kRows[i / 4] + "[" + std::to_string(i % 4) +
-                         "] is not a finite number (sform_code " + std::to_string(sform) + ")");
+        throw InputError(where + name + " is not a finite number (sform_code " +
+                         std::to_string(sform) + ")");
+      if (std::fabs(v) > kMaxGeometryMm) throw_absurd(where, name, v);
     }
 }
 

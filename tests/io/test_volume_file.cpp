@@ -314,6 +314,12 @@ TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
   patch_int16(p, 254, 1);
   patch_float(p, 280, nan);
   EXPECT_NE(quiet_error_of(p).find("srow_x[0] is not a finite number"), std::string::npos);
+  // A value near FLT_MAX made ITK's orientation SVD loop without end (found by fuzz_nifti).
+  patch_float(p, 280, 1.0f);
+  patch_float(p, 288, -1.7e38f);
+  EXPECT_NE(quiet_error_of(p).find("srow_x[2] is -1.7e+38: beyond any scanner's extent"),
+            std::string::npos)
+      << quiet_error_of(p);
   p = variant("qform.nii");
   patch_int16(p, 252, 1);
   patch_float(p, 268, nan);
