@@ -1,12 +1,8 @@
-# Third-party dependencies. The core library needs only the standard library and OpenMP; the
+# Third-party dependencies. The core library needs only the standard library and threads; the
 # header-only JSON and CLI libraries fall back to copies in third_party/ on machines without
 # Debian's packages (the GPU machine), and ITK stays at the edge (src/io).
 
 find_package(Threads REQUIRED)
-find_package(OpenMP)
-if(NOT OpenMP_CXX_FOUND)
-  message(WARNING "OpenMP not found: the CPU backend will run on one thread")
-endif()
 
 # nlohmann-json: Debian's nlohmann-json3-dev, else the vendored copy of the same version.
 find_package(nlohmann_json 3.10 QUIET)

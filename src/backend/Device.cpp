@@ -7,13 +7,10 @@
 #include <thread>
 
 #include "../core/Text.h"
+#include "ThreadPool.h"
 #include "sonoslice/core/Error.h"
 #ifdef SONOSLICE_HAVE_CUDA
 #include "CudaRuntime.h"
-#endif
-
-#ifdef _OPENMP
-#include <omp.h>
 #endif
 
 namespace sonoslice {
@@ -46,21 +43,14 @@ bool built_with_cuda() {
 
 namespace {
 int hardware_threads() {
-#ifdef _OPENMP
-  return omp_get_num_procs();
-#else
-  return std::max(1u, std::thread::hardware_concurrency());
-#endif
+  static const int n = backend::available_cpus();  // the affinity mask at first use
+  return n;
 }
 int g_threads = 0;  // 0 = default
 }  // namespace
 
 int cpu_threads() {
-#ifdef _OPENMP
   return g_threads > 0 ? g_threads : hardware_threads();
-#else
-  return 1;
-#endif
 }
 
 void set_cpu_threads(int n) {
@@ -72,16 +62,10 @@ void set_cpu_threads(int n) {
     throw ParameterError("threads", std::to_string(n) + ": more than " +
                                         std::to_string(kMaxCpuThreads) + " threads");
   g_threads = n;
-#ifdef _OPENMP
-  omp_set_num_threads(cpu_threads());
-#endif
 }
 
 void reset_cpu_threads() {
   g_threads = 0;
-#ifdef _OPENMP
-  omp_set_num_threads(cpu_threads());
-#endif
 }
 
 namespace {

@@ -1,12 +1,13 @@
 #pragma once
 /// @file The one choke point through which every parallel loop of the CPU backend runs.
-/// Kernels are functors of per-element SONOSLICE_HOST_DEVICE functions; changing the CPU
-/// threading (OpenMP today) touches this header only. The CUDA backend provides the same entry
-/// points as grid-stride kernels (ParallelForCUDA.cuh).
+/// Kernels are functors of per-element SONOSLICE_HOST_DEVICE functions; the CPU threads are the
+/// pool of ThreadPool.h (workers that sleep when idle, so a job shares the machine fairly). The
+/// CUDA backend provides the same entry points as grid-stride kernels (ParallelForCUDA.cuh).
 #include <cstdint>
 #include <type_traits>
 #include <utility>
 
+#include "ThreadPool.h"
 #include "sonoslice/backend/HostDevice.h"
 
 namespace sonoslice {
@@ -17,8 +18,13 @@ inline namespace SONOSLICE_KERNEL_ISA {
 /// chunk): each is scheduled separately.
 template <typename F>
 void parallel_for(int64_t n, const F& f) {
-#pragma omp parallel for schedule(dynamic, 1)
-  for (int64_t i = 0; i < n; ++i) f(i);
+  run_parallel(
+      n, 1,
+      [](const void* context, int64_t begin, int64_t end) {
+        const F& body = *static_cast<const F*>(context);
+        for (int64_t i = begin; i < end; ++i) body(i);
+      },
+      &f);
 }
 
 /// The range [0, n) cut into chunks of `chunk` elements, spread over the CPU threads:
@@ -48,15 +54,25 @@ struct has_pixels<F, S, decltype(std::declval<const F&>().pixels(std::declval<co
 /// paid once per row and stays in registers; on CUDA each thread computes row() for its pixel.
 template <typename F>
 void parallel_for_rows(int64_t rows, int width, const F& f, void* /*stream*/ = nullptr) {
-#pragma omp parallel for schedule(dynamic, 8)
-  for (int64_t r = 0; r < rows; ++r) {
-    const auto state = f.row(r);
-    if constexpr (detail::has_pixels<F, decltype(state)>::value) {
-      f.pixels(state, 0, width);
-    } else {
-      for (int u = 0; u < width; ++u) f.pixel(state, u);
-    }
-  }
+  struct Context {
+    const F* f;
+    int width;
+  } context{&f, width};
+  // Rows are handed out eight at a time.
+  run_parallel(
+      rows, 8,
+      [](const void* c, int64_t begin, int64_t end) {
+        const Context& ctx = *static_cast<const Context*>(c);
+        for (int64_t r = begin; r < end; ++r) {
+          const auto state = ctx.f->row(r);
+          if constexpr (detail::has_pixels<F, decltype(state)>::value) {
+            ctx.f->pixels(state, 0, ctx.width);
+          } else {
+            for (int u = 0; u < ctx.width; ++u) ctx.f->pixel(state, u);
+          }
+        }
+      },
+      &context);
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

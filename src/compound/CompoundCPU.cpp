@@ -1,5 +1,5 @@
 // The CPU backend of the compounding kernels for any x86-64 (or other) CPU: CompoundDriverCPU.h
-// with the OpenMP parallel_for and scalar code.
+// with the thread pool's parallel_for and scalar code.
 #include "CompoundBackends.h"
 #include "CompoundDriverCPU.h"
 

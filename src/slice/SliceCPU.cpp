@@ -1,5 +1,5 @@
 // The CPU backend of the slicing kernel for any x86-64 (or other) CPU: SliceImpl.h compiled
-// with the OpenMP parallel_for and scalar lanes.
+// with the thread pool's parallel_for and scalar lanes.
 #include "SliceImpl.h"
 
 namespace sonoslice {
