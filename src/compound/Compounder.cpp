@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -17,6 +18,7 @@
 #include "CompoundGrid.h"
 #include "Finish.h"
 #include "FrameClip.h"
+#include "PlusExact.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -133,6 +135,8 @@ struct Compounder::Impl {
   int span_width = -1, span_height = -1;
   FrameClip span_clip;
   std::vector<RowSpans> spans;
+  // PLUS-exact: the frames' type (the volume's), fixed by the first frame.
+  std::optional<PixelType> plus_frame_type;
 
   AccumulatorView view() {
     AccumulatorView v;
@@ -151,9 +155,10 @@ struct Compounder::Impl {
       // Uninitialised, then filled by all threads: the first touch of a GiB-sized grid is
       // page faults, which parallelise.
       cells.reset(new Accumulator[n]);
-      if (mode == Mode::Latest) stamp.reset(new int32_t[n]);
+      if (mode == Mode::Latest && !settings.plus_exact) stamp.reset(new int32_t[n]);
       cell_count = n;
-      const Accumulator empty{compound_impl::empty_value(mode), 0.f};
+      // PLUS-exact: PLUS's zeroed volume and accumulation buffer.
+      const Accumulator empty{settings.plus_exact ? 0.f : compound_impl::empty_value(mode), 0.f};
       backend::parallel_for_chunks(int64_t(n), int64_t(1) << 18,
                                    [&](int64_t, int64_t b, int64_t e) {
                                      std::fill(cells.get() + b, cells.get() + e, empty);
@@ -292,6 +297,72 @@ struct Compounder::Impl {
                    std::string("compounding: ") + what + " of frame " + std::to_string(frames + f));
   }
 
+  // PLUS-exact insertion of `count` 2D frames (PlusExact.cpp), in batches of ~64 frames.
+  void add_plus_exact(const void* data, PixelType type, int width, int height, int64_t count,
+                      const Mat4* image_to_reference, const FrameClip& clip) {
+    if (!compound_impl::plus_exact_frame_type(type))
+      throw InputError(std::string("PLUS-exact compounding: ") + to_string(type) +
+                       " frames are not supported (uint8, int16, uint16 or float32)");
+    if (plus_frame_type && *plus_frame_type != type)
+      throw InputError(std::string("PLUS-exact compounding: ") + to_string(type) +
+                       " frames after " + to_string(*plus_frame_type) +
+                       " ones (PLUS keeps the volume in the frames' type)");
+    if (!clip.custom_mask.empty())
+      throw InputError("PLUS-exact compounding: a custom pixel mask is not a PLUS clip");
+    plus_frame_type = type;
+    compound_impl::PlusExactBatch b;
+    b.type = type;
+    b.width = width;
+    b.height = height;
+    b.linear = settings.interpolation == Interpolation::Linear;
+    b.mode = mode;
+    b.filter = plus_filter(clip, width, height);
+    const size_t frame_bytes = size_t(width) * height * pixel_size(type);
+    std::vector<compound_impl::PixelToIndex> matrices;
+    for (int64_t first = 0; first < count; first += 64) {
+      const int64_t n = std::min<int64_t>(64, count - first);
+      matrices.resize(size_t(n));
+      for (int64_t f = 0; f < n; ++f) {
+        const Affine A = frame_to_index(grid, image_to_reference[first + f]);
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 4; ++j) matrices[size_t(f)].m[i][j] = A.a[i][j];
+      }
+      b.pixels = static_cast<const char*>(data) + size_t(first) * frame_bytes;
+      b.count = n;
+      b.matrices = matrices.data();
+      compound_impl::plus_exact_insert(view(), b);
+      frames += n;
+    }
+  }
+
+  // PLUS's pixel selection: the clip rectangle as the inclusive extent GetClipExtent makes of it
+  // (read_plus_config already turned PLUS's size s into s + 1 pixels), the fan test of
+  // vtkUnoptimizedInsertSlice (on when either angle is not 0) and the rejection threshold.
+  compound_impl::plus_exact::PixelFilter plus_filter(const FrameClip& clip, int width,
+                                                     int height) const {
+    compound_impl::plus_exact::PixelFilter f;
+    f.x0 = std::max(0, clip.x);
+    f.y0 = std::max(0, clip.y);
+    f.x1 = clip.width < 0 ? width - 1 : std::min(width - 1, clip.x + clip.width - 1);
+    f.y1 = clip.height < 0 ? height - 1 : std::min(height - 1, clip.y + clip.height - 1);
+    if (clip.fan) {
+      constexpr double kRadiansPerDegree = 0.017453292519943295;  // vtkMath::RadiansFromDegrees
+      double l = std::tan(clip.fan_angles_deg[0] * kRadiansPerDegree);
+      double r = std::tan(clip.fan_angles_deg[1] * kRadiansPerDegree);
+      if (l > r) std::swap(l, r);
+      f.fan = l != 0 || r != 0;
+      f.tan_left = l;
+      f.tan_right = r;
+      f.fan_origin[0] = clip.fan_origin_px[0];
+      f.fan_origin[1] = clip.fan_origin_px[1];
+      f.radius2_start = clip.fan_radius_px[0] * clip.fan_radius_px[0];
+      f.radius2_stop = clip.fan_radius_px[1] * clip.fan_radius_px[1];
+    }
+    f.reject = std::isfinite(settings.rejection_threshold);
+    f.threshold = settings.rejection_threshold;
+    return f;
+  }
+
   // `count` frames of rows × width samples, in batches: make_lines(f, lines) writes frame f's
   // rows in voxel-index space.
   template <typename MakeLines>
@@ -336,6 +407,8 @@ Compounder::Compounder(const VolumeGrid& grid, CompoundSettings settings, Device
   for (size_t k = 0; k < settings.hole_filling.size(); ++k)
     settings.hole_filling[k].validate("hole filling element " + std::to_string(k + 1));
   require_device(device);
+  if (settings.plus_exact && device.type != DeviceType::CPU)
+    throw InputError("PLUS-exact compounding runs on the CPU (device " + device.to_string() + ")");
 
   compound_impl::check_fits_in_memory(grid, settings, output_type, max_memory_bytes);
 
@@ -380,6 +453,8 @@ void Compounder::add_images(const void* pixels, PixelType type, int width, int h
                      std::to_string(height) + " is not usable");
   im.check_frames(pixels, count, image_to_reference, "image-to-reference");
   if (count == 0) return;
+  if (im.settings.plus_exact)
+    return im.add_plus_exact(pixels, type, width, height, count, image_to_reference, clip);
   // Row v of a frame: pixel (u, v) at A·(u, v, 0).
   im.add_frames(pixels, type, count, height, width, im.spans_for(width, height, clip),
                 [&](int64_t f, RowLine* lines) {
@@ -399,6 +474,8 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
                            int64_t count, const Mat4* probe_to_reference) {
   Impl& im = *impl_;
   geometry.validate("compounding: beam geometry");
+  if (im.settings.plus_exact)
+    throw InputError("PLUS-exact compounding takes 2D frames, not beam-space frames");
   im.check_frames(samples, count, probe_to_reference, "probe-to-reference");
   if (count == 0) return;
   const int rows = geometry.n_elevation * geometry.n_azimuth, width = geometry.n_samples;
@@ -434,6 +511,27 @@ Volume Compounder::volume(PixelType type) const {
   }
 #endif
   im.accumulators_to_host();
+  if (im.settings.plus_exact) {
+    if (im.plus_frame_type && *im.plus_frame_type != type)
+      throw InputError(std::string("PLUS-exact compounding: the volume is in the frames' type (") +
+                       to_string(*im.plus_frame_type) + "), not " + to_string(type));
+    // The voxels are final values (max: taken as they are). Without hole filling PLUS's volume
+    // is written as it is, also where the buffer rounded to 0; with it, those voxels are holes.
+    if (kernels.empty()) {
+      visit_pixel_type(type, [&](auto zero) {
+        using T = decltype(zero);
+        T* o = out.data_as<T>();
+        const Accumulator* c = im.cells.get();
+        backend::parallel_for_chunks(im.grid.voxel_count(), int64_t(1) << 18,
+                                     [&](int64_t, int64_t b, int64_t e) {
+                                       for (int64_t i = b; i < e; ++i) o[i] = T(c[i].value);
+                                     });
+      });
+      return out;
+    }
+    compound_impl::finish_volume(im.view(), Mode::Max, kernels, type, out.data());
+    return out;
+  }
   compound_impl::finish_volume(im.view(), im.mode, kernels, type, out.data());
   return out;
 }

@@ -8,6 +8,7 @@
 // sonoslice: the differences between sonoslice and PLUS are PLUS's rounding.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -187,6 +188,62 @@ TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
   std::printf("[ float emulation vs sonoslice ] max |difference| %.4f over %lld voxels\n", max_diff,
               (long long)compared);
   EXPECT_LT(max_diff, 0.05);
+}
+
+// --plus-exact (issue 12): PLUS's arithmetic reproduced gives PLUS's reference byte for byte,
+// over the grid both share (PLUS 2.x made this reference one voxel shorter along y), for any
+// thread count.
+TEST(PlusReconstruction, PlusExactGivesPlusReferenceByteForByte) {
+  SONOSLICE_REQUIRE_DATA();
+  const Sweep s = load_nwire();
+  const Volume reference = read_volume(plus_file("NwirePhantomFreehandReconstructed.mha"));
+  const VolumeGrid& rg = reference.grid();
+  CompoundSettings settings = s.config.settings;
+  settings.plus_exact = true;
+  // PLUS's grid at full precision: the reference's header rounds the origin to 6 digits, which
+  // moves every sample by up to 1e-4 voxel and changes roundings. Ours is one voxel longer in y.
+  const VolumeGrid grid =
+      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
+                              s.config.clip, *s.config.output_spacing_mm);
+  ASSERT_EQ(grid.dims[0], rg.dims[0]);
+  ASSERT_EQ(grid.dims[1], rg.dims[1] + 1);
+  ASSERT_EQ(grid.dims[2], rg.dims[2]);
+  std::vector<uint8_t> first;
+  for (int threads : {1, 2, 5}) {
+    set_cpu_threads(threads);
+    Compounder c(grid, settings);
+    for (size_t k = 0; k < s.frames.size(); ++k)
+      c.add_image(s.sequence.frame_pixels(s.frames[k]), s.sequence.pixel_type, s.sequence.width,
+                  s.sequence.height, s.image_to_reference[k], s.config.clip);
+    const Volume full = c.volume(PixelType::UInt8);
+    std::vector<uint8_t> shared;  // our volume on the reference's 101 x 104 x 74
+    for (int64_t z = 0; z < rg.dims[2]; ++z)
+      for (int64_t y = 0; y < rg.dims[1]; ++y)
+        for (int64_t x = 0; x < rg.dims[0]; ++x)
+          shared.push_back(full.data_as<uint8_t>()[(z * grid.dims[1] + y) * grid.dims[0] + x]);
+    const uint8_t* o = shared.data();
+    const uint8_t* ref = reference.data_as<uint8_t>();
+    int64_t differ = 0, nonzero = 0, first_diff = -1;
+    for (int64_t i = 0; i < rg.voxel_count(); ++i) {
+      nonzero += ref[i] != 0;
+      if (o[i] != ref[i]) {
+        if (first_diff < 0) first_diff = i;
+        ++differ;
+      }
+    }
+    std::printf("[ --plus-exact vs PLUS, %d threads ] %lld of %lld voxels differ (%lld non-zero)\n",
+                threads, (long long)differ, (long long)rg.voxel_count(), (long long)nonzero);
+    if (first_diff >= 0)
+      std::printf("  first at %lld: ours %d, PLUS %d\n", (long long)first_diff, o[first_diff],
+                  ref[first_diff]);
+    EXPECT_GT(nonzero, 10000);  // the wires
+    EXPECT_EQ(differ, 0);
+    if (first.empty())
+      first.assign(o, o + rg.voxel_count());
+    else
+      EXPECT_TRUE(std::equal(first.begin(), first.end(), o)) << threads << " threads";
+  }
+  reset_cpu_threads();
 }
 
 }  // namespace

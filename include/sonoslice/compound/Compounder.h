@@ -65,6 +65,12 @@ struct CompoundSettings {
   bool fill_holes = false;
   /// Applied in order; a hole takes the first kernel that can fill it from the samples.
   std::vector<HoleFillingKernel> hole_filling{HoleFillingKernel{}};
+  /// PLUS's arithmetic bit for bit (docs/compounding.md §4b): the volume kept in the frames'
+  /// type and rounded after every update, PLUS's uint16 accumulation buffer, its nearest and
+  /// trilinear update rules (Optimization="NONE"), its clip extent and fan test. 2D frames of
+  /// uint8, int16, uint16 or float32 on the CPU; volume() must be asked for the frames' type.
+  /// Deterministic for any thread count (the single-threaded PLUS result).
+  bool plus_exact = false;
 };
 
 /// Which pixels of a 2D frame go in: a clip rectangle and, optionally, a fan (PLUS's
