@@ -27,7 +27,7 @@ struct CompoundFlags {
   std::optional<double> rejection_threshold;
   std::optional<int> skip;
   std::optional<int> threads;  // unset: all hardware threads
-  bool quiet = false, verbose = false;
+  bool quiet = false, verbose = false, plus_exact = false;
 };
 
 // "8G", "512M", "1.5GiB", "2000000000" → bytes.
@@ -88,6 +88,7 @@ ReconstructionOptions options_of(const CompoundFlags& f) {
   if (!f.image_to_probe.empty())
     o.image_to_probe = read_matrix(f.image_to_probe, "--image-to-probe");
   if (!f.dtype.empty()) o.output_type = parse_pixel_type(f.dtype);
+  o.plus_exact = f.plus_exact;
   if (!f.max_memory.empty()) o.max_memory_bytes = parse_bytes(f.max_memory);
   return o;
 }
@@ -210,6 +211,9 @@ void add_compound_command(CLI::App& app) {
   cmd->add_option("--image-to-reference", flags->image_to_reference,
                   "Transform to reconstruct in, e.g. ImageToReference (default) or ImageToTracker");
   cmd->add_option("--dtype", flags->dtype, "Output type (default: the frames' type)");
+  cmd->add_flag("--plus-exact", flags->plus_exact,
+                "PLUS's arithmetic bit for bit: output in the frames' type rounded after every "
+                "update, PLUS's uint16 weights (docs/compounding.md 4b); CPU, 2D frames");
   cmd->add_option("--max-memory", flags->max_memory,
                   "Memory the reconstruction may use, e.g. 8G (default: what is available)");
   cmd->add_option("--world", flags->world, "Frame of --poses: LPS (default) or RAS");

@@ -774,7 +774,7 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
                      rejection_threshold: Optional[float] = None, clip: Clip = None, skip: Optional[int] = None,
                      transform: Optional[str] = None, image_to_probe=None, dtype=None, device: str = "cpu",
                      max_memory: Union[None, int, str] = None, return_weights: bool = False,
-                     return_report: bool = False):
+                     return_report: bool = False, plus_exact: bool = False):
     """Reconstructs a PLUS sequence with the same C++ recipe as ``sonoslice compound --sequence S
     --config X`` (same inputs, same bytes) and returns the :class:`Volume` (with
     ``return_weights=True``: ``(volume, weights)``; with ``return_report=True`` a dict of what was
@@ -790,7 +790,11 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
     ImageToReference); ``image_to_probe``: a 4×4 calibration (needed without a config, unless the
     frames carry the transform). Output ``dtype``: any given type is honoured; default the frames'
     (float64 and int8 frames give float32). Frames skipped (image or transform not OK) are
-    reported as one warning; ValueError when none can be used."""
+    reported as one warning; ValueError when none can be used.
+
+    ``plus_exact=True`` reproduces PLUS's arithmetic bit for bit (``--plus-exact``,
+    docs/compounding.md §4b): the volume in the frames' type rounded after every update, PLUS's
+    uint16 accumulation buffer (the weights are it / 256), its clip extent; CPU only."""
     seq = _as_sequence(sequence)
     cfg = _as_config(config)
     r = _ext.Reconstruction(
@@ -801,7 +805,7 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
         hole_filling=_hole_elements(hole_filling),
         rejection_threshold=None if rejection_threshold is None else float(rejection_threshold),
         skip=None if skip is None else _whole(skip, "skip"), transform=None if transform is None else str(transform),
-        device=str(device), max_memory=_memory_bytes(max_memory),
+        device=str(device), max_memory=_memory_bytes(max_memory), plus_exact=bool(plus_exact),
         **_plus_options(seq, clip, image_to_probe, spacing, dtype))
     volume, weights = r.run(bool(return_weights))
     out: Tuple[Any, ...] = (Volume._wrap(volume),)

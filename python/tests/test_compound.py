@@ -404,6 +404,18 @@ def test_reconstruct_plus_matches_plus_reference(nwire, nwire_config):
     assert again.array.tobytes() == volume.array.tobytes()
 
 
+def test_reconstruct_plus_plus_exact_is_plus_reference_byte_for_byte(nwire, nwire_config):
+    volume, weights = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, return_weights=True)
+    reference = sonoslice.Volume.from_file(NWIRE_REFERENCE)
+    assert volume.dtype == np.uint8
+    assert volume.array[:, :104, :].tobytes() == reference.array.tobytes()
+    # The weights are PLUS's uint16 accumulation buffer / 256.
+    buffer = weights.array * 256
+    assert np.array_equal(buffer, np.round(buffer)) and buffer.max() <= 65535
+    with pytest.raises(ValueError, match="dtype float32 with plus_exact"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, dtype="float32")
+
+
 def test_reconstruct_plus_overrides(nwire, nwire_config):
     v = sonoslice.reconstruct_plus(nwire, nwire_config, spacing=1.0, interpolation="nearest", compounding="max",
                                    skip=4, dtype="float32")

@@ -110,13 +110,13 @@ class Pool {
  private:
   void grow(int workers) {
     while (int(workers_started_) < workers) {
-      std::thread(&Pool::worker_main, this).detach();
+      // The generation before this loop's: a worker that starts late still joins it.
+      std::thread(&Pool::worker_main, this, generation_.load(std::memory_order_acquire)).detach();
       ++workers_started_;
     }
   }
 
-  void worker_main() {
-    uint64_t seen = generation_.load(std::memory_order_acquire);
+  void worker_main(uint64_t seen) {
     for (;;) {
       if (!spin_until([&] { return generation_.load(std::memory_order_acquire) != seen; })) {
         std::unique_lock<std::mutex> lock(m_);

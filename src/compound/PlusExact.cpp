@@ -53,8 +53,7 @@ void insert_slab(const AccumulatorView& g, const PlusExactBatch& b, int zlo, int
         const int x0 = floor_(px), y0 = floor_(py), z0 = floor_(pz);
         const double fx = px - x0, fy = py - y0, fz = pz - z0;
         const int x1 = x0 + (fx != 0), y1 = y0 + (fy != 0), z1 = z0 + (fz != 0);
-        if (x0 < 0 || y0 < 0 || z0 < 0 || x1 > g.nx - 1 || y1 > g.ny - 1 || z1 > g.nz - 1)
-          continue;
+        if (x0 < 0 || y0 < 0 || z0 < 0 || x1 > g.nx - 1 || y1 > g.ny - 1 || z1 > g.nz - 1) continue;
         const double rx = 1 - fx, ry = 1 - fy, rz = 1 - fz;
         const double ryrz = ry * rz, ryfz = ry * fz, fyrz = fy * rz, fyfz = fy * fz;
         // Corner j: bit 2 x, bit 1 y, bit 0 z (PLUS's numbering), visited from 7 down to 0.

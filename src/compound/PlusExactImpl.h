@@ -79,7 +79,8 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void nearest_update(Accumulator& voxel, T
           out = (in * kMultiplier + out * acc) / newa;
         } else {
           // int arithmetic, truncating division
-          const int sum = int(uint32_t(int(in) * kMultiplier) + uint32_t(wrapping_product(out, acc)));
+          const int sum =
+              int(uint32_t(int(in) * kMultiplier) + uint32_t(wrapping_product(out, acc)));
           out = static_cast<T>(sum / newa);
         }
         store(voxel, out, saturated(newa));

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 
+#include "PlusExact.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/BeamGeometryFile.h"
 #include "sonoslice/io/Npy.h"
@@ -215,6 +216,7 @@ struct Reconstruction::Impl {
 
   std::string name(const std::string& parameter) const { return spell(names, parameter); }
   void resolve_settings(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
+  void resolve_plus_exact(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
   void select_frames(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
   void fit_grid(const PlusReconstructionConfig* config, const ReconstructionOptions& o,
                 const std::optional<Vec3>& spacing);
@@ -276,6 +278,33 @@ void Reconstruction::Impl::resolve_settings(const PlusReconstructionConfig* conf
                      dims_text(source.width, source.height) + ")");
 
   output_type = o.output_type ? *o.output_type : default_output_type(source.type);
+  if (o.plus_exact) resolve_plus_exact(config, o);
+}
+
+// --plus-exact: PLUS's volume is in the frames' type, of 2D frames, with PLUS's clip.
+void Reconstruction::Impl::resolve_plus_exact(const PlusReconstructionConfig* config,
+                                              const ReconstructionOptions& o) {
+  settings.plus_exact = true;
+  if (source.kind == FrameSource::Kind::Beams)
+    throw InputError(name("plus_exact") + ": PLUS reconstructs 2D frames, not beam-space frames");
+  if (!compound_impl::plus_exact_frame_type(source.type))
+    throw InputError(name("plus_exact") + ": " + source.name + " has " + to_string(source.type) +
+                     " frames; PLUS-exact takes uint8, int16, uint16 or float32");
+  if (o.output_type && *o.output_type != source.type)
+    throw InputError(name("output_type") + " " + to_string(*o.output_type) + " with " +
+                     name("plus_exact") + ": PLUS's volume is in the frames' type (" +
+                     to_string(source.type) + ")");
+  output_type = source.type;
+  if (!clip.custom_mask.empty())
+    throw InputError(name("plus_exact") + ": the probe's fan mask is not a PLUS clip; give " +
+                     name("clip_rectangle") + " (or a PLUS configuration)");
+  if (o.device.type != DeviceType::CPU)
+    throw InputError(name("plus_exact") + " runs on the CPU, not " + o.device.to_string());
+  if (config && config->optimization != "NONE")
+    warn(config->path + ": Optimization=\"" +
+         (config->optimization.empty() ? std::string("(absent)") : config->optimization) +
+         "\": --plus-exact reproduces PLUS's Optimization=\"NONE\" arithmetic; PLUS's optimised "
+         "paths (fixed-point positions) can differ from it by 1 in some voxels");
 }
 
 FrameSelection select_frames(const FrameSource& source, const PlusReconstructionConfig* config,

@@ -408,6 +408,7 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
     }
   }
 
+  if (a.has("Optimization")) config.optimization = upper(trim(a.text("Optimization")));
   // Read by PLUS, not acted on here.
   for (const char* name :
        {"Optimization", "NumberOfThreads", "ImportanceMaskFilename",

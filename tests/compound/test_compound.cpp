@@ -888,5 +888,87 @@ TEST(Compound, OtherSampleTypesAreConvertedNotRejected) {
   EXPECT_FLOAT_EQ(v[1], -2.25f);
 }
 
+// --plus-exact (docs/compounding.md §4b): PLUS's integer updates, worked out by hand from
+// vtkNearestNeighborInterpolation and vtkTrilinearInterpolation.
+std::vector<uint8_t> plus_exact_voxel(Interpolation interp, CompoundingMode mode,
+                                      const std::vector<uint8_t>& samples, const Vec3& at,
+                                      std::vector<float>* buffer = nullptr) {
+  CompoundSettings s = settings(interp, mode);
+  s.plus_exact = true;
+  Compounder c(unit_grid(4, 4, 4), s);
+  std::vector<uint8_t> after;
+  for (uint8_t v : samples) {
+    c.add_image(&v, PixelType::UInt8, 1, 1, translation(at[0], at[1], at[2]));
+    after.push_back(c.volume(PixelType::UInt8).data_as<uint8_t>()[offset(c.grid(), 1, 1, 1)]);
+    if (buffer) buffer->push_back(c.weights().data_as<float>()[offset(c.grid(), 1, 1, 1)] * 256);
+  }
+  return after;
+}
+
+TEST(PlusExact, NearestMeanTruncatesEachUpdate) {
+  // (100·256 + 0)/256 = 100; (51·256 + 100·256)/512 = 75.5 → 75; (0 + 75·512)/768 = 50.
+  std::vector<float> buffer;
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Nearest, CompoundingMode::Mean, {100, 51, 0},
+                             {{1.2, 0.9, 1.0}}, &buffer),
+            (std::vector<uint8_t>{100, 75, 50}));
+  EXPECT_EQ(buffer, (std::vector<float>{256, 512, 768}));
+  // The default (float) mode keeps the mean: (100 + 51 + 0) / 3 = 50.33 → 50, after two 75.5 → 76.
+  Compounder c(unit_grid(4, 4, 4), settings(Interpolation::Nearest, CompoundingMode::Mean));
+  for (uint8_t v : {uint8_t(100), uint8_t(51)})
+    c.add_image(&v, PixelType::UInt8, 1, 1, translation(1.2, 0.9, 1.0));
+  EXPECT_EQ(c.volume(PixelType::UInt8).data_as<uint8_t>()[offset(c.grid(), 1, 1, 1)], 76);
+}
+
+TEST(PlusExact, NearestMaxAndLatestCountEveryPixelInTheBuffer) {
+  std::vector<float> buffer;
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Nearest, CompoundingMode::Max, {30, 90, 60},
+                             {{1, 1, 1}}, &buffer),
+            (std::vector<uint8_t>{30, 90, 90}));
+  EXPECT_EQ(buffer, (std::vector<float>{256, 512, 768}));
+  EXPECT_EQ(
+      plus_exact_voxel(Interpolation::Nearest, CompoundingMode::Latest, {30, 90, 60}, {{1, 1, 1}}),
+      (std::vector<uint8_t>{30, 90, 60}));
+}
+
+TEST(PlusExact, LinearMeanRoundsTheVoxelAndTheBufferAfterEveryUpdate) {
+  // A sample at (1.5, 1, 1): corner (1,1,1) weight f = 0.5. First: out = Round(0.5·200/0.5) =
+  // 200, buffer Round(0.5·256) = 128. Second (value 101): r = 0.5, a = 1, out =
+  // Round((0.5·101 + 0.5·200)/1) = Round(150.5) = 151, buffer 256. Third (value 0): r = 1,
+  // a = 1.5, out = Round(151/1.5) = Round(100.67) = 101.
+  std::vector<float> buffer;
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Linear, CompoundingMode::Mean, {200, 101, 0},
+                             {{1.5, 1, 1}}, &buffer),
+            (std::vector<uint8_t>{200, 151, 101}));
+  EXPECT_EQ(buffer, (std::vector<float>{128, 256, 384}));
+}
+
+TEST(PlusExact, LinearMaxTakesASampleOnlyAtWeightOneEighthAndSetsTheBuffer) {
+  // At (0.1, 1, 1) the corner (1,1,1) has weight 0.1 < 1/8: the voxel stays empty.
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Linear, CompoundingMode::Max, {200}, {{0.1, 1, 1}}),
+            (std::vector<uint8_t>{0}));
+  // At (1.25, 1, 1) the weight is 0.75: the value is taken and the buffer set to
+  // Round(0.75·256) = 192 each time, not accumulated.
+  std::vector<float> buffer;
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Linear, CompoundingMode::Max, {50, 40}, {{1.25, 1, 1}},
+                             &buffer),
+            (std::vector<uint8_t>{50, 50}));
+  EXPECT_EQ(buffer, (std::vector<float>{192, 192}));
+}
+
+TEST(PlusExact, RefusesWhatPlusCannotDo) {
+  CompoundSettings s;
+  s.plus_exact = true;
+  Compounder c(unit_grid(4, 4, 4), s);
+  const double d = 1.0;
+  EXPECT_THROW(c.add_image(&d, PixelType::Float64, 1, 1, translation(1, 1, 1)), InputError);
+  BeamGeometry g;
+  g.n_elevation = g.n_azimuth = g.n_samples = 1;
+  const uint8_t b = 1;
+  EXPECT_THROW(c.add_beams(&b, PixelType::UInt8, g, translation(1, 1, 1)), InputError);
+  const uint8_t v = 5;
+  c.add_image(&v, PixelType::UInt8, 1, 1, translation(1, 1, 1));
+  EXPECT_THROW((void)c.volume(PixelType::Float32), InputError);  // PLUS's volume is uint8 here
+}
+
 }  // namespace
 }  // namespace sonoslice

@@ -118,6 +118,9 @@ struct ReconstructionOptions {
   std::optional<Mat4> image_to_probe;
   /// Default: the frames' type, except float64 and int8 frames, which give float32.
   std::optional<PixelType> output_type;
+  /// PLUS's arithmetic bit for bit (CompoundSettings::plus_exact, docs/compounding.md §4b): 2D
+  /// frames of uint8/int16/uint16/float32, output in the frames' type, on the CPU.
+  bool plus_exact = false;
   Device device = Device::cpu();
   uint64_t max_memory_bytes = 0;  ///< 0: what the machine has
   ParameterNames names;           ///< spelling of parameters in messages (default: as above)

@@ -23,6 +23,9 @@ struct PlusReconstructionConfig {
   CompoundSettings settings;                        ///< interpolation, mode, threshold, holes
   FrameClip clip;                                   ///< clip rectangle and fan
   int skip_interval = 1;                            ///< use frames 0, k, 2k, ...
+  /// The Optimization attribute (NONE, PARTIAL, FULL, GPU), upper case; empty when absent.
+  /// Only --plus-exact looks at it: it reproduces the NONE path.
+  std::string optimization;
   /// Attributes of `VolumeReconstruction` (and its hole-filling elements) that sonoslice read
   /// but does not act on (Optimization, NumberOfThreads: sonoslice picks its own).
   std::vector<std::string> ignored_attributes;
