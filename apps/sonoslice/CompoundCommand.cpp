@@ -28,6 +28,7 @@ struct CompoundFlags {
   std::optional<int> skip;
   std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false, verbose = false, plus_exact = false;
+  std::string plus_optimization;
 };
 
 // "8G", "512M", "1.5GiB", "2000000000" → bytes.
@@ -89,6 +90,10 @@ ReconstructionOptions options_of(const CompoundFlags& f) {
     o.image_to_probe = read_matrix(f.image_to_probe, "--image-to-probe");
   if (!f.dtype.empty()) o.output_type = parse_pixel_type(f.dtype);
   o.plus_exact = f.plus_exact;
+  if (!f.plus_optimization.empty()) {
+    if (!f.plus_exact) throw InputError("--plus-optimization needs --plus-exact");
+    o.plus_optimization = f.plus_optimization;
+  }
   if (!f.max_memory.empty()) o.max_memory_bytes = parse_bytes(f.max_memory);
   return o;
 }
@@ -214,6 +219,9 @@ void add_compound_command(CLI::App& app) {
   cmd->add_flag("--plus-exact", flags->plus_exact,
                 "PLUS's arithmetic bit for bit: output in the frames' type rounded after every "
                 "update, PLUS's uint16 weights (docs/compounding.md 4b); CPU, 2D frames");
+  cmd->add_option("--plus-optimization", flags->plus_optimization,
+                  "With --plus-exact: PLUS's insertion path none, partial or full (default: the "
+                  "XML's Optimization, else full as in PLUS)");
   cmd->add_option("--max-memory", flags->max_memory,
                   "Memory the reconstruction may use, e.g. 8G (default: what is available)");
   cmd->add_option("--world", flags->world, "Frame of --poses: LPS (default) or RAS");

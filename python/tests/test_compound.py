@@ -416,6 +416,23 @@ def test_reconstruct_plus_plus_exact_is_plus_reference_byte_for_byte(nwire, nwir
         sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, dtype="float32")
 
 
+def test_reconstruct_plus_plus_optimization(nwire, nwire_config):
+    # The XML says Optimization="NONE"; FULL (PLUS's default, fixed-point positions) moves a few
+    # samples by one voxel; PARTIAL gives NONE's bytes here (IGSIO's code does the same).
+    none = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, skip=4)
+    partial = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, skip=4, plus_optimization="partial")
+    full = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, skip=4, plus_optimization="FULL")
+    assert partial.array.tobytes() == none.array.tobytes()
+    differ = np.count_nonzero(full.array != none.array)
+    assert 0 < differ < 0.01 * none.array.size
+    with pytest.raises(ValueError, match="plus_optimization .*GPU"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, plus_optimization="gpu")
+    with pytest.raises(ValueError, match="not one of NONE, PARTIAL, FULL"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, plus_optimization="fast")
+    with pytest.raises(ValueError, match="needs plus_exact"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, plus_optimization="full")
+
+
 def test_reconstruct_plus_overrides(nwire, nwire_config):
     v = sonoslice.reconstruct_plus(nwire, nwire_config, spacing=1.0, interpolation="nearest", compounding="max",
                                    skip=4, dtype="float32")

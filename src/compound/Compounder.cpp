@@ -316,6 +316,7 @@ struct Compounder::Impl {
     b.height = height;
     b.linear = settings.interpolation == Interpolation::Linear;
     b.mode = mode;
+    b.optimization = settings.plus_optimization;
     b.filter = plus_filter(clip, width, height);
     const size_t frame_bytes = size_t(width) * height * pixel_size(type);
     std::vector<compound_impl::PixelToIndex> matrices;

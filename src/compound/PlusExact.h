@@ -5,6 +5,7 @@
 
 #include "CompoundTypes.h"
 #include "PlusExactImpl.h"
+#include "sonoslice/compound/Compounder.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
@@ -24,6 +25,7 @@ struct PlusExactBatch {
   plus_exact::PixelFilter filter;
   bool linear = true;
   Mode mode = Mode::Mean;
+  PlusOptimization optimization = PlusOptimization::Full;
 };
 
 /// Whether PLUS-exact compounding takes frames of this type.

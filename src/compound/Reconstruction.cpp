@@ -3,6 +3,7 @@
 // output type and words the report. Built into sonoslice_io, since it reads files.
 #include "sonoslice/compound/Reconstruction.h"
 
+#include <cctype>
 #include <chrono>
 #include <cmath>
 
@@ -300,11 +301,25 @@ void Reconstruction::Impl::resolve_plus_exact(const PlusReconstructionConfig* co
                      name("clip_rectangle") + " (or a PLUS configuration)");
   if (o.device.type != DeviceType::CPU)
     throw InputError(name("plus_exact") + " runs on the CPU, not " + o.device.to_string());
-  if (config && config->optimization != "NONE")
-    warn(config->path + ": Optimization=\"" +
-         (config->optimization.empty() ? std::string("(absent)") : config->optimization) +
-         "\": --plus-exact reproduces PLUS's Optimization=\"NONE\" arithmetic; PLUS's optimised "
-         "paths (fixed-point positions) can differ from it by 1 in some voxels");
+  // PLUS's insertion path: the caller's, else the configuration's Optimization, else FULL.
+  std::string path = o.plus_optimization ? *o.plus_optimization
+                     : config            ? config->optimization
+                                         : std::string();
+  std::string what = o.plus_optimization ? name("plus_optimization")
+                     : config            ? config->path + ": VolumeReconstruction Optimization"
+                                         : std::string();
+  for (char& c : path) c = char(std::toupper(static_cast<unsigned char>(c)));
+  if (path.empty() || path == "FULL")
+    settings.plus_optimization = PlusOptimization::Full;
+  else if (path == "PARTIAL")
+    settings.plus_optimization = PlusOptimization::Partial;
+  else if (path == "NONE")
+    settings.plus_optimization = PlusOptimization::None;
+  else if (path == "GPU")
+    throw InputError(what + " \"GPU\": PLUS's OpenCL path is not reproduced by " +
+                     name("plus_exact") + " (NONE, PARTIAL or FULL)");
+  else
+    throw InputError(what + " \"" + path + "\": not one of NONE, PARTIAL, FULL");
 }
 
 FrameSelection select_frames(const FrameSource& source, const PlusReconstructionConfig* config,

@@ -409,6 +409,10 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
   }
 
   if (a.has("Optimization")) config.optimization = upper(trim(a.text("Optimization")));
+  // --plus-exact follows this path (GPU is refused there); absent: FULL, PLUS's default.
+  if (config.optimization == "NONE") config.settings.plus_optimization = PlusOptimization::None;
+  if (config.optimization == "PARTIAL")
+    config.settings.plus_optimization = PlusOptimization::Partial;
   // Read by PLUS, not acted on here.
   for (const char* name :
        {"Optimization", "NumberOfThreads", "ImportanceMaskFilename",

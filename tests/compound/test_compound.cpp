@@ -8,6 +8,7 @@
 #include <map>
 #include <random>
 
+#include "../../src/compound/PlusExactImpl.h"
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/core/Error.h"
@@ -892,9 +893,11 @@ TEST(Compound, OtherSampleTypesAreConvertedNotRejected) {
 // vtkNearestNeighborInterpolation and vtkTrilinearInterpolation.
 std::vector<uint8_t> plus_exact_voxel(Interpolation interp, CompoundingMode mode,
                                       const std::vector<uint8_t>& samples, const Vec3& at,
-                                      std::vector<float>* buffer = nullptr) {
+                                      std::vector<float>* buffer = nullptr,
+                                      PlusOptimization path = PlusOptimization::None) {
   CompoundSettings s = settings(interp, mode);
   s.plus_exact = true;
+  s.plus_optimization = path;
   Compounder c(unit_grid(4, 4, 4), s);
   std::vector<uint8_t> after;
   for (uint8_t v : samples) {
@@ -953,6 +956,104 @@ TEST(PlusExact, LinearMaxTakesASampleOnlyAtWeightOneEighthAndSetsTheBuffer) {
                              &buffer),
             (std::vector<uint8_t>{50, 50}));
   EXPECT_EQ(buffer, (std::vector<float>{192, 192}));
+}
+
+// IGSIO's fixed.h: value × 2^14 in an int; fixed(double) rounds half to even.
+TEST(PlusExact, FixedPointIsIgsioFixed) {
+  using compound_impl::plus_exact::Fixed;
+  using compound_impl::plus_exact::fixed_from;
+  using compound_impl::plus_exact::fixed_from_int;
+  EXPECT_EQ(fixed_from(0.125).i, 2048);
+  EXPECT_EQ(fixed_from(-1.0).i, -16384);
+  EXPECT_EQ(fixed_from(0.5 / 16384).i, 0);  // ties to even
+  EXPECT_EQ(fixed_from(1.5 / 16384).i, 2);
+  EXPECT_EQ(fixed_from(-37.3).i, int(std::lround(-37.3 * 16384)));
+  EXPECT_EQ(fixed_from_int(-3).i, -3 * 16384);
+  // fast_multiply rounds: 0.3 × 0.7 = 0.21 → (4915 · 11469 + 8192) >> 14 = 3441.
+  EXPECT_EQ((fixed_from(0.3) * fixed_from(0.7)).i, (4915 * 11469 + 8192) >> 14);
+  EXPECT_EQ((7 * fixed_from(0.25)).i, 7 * 4096);
+  EXPECT_EQ((fixed_from(1.0) / fixed_from(3.0)).i, 5461);
+}
+
+// vtkUltraFindExtent's row extent is exactly the pixels whose rounded position is inside the
+// volume (for rows that cross it once), in double and in fixed point.
+template <typename F>
+void check_row_extents() {
+  using compound_impl::plus_exact::fixed_from;
+  using compound_impl::plus_exact::round_position;
+  using compound_impl::plus_exact::RowExtent;
+  const auto as_f = [](double v) {
+    if constexpr (std::is_same<F, double>::value)
+      return v;
+    else
+      return fixed_from(v);
+  };
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> pos(-20, 45), step(-0.6, 0.6);
+  const int vmin[3] = {0, 0, 0}, vmax[3] = {19, 24, 29}, pixels[2] = {0, 199};
+  int rows_inside = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    F point[3], axis[3];
+    for (int a = 0; a < 3; ++a) {
+      point[a] = as_f(pos(rng));
+      axis[a] = as_f(step(rng));
+    }
+    RowExtent<F> e{point, axis, vmin, vmax, pixels, {1, 1, 1}};
+    int start, end;
+    e.find(start, end);
+    int first = -1, last = -2;
+    for (int x = pixels[0]; x <= pixels[1]; ++x) {
+      bool inside = true;
+      for (int a = 0; a < 3; ++a) {
+        const int i = round_position(point[a] + RowExtent<F>::step_of(x, axis[a]));
+        inside = inside && i >= vmin[a] && i <= vmax[a];
+      }
+      if (!inside) continue;
+      if (first < 0) first = x;
+      last = x;
+    }
+    if (first < 0) {
+      // A row that misses the volume can come back as one pixel (IGSIO's search stops on the
+      // row's first pixel); PLUS writes it unchecked, PlusExact.cpp skips it.
+      EXPECT_LE(end - start, 0) << "trial " << trial;
+    } else {
+      ++rows_inside;
+      EXPECT_EQ(start, first) << "trial " << trial;
+      EXPECT_EQ(end, last) << "trial " << trial;
+    }
+  }
+  EXPECT_GT(rows_inside, 400);
+}
+TEST(PlusExact, RowExtentIsThePixelsInsideTheVolume) {
+  check_row_extents<double>();
+  check_row_extents<compound_impl::plus_exact::Fixed>();
+}
+
+TEST(PlusExact, OptimizedPathsSetTheBufferForMaxAndFollowFixedPoint) {
+  // PARTIAL and FULL nearest MAXIMUM set the buffer to 256 where NONE adds 256.
+  for (PlusOptimization path : {PlusOptimization::Partial, PlusOptimization::Full}) {
+    std::vector<float> buffer;
+    EXPECT_EQ(plus_exact_voxel(Interpolation::Nearest, CompoundingMode::Max, {30, 90, 60},
+                               {{1, 1, 1}}, &buffer, path),
+              (std::vector<uint8_t>{30, 90, 90}));
+    EXPECT_EQ(buffer, (std::vector<float>{256, 256, 256}));
+  }
+  // Linear MEAN at (1.3, 1, 1), corner (1,1,1). PARTIAL is NONE's double arithmetic:
+  // f = 0.7, out = Round(0.7·200/0.7) = 200, buffer Round(0.7·256) = Round(179.2) = 179; then
+  // r = 179/256, a = 0.7 + r, out = Round((0.7·101 + r·200)/a) = Round(150.47) = 150.
+  std::vector<float> partial;
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Linear, CompoundingMode::Mean, {200, 101},
+                             {{1.3, 1, 1}}, &partial, PlusOptimization::Partial),
+            (std::vector<uint8_t>{200, 150}));
+  EXPECT_EQ(partial, (std::vector<float>{179, 358}));
+  // FULL: the position 1.3 is 21299/16384, the weight 1 - 4915/16384 = 11469/16384 (0.70001),
+  // whose buffer is Round(11469/64) = Round(179.2) = 179 too; the second mean is
+  // fixed((11469·101 + 11456·200) / (11469 + 11456)) = 150.47 → 150.
+  std::vector<float> full;
+  EXPECT_EQ(plus_exact_voxel(Interpolation::Linear, CompoundingMode::Mean, {200, 101},
+                             {{1.3, 1, 1}}, &full, PlusOptimization::Full),
+            (std::vector<uint8_t>{200, 150}));
+  EXPECT_EQ(full, (std::vector<float>{179, 358}));
 }
 
 TEST(PlusExact, RefusesWhatPlusCannotDo) {

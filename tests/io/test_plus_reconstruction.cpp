@@ -193,6 +193,17 @@ TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
 // --plus-exact (issue 12): PLUS's arithmetic reproduced gives PLUS's reference byte for byte,
 // over the grid both share (PLUS 2.x made this reference one voxel shorter along y), for any
 // thread count.
+// The sweep compounded on `grid` with `settings` on `threads` CPU threads.
+Volume compound_sweep(const Sweep& s, const VolumeGrid& grid, const CompoundSettings& settings,
+                      int threads) {
+  set_cpu_threads(threads);
+  Compounder c(grid, settings);
+  for (size_t k = 0; k < s.frames.size(); ++k)
+    c.add_image(s.sequence.frame_pixels(s.frames[k]), s.sequence.pixel_type, s.sequence.width,
+                s.sequence.height, s.image_to_reference[k], s.config.clip);
+  return c.volume(PixelType::UInt8);
+}
+
 TEST(PlusReconstruction, PlusExactGivesPlusReferenceByteForByte) {
   SONOSLICE_REQUIRE_DATA();
   const Sweep s = load_nwire();
@@ -210,12 +221,7 @@ TEST(PlusReconstruction, PlusExactGivesPlusReferenceByteForByte) {
   ASSERT_EQ(grid.dims[2], rg.dims[2]);
   std::vector<uint8_t> first;
   for (int threads : {1, 2, 5}) {
-    set_cpu_threads(threads);
-    Compounder c(grid, settings);
-    for (size_t k = 0; k < s.frames.size(); ++k)
-      c.add_image(s.sequence.frame_pixels(s.frames[k]), s.sequence.pixel_type, s.sequence.width,
-                  s.sequence.height, s.image_to_reference[k], s.config.clip);
-    const Volume full = c.volume(PixelType::UInt8);
+    const Volume full = compound_sweep(s, grid, settings, threads);
     std::vector<uint8_t> shared;  // our volume on the reference's 101 x 104 x 74
     for (int64_t z = 0; z < rg.dims[2]; ++z)
       for (int64_t y = 0; y < rg.dims[1]; ++y)
@@ -242,6 +248,49 @@ TEST(PlusReconstruction, PlusExactGivesPlusReferenceByteForByte) {
       first.assign(o, o + rg.voxel_count());
     else
       EXPECT_TRUE(std::equal(first.begin(), first.end(), o)) << threads << " threads";
+  }
+  reset_cpu_threads();
+}
+
+// PLUS's optimised paths (Optimization PARTIAL, FULL) on the NWire sweep: the FNV-1a hashes of
+// the whole 101 x 105 x 74 volume that IGSIO's own vtkOptimizedInsertSlice<fixed|double, uint8>
+// gives for these matrices (compiled from IGSIO's source with VTK 9.1 and run on one thread;
+// docs/compounding.md §4b says how). Same bytes for 1, 2 and 5 threads.
+TEST(PlusReconstruction, PlusExactOptimizedPathsGiveIgsioBytes) {
+  SONOSLICE_REQUIRE_DATA();
+  const Sweep s = load_nwire();
+  const VolumeGrid grid =
+      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
+                              s.config.clip, *s.config.output_spacing_mm);
+  struct Case {
+    PlusOptimization path;
+    Interpolation interp;
+    CompoundingMode mode;
+    uint64_t hash;
+  };
+  const Case cases[] = {
+      {PlusOptimization::Full, Interpolation::Linear, CompoundingMode::Mean, 0x1f1ce6ca62829fbaull},
+      {PlusOptimization::Full, Interpolation::Nearest, CompoundingMode::Mean,
+       0x080b465ccac44011ull},
+      {PlusOptimization::Full, Interpolation::Linear, CompoundingMode::Max, 0x995af95ffb29a22bull},
+      {PlusOptimization::Partial, Interpolation::Nearest, CompoundingMode::Max,
+       0x8fa326e0c443f3deull},
+  };
+  for (const Case& k : cases) {
+    CompoundSettings settings = s.config.settings;
+    settings.plus_exact = true;
+    settings.plus_optimization = k.path;
+    settings.interpolation = k.interp;
+    settings.mode = k.mode;
+    // Every thread count for the first case; 2 threads for the others (each run takes ~2 s).
+    for (int threads : k.hash == cases[0].hash ? std::vector<int>{1, 2, 5} : std::vector<int>{2}) {
+      const Volume v = compound_sweep(s, grid, settings, threads);
+      uint64_t h = 0xcbf29ce484222325ull;
+      for (int64_t i = 0; i < v.grid().voxel_count(); ++i)
+        h = (h ^ v.data_as<uint8_t>()[i]) * 0x100000001b3ull;
+      EXPECT_EQ(h, k.hash) << "path " << int(k.path) << ", mode " << int(k.mode) << ", " << threads
+                           << " threads";
+    }
   }
   reset_cpu_threads();
 }

@@ -57,6 +57,12 @@ const char* to_string(HoleFillingKernel::Type type);
 /// The names above or PLUS's (NEAREST_NEIGHBOR, GAUSSIAN, ...), any case.
 HoleFillingKernel::Type parse_hole_filling_type(const std::string& name);
 
+/// PLUS's Optimization attribute: which insertion arithmetic PLUS uses (docs/compounding.md §4b).
+/// None: positions in double, pixel by pixel with bounds tests. Partial: per row, the pixels
+/// that land inside the volume (vtkUltraFindExtent), positions in double. Full (PLUS's
+/// default): the same with positions and trilinear weights in 14-bit fixed point.
+enum class PlusOptimization { None, Partial, Full };
+
 struct CompoundSettings {
   Interpolation interpolation = Interpolation::Linear;  ///< how a sample splats into voxels
   CompoundingMode mode = CompoundingMode::Mean;
@@ -67,10 +73,12 @@ struct CompoundSettings {
   std::vector<HoleFillingKernel> hole_filling{HoleFillingKernel{}};
   /// PLUS's arithmetic bit for bit (docs/compounding.md §4b): the volume kept in the frames'
   /// type and rounded after every update, PLUS's uint16 accumulation buffer, its nearest and
-  /// trilinear update rules (Optimization="NONE"), its clip extent and fan test. 2D frames of
-  /// uint8, int16, uint16 or float32 on the CPU; volume() must be asked for the frames' type.
-  /// Deterministic for any thread count (the single-threaded PLUS result).
+  /// trilinear update rules, its clip extent and fan test, on the path `plus_optimization`
+  /// names. 2D frames of uint8, int16, uint16 or float32 on the CPU; volume() must be asked for
+  /// the frames' type. Deterministic for any thread count (the single-threaded PLUS result).
   bool plus_exact = false;
+  /// Which of PLUS's insertion paths plus_exact follows (PLUS's Optimization attribute).
+  PlusOptimization plus_optimization = PlusOptimization::Full;
 };
 
 /// Which pixels of a 2D frame go in: a clip rectangle and, optionally, a fan (PLUS's

@@ -121,6 +121,9 @@ struct ReconstructionOptions {
   /// PLUS's arithmetic bit for bit (CompoundSettings::plus_exact, docs/compounding.md §4b): 2D
   /// frames of uint8/int16/uint16/float32, output in the frames' type, on the CPU.
   bool plus_exact = false;
+  /// With plus_exact: PLUS's insertion path ("none", "partial" or "full", any case). Default:
+  /// the configuration's Optimization attribute, else FULL (PLUS's default).
+  std::optional<std::string> plus_optimization;
   Device device = Device::cpu();
   uint64_t max_memory_bytes = 0;  ///< 0: what the machine has
   ParameterNames names;           ///< spelling of parameters in messages (default: as above)

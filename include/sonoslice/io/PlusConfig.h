@@ -24,7 +24,7 @@ struct PlusReconstructionConfig {
   FrameClip clip;                                   ///< clip rectangle and fan
   int skip_interval = 1;                            ///< use frames 0, k, 2k, ...
   /// The Optimization attribute (NONE, PARTIAL, FULL, GPU), upper case; empty when absent.
-  /// Only --plus-exact looks at it: it reproduces the NONE path.
+  /// Only --plus-exact looks at it (settings.plus_optimization: NONE, PARTIAL, else FULL).
   std::string optimization;
   /// Attributes of `VolumeReconstruction` (and its hole-filling elements) that sonoslice read
   /// but does not act on (Optimization, NumberOfThreads: sonoslice picks its own).
