@@ -9,9 +9,11 @@
 //   build/bin/bench_compound --benchmark_filter=Jauer
 #include <benchmark/benchmark.h>
 
+#include <cmath>
 #include <cstring>
 #include <map>
 #include <memory>
+#include <random>
 
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/io/PlusConfig.h"
@@ -112,6 +114,40 @@ struct RealSweep {
   std::string error;
 };
 
+// BoneLong (issue 12's 500-frame workload, as bench/splat_speed.py builds it for the CLI): the
+// 21 Bone frames cycled to 500 along a 60 mm sweep in the recorded sweep's direction, each pose
+// jittered by up to ±1 mm and ±2° about a random axis through the image origin (seeded).
+void lengthen(RealSweep& r) {
+  const int recorded = int(r.image_to_reference.size());
+  const size_t frame_bytes = size_t(r.width) * r.height;
+  const Mat4 first = r.image_to_reference.front();
+  Vec3 direction = r.image_to_reference.back().column3(3) - first.column3(3);
+  direction = (1.0 / norm(direction)) * direction;
+  std::mt19937_64 rng(12);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  std::normal_distribution<double> gauss;
+  std::vector<uint8_t> pixels(500 * frame_bytes);
+  std::vector<Mat4> poses;
+  for (int k = 0; k < 500; ++k) {
+    std::memcpy(pixels.data() + k * frame_bytes, r.pixels.data() + (k % recorded) * frame_bytes,
+                frame_bytes);
+    Vec3 axis{gauss(rng), gauss(rng), gauss(rng)};
+    axis = (1.0 / norm(axis)) * axis;
+    const double angle = unit(rng) * 2.0 * M_PI / 180.0, c = std::cos(angle), sn = std::sin(angle);
+    Mat3 rot;  // Rodrigues
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) rot.m[i][j] = (i == j ? c : 0.0) + (1 - c) * axis[i] * axis[j];
+    rot.m[0][1] -= sn * axis[2], rot.m[0][2] += sn * axis[1], rot.m[1][2] -= sn * axis[0];
+    rot.m[1][0] += sn * axis[2], rot.m[2][0] -= sn * axis[1], rot.m[2][1] += sn * axis[0];
+    Mat4 pose = Mat4::from_rotation_translation(rot, {0, 0, 0}) * first;
+    const Vec3 shift = (60.0 * k / 500) * direction;
+    for (int i = 0; i < 3; ++i) pose.m[i][3] = first.m[i][3] + shift[i] + unit(rng);
+    poses.push_back(pose);
+  }
+  r.pixels = std::move(pixels);
+  r.image_to_reference = std::move(poses);
+}
+
 const RealSweep& real_sweep(const std::string& name) {
   static std::map<std::string, std::unique_ptr<RealSweep>> cache;
   auto& entry = cache[name];
@@ -120,7 +156,7 @@ const RealSweep& real_sweep(const std::string& name) {
   RealSweep& r = *entry;
   try {
     const std::string dir = SONOSLICE_DATA_DIR "/plus/";
-    const bool nwire = name == "Nwire";
+    const bool nwire = name == "Nwire";  // else BoneUltrasound_L14 (Bone, BoneLong)
     const PlusSequence s = read_plus_sequence(
         dir + (nwire ? "NwirePhantomFreehand.igs.mha" : "BoneUltrasound_L14.igs.mha"));
     r.config = read_plus_config(
@@ -137,6 +173,7 @@ const RealSweep& real_sweep(const std::string& name) {
       const auto* p = static_cast<const uint8_t*>(s.frame_pixels(f));
       r.pixels.insert(r.pixels.end(), p, p + s.frame_bytes());
     }
+    if (name == "BoneLong") lengthen(r);
     r.grid = Compounder::grid_around(r.image_to_reference, r.width, r.height, r.config.clip,
                                      *r.config.output_spacing_mm);
   } catch (const std::exception& e) {
@@ -181,6 +218,7 @@ void real_cases(benchmark::internal::Benchmark* b) {
 
 BENCHMARK_CAPTURE(BM_PlusSweep, Nwire, std::string("Nwire"))->Apply(real_cases);
 BENCHMARK_CAPTURE(BM_PlusSweep, BoneL14, std::string("Bone"))->Apply(real_cases);
+BENCHMARK_CAPTURE(BM_PlusSweep, BoneLong, std::string("BoneLong"))->Apply(real_cases);
 
 // holes: -1 = splatting only (no volume()), 0 = + finish, 1 = + finish with hole filling.
 void cases(benchmark::internal::Benchmark* b) {

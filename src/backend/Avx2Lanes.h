@@ -116,6 +116,48 @@ inline Vec8i operator+(Vec8i a, int32_t b) {
   return {_mm256_add_epi32(a.v, _mm256_set1_epi32(b))};
 }
 
+/// Eight consecutive integer samples from p as int32 lanes (sign- or zero-extended).
+inline Vec8i load_as_int(const uint8_t* p) {
+  return {_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)))};
+}
+inline Vec8i load_as_int(const uint16_t* p) {
+  return {_mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)))};
+}
+inline Vec8i load_as_int(const int16_t* p) {
+  return {_mm256_cvtepi16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)))};
+}
+
+/// Running sums: lane k = carry + x0 + ... + xk (wrapping int32).
+inline Vec8i inclusive_sums(Vec8i x, int32_t carry) {
+  __m256i v = _mm256_add_epi32(x.v, _mm256_slli_si256(x.v, 4));  // per 128-bit half
+  v = _mm256_add_epi32(v, _mm256_slli_si256(v, 8));
+  // The low half's total (its lane 3) into every lane of the high half.
+  const __m256i low_total = _mm256_permute2x128_si256(_mm256_shuffle_epi32(v, 0xff), v, 0x08);
+  return {_mm256_add_epi32(_mm256_add_epi32(v, low_total), _mm256_set1_epi32(carry))};
+}
+inline int32_t last_lane(Vec8i x) {
+  return _mm256_extract_epi32(x.v, 7);
+}
+
+/// Bit mask of the lanes that differ from the lane before them (lane 0: from `before`).
+inline int lanes_changed(Vec8i x, int32_t before) {
+  const __m256i shifted = _mm256_blend_epi32(
+      _mm256_permutevar8x32_epi32(x.v, _mm256_setr_epi32(0, 0, 1, 2, 3, 4, 5, 6)),
+      _mm256_set1_epi32(before), 0x01);
+  return _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(x.v, shifted))) ^ 0xff;
+}
+
+/// Lanes of x where the float lane k is at least t (all bits), zero elsewhere.
+inline Vec8i keep_at_least(Vec8i x, Vec8f k, float t) {
+  return {_mm256_and_si256(
+      x.v, _mm256_castps_si256(_mm256_cmp_ps(k.v, _mm256_set1_ps(t), _CMP_NLT_UQ)))};
+}
+/// 1 in the lanes where float lane k is at least t (NaN counts), 0 elsewhere.
+inline Vec8i ones_at_least(Vec8f k, float t) {
+  return {_mm256_srli_epi32(_mm256_castps_si256(_mm256_cmp_ps(k.v, _mm256_set1_ps(t), _CMP_NLT_UQ)),
+                            31)};
+}
+
 /// Loads voxel[i] and voxel[i + 1] for the eight offsets i (both must be inside the buffer, and
 /// for types narrower than 4 bytes so must the bytes up to voxel[i] + 4). Narrow types load a
 /// pair with one 32-bit gather, which is why int16 volumes slice faster than float ones.

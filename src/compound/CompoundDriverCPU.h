@@ -104,6 +104,45 @@ SONOSLICE_INLINE void walk_row(int ub, int ue, int ib, int ie, const Step& step,
   for (int u = ie; u < ue; ++u) step(u, std::true_type{});
 }
 
+/// The run of consecutive samples of a row that fall in one voxel (nearest splats), gathered
+/// before it is written once. Integer samples are summed exactly in integers and the sum is
+/// rounded to float once, so the result does not depend on how a run is cut into pieces (SIMD
+/// chunks, scalar head and tail); float samples are summed in row order.
+template <typename T, Mode M>
+struct NearestRun {
+  using Sum = std::conditional_t<M != Mode::Max && std::is_integral<T>::value, int64_t, float>;
+  int64_t voxel = -1;
+  Sum value = Sum(empty_value(M));
+  int32_t count = 0;
+
+  void flush(const AccumulatorView& g, int32_t frame) const {
+    if (voxel >= 0) apply<M>(g, voxel, float(value), float(count), frame);
+  }
+  void enter(const AccumulatorView& g, int64_t v, int32_t frame) {
+    if (v == voxel) return;
+    flush(g, frame);
+    voxel = v;
+    value = Sum(empty_value(M));
+    count = 0;
+  }
+  void add_sample(const AccumulatorView& g, int64_t v, T s, int32_t frame) {
+    enter(g, v, frame);
+    if (M == Mode::Max) {
+      const float f = float(s);
+      value = f > value ? f : value;
+    } else {
+      value += Sum(s);
+    }
+    ++count;
+  }
+  /// n kept samples summing to `sum` (mean and latest, integer samples).
+  void add_run(const AccumulatorView& g, int64_t v, int64_t sum, int32_t n, int32_t frame) {
+    enter(g, v, frame);
+    value += Sum(sum);
+    count += n;
+  }
+};
+
 /// One row's samples [ub, ue) into the slab (voxels with index in [lo, hi) along Axis), nearest
 /// voxel (the row's c0 carries the +0.5 of floor(c + 0.5)). Runs of samples in the same voxel
 /// are gathered first.
@@ -114,20 +153,10 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
   clip_axis(clip.c0, clip.inv_d, slab.lo, slab.hi, true, ub, ue);
   if (ub >= ue) return;
   clip_axis(clip.c0, clip.inv_d, slab.lo, slab.hi, false, ib, ie);
-  int64_t current = -1;
-  float value = empty_value(M), weight = 0.f;
-  const auto take = [&](int64_t v, float s) {
-    if (v != current) {
-      if (current >= 0) apply<M>(g, current, value, weight, frame);
-      current = v;
-      value = empty_value(M);
-      weight = 0.f;
-    }
-    gather<M>(value, weight, s, 1.f);
-  };
+  NearestRun<T, M> run;
   const auto step = [&](int u, auto checked) {
-    const float s = sample_value(row, u);
-    if (rejected(s, threshold)) return;
+    const T s = row[u];
+    if (rejected(float(s), threshold)) return;
     // Three scalars, not an array: GCC would pack an array loop into part-filled vectors.
     const float fu = float(u);
     const float tx = sample_coordinate(L.c0[0], fu, L.dc[0]),
@@ -140,34 +169,80 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
       const int ia = Axis == 0 ? ix : (Axis == 1 ? iy : iz);
       if (ia < slab.lo || ia >= slab.hi) return;
     }
-    take(g.offset(ix, iy, iz), s);
+    run.add_sample(g, g.offset(ix, iy, iz), s, frame);
   };
   walk_row(ub, ue, ib, ie, step, [&](int u, [[maybe_unused]] int end) {
 #if defined(SONOSLICE_COMPOUND_AVX2)
-    // Eight samples' voxels at a time (the same float operations as step(), so the same bits);
-    // the runs are then gathered lane by lane. Offsets are int32 lanes.
+    // Eight samples' voxels at a time (the same float operations as step(), so the same
+    // voxels). Offsets are int32 lanes.
     if (int64_t(g.nx) * g.ny * g.nz >= (int64_t(1) << 31)) return u;
     using backend::Vec8f;
+    using backend::Vec8i;
     const Vec8f c0x(L.c0[0]), c0y(L.c0[1]), c0z(L.c0[2]);
     const Vec8f dx(L.dc[0]), dy(L.dc[1]), dz(L.dc[2]);
     const int32_t sy = g.nx, sz = g.nx * g.ny;
-    alignas(32) int32_t offsets[8];
-    alignas(32) float samples[8];
-    for (; u + 8 <= end; u += 8) {
-      const Vec8f fu = Vec8f::iota(float(u));
+    const auto voxels = [&](int at) {
+      const Vec8f fu = Vec8f::iota(float(at));
       // In the inner run t >= 0: truncation is floor.
-      const backend::Vec8i ix = backend::truncate_to_int(sample_coordinate(c0x, fu, dx));
-      const backend::Vec8i iy = backend::truncate_to_int(sample_coordinate(c0y, fu, dy));
-      const backend::Vec8i iz = backend::truncate_to_int(sample_coordinate(c0z, fu, dz));
-      backend::offsets(ix, iy, iz, sy, sz).store(offsets);
-      backend::load_as_float(row + u).store(samples);
+      return backend::offsets(backend::truncate_to_int(sample_coordinate(c0x, fu, dx)),
+                              backend::truncate_to_int(sample_coordinate(c0y, fu, dy)),
+                              backend::truncate_to_int(sample_coordinate(c0z, fu, dz)), sy, sz);
+    };
+    if constexpr (std::is_integral<T>::value && M != Mode::Max) {
+      // Sums without a per-sample dependency chain: in chunks of up to 64 samples, the lanes
+      // where the voxel changes mark where runs start, and a run's sum and count are the
+      // difference of two running sums.
+      constexpr int kChunk = 64;
+      const bool keep_all = !(float(std::numeric_limits<T>::lowest()) < threshold);
+      alignas(32) int32_t offsets[kChunk];
+      int32_t sums[kChunk + 1], counts[kChunk + 1];
+      sums[0] = counts[0] = 0;
+      while (u + 8 <= end) {
+        const int n = (end - u) < kChunk ? (end - u) & ~7 : kChunk;
+        uint64_t starts = 1;
+        int32_t sum = 0, kept = 0, before = 0;
+        for (int j = 0; j < n; j += 8) {
+          const Vec8i o = voxels(u + j);
+          o.store(offsets + j);
+          starts |= uint64_t(backend::lanes_changed(o, before)) << j;
+          before = backend::last_lane(o);
+          Vec8i s = backend::load_as_int(row + u + j);
+          if (!keep_all) {
+            const Vec8f sf = backend::to_float(s);
+            const Vec8i c = backend::inclusive_sums(backend::ones_at_least(sf, threshold), kept);
+            c.store(counts + j + 1);
+            kept = backend::last_lane(c);
+            s = backend::keep_at_least(s, sf, threshold);
+          }
+          const Vec8i p = backend::inclusive_sums(s, sum);
+          p.store(sums + j + 1);
+          sum = backend::last_lane(p);
+        }
+        // The runs' accumulators are fetched together rather than one miss after another.
+        for (uint64_t m = starts; m; m &= m - 1)
+          __builtin_prefetch(g.cells + offsets[__builtin_ctzll(m)], 1);
+        while (starts) {
+          const int b = __builtin_ctzll(starts);
+          starts &= starts - 1;
+          const int e = starts ? __builtin_ctzll(starts) : n;
+          const int32_t k = keep_all ? e - b : counts[e] - counts[b];
+          if (k > 0) run.add_run(g, offsets[b], sums[e] - sums[b], k, frame);
+        }
+        u += n;
+      }
+      return u;
+    }
+    alignas(32) int32_t offsets[8];
+    for (; u + 8 <= end; u += 8) {
+      voxels(u).store(offsets);
       for (int l = 0; l < 8; ++l)
-        if (!rejected(samples[l], threshold)) take(offsets[l], samples[l]);
+        if (!rejected(float(row[u + l]), threshold))
+          run.add_sample(g, offsets[l], row[u + l], frame);
     }
 #endif
     return u;
   });
-  if (current >= 0) apply<M>(g, current, value, weight, frame);
+  run.flush(g, frame);
 }
 
 /// The eight corner sums (corner k: bit 0 +x, bit 1 +y, bit 2 +z) of a run of samples in one
@@ -176,13 +251,13 @@ void splat_row_nearest(const AccumulatorView& g, const Slab& slab, const RowLine
 template <Mode M, bool Summing = (M != Mode::Max)>
 struct CornerSums {
   float value[8], weight[8];
-  void reset() {
+  SONOSLICE_INLINE void reset() {
     for (int k = 0; k < 8; ++k) {
       value[k] = empty_value(M);
       weight[k] = 0.f;
     }
   }
-  void add(float fx, float fy, float fz, float s) {
+  SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
     if (!Summing) {
       const float f[3] = {fx, fy, fz};
       for (int k = 0; k < 8; ++k) gather<M>(value[k], weight[k], s, corner_weight(f, k));
@@ -202,14 +277,14 @@ struct CornerSums {
       weight[k] += w[k];
     }
   }
-  void get(float* v, float* w) const {
+  SONOSLICE_INLINE void get(float* v, float* w) const {
     for (int k = 0; k < 8; ++k) {
       v[k] = value[k];
       w[k] = weight[k];
     }
   }
   /// Mean mode, every corner inside: adds the sums to the cell whose lower corner is `base`.
-  void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
+  SONOSLICE_INLINE void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
     for (int k = 0; k < 8; ++k) {
       Accumulator& a = base[(k >> 2) * sz + ((k >> 1) & 1) * sy + (k & 1)];
       a.value += value[k];
@@ -223,11 +298,11 @@ struct CornerSums {
 template <Mode M>
 struct CornerSums<M, true> {
   backend::Vec8f value, weight;
-  void reset() {
+  SONOSLICE_INLINE void reset() {
     value = backend::Vec8f(0.f);
     weight = backend::Vec8f(0.f);
   }
-  void add(float fx, float fy, float fz, float s) {
+  SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
     using backend::blend;
     using backend::Vec8f;
     const Vec8f one(1.f), x(fx), y(fy), z(fz);
@@ -237,11 +312,11 @@ struct CornerSums<M, true> {
     value = value + w * Vec8f(s);
     weight = weight + w;
   }
-  void get(float* v, float* w) const {
+  SONOSLICE_INLINE void get(float* v, float* w) const {
     value.store(v);
     weight.store(w);
   }
-  void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
+  SONOSLICE_INLINE void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
     // (value, weight) of corners 2j and 2j+1 are adjacent in memory: four 16-byte updates.
     backend::add_interleaved(value, weight, &base[0].value, &base[sy].value, &base[sz].value,
                              &base[sy + sz].value);

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "../backend/LargeBuffer.h"
 #include "../backend/ParallelFor.h"
 #include "BeamGeometry.h"
 #include "CompoundBackends.h"
@@ -125,8 +126,8 @@ struct Compounder::Impl {
   Mode mode = Mode::Mean;
   int64_t frames = 0;
   // CPU accumulators (CUDA: downloaded by volume()); stamps only in latest mode.
-  std::unique_ptr<Accumulator[]> cells;
-  std::unique_ptr<int32_t[]> stamp;
+  backend::LargeArray<Accumulator> cells;
+  backend::LargeArray<int32_t> stamp;
   size_t cell_count = 0;
 #ifdef SONOSLICE_HAVE_CUDA
   std::unique_ptr<compound_impl::CudaCompounding> cuda;
@@ -154,8 +155,9 @@ struct Compounder::Impl {
     try {
       // Uninitialised, then filled by all threads: the first touch of a GiB-sized grid is
       // page faults, which parallelise.
-      cells.reset(new Accumulator[n]);
-      if (mode == Mode::Latest && !settings.plus_exact) stamp.reset(new int32_t[n]);
+      cells = backend::make_large_array<Accumulator>(n);
+      if (mode == Mode::Latest && !settings.plus_exact)
+        stamp = backend::make_large_array<int32_t>(n);
       cell_count = n;
       // PLUS-exact: PLUS's zeroed volume and accumulation buffer.
       const Accumulator empty{settings.plus_exact ? 0.f : compound_impl::empty_value(mode), 0.f};
