@@ -46,6 +46,18 @@ CompoundingMode parse_compounding_mode(const std::string& name) {
   throw InputError("compounding mode '" + name + "': expected mean, max or latest");
 }
 
+PlusOptimization parse_plus_optimization(const std::string& name, const std::string& what) {
+  const std::string n = text::lower(name);
+  if (n == "full") return PlusOptimization::Full;
+  if (n == "partial") return PlusOptimization::Partial;
+  if (n == "none") return PlusOptimization::None;
+  if (n == "gpu")
+    throw InputError(what + " \"" + name +
+                     "\": PLUS's OpenCL path is not reproduced by --plus-exact (NONE, PARTIAL or "
+                     "FULL)");
+  throw InputError(what + " \"" + name + "\": not one of NONE, PARTIAL, FULL");
+}
+
 HoleFillingKernel::Type parse_hole_filling_type(const std::string& name) {
   const std::string n = text::lower(name);
   if (n == "nearest_neighbor" || n == "nearest") return HoleFillingKernel::NearestNeighbor;

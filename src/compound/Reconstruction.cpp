@@ -302,24 +302,14 @@ void Reconstruction::Impl::resolve_plus_exact(const PlusReconstructionConfig* co
   if (o.device.type != DeviceType::CPU)
     throw InputError(name("plus_exact") + " runs on the CPU, not " + o.device.to_string());
   // PLUS's insertion path: the caller's, else the configuration's Optimization, else FULL.
-  std::string path = o.plus_optimization ? *o.plus_optimization
-                     : config            ? config->optimization
-                                         : std::string();
-  std::string what = o.plus_optimization ? name("plus_optimization")
-                     : config            ? config->path + ": VolumeReconstruction Optimization"
-                                         : std::string();
-  for (char& c : path) c = char(std::toupper(static_cast<unsigned char>(c)));
-  if (path.empty() || path == "FULL")
-    settings.plus_optimization = PlusOptimization::Full;
-  else if (path == "PARTIAL")
-    settings.plus_optimization = PlusOptimization::Partial;
-  else if (path == "NONE")
-    settings.plus_optimization = PlusOptimization::None;
-  else if (path == "GPU")
-    throw InputError(what + " \"GPU\": PLUS's OpenCL path is not reproduced by " +
-                     name("plus_exact") + " (NONE, PARTIAL or FULL)");
+  if (o.plus_optimization)
+    settings.plus_optimization =
+        parse_plus_optimization(*o.plus_optimization, name("plus_optimization"));
+  else if (config && !config->optimization.empty())
+    settings.plus_optimization = parse_plus_optimization(
+        config->optimization, config->path + ": VolumeReconstruction Optimization");
   else
-    throw InputError(what + " \"" + path + "\": not one of NONE, PARTIAL, FULL");
+    settings.plus_optimization = PlusOptimization::Full;
 }
 
 FrameSelection select_frames(const FrameSource& source, const PlusReconstructionConfig* config,

@@ -408,15 +408,21 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
     }
   }
 
-  if (a.has("Optimization")) config.optimization = upper(trim(a.text("Optimization")));
-  // --plus-exact follows this path (GPU is refused there); absent: FULL, PLUS's default.
-  if (config.optimization == "NONE") config.settings.plus_optimization = PlusOptimization::None;
-  if (config.optimization == "PARTIAL")
-    config.settings.plus_optimization = PlusOptimization::Partial;
+  // Only --plus-exact acts on it (the recipe parses it there, so that an unknown value or GPU
+  // stops a --plus-exact run and nothing else); absent: FULL, PLUS's default.
+  if (a.has("Optimization")) {
+    config.optimization = upper(trim(a.text("Optimization")));
+    try {
+      config.settings.plus_optimization =
+          parse_plus_optimization(config.optimization, path + ": " + a.label("Optimization"));
+    } catch (const InputError&) {
+      // GPU or a typo: settings keep FULL; a --plus-exact reconstruction refuses it.
+    }
+  }
   // Read by PLUS, not acted on here.
   for (const char* name :
-       {"Optimization", "NumberOfThreads", "ImportanceMaskFilename",
-        "FanAnglesAutoDetectBrightnessThreshold", "FanAnglesAutoDetectFilterRadiusPixel"})
+       {"NumberOfThreads", "ImportanceMaskFilename", "FanAnglesAutoDetectBrightnessThreshold",
+        "FanAnglesAutoDetectFilterRadiusPixel"})
     if (a.has(name)) config.ignored_attributes.push_back(name);
   for (const char* name : {"EnableFanAnglesAutoDetect", "RecomputeOutputSpacing"}) {
     if (!a.has(name)) continue;

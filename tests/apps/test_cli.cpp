@@ -729,6 +729,18 @@ std::vector<BadCase> bad_cases() {
        "in_seq.igs.mha"},
       {"CompoundNoCalibration",
        "compound --sequence " + std::string(kNwire) + " --spacing 1 --out {OUT}", "Image"},
+      {"CompoundPlusOptimizationWithoutPlusExact",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --plus-optimization none --out {OUT}",
+       "--plus-optimization needs --plus-exact"},
+      {"CompoundPlusOptimizationUnknown",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --plus-exact --plus-optimization fast --out {OUT}",
+       "\"fast\": not one of NONE, PARTIAL, FULL"},
+      {"CompoundPlusOptimizationGpu",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --plus-exact --plus-optimization gpu --out {OUT}",
+       "OpenCL path is not reproduced"},
       {"CompoundBadXml",
        "compound --sequence " + std::string(kNwire) + " --config {DIR}/in_plus.xml --out {OUT}",
        "OutputSpacing"},

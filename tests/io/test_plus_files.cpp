@@ -910,7 +910,10 @@ TEST(PlusConfigReal, NwireSettings) {
                                 -43.1227, 0.0046, -0.0032, 0.0760, -93.3, 0, 0, 0, 1}),
                      0);
   EXPECT_TRUE(c.coordinate_definitions.get("Phantom", "Reference").has_value());
-  EXPECT_EQ(c.ignored_attributes, (std::vector<std::string>{"Optimization", "NumberOfThreads"}));
+  // Optimization is acted on (by --plus-exact), so it is not among the ignored attributes.
+  EXPECT_EQ(c.optimization, "NONE");
+  EXPECT_EQ(c.settings.plus_optimization, PlusOptimization::None);
+  EXPECT_EQ(c.ignored_attributes, (std::vector<std::string>{"NumberOfThreads"}));
   EXPECT_TRUE(c.unknown_attributes.empty());
   EXPECT_TRUE(warnings.list().empty()) << warnings.all();
 }

@@ -62,6 +62,9 @@ HoleFillingKernel::Type parse_hole_filling_type(const std::string& name);
 /// that land inside the volume (vtkUltraFindExtent), positions in double. Full (PLUS's
 /// default): the same with positions and trilinear weights in 14-bit fixed point.
 enum class PlusOptimization { None, Partial, Full };
+/// PLUS's names NONE, PARTIAL, FULL, any case (also the CLI's none/partial/full). InputError for
+/// GPU (PLUS's OpenCL path, not reproduced) and anything else; `what` names the input.
+PlusOptimization parse_plus_optimization(const std::string& name, const std::string& what);
 
 struct CompoundSettings {
   Interpolation interpolation = Interpolation::Linear;  ///< how a sample splats into voxels

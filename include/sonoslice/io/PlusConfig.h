@@ -24,10 +24,10 @@ struct PlusReconstructionConfig {
   FrameClip clip;                                   ///< clip rectangle and fan
   int skip_interval = 1;                            ///< use frames 0, k, 2k, ...
   /// The Optimization attribute (NONE, PARTIAL, FULL, GPU), upper case; empty when absent.
-  /// Only --plus-exact looks at it (settings.plus_optimization: NONE, PARTIAL, else FULL).
+  /// Only --plus-exact acts on it (parse_plus_optimization, in the reconstruction recipe).
   std::string optimization;
   /// Attributes of `VolumeReconstruction` (and its hole-filling elements) that sonoslice read
-  /// but does not act on (Optimization, NumberOfThreads: sonoslice picks its own).
+  /// but does not act on (NumberOfThreads: sonoslice picks its own).
   std::vector<std::string> ignored_attributes;
   /// Attributes PLUS does not define (typos, newer PLUS versions); the reader also warns.
   std::vector<std::string> unknown_attributes;
