@@ -180,16 +180,13 @@ HoleFillingKernel read_hole_filling_element(const pugi::xml_node& node, int inde
   };
   std::vector<const char*> used;
   if (type == "GAUSSIAN" || type == "GAUSSIAN_ACCUMULATION") {
-    k.type = HoleFillingKernel::Gaussian;
+    k.type =
+        type == "GAUSSIAN" ? HoleFillingKernel::Gaussian : HoleFillingKernel::GaussianAccumulation;
     require("Stdev");
     k.stdev = a.number("Stdev");
     if (!(k.stdev > 0)) a.fail("Stdev", "must be positive");
     read_size_and_ratio();
     used = {"Stdev", "Size", "MinimumKnownVoxelsRatio"};
-    if (type == "GAUSSIAN_ACCUMULATION")
-      warn(path + ": " + where +
-           ": GAUSSIAN_ACCUMULATION hole filling is done as GAUSSIAN (the "
-           "accumulated weights do not scale the kernel)");
   } else if (type == "NEAREST_NEIGHBOR" || type == "DISTANCE_WEIGHT_INVERSE") {
     k.type = type == "NEAREST_NEIGHBOR" ? HoleFillingKernel::NearestNeighbor
                                         : HoleFillingKernel::DistanceWeightInverse;

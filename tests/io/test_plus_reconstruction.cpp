@@ -295,5 +295,57 @@ TEST(PlusReconstruction, PlusExactOptimizedPathsGiveIgsioBytes) {
   reset_cpu_threads();
 }
 
+// --plus-exact with hole filling: IGSIO's vtkIGSIOFillHolesInVolume elements (compiled from
+// IGSIO's source, run on IGSIO's own pasted NWire volume and accumulation buffer, Optimization
+// FULL, nearest, mean) give these FNV-1a hashes of the filled 101 x 105 x 74 volume.
+TEST(PlusReconstruction, PlusExactHoleFillingGivesIgsioBytes) {
+  SONOSLICE_REQUIRE_DATA();
+  const Sweep s = load_nwire();
+  const VolumeGrid grid =
+      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
+                              s.config.clip, *s.config.output_spacing_mm);
+  const auto element = [](HoleFillingKernel::Type type, int size, double stdev, double ratio) {
+    HoleFillingKernel k;
+    k.type = type;
+    k.size = size;
+    k.stdev = stdev;
+    k.minimum_known_ratio = ratio;
+    return k;
+  };
+  const auto stick = [](int limit, int count) {
+    HoleFillingKernel k;
+    k.type = HoleFillingKernel::Stick;
+    k.stick_length_limit = limit;
+    k.sticks_to_use = count;
+    return k;
+  };
+  struct Case {
+    std::vector<HoleFillingKernel> elements;
+    uint64_t hash;
+  };
+  const Case cases[] = {
+      {{element(HoleFillingKernel::GaussianAccumulation, 5, 1.0, 0.25)}, 0x06367594e5c16f6full},
+      {{element(HoleFillingKernel::Gaussian, 5, 0.6667, 0.5), stick(9, 1)}, 0x3442066e557c7123ull},
+      {{element(HoleFillingKernel::NearestNeighbor, 5, 0, 0.02), stick(11, 3)},
+       0x22de5f74b000e4b6ull},
+      {{element(HoleFillingKernel::DistanceWeightInverse, 5, 0, 0.125)}, 0x8a692e192c08797dull},
+  };
+  for (const Case& k : cases) {
+    CompoundSettings settings = s.config.settings;
+    settings.plus_exact = true;
+    settings.plus_optimization = PlusOptimization::Full;
+    settings.interpolation = Interpolation::Nearest;
+    settings.mode = CompoundingMode::Mean;
+    settings.fill_holes = true;
+    settings.hole_filling = k.elements;
+    const Volume v = compound_sweep(s, grid, settings, 2);
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (int64_t i = 0; i < v.grid().voxel_count(); ++i)
+      h = (h ^ v.data_as<uint8_t>()[i]) * 0x100000001b3ull;
+    EXPECT_EQ(h, k.hash) << "element " << int(k.elements[0].type);
+  }
+  reset_cpu_threads();
+}
+
 }  // namespace
 }  // namespace sonoslice
