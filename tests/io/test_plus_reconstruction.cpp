@@ -111,6 +111,20 @@ Difference compare(const std::vector<double>& a, const uint8_t* b, Where where) 
   return d;
 }
 
+// The grid PLUS's rule fits around the sweep's frames.
+VolumeGrid frames_grid(const Sweep& s) {
+  return Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
+                                 s.config.clip, *s.config.output_spacing_mm);
+}
+
+// FNV-1a over a uint8 volume's voxels, the hashes the IGSIO checks below keep.
+uint64_t fnv1a(const Volume& v) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (int64_t i = 0; i < v.grid().voxel_count(); ++i)
+    h = (h ^ v.data_as<uint8_t>()[i]) * 0x100000001b3ull;
+  return h;
+}
+
 TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
   SONOSLICE_REQUIRE_DATA();
   const Sweep s = load_nwire();
@@ -120,9 +134,7 @@ TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
 
   // Our grid from the PLUS rule: same origin and spacing; PLUS 2.x's older rounding made the
   // reference one voxel shorter along y (103.90 voxels of extent: floor + 1 = 104, ours 105).
-  const VolumeGrid grid =
-      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
-                              s.config.clip, *s.config.output_spacing_mm);
+  const VolumeGrid grid = frames_grid(s);
   int longer = 0;
   for (int a = 0; a < 3; ++a) {
     EXPECT_NEAR(grid.origin_mm[a], rg.origin_mm[a], 1e-3) << "axis " << a;
@@ -213,9 +225,7 @@ TEST(PlusReconstruction, PlusExactGivesPlusReferenceByteForByte) {
   settings.plus_exact = true;
   // PLUS's grid at full precision: the reference's header rounds the origin to 6 digits, which
   // moves every sample by up to 1e-4 voxel and changes roundings. Ours is one voxel longer in y.
-  const VolumeGrid grid =
-      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
-                              s.config.clip, *s.config.output_spacing_mm);
+  const VolumeGrid grid = frames_grid(s);
   ASSERT_EQ(grid.dims[0], rg.dims[0]);
   ASSERT_EQ(grid.dims[1], rg.dims[1] + 1);
   ASSERT_EQ(grid.dims[2], rg.dims[2]);
@@ -259,9 +269,7 @@ TEST(PlusReconstruction, PlusExactGivesPlusReferenceByteForByte) {
 TEST(PlusReconstruction, PlusExactOptimizedPathsGiveIgsioBytes) {
   SONOSLICE_REQUIRE_DATA();
   const Sweep s = load_nwire();
-  const VolumeGrid grid =
-      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
-                              s.config.clip, *s.config.output_spacing_mm);
+  const VolumeGrid grid = frames_grid(s);
   struct Case {
     PlusOptimization path;
     Interpolation interp;
@@ -285,11 +293,8 @@ TEST(PlusReconstruction, PlusExactOptimizedPathsGiveIgsioBytes) {
     // Every thread count for the first case; 2 threads for the others (each run takes ~2 s).
     for (int threads : k.hash == cases[0].hash ? std::vector<int>{1, 2, 5} : std::vector<int>{2}) {
       const Volume v = compound_sweep(s, grid, settings, threads);
-      uint64_t h = 0xcbf29ce484222325ull;
-      for (int64_t i = 0; i < v.grid().voxel_count(); ++i)
-        h = (h ^ v.data_as<uint8_t>()[i]) * 0x100000001b3ull;
-      EXPECT_EQ(h, k.hash) << "path " << int(k.path) << ", mode " << int(k.mode) << ", " << threads
-                           << " threads";
+      EXPECT_EQ(fnv1a(v), k.hash) << "path " << int(k.path) << ", mode " << int(k.mode) << ", "
+                                  << threads << " threads";
     }
   }
   reset_cpu_threads();
@@ -301,9 +306,7 @@ TEST(PlusReconstruction, PlusExactOptimizedPathsGiveIgsioBytes) {
 TEST(PlusReconstruction, PlusExactHoleFillingGivesIgsioBytes) {
   SONOSLICE_REQUIRE_DATA();
   const Sweep s = load_nwire();
-  const VolumeGrid grid =
-      Compounder::grid_around(s.image_to_reference, s.sequence.width, s.sequence.height,
-                              s.config.clip, *s.config.output_spacing_mm);
+  const VolumeGrid grid = frames_grid(s);
   const auto element = [](HoleFillingKernel::Type type, int size, double stdev, double ratio) {
     HoleFillingKernel k;
     k.type = type;
@@ -339,10 +342,7 @@ TEST(PlusReconstruction, PlusExactHoleFillingGivesIgsioBytes) {
     settings.fill_holes = true;
     settings.hole_filling = k.elements;
     const Volume v = compound_sweep(s, grid, settings, 2);
-    uint64_t h = 0xcbf29ce484222325ull;
-    for (int64_t i = 0; i < v.grid().voxel_count(); ++i)
-      h = (h ^ v.data_as<uint8_t>()[i]) * 0x100000001b3ull;
-    EXPECT_EQ(h, k.hash) << "element " << int(k.elements[0].type);
+    EXPECT_EQ(fnv1a(v), k.hash) << "element " << int(k.elements[0].type);
   }
   reset_cpu_threads();
 }
