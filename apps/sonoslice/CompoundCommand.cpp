@@ -29,6 +29,7 @@ struct CompoundFlags {
   std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false, verbose = false, plus_exact = false;
   std::string plus_optimization;
+  std::string plus_grid;
 };
 
 // "8G", "512M", "1.5GiB", "2000000000" → bytes.
@@ -93,6 +94,10 @@ ReconstructionOptions options_of(const CompoundFlags& f) {
   if (!f.plus_optimization.empty()) {
     if (!f.plus_exact) throw InputError("--plus-optimization needs --plus-exact");
     o.plus_optimization = f.plus_optimization;
+  }
+  if (!f.plus_grid.empty()) {
+    if (!f.plus_exact) throw InputError("--plus-grid needs --plus-exact");
+    o.plus_grid = f.plus_grid;
   }
   if (!f.max_memory.empty()) o.max_memory_bytes = parse_bytes(f.max_memory);
   return o;
@@ -222,6 +227,10 @@ void add_compound_command(CLI::App& app) {
   cmd->add_option("--plus-optimization", flags->plus_optimization,
                   "With --plus-exact: PLUS's insertion path none, partial or full (default: the "
                   "XML's Optimization, else full as in PLUS)");
+  cmd->add_option("--plus-grid", flags->plus_grid,
+                  "With --plus-exact and no grid in the XML: legacy (default; PLUS 2.x, origin at "
+                  "the frames' minimum) or lattice (current PLUS/IGSIO, origin on a multiple of "
+                  "the spacing)");
   cmd->add_option("--max-memory", flags->max_memory,
                   "Memory the reconstruction may use, e.g. 8G (default: what is available)");
   cmd->add_option("--world", flags->world, "Frame of --poses: LPS (default) or RAS");

@@ -775,7 +775,7 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
                      transform: Optional[str] = None, image_to_probe=None, dtype=None, device: str = "cpu",
                      max_memory: Union[None, int, str] = None, return_weights: bool = False,
                      return_report: bool = False, plus_exact: bool = False,
-                     plus_optimization: Optional[str] = None):
+                     plus_optimization: Optional[str] = None, plus_grid: Optional[str] = None):
     """Reconstructs a PLUS sequence with the same C++ recipe as ``sonoslice compound --sequence S
     --config X`` (same inputs, same bytes) and returns the :class:`Volume` (with
     ``return_weights=True``: ``(volume, weights)``; with ``return_report=True`` a dict of what was
@@ -797,9 +797,14 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
     docs/compounding.md §4b): the volume in the frames' type rounded after every update, PLUS's
     uint16 accumulation buffer (the weights are it / 256), its clip extent; CPU only.
     ``plus_optimization`` picks PLUS's insertion path, "none", "partial" or "full" (default: the
-    XML's Optimization attribute, else "full", PLUS's default)."""
+    XML's Optimization attribute, else "full", PLUS's default). ``plus_grid`` picks how PLUS fits
+    the grid around the frames when the XML does not fix it: "legacy" (default; PLUS 2.x, as in
+    its NWire reference: origin at the frames' minimum, int((max − min)/spacing) + 1 voxels) or
+    "lattice" (current PLUS/IGSIO: origin on a multiple of the spacing)."""
     if plus_optimization is not None and not plus_exact:
         raise ValueError("plus_optimization needs plus_exact=True")
+    if plus_grid is not None and not plus_exact:
+        raise ValueError("plus_grid needs plus_exact=True")
     seq = _as_sequence(sequence)
     cfg = _as_config(config)
     r = _ext.Reconstruction(
@@ -812,6 +817,7 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
         skip=None if skip is None else _whole(skip, "skip"), transform=None if transform is None else str(transform),
         device=str(device), max_memory=_memory_bytes(max_memory), plus_exact=bool(plus_exact),
         plus_optimization=None if plus_optimization is None else str(plus_optimization),
+        plus_grid=None if plus_grid is None else str(plus_grid),
         **_plus_options(seq, clip, image_to_probe, spacing, dtype))
     volume, weights = r.run(bool(return_weights))
     out: Tuple[Any, ...] = (Volume._wrap(volume),)

@@ -36,7 +36,8 @@ ReconstructionOptions options_of(
     std::optional<int> skip, std::optional<std::string> transform,
     const std::optional<Matrix4>& image_to_probe, const std::optional<std::string>& dtype,
     const std::string& device, uint64_t max_memory, bool plus_exact,
-    const std::optional<std::string>& plus_optimization) {
+    const std::optional<std::string>& plus_optimization,
+    const std::optional<std::string>& plus_grid) {
   ReconstructionOptions o;
   o.names = keyword_of;
   o.spacing_mm = spacing;
@@ -54,6 +55,7 @@ ReconstructionOptions options_of(
   o.max_memory_bytes = max_memory;
   o.plus_exact = plus_exact;
   o.plus_optimization = plus_optimization;
+  o.plus_grid = plus_grid;
   return o;
 }
 
@@ -98,14 +100,14 @@ void bind_reconstruction(nb::module_& m) {
              std::optional<int> skip, std::optional<std::string> transform,
              std::optional<Matrix4> image_to_probe, std::optional<std::string> dtype,
              std::string device, uint64_t max_memory, bool plus_exact,
-             std::optional<std::string> plus_optimization) {
+             std::optional<std::string> plus_optimization, std::optional<std::string> plus_grid) {
             const PlusSequence& s = nb::cast<const PlusSequence&>(sequence);
             const PlusReconstructionConfig* c =
                 config.is_none() ? nullptr : &nb::cast<const PlusReconstructionConfig&>(config);
             const ReconstructionOptions o = options_of(
                 spacing, interpolation, compounding, fill_holes, std::move(hole_filling),
                 rejection_threshold, std::move(clip), skip, std::move(transform), image_to_probe,
-                dtype, device, max_memory, plus_exact, plus_optimization);
+                dtype, device, max_memory, plus_exact, plus_optimization, plus_grid);
             std::unique_ptr<Reconstruction> r;
             {
               nb::gil_scoped_release release;  // fitting the grid and allocating take a while
@@ -119,7 +121,8 @@ void bind_reconstruction(nb::module_& m) {
           "rejection_threshold"_a.none() = nb::none(), "clip"_a.none() = nb::none(),
           "skip"_a.none() = nb::none(), "transform"_a.none() = nb::none(),
           "image_to_probe"_a.none() = nb::none(), "dtype"_a.none() = nb::none(), "device"_a = "cpu",
-          "max_memory"_a = 0, "plus_exact"_a = false, "plus_optimization"_a = nb::none())
+          "max_memory"_a = 0, "plus_exact"_a = false, "plus_optimization"_a = nb::none(),
+          "plus_grid"_a = nb::none())
       .def_prop_ro("grid", [](const PyReconstruction& r) { return r.recon->grid(); })
       .def_prop_ro("settings", [](const PyReconstruction& r) { return r.recon->settings(); })
       .def_prop_ro("clip", [](const PyReconstruction& r) { return r.recon->clip(); })

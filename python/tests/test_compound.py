@@ -408,7 +408,10 @@ def test_reconstruct_plus_plus_exact_is_plus_reference_byte_for_byte(nwire, nwir
     volume, weights = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, return_weights=True)
     reference = sonoslice.Volume.from_file(NWIRE_REFERENCE)
     assert volume.dtype == np.uint8
-    assert volume.array[:, :104, :].tobytes() == reference.array.tobytes()
+    # PLUS 2.x's grid (origin at the frames' minimum, int() + 1 voxels): the reference's own.
+    assert volume.shape == reference.shape
+    assert np.allclose(volume.origin, reference.origin, atol=1e-4)
+    assert volume.array.tobytes() == reference.array.tobytes()
     # The weights are PLUS's uint16 accumulation buffer / 256.
     buffer = weights.array * 256
     assert np.array_equal(buffer, np.round(buffer)) and buffer.max() <= 65535
@@ -431,6 +434,24 @@ def test_reconstruct_plus_plus_optimization(nwire, nwire_config):
         sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, plus_optimization="fast")
     with pytest.raises(ValueError, match="needs plus_exact"):
         sonoslice.reconstruct_plus(nwire, nwire_config, plus_optimization="full")
+
+
+def test_reconstruct_plus_plus_grid(nwire, nwire_config):
+    legacy = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, skip=4)
+    lattice = sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, skip=4, plus_grid="lattice")
+    # Current PLUS: the origin on a multiple of the spacing, at or below the legacy origin, and
+    # the grid still reaching the legacy grid's last voxel.
+    for a in range(3):
+        k = lattice.origin[a] / 0.5
+        assert abs(k - round(k)) < 1e-9
+        assert legacy.origin[a] - 0.5 < lattice.origin[a] <= legacy.origin[a]
+    n_legacy, n_lattice = legacy.shape[::-1], lattice.shape[::-1]  # (x, y, z)
+    for a in range(3):
+        assert lattice.origin[a] + 0.5 * (n_lattice[a] - 1) >= legacy.origin[a] + 0.5 * (n_legacy[a] - 1)
+    with pytest.raises(ValueError, match="not legacy or lattice"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, plus_exact=True, plus_grid="round")
+    with pytest.raises(ValueError, match="plus_grid needs plus_exact"):
+        sonoslice.reconstruct_plus(nwire, nwire_config, plus_grid="lattice")
 
 
 def test_reconstruct_plus_overrides(nwire, nwire_config):

@@ -113,8 +113,9 @@ struct Bounds {
       hi[a] = std::max(hi[a], p[a]);
     }
   }
-  // Origin at the minimum, round((max - min) / spacing) + 1 voxels per axis.
-  VolumeGrid grid(const Vec3& spacing_mm, const char* what) const {
+  // The grid fitted to the box per axis (Compounder::GridFit).
+  VolumeGrid grid(const Vec3& spacing_mm, const char* what,
+                  Compounder::GridFit fit = Compounder::GridFit::Round) const {
     for (double s : spacing_mm)
       if (!(s > 0 && std::isfinite(s)))
         throw InputError(std::string(what) + ": output spacing must be a positive number of mm");
@@ -122,9 +123,22 @@ struct Bounds {
       throw InputError(std::string(what) + ": no valid frame to compute the output extent from");
     VolumeGrid g;
     for (int a = 0; a < 3; ++a) {
-      g.origin_mm[a] = lo[a];
-      g.spacing_mm[a] = spacing_mm[a];
-      g.dims[a] = int64_t(std::round((hi[a] - lo[a]) / spacing_mm[a])) + 1;
+      const double s = spacing_mm[a];
+      g.spacing_mm[a] = s;
+      switch (fit) {
+        case Compounder::GridFit::Round:
+          g.origin_mm[a] = lo[a];
+          g.dims[a] = int64_t(std::round((hi[a] - lo[a]) / s)) + 1;
+          break;
+        case Compounder::GridFit::PlusLegacy:  // vtkVolumeReconstructor, PLUS 2.x: int() truncates
+          g.origin_mm[a] = lo[a];
+          g.dims[a] = int64_t((hi[a] - lo[a]) / s) + 1;
+          break;
+        case Compounder::GridFit::PlusLattice:  // vtkIGSIOVolumeReconstructor: a lattice origin
+          g.origin_mm[a] = std::floor(lo[a] / s) * s;
+          g.dims[a] = int64_t(std::ceil((hi[a] - g.origin_mm[a]) / s)) + 1;
+          break;
+      }
     }
     return g;
   }
@@ -133,7 +147,8 @@ struct Bounds {
 }  // namespace
 
 VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, int width,
-                                   int height, const FrameClip& clip, const Vec3& spacing_mm) {
+                                   int height, const FrameClip& clip, const Vec3& spacing_mm,
+                                   GridFit fit) {
   const auto r = clip.rectangle(width, height);
   if (r[0] >= r[2] || r[1] >= r[3])
     throw InputError("compounding: the clip rectangle leaves no pixel of the frame");
@@ -145,7 +160,7 @@ VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, 
     for (double x : xs)
       for (double y : ys) box.add(m.transform_point(Vec3{{x, y, 0.0}}));
   }
-  return box.grid(spacing_mm, "compounding");
+  return box.grid(spacing_mm, "compounding", fit);
 }
 
 VolumeGrid Compounder::grid_around_beams(const std::vector<Mat4>& probe_to_reference,

@@ -53,8 +53,8 @@ PlusOptimization parse_plus_optimization(const std::string& name, const std::str
   if (n == "none") return PlusOptimization::None;
   if (n == "gpu")
     throw InputError(what + " \"" + name +
-                     "\": PLUS's OpenCL path is not reproduced by --plus-exact (NONE, PARTIAL or "
-                     "FULL)");
+                     "\": PLUS's GPU (OpenCL) path is not reproduced (PLUS-exact follows NONE, "
+                     "PARTIAL or FULL)");
   throw InputError(what + " \"" + name + "\": not one of NONE, PARTIAL, FULL");
 }
 

@@ -2,6 +2,7 @@
 // PLUS configuration with the caller's overrides, picks the frames, fits the grid, chooses the
 // output type and words the report. Built into sonoslice_io, since it reads files.
 #include "sonoslice/compound/Reconstruction.h"
+#include "../core/Text.h"
 
 #include <cctype>
 #include <chrono>
@@ -213,6 +214,7 @@ struct Reconstruction::Impl {
   ReconstructionReport report;
   std::vector<int64_t> frames;
   std::vector<Mat4> to_reference;
+  Compounder::GridFit grid_fit = Compounder::GridFit::Round;  // PLUS's under plus_exact
   std::unique_ptr<Compounder> compounder;
 
   std::string name(const std::string& parameter) const { return spell(names, parameter); }
@@ -310,6 +312,14 @@ void Reconstruction::Impl::resolve_plus_exact(const PlusReconstructionConfig* co
         config->optimization, config->path + ": VolumeReconstruction Optimization");
   else
     settings.plus_optimization = PlusOptimization::Full;
+  // PLUS's grid around the frames (used when the configuration does not fix the grid).
+  const std::string fit = o.plus_grid ? text::lower(*o.plus_grid) : "legacy";
+  if (fit == "legacy")
+    grid_fit = Compounder::GridFit::PlusLegacy;
+  else if (fit == "lattice")
+    grid_fit = Compounder::GridFit::PlusLattice;
+  else
+    throw InputError(name("plus_grid") + " \"" + *o.plus_grid + "\": not legacy or lattice");
 }
 
 FrameSelection select_frames(const FrameSource& source, const PlusReconstructionConfig* config,
@@ -429,7 +439,8 @@ void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
   else if (source.kind == FrameSource::Kind::Beams)
     grid = Compounder::grid_around_beams(to_reference, source.beam_geometry, *spacing);
   else
-    grid = Compounder::grid_around(to_reference, source.width, source.height, clip, *spacing);
+    grid = Compounder::grid_around(to_reference, source.width, source.height, clip, *spacing,
+                                   grid_fit);
 }
 
 Reconstruction::Reconstruction(const FrameSource& frames, const PlusReconstructionConfig* config,

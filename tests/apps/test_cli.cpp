@@ -737,10 +737,18 @@ std::vector<BadCase> bad_cases() {
        "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
            " --plus-exact --plus-optimization fast --out {OUT}",
        "\"fast\": not one of NONE, PARTIAL, FULL"},
+      {"CompoundPlusGridWithoutPlusExact",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --plus-grid lattice --out {OUT}",
+       "--plus-grid needs --plus-exact"},
+      {"CompoundPlusGridUnknown",
+       "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
+           " --plus-exact --plus-grid round --out {OUT}",
+       "\"round\": not legacy or lattice"},
       {"CompoundPlusOptimizationGpu",
        "compound --sequence " + std::string(kNwire) + " --config " + std::string(kNwireXml) +
            " --plus-exact --plus-optimization gpu --out {OUT}",
-       "OpenCL path is not reproduced"},
+       "GPU (OpenCL) path is not reproduced"},
       {"CompoundBadXml",
        "compound --sequence " + std::string(kNwire) + " --config {DIR}/in_plus.xml --out {OUT}",
        "OutputSpacing"},

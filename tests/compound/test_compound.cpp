@@ -886,6 +886,40 @@ TEST(Compound, GridAroundFollowsPlusRule) {
   EXPECT_EQ(c.dims[1], 3);
 }
 
+TEST(Compound, GridAroundFitsAsEachPlusVersion) {
+  // Corners from (5.05, 6.2, 7.3) to (15.05, 11.2, 9.9) mm, spacing 0.5.
+  const Mat4 a = frame_matrix({{5.05, 6.2, 7.3}}, {{0.1, 0, 0}}, {{0, 0.1, 0}});
+  const Mat4 b = frame_matrix({{5.05, 6.2, 9.9}}, {{0.1, 0, 0}}, {{0, 0.1, 0}});
+  using Fit = Compounder::GridFit;
+  const Vec3 s{{0.5, 0.5, 0.5}};
+  const VolumeGrid round = Compounder::grid_around({a, b}, 101, 51, FrameClip{}, s, Fit::Round);
+  const VolumeGrid legacy =
+      Compounder::grid_around({a, b}, 101, 51, FrameClip{}, s, Fit::PlusLegacy);
+  const VolumeGrid lattice =
+      Compounder::grid_around({a, b}, 101, 51, FrameClip{}, s, Fit::PlusLattice);
+  // z: min 7.3, max 9.9, 2.6 / 0.5 = 5.2.
+  EXPECT_NEAR(round.origin_mm[2], 7.3, 1e-12);
+  EXPECT_EQ(round.dims[2], 6);  // round(5.2) + 1
+  EXPECT_NEAR(legacy.origin_mm[2], 7.3, 1e-12);
+  EXPECT_EQ(legacy.dims[2], 6);                   // int(5.2) + 1
+  EXPECT_NEAR(lattice.origin_mm[2], 7.0, 1e-12);  // floor(7.3 / 0.5) · 0.5
+  EXPECT_EQ(lattice.dims[2], 7);                  // ceil((9.9 - 7) / 0.5) + 1 = ceil(5.8) + 1
+  // x: min 5.05, max 15.05: 20 steps exactly for round and legacy; the lattice starts at 5.0.
+  EXPECT_EQ(legacy.dims[0], 21);
+  EXPECT_NEAR(lattice.origin_mm[0], 5.0, 1e-12);
+  EXPECT_EQ(lattice.dims[0], 22);  // ceil(10.05 / 0.5) + 1
+  // y: min 6.2, max 6.2 + 50 · 0.1: (max - min) / 0.5 is 10 less an ulp in double, so PLUS 2.x's
+  // int() gives 9 steps where round() gives 10 (NWire's 104 rows against 105); lattice from 6.0.
+  EXPECT_EQ(round.dims[1], 11);
+  EXPECT_EQ(legacy.dims[1], 10);
+  EXPECT_NEAR(lattice.origin_mm[1], 6.0, 1e-12);
+  EXPECT_EQ(lattice.dims[1], 12);  // ceil(5.2 / 0.5) + 1
+  // A box of 2.8 steps: round gives 4 voxels, legacy 3.
+  const Mat4 c = frame_matrix({{5.05, 6.2, 8.7}}, {{0.1, 0, 0}}, {{0, 0.1, 0}});
+  EXPECT_EQ(Compounder::grid_around({a, c}, 101, 51, FrameClip{}, s, Fit::Round).dims[2], 4);
+  EXPECT_EQ(Compounder::grid_around({a, c}, 101, 51, FrameClip{}, s, Fit::PlusLegacy).dims[2], 3);
+}
+
 TEST(Compound, TooBigAGridStopsWithASizeAndASpacingThatFits) {
   VolumeGrid g = unit_grid(2000, 2000, 1000, 0.1);
   try {

@@ -162,11 +162,18 @@ class Compounder {
   /// The accumulated weight per voxel (float32): 0 where no sample arrived.
   Volume weights() const;
 
+  /// How a grid is fitted to the box [min, max] around the frames, per axis (spacing s).
+  enum class GridFit {
+    Round,       ///< sonoslice: origin at min, round((max - min) / s) + 1 voxels
+    PlusLegacy,  ///< PLUS up to 2.4 (its NWire reference): origin at min, int((max - min) / s) + 1
+    PlusLattice  ///< current PLUS (IGSIO): origin floor(min / s)·s, ceil((max - origin) / s) + 1
+  };
   /// Frames' footprints: the grid (axes parallel to the reference frame, `spacing_mm`) around the
-  /// clipped frames, as PLUS computes it: origin at the per-axis minimum of the clip rectangle's
-  /// corner pixel centres over all frames, round((max - min) / spacing) + 1 voxels.
+  /// clipped frames, as PLUS computes it: the box around the clip rectangle's corner pixel centres
+  /// over all frames, fitted by `fit`.
   static VolumeGrid grid_around(const std::vector<Mat4>& image_to_reference, int width, int height,
-                                const FrameClip& clip, const Vec3& spacing_mm);
+                                const FrameClip& clip, const Vec3& spacing_mm,
+                                GridFit fit = GridFit::Round);
   /// The same for beam-space frames: the box around every beam's first and last sample.
   static VolumeGrid grid_around_beams(const std::vector<Mat4>& probe_to_reference,
                                       const BeamGeometry& geometry, const Vec3& spacing_mm);

@@ -124,6 +124,11 @@ struct ReconstructionOptions {
   /// With plus_exact: PLUS's insertion path ("none", "partial" or "full", any case). Default:
   /// the configuration's Optimization attribute, else FULL (PLUS's default).
   std::optional<std::string> plus_optimization;
+  /// With plus_exact, how PLUS fits the grid around the frames when the configuration does not
+  /// fix it: "legacy" (default; PLUS 2.x, as its NWire reference: origin at the corners'
+  /// minimum, int((max - min) / spacing) + 1 voxels) or "lattice" (current PLUS/IGSIO: origin on
+  /// a multiple of the spacing, ceil). Compounder::GridFit.
+  std::optional<std::string> plus_grid;
   Device device = Device::cpu();
   uint64_t max_memory_bytes = 0;  ///< 0: what the machine has
   ParameterNames names;           ///< spelling of parameters in messages (default: as above)
