@@ -342,39 +342,25 @@ struct RowExtent {
       i1[i] = position(start, i);
       i2[i] = position(end, i);
     }
+    // IGSIO's pair of tests per axis, iy then iz: where the row's end p lies outside the volume
+    // on that axis, r moves onto the face it crosses; true once r lies inside on the others.
+    const auto onto_face = [&](const int* p, int& r) {
+      for (const int a : {iy, iz}) {
+        if (p[a] < vmin[a])
+          r = low(vmin, a);
+        else if (p[a] > vmax[a])
+          r = high(vmax, a);
+        else
+          continue;
+        if (bounded(a, r)) return true;
+      }
+      return false;
+    };
     if (bounded(ix, start)) {
       if (bounded(ix, end)) return finish(start, end, sign[ix]);
-      if (i2[iy] < vmin[iy]) {
-        end = low(vmin, iy);
-        if (bounded(iy, end)) return finish(start, end, sign[ix]);
-      } else if (i2[iy] > vmax[iy]) {
-        end = high(vmax, iy);
-        if (bounded(iy, end)) return finish(start, end, sign[ix]);
-      }
-      if (i2[iz] < vmin[iz]) {
-        end = low(vmin, iz);
-        if (bounded(iz, end)) return finish(start, end, sign[ix]);
-      } else if (i2[iz] > vmax[iz]) {
-        end = high(vmax, iz);
-        if (bounded(iz, end)) return finish(start, end, sign[ix]);
-      }
+      if (onto_face(i2, end)) return finish(start, end, sign[ix]);
     }
-    if (bounded(ix, end)) {
-      if (i1[iy] < vmin[iy]) {
-        start = low(vmin, iy);
-        if (bounded(iy, start)) return finish(start, end, sign[ix]);
-      } else if (i1[iy] > vmax[iy]) {
-        start = high(vmax, iy);
-        if (bounded(iy, start)) return finish(start, end, sign[ix]);
-      }
-      if (i1[iz] < vmin[iz]) {
-        start = low(vmin, iz);
-        if (bounded(iz, start)) return finish(start, end, sign[ix]);
-      } else if (i1[iz] > vmax[iz]) {
-        start = high(vmax, iz);
-        if (bounded(iz, start)) return finish(start, end, sign[ix]);
-      }
-    }
+    if (bounded(ix, end) && onto_face(i1, start)) return finish(start, end, sign[ix]);
     if ((i1[iy] >= vmin[iy] && i2[iy] < vmin[iy]) || (i1[iy] < vmin[iy] && i2[iy] >= vmin[iy])) {
       start = low(vmin, iy);
       if (bounded(iy, start)) {
