@@ -139,12 +139,50 @@ inline int32_t last_lane(Vec8i x) {
   return _mm256_extract_epi32(x.v, 7);
 }
 
-/// Bit mask of the lanes that differ from the lane before them (lane 0: from `before`).
-inline int lanes_changed(Vec8i x, int32_t before) {
+/// All bits set in the lanes equal to the lane before them (lane 0: to `before`), zero elsewhere.
+inline Vec8i lanes_same_as_before(Vec8i x, int32_t before) {
   const __m256i shifted = _mm256_blend_epi32(
       _mm256_permutevar8x32_epi32(x.v, _mm256_setr_epi32(0, 0, 1, 2, 3, 4, 5, 6)),
       _mm256_set1_epi32(before), 0x01);
-  return _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(x.v, shifted))) ^ 0xff;
+  return {_mm256_cmpeq_epi32(x.v, shifted)};
+}
+/// Bit mask of the lanes that differ from the lane before them (lane 0: from `before`).
+inline int lanes_changed(Vec8i x, int32_t before) {
+  return _mm256_movemask_ps(_mm256_castsi256_ps(lanes_same_as_before(x, before).v)) ^ 0xff;
+}
+
+/// Transposes four vectors into eight quads: out[4l .. 4l + 3] = (a_l, b_l, c_l, d_l) for
+/// lanes l = 0..7 (32 floats, unaligned).
+inline void store_quads(Vec8f a, Vec8f b, Vec8f c, Vec8f d, float* out) {
+  const __m256 ab_lo = _mm256_unpacklo_ps(a.v, b.v);  // a0 b0 a1 b1 | a4 b4 a5 b5
+  const __m256 cd_lo = _mm256_unpacklo_ps(c.v, d.v);
+  const __m256 ab_hi = _mm256_unpackhi_ps(a.v, b.v);  // a2 b2 a3 b3 | a6 b6 a7 b7
+  const __m256 cd_hi = _mm256_unpackhi_ps(c.v, d.v);
+  const __m256 q04 = _mm256_shuffle_ps(ab_lo, cd_lo, 0x44);  // quad 0 | quad 4
+  const __m256 q15 = _mm256_shuffle_ps(ab_lo, cd_lo, 0xEE);
+  const __m256 q26 = _mm256_shuffle_ps(ab_hi, cd_hi, 0x44);
+  const __m256 q37 = _mm256_shuffle_ps(ab_hi, cd_hi, 0xEE);
+  _mm256_storeu_ps(out, _mm256_permute2f128_ps(q04, q15, 0x20));
+  _mm256_storeu_ps(out + 8, _mm256_permute2f128_ps(q26, q37, 0x20));
+  _mm256_storeu_ps(out + 16, _mm256_permute2f128_ps(q04, q15, 0x31));
+  _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(q26, q37, 0x31));
+}
+/// The quad p[0..3] in both halves.
+inline Vec8f broadcast_quad(const float* p) {
+  return _mm256_broadcast_ps(reinterpret_cast<const __m128*>(p));
+}
+/// Lanes 0-3 *lo, lanes 4-7 *hi.
+inline Vec8f halves(const float* lo, const float* hi) {
+  return _mm256_blend_ps(_mm256_broadcast_ss(lo), _mm256_broadcast_ss(hi), 0xF0);
+}
+
+/// Stores the lanes' bit patterns as floats (masks that keep_if reads back one at a time).
+inline void store_mask(Vec8i mask, float* p) {
+  _mm256_storeu_ps(p, _mm256_castsi256_ps(mask.v));
+}
+/// v where the mask `*bits` (from store_mask) is all ones, +0 where it is zero (every lane alike).
+inline Vec8f keep_if(Vec8f v, const float* bits) {
+  return _mm256_and_ps(v.v, _mm256_broadcast_ss(bits));
 }
 
 /// Lanes of x where the float lane k is at least t (all bits), zero elsewhere.

@@ -302,13 +302,17 @@ struct CornerSums<M, true> {
     value = backend::Vec8f(0.f);
     weight = backend::Vec8f(0.f);
   }
-  SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
+  /// The eight corners' weights of a sample with fractions (x, y, z) (every lane the same).
+  static SONOSLICE_INLINE backend::Vec8f weights(backend::Vec8f x, backend::Vec8f y,
+                                                 backend::Vec8f z) {
     using backend::blend;
-    using backend::Vec8f;
-    const Vec8f one(1.f), x(fx), y(fy), z(fz);
+    const backend::Vec8f one(1.f);
     // Lane k takes f where bit (0, 1, 2) of k is set, 1 - f elsewhere.
-    const Vec8f w =
-        cell_weight(blend<0xAA>(one - x, x), blend<0xCC>(one - y, y), blend<0xF0>(one - z, z));
+    return cell_weight(blend<0xAA>(one - x, x), blend<0xCC>(one - y, y), blend<0xF0>(one - z, z));
+  }
+  SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
+    using backend::Vec8f;
+    const Vec8f w = weights(Vec8f(fx), Vec8f(fy), Vec8f(fz));
     value = value + w * Vec8f(s);
     weight = weight + w;
   }
@@ -322,6 +326,121 @@ struct CornerSums<M, true> {
                              &base[sy + sz].value);
   }
 };
+#endif
+
+#if defined(SONOSLICE_COMPOUND_AVX2)
+/// The inner samples [u, end) of a row, trilinear weights, mean and latest (summing) modes, every
+/// sample kept: the AVX2 kernel without a branch per sample. Per chunk of up to 64 samples the
+/// lanes first give each sample's cell, whether it continues the run of the sample before it
+/// (same cell) and its run's number; then one pass over the samples adds each sample's eight
+/// corner weights to its run's sums, cleared where a run starts (an AND with the mask, not a
+/// branch: runs are a few samples long, so a branch on them mispredicts often), and stores the
+/// sums in the run's slot. The same additions in the same order as CornerSums::add, hence the
+/// same bits. `cell`, `sums` and `flush` are splat_row_linear's open run: it is continued on
+/// entry, every run the chunk completes is flushed in order, and the run still open on return is
+/// left there. Returns where the samples stop (a multiple of 8 from u).
+template <typename T, Mode M, typename Flush>
+SONOSLICE_INLINE int splat_runs_linear(const AccumulatorView& g, const RowLine& L, const T* row,
+                                       int u, int end, int* cell, CornerSums<M>& sums,
+                                       const Flush& flush) {
+  using backend::Vec8f;
+  using backend::Vec8i;
+  constexpr int kChunk = 64;
+  const Vec8f c0[3] = {Vec8f(L.c0[0]), Vec8f(L.c0[1]), Vec8f(L.c0[2])};
+  const Vec8f d[3] = {Vec8f(L.dc[0]), Vec8f(L.dc[1]), Vec8f(L.dc[2])};
+  const Vec8f one(1.f);
+  alignas(32) int32_t idx[3][kChunk], run_of[kChunk];
+  // Per sample: the four (x, y) corner weights (wx·wy for corners 0-3), the two z weights, the
+  // sample, and the mask that keeps its run's sums (all ones) or clears them (a run starts).
+  alignas(32) float wxy[kChunk][4], wz[2][kChunk], samples[kChunk], continues[kChunk];
+  alignas(32) float run_value[kChunk + 1][8], run_weight[kChunk + 1][8];
+  // In the inner run a cell's lower corner is in [-1, n - 1] on each axis, so the key
+  // (x + 1) + kx·(y + 1) + kxy·(z + 1) names cells one to one (splat_row_linear checks that
+  // it fits in int32).
+  const int32_t kx = g.nx + 2, kxy = kx * (g.ny + 2);
+  const int64_t sy = g.nx, sz = int64_t(g.nx) * g.ny;
+  // The open run's cell, or -1 (no inner cell's key) when there is none or it lies outside.
+  int32_t before = -1;
+  if (cell[0] >= -1 && cell[1] >= -1 && cell[2] >= -1 && cell[0] <= g.nx && cell[1] <= g.ny &&
+      cell[2] <= g.nz)
+    before = (cell[0] + 1) + kx * (cell[1] + 1) + kxy * (cell[2] + 1);
+  Vec8f value = sums.value, weight = sums.weight;
+  while (u + 8 <= end) {
+    const int n = (end - u) < kChunk ? (end - u) & ~7 : kChunk;
+    int32_t runs = 0;     // run 0: the run open when the chunk starts
+    uint64_t starts = 0;  // bit l: sample l starts a run
+    for (int j = 0; j < n; j += 8) {
+      const Vec8f fu = Vec8f::iota(float(u + j));
+      Vec8i i[3];
+      Vec8f f[3];
+      for (int a = 0; a < 3; ++a) {
+        const Vec8f c = sample_coordinate(c0[a], fu, d[a]);
+        i[a] = backend::floor_to_int(c);
+        i[a].store(idx[a] + j);
+        f[a] = c - backend::to_float(i[a]);
+      }
+      // cell_weight's (wx·wy)·wz: the products wx·wy here, ·wz per sample below.
+      const Vec8f wx0 = one - f[0], wy0 = one - f[1];
+      backend::store_quads(wx0 * wy0, f[0] * wy0, wx0 * f[1], f[0] * f[1], wxy[j]);
+      (one - f[2]).store(wz[0] + j);
+      f[2].store(wz[1] + j);
+      backend::load_as_float(row + u + j).store(samples + j);
+      const Vec8i key = backend::offsets(i[0] + 1, i[1] + 1, i[2] + 1, kx, kxy);
+      const Vec8i same = backend::lanes_same_as_before(key, before);
+      backend::store_mask(same, continues + j);
+      starts |= uint64_t(backend::lanes_changed(key, before)) << j;
+      // The cells' accumulators are fetched while the samples are summed: cells of lanes 0
+      // and 4 (runs are a few samples long, and a cache line holds eight voxels along x).
+      for (int l = 0; l < 8; l += 4) {
+        const int x = idx[0][j + l], y = idx[1][j + l], z = idx[2][j + l];
+        if (x < 0 || y < 0 || z < 0) continue;
+        const Accumulator* base = g.cells + g.offset(x, y, z);
+        __builtin_prefetch(base, 1);
+        __builtin_prefetch(base + sy, 1);
+        __builtin_prefetch(base + sz, 1);
+        __builtin_prefetch(base + sy + sz, 1);
+      }
+      // same is -1 or 0, so same + 1 counts the runs that start.
+      const Vec8i r = backend::inclusive_sums(same + 1, runs);
+      r.store(run_of + j);
+      runs = backend::last_lane(r);
+      before = backend::last_lane(key);
+    }
+    value.store(run_value[0]);
+    weight.store(run_weight[0]);
+    for (int l = 0; l < n; ++l) {
+      const Vec8f w = backend::broadcast_quad(wxy[l]) * backend::halves(wz[0] + l, wz[1] + l);
+      value = backend::keep_if(value, continues + l) + w * Vec8f(samples[l]);
+      weight = backend::keep_if(weight, continues + l) + w;
+      value.store(run_value[run_of[l]]);
+      weight.store(run_weight[run_of[l]]);
+    }
+    // Runs 0 .. runs - 1 are complete (run 0 may be empty: flush skips a cell it never had);
+    // bit r - 1 of `starts`, counted from the lowest, is run r's first sample.
+    for (int r = 0; r < runs; ++r) {
+      if (r > 0) {
+        const int l = __builtin_ctzll(starts);
+        starts &= starts - 1;
+        cell[0] = idx[0][l];
+        cell[1] = idx[1][l];
+        cell[2] = idx[2][l];
+      }
+      sums.value = _mm256_load_ps(run_value[r]);
+      sums.weight = _mm256_load_ps(run_weight[r]);
+      flush();
+    }
+    if (runs > 0) {
+      const int l = __builtin_ctzll(starts);
+      cell[0] = idx[0][l];
+      cell[1] = idx[1][l];
+      cell[2] = idx[2][l];
+    }
+    u += n;
+  }
+  sums.value = value;
+  sums.weight = weight;
+  return u;
+}
 #endif
 
 /// One row's samples [ub, ue) into the slab, trilinear weights. Runs of samples in the same
@@ -388,6 +507,12 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
     using backend::Vec8f;
     const Vec8f c0[3] = {Vec8f(L.c0[0]), Vec8f(L.c0[1]), Vec8f(L.c0[2])};
     const Vec8f d[3] = {Vec8f(L.dc[0]), Vec8f(L.dc[1]), Vec8f(L.dc[2])};
+    if constexpr (M != Mode::Max) {
+      const int64_t keys = (int64_t(g.nx) + 2) * (int64_t(g.ny) + 2) * (int64_t(g.nz) + 2);
+      const bool keep_all = !(float(std::numeric_limits<T>::lowest()) < threshold);
+      if (keep_all && keys < (int64_t(1) << 31))
+        return splat_runs_linear(g, L, row, u, end, cell, sums, flush);
+    }
     alignas(32) int32_t idx[3][8];
     alignas(32) float frac[3][8], samples[8];
     for (; u + 8 <= end; u += 8) {
