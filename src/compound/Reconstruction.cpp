@@ -214,6 +214,7 @@ struct Reconstruction::Impl {
   ReconstructionReport report;
   std::vector<int64_t> frames;
   std::vector<Mat4> to_reference;
+  std::vector<Mat4> all_to_reference;  // skip interval: every usable frame (PLUS's grid rules)
   Compounder::GridFit grid_fit = Compounder::GridFit::Round;  // PLUS's under plus_exact
   std::unique_ptr<Compounder> compounder;
 
@@ -353,6 +354,12 @@ FrameSelection select_frames(const FrameSource& source, const PlusReconstruction
     const PlusFrameSelection sel = select_plus_frames(s, calibration, from, to, skip, hint);
     out.indices.assign(sel.frames.begin(), sel.frames.end());
     out.to_reference = sel.to_reference;
+    if (skip > 1) {
+      try {
+        out.all_to_reference = select_plus_frames(s, calibration, from, to, 1, hint).to_reference;
+      } catch (const InputError&) {  // only the left-out frames lack a chain: fit the used ones
+      }
+    }
     report.transform = from + "To" + to;
     report.skipped_bad_image = sel.bad_image;
     report.skipped_bad_transform = sel.bad_transform;
@@ -416,6 +423,7 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
   FrameSelection sel = sonoslice::select_frames(source, config, o);
   frames = std::move(sel.indices);
   to_reference = std::move(sel.to_reference);
+  all_to_reference = std::move(sel.all_to_reference);
   report = std::move(sel.report);
   const std::string why = report.skipped_reason();
   if (!why.empty())
@@ -439,8 +447,12 @@ void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
   else if (source.kind == FrameSource::Kind::Beams)
     grid = Compounder::grid_around_beams(to_reference, source.beam_geometry, *spacing);
   else
-    grid = Compounder::grid_around(to_reference, source.width, source.height, clip, *spacing,
-                                   grid_fit);
+    // PLUS's rules fit the box around every usable frame, also those a skip interval leaves out
+    // (vtkIGSIOVolumeReconstructor::SetOutputExtentFromFrameList walks all of them).
+    grid = Compounder::grid_around(
+        grid_fit != Compounder::GridFit::Round && !all_to_reference.empty() ? all_to_reference
+                                                                            : to_reference,
+        source.width, source.height, clip, *spacing, grid_fit);
 }
 
 Reconstruction::Reconstruction(const FrameSource& frames, const PlusReconstructionConfig* config,

@@ -669,6 +669,28 @@ TEST(PlusTransformRepository, TransformProblems) {
 // What issue 10 found: one all-zero ProbeToTracker turned the Nwire sweep's 101x105x74 grid into
 // 519x689x4084 voxels (33 s, 12.9 GB) without a word; one frame missing its ProbeToTracker failed
 // the whole sweep without naming the frame. Such frames are now left out and named.
+// PLUS fits its output box around every frame with a valid transform, also those SkipInterval
+// leaves out; --plus-exact does the same. The default mode fits the frames it inserts.
+TEST(PlusRecipe, PlusExactFitsTheGridAroundFramesTheSkipIntervalLeavesOut) {
+  SONOSLICE_REQUIRE_DATA();
+  const PlusSequence s = read_plus_sequence(plus_data("NwirePhantomFreehand.igs.mha"));
+  const PlusReconstructionConfig config = read_plus_config(
+      plus_data("PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml"));
+  const auto grid = [&](int skip, bool exact) {
+    ReconstructionOptions o;
+    o.skip = skip;
+    o.plus_exact = exact;
+    return Reconstruction(FrameSource::plus(s), &config, o).grid();
+  };
+  const VolumeGrid all = grid(1, true), every_third = grid(3, true);
+  EXPECT_EQ(every_third.dims, all.dims);
+  for (int a = 0; a < 3; ++a) EXPECT_EQ(every_third.origin_mm[a], all.origin_mm[a]) << a;
+  // Without --plus-exact the box is the inserted frames': here a different origin.
+  const VolumeGrid used = grid(3, false), used_all = grid(1, false);
+  EXPECT_NE(used.origin_mm[0], used_all.origin_mm[0]);
+  EXPECT_EQ(grid(3, true).dims, (std::array<int64_t, 3>{101, 104, 74}));
+}
+
 TEST(PlusFrameSelection, FramesTheirTransformsCannotPlaceAreSkippedAndNamed) {
   REQUIRE_PLUS_DATA();
   REQUIRE_PUGIXML();

@@ -158,7 +158,10 @@ struct ReconstructionReport {
 struct FrameSelection {
   std::vector<int64_t> indices;    ///< frames of the source, in order
   std::vector<Mat4> to_reference;  ///< per frame: image (beams: probe) → reference mm
-  ReconstructionReport report;     ///< input, counts and the transform (no timings)
+  /// PLUS sequences with a skip interval: the transforms of every usable frame, also those the
+  /// interval leaves out (PLUS fits its output box around all of them; `--plus-exact` does too).
+  std::vector<Mat4> all_to_reference;
+  ReconstructionReport report;  ///< input, counts and the transform (no timings)
 };
 
 /// Step 2a alone: every skip-th frame whose image status is OK and whose transform chain (PLUS:
