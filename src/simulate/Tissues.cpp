@@ -1,0 +1,99 @@
+// The default tissue table and the CT (Hounsfield unit) → acoustic property knots of
+// docs/simulation.md §1.
+#include <cmath>
+#include <set>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/simulate/Simulator.h"
+
+namespace sonoslice {
+
+std::vector<Tissue> default_tissues() {
+  // name, label, Z (MRayl), α (dB/cm/MHz), scatter mean, scatter density. Z and α: the values
+  // tabulated in Szabo, Diagnostic Ultrasound Imaging: Inside Out (2nd ed., 2014), appendix B,
+  // and Duck, Physical Properties of Tissue (1990), rounded (docs/simulation.md §1 lists them
+  // with the ranges those books give). Scatter means are this model's relative echogenicities
+  // (dB below an ideal reflector), chosen so that a default B-mode image ranks the tissues as
+  // clinical images do; they are not measured quantities.
+  return {
+      {"water", 1, 1.48, 0.0022, 0.0, 10.0},       {"blood", 2, 1.61, 0.18, 0.002, 10.0},
+      {"fat", 3, 1.38, 0.48, 0.012, 10.0},         {"liver", 4, 1.65, 0.50, 0.025, 10.0},
+      {"kidney", 5, 1.62, 1.00, 0.020, 10.0},      {"muscle", 6, 1.70, 1.09, 0.018, 10.0},
+      {"soft tissue", 7, 1.63, 0.54, 0.020, 10.0}, {"vessel wall", 8, 1.68, 0.90, 0.040, 10.0},
+      {"bone", 9, 7.80, 20.0, 0.050, 10.0},        {"gas", 10, 0.0004, 12.0, 0.0, 10.0},
+  };
+}
+
+namespace {
+struct Knot {
+  double hu, z, alpha, scatter;
+};
+// Piecewise linear in HU. Gas up to −400 HU (lung and bowel gas with partial volume), fat at
+// −100, water at 0, blood at 20, soft tissue and liver at 40–60, a bone ramp from 300 (cancellous)
+// to 1900 HU (cortical). Values are those of the default table's tissues.
+constexpr Knot kKnots[] = {
+    {-1000, 0.0004, 12.0, 0.0}, {-400, 0.0004, 12.0, 0.0}, {-100, 1.38, 0.48, 0.012},
+    {0, 1.48, 0.0022, 0.0},     {20, 1.61, 0.18, 0.002},   {40, 1.63, 0.54, 0.020},
+    {60, 1.65, 0.50, 0.025},    {300, 1.70, 1.09, 0.030},  {1900, 7.80, 20.0, 0.050},
+};
+}  // namespace
+
+Tissue tissue_from_hu(double hu) {
+  constexpr int n = int(sizeof(kKnots) / sizeof(kKnots[0]));
+  Tissue t;
+  t.name.clear();
+  t.label = 0;
+  const Knot* k = kKnots;
+  if (!(hu > k[0].hu)) {  // NaN too
+    t.impedance_mrayl = k[0].z;
+    t.attenuation_db_cm_mhz = k[0].alpha;
+    t.scatter_mean = k[0].scatter;
+    return t;
+  }
+  for (int i = 1; i < n; ++i) {
+    if (hu <= k[i].hu) {
+      const double w = (hu - k[i - 1].hu) / (k[i].hu - k[i - 1].hu);
+      t.impedance_mrayl = k[i - 1].z + w * (k[i].z - k[i - 1].z);
+      t.attenuation_db_cm_mhz = k[i - 1].alpha + w * (k[i].alpha - k[i - 1].alpha);
+      t.scatter_mean = k[i - 1].scatter + w * (k[i].scatter - k[i - 1].scatter);
+      return t;
+    }
+  }
+  t.impedance_mrayl = k[n - 1].z;
+  t.attenuation_db_cm_mhz = k[n - 1].alpha;
+  t.scatter_mean = k[n - 1].scatter;
+  return t;
+}
+
+void validate_tissues(const std::vector<Tissue>& tissues, const std::string& what) {
+  if (tissues.empty()) throw InputError(what + ": the tissue table is empty");
+  std::set<int> labels;
+  for (const Tissue& t : tissues) {
+    const std::string name =
+        what + ": tissue '" + t.name + "' (label " + std::to_string(t.label) + ")";
+    if (t.label < 0 || t.label > 65535)
+      throw InputError(name + ": the label must be in [0, 65535]");
+    if (!labels.insert(t.label).second)
+      throw InputError(what + ": label " + std::to_string(t.label) + " is listed twice");
+    if (!(t.impedance_mrayl > 0) || !std::isfinite(t.impedance_mrayl))
+      throw InputError(name + ": impedance_mrayl must be > 0");
+    if (!(t.attenuation_db_cm_mhz >= 0) || !std::isfinite(t.attenuation_db_cm_mhz))
+      throw InputError(name + ": attenuation_db_cm_mhz must be >= 0");
+    if (!(t.scatter_mean >= 0) || !std::isfinite(t.scatter_mean))
+      throw InputError(name + ": scatter_mean must be >= 0");
+    if (!(t.scatter_density > 0) || !std::isfinite(t.scatter_density))
+      throw InputError(name + ": scatter_density must be > 0");
+  }
+}
+
+void SimulationSettings::validate() const {
+  if (!(frequency_mhz > 0) || !std::isfinite(frequency_mhz) || frequency_mhz > 100)
+    throw InputError("frequency " + std::to_string(frequency_mhz) + " MHz: must be in (0, 100]");
+  if (!(dynamic_range_db > 0) || !std::isfinite(dynamic_range_db))
+    throw InputError("dynamic range " + std::to_string(dynamic_range_db) + " dB: must be > 0");
+  for (double w : {axial_fwhm_mm, lateral_fwhm_mm, elevation_fwhm_mm})
+    if (!(w >= 0) || !std::isfinite(w))
+      throw InputError("point-spread width " + std::to_string(w) + " mm: must be >= 0");
+}
+
+}  // namespace sonoslice

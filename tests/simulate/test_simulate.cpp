@@ -1,0 +1,355 @@
+// Ultrasound simulation (issue 13): the analytic checks of the model, docs/simulation.md §5.
+// Phantoms are label volumes built here; the probe is a linear probe looking down world +y.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <numeric>
+#include <vector>
+
+#include "../common/TestUtil.h"
+#include "sonoslice/backend/Device.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/simulate/Simulator.h"
+
+namespace sonoslice {
+namespace {
+
+constexpr double kVoxel = 0.5;  // mm
+constexpr int kN = 100;         // 50 mm cube
+
+/// A uint8 label volume of kN³ voxels at 0.5 mm (world = index · 0.5), label(x, y, z) in mm.
+Volume phantom(const std::function<int(double, double, double)>& label) {
+  VolumeGrid g;
+  g.dims = {kN, kN, kN};
+  g.spacing_mm = {kVoxel, kVoxel, kVoxel};
+  Volume v = Volume::allocate(PixelType::UInt8, g);
+  uint8_t* p = v.data_as<uint8_t>();
+  for (int z = 0; z < kN; ++z)
+    for (int y = 0; y < kN; ++y)
+      for (int x = 0; x < kN; ++x)
+        p[(int64_t(z) * kN + y) * kN + x] = uint8_t(label(x * kVoxel, y * kVoxel, z * kVoxel));
+  return v;
+}
+
+/// 100 × 130 pixels at 0.3 mm: 30 mm wide, 39 mm deep, face at y = 0.
+ProbeGeometry linear_probe() {
+  ProbeGeometry p;
+  p.type = ProbeType::Linear;
+  p.image.width = 100;
+  p.image.height = 130;
+  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.3;
+  p.image.set_default_origin();
+  return p;
+}
+
+/// The probe face centred at (25, y0, z) mm, beams along world +y, lateral along world x.
+Pose pose_at(double z, double y0 = 2.0) {
+  Pose p = Pose::identity();
+  p.m[0][3] = 25;
+  p.m[1][3] = y0;
+  p.m[2][3] = z;
+  return p;
+}
+
+Tissue tissue(int label, double z, double alpha, double scatter) {
+  Tissue t;
+  t.name = "t" + std::to_string(label);
+  t.label = label;
+  t.impedance_mrayl = z;
+  t.attenuation_db_cm_mhz = alpha;
+  t.scatter_mean = scatter;
+  return t;
+}
+
+std::vector<float> envelope(const Simulator& s, const std::vector<Pose>& poses) {
+  std::vector<float> out(poses.size() * size_t(s.width()) * size_t(s.height()));
+  s.simulate(poses.data(), poses.size(), out.data());
+  return out;
+}
+
+SimulationSettings envelope_settings(double f = 5.0) {
+  SimulationSettings st;
+  st.frequency_mhz = f;
+  st.output = SimulationOutput::Envelope;
+  st.tgc_auto = false;
+  st.seed = 3;
+  return st;
+}
+
+/// Rows [r0, r1) and columns [c0, c1) of image k.
+std::vector<double> region(const std::vector<float>& img, int w, int h, int k, int r0, int r1,
+                           int c0, int c1) {
+  std::vector<double> v;
+  for (int r = r0; r < r1; ++r)
+    for (int c = c0; c < c1; ++c) v.push_back(img[(size_t(k) * h + r) * w + c]);
+  return v;
+}
+double mean(const std::vector<double>& v) {
+  return std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
+}
+double stdev(const std::vector<double>& v) {
+  const double m = mean(v);
+  double s = 0;
+  for (double x : v) s += (x - m) * (x - m);
+  return std::sqrt(s / double(v.size()));
+}
+double correlation(const std::vector<double>& a, const std::vector<double>& b) {
+  const double ma = mean(a), mb = mean(b);
+  double sab = 0, saa = 0, sbb = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    sab += (a[i] - ma) * (b[i] - mb);
+    saa += (a[i] - ma) * (a[i] - ma);
+    sbb += (b[i] - mb) * (b[i] - mb);
+  }
+  return sab / std::sqrt(saa * sbb);
+}
+
+// 1. Fully developed speckle, homogeneous scatterer, no attenuation: Rayleigh statistics.
+TEST(Simulate, FullyDevelopedSpeckleIsRayleigh) {
+  const Simulator sim(phantom([](double, double, double) { return 1; }), SimulationSource::Labels,
+                      linear_probe(), {tissue(1, 1.6, 0.0, 0.02)}, envelope_settings());
+  std::vector<Pose> poses;
+  for (int k = 0; k < 6; ++k) poses.push_back(pose_at(10 + 5 * k));
+  const auto img = envelope(sim, poses);
+  std::vector<double> env, logs;
+  for (int k = 0; k < 6; ++k)
+    for (double e : region(img, sim.width(), sim.height(), k, 10, 120, 10, 90)) {
+      env.push_back(e);
+      logs.push_back(20 * std::log10(e));
+    }
+  const double snr = mean(env) / stdev(env), log_sd = stdev(logs);
+  std::printf("[ speckle ] SNR %.3f (Rayleigh 1.913), log-envelope sd %.3f dB (5.57)\n", snr,
+              log_sd);
+  EXPECT_NEAR(snr, 1.913, 0.05 * 1.913);
+  EXPECT_NEAR(log_sd, 5.57, 0.05 * 5.57);
+}
+
+// 3. Attenuation: with TGC off the mean log envelope falls 2·α·f dB per cm; with auto TGC the
+// B-mode image is flat.
+TEST(Simulate, AttenuationSlopeAndAutoTgc) {
+  const double alpha = 0.5, f = 3.5;
+  const Volume v = phantom([](double, double, double) { return 1; });
+  const std::vector<Tissue> t = {tissue(1, 1.6, alpha, 0.02)};
+  const Simulator sim(v, SimulationSource::Labels, linear_probe(), t, envelope_settings(f));
+  std::vector<Pose> poses;
+  for (int k = 0; k < 6; ++k) poses.push_back(pose_at(10 + 5 * k));
+  const auto img = envelope(sim, poses);
+  // Mean log envelope per row, rows 10..120 (3 mm .. 36 mm), least-squares slope.
+  std::vector<double> depth, level;
+  for (int r = 10; r < 120; ++r) {
+    double s = 0;
+    int n = 0;
+    for (int k = 0; k < 6; ++k)
+      for (double e : region(img, sim.width(), sim.height(), k, r, r + 1, 10, 90)) {
+        s += 20 * std::log10(e);
+        ++n;
+      }
+    depth.push_back(r * 0.03);  // cm
+    level.push_back(s / n);
+  }
+  const double md = mean(depth), ml = mean(level);
+  double sxy = 0, sxx = 0;
+  for (size_t i = 0; i < depth.size(); ++i) {
+    sxy += (depth[i] - md) * (level[i] - ml);
+    sxx += (depth[i] - md) * (depth[i] - md);
+  }
+  const double slope = sxy / sxx;
+  std::printf("[ attenuation ] %.3f dB/cm (expected %.3f)\n", slope, -2 * alpha * f);
+  EXPECT_NEAR(slope, -2 * alpha * f, 0.1 * 2 * alpha * f);
+
+  SimulationSettings st = envelope_settings(f);
+  st.output = SimulationOutput::BMode;
+  st.tgc_auto = true;
+  const Simulator bmode(v, SimulationSource::Labels, linear_probe(), t, st);
+  std::vector<uint8_t> b(poses.size() * size_t(bmode.width()) * size_t(bmode.height()));
+  bmode.simulate(poses.data(), poses.size(), b.data());
+  // Mean pixel value in 5 mm bands: within 1 dB (255/60 levels per dB) of each other.
+  std::vector<double> bands;
+  for (int r0 = 10; r0 + 16 <= 122; r0 += 16) {
+    double s = 0;
+    int n = 0;
+    for (int k = 0; k < 6; ++k)
+      for (int r = r0; r < r0 + 16; ++r)
+        for (int c = 10; c < 90; ++c) {
+          s += b[(size_t(k) * bmode.height() + r) * bmode.width() + c];
+          ++n;
+        }
+    bands.push_back(s / n);
+  }
+  const double spread =
+      *std::max_element(bands.begin(), bands.end()) - *std::min_element(bands.begin(), bands.end());
+  std::printf("[ auto TGC ] band means spread %.2f grey levels (1 dB = %.2f)\n", spread,
+              255.0 / 60);
+  EXPECT_LT(spread, 255.0 / 60);
+}
+
+// 4. A bone plate: bright echo, then at least 40 dB less behind it; gas: nothing behind it;
+// tilting the plate lowers the echo.
+TEST(Simulate, BoneAndGasShadow) {
+  for (int shadow : {2, 3}) {  // 2 bone, 3 gas
+    const std::vector<Tissue> t = {tissue(1, 1.63, 0.54, 0.02), tissue(2, 7.8, 20.0, 0.05),
+                                   tissue(3, 0.0004, 12.0, 0.0)};
+    const Simulator sim(
+        phantom([&](double, double y, double) { return y >= 17 && y < 21 ? shadow : 1; }),
+        SimulationSource::Labels, linear_probe(), t, envelope_settings());
+    const auto img = envelope(sim, {pose_at(25)});
+    const int w = sim.width(), h = sim.height();
+    // Rows: 0.3 mm from y = 2: the plate's top at y = 17 is row 50.
+    const double above = mean(region(img, w, h, 0, 20, 45, 10, 90));
+    double peak = 0;
+    for (double e : region(img, w, h, 0, 45, 56, 10, 90)) peak = std::max(peak, e);
+    const double behind = mean(region(img, w, h, 0, 75, 125, 10, 90));
+    const double drop_db = 20 * std::log10(above / std::max(behind, 1e-30));
+    std::printf("[ %s plate ] peak/above %.1f dB, behind: %.1f dB below the tissue above\n",
+                shadow == 2 ? "bone" : "gas", 20 * std::log10(peak / above), drop_db);
+    EXPECT_GT(peak, 5 * above);
+    EXPECT_GT(drop_db, shadow == 2 ? 40.0 : 100.0);
+  }
+  // Tilted 30° about the elevation axis: the returned echo falls.
+  const std::vector<Tissue> t = {tissue(1, 1.63, 0.0, 0.0), tissue(2, 7.8, 20.0, 0.0)};
+  double peaks[2];
+  for (int tilted = 0; tilted < 2; ++tilted) {
+    const double slope = tilted ? std::tan(30 * 3.141592653589793 / 180) : 0;
+    const Simulator sim(
+        phantom([&](double x, double y, double) { return y >= 17 + slope * (x - 25) ? 2 : 1; }),
+        SimulationSource::Labels, linear_probe(), t, envelope_settings());
+    const auto img = envelope(sim, {pose_at(25)});
+    // The beam at the probe's centre (column 50).
+    double peak = 0;
+    for (double e : region(img, sim.width(), sim.height(), 0, 30, 70, 45, 55))
+      peak = std::max(peak, e);
+    peaks[tilted] = peak;
+  }
+  std::printf("[ tilt ] 30 deg: %.1f dB\n", 20 * std::log10(peaks[1] / peaks[0]));
+  EXPECT_LT(peaks[1], 0.5 * peaks[0]);
+}
+
+// 5. Interface strengths follow R = ((Z2 − Z1)/(Z2 + Z1))² (the echo amplitude is √R).
+TEST(Simulate, InterfaceEchoesFollowTheReflectionCoefficient) {
+  const auto echo = [](double z1, double z2) {
+    const std::vector<Tissue> t = {tissue(1, z1, 0.0, 0.0), tissue(2, z2, 0.0, 0.0)};
+    const Simulator sim(phantom([](double, double y, double) { return y >= 17 ? 2 : 1; }),
+                        SimulationSource::Labels, linear_probe(), t, envelope_settings());
+    const auto img = envelope(sim, {pose_at(25)});
+    double peak = 0;
+    for (double e : region(img, sim.width(), sim.height(), 0, 40, 60, 30, 70))
+      peak = std::max(peak, e);
+    return peak;
+  };
+  const auto r = [](double z1, double z2) { return (z2 - z1) / (z2 + z1); };
+  const double fat_liver = echo(1.38, 1.65), liver_blood = echo(1.65, 1.61),
+               soft_bone = echo(1.63, 7.8);
+  std::printf("[ interfaces ] fat/liver %.4g, liver/blood %.4g, soft tissue/bone %.4g\n", fat_liver,
+              liver_blood, soft_bone);
+  EXPECT_NEAR(fat_liver / soft_bone, std::fabs(r(1.38, 1.65) / r(1.63, 7.8)),
+              0.05 * fat_liver / soft_bone);
+  EXPECT_NEAR(liver_blood / fat_liver, std::fabs(r(1.65, 1.61) / r(1.38, 1.65)),
+              0.05 * liver_blood / fat_liver);
+}
+
+// 6. A water cyst: anechoic inside, brighter behind it than beside it.
+TEST(Simulate, CystIsAnechoicWithPosteriorEnhancement) {
+  const std::vector<Tissue> t = {tissue(1, 1.63, 0.7, 0.02), tissue(2, 1.48, 0.0022, 0.0)};
+  const Simulator sim(
+      phantom([](double x, double y, double z) {
+        return (x - 25) * (x - 25) + (y - 15) * (y - 15) + (z - 25) * (z - 25) < 36 ? 2 : 1;
+      }),
+      SimulationSource::Labels, linear_probe(), t, envelope_settings());
+  const auto img = envelope(sim, {pose_at(25)});
+  const int w = sim.width(), h = sim.height();
+  // Centre (25, 15) mm: column 50, row 43. Behind: rows 70..110 under the cyst (columns 45..55)
+  // against the same rows 20 columns aside.
+  const double inside = mean(region(img, w, h, 0, 38, 48, 45, 55));
+  const double around = mean(region(img, w, h, 0, 38, 48, 5, 20));
+  const double behind = mean(region(img, w, h, 0, 70, 110, 45, 55));
+  const double beside = mean(region(img, w, h, 0, 70, 110, 5, 20));
+  std::printf("[ cyst ] inside/around %.1f dB, behind/beside %+.1f dB\n",
+              20 * std::log10(inside / around), 20 * std::log10(behind / beside));
+  EXPECT_LT(inside, 0.1 * around);
+  EXPECT_GT(behind, 1.2 * beside);
+}
+
+// 7. Determinism and a speckle field fixed in the volume.
+TEST(Simulate, SameSeedSameBytesOnAnyThreadCount) {
+  const test::ScopedCpuSettings restore;
+  const Volume v = phantom([](double, double y, double z) { return y > 20 && z > 20 ? 2 : 1; });
+  const std::vector<Tissue> t = {tissue(1, 1.63, 0.54, 0.02), tissue(2, 1.65, 0.5, 0.03)};
+  SimulationSettings st;
+  st.seed = 11;
+  std::vector<Pose> poses = {pose_at(20), pose_at(24), pose_at(28)};
+  std::vector<std::vector<uint8_t>> runs;
+  for (int threads : {1, 2, 5}) {
+    set_cpu_threads(threads);
+    const Simulator sim(v, SimulationSource::Labels, linear_probe(), t, st);
+    runs.emplace_back(poses.size() * sim.image_bytes());
+    sim.simulate(poses.data(), poses.size(), runs.back().data());
+  }
+  EXPECT_EQ(runs[0], runs[1]);
+  EXPECT_EQ(runs[0], runs[2]);
+  st.seed = 12;
+  const Simulator other(v, SimulationSource::Labels, linear_probe(), t, st);
+  std::vector<uint8_t> b(poses.size() * other.image_bytes());
+  other.simulate(poses.data(), poses.size(), b.data());
+  EXPECT_NE(runs[0], b);
+}
+
+TEST(Simulate, SpeckleDecorrelatesWithElevationalShift) {
+  const Simulator sim(phantom([](double, double, double) { return 1; }), SimulationSource::Labels,
+                      linear_probe(), {tissue(1, 1.6, 0.0, 0.02)}, envelope_settings());
+  const auto img = envelope(sim, {pose_at(25), pose_at(25.1), pose_at(30)});
+  const int w = sim.width(), h = sim.height();
+  const auto a = region(img, w, h, 0, 10, 120, 10, 90);
+  const double near = correlation(a, region(img, w, h, 1, 10, 120, 10, 90));
+  const double far = correlation(a, region(img, w, h, 2, 10, 120, 10, 90));
+  std::printf("[ elevation ] correlation at 0.1 mm %.3f, at 5 mm %.3f\n", near, far);
+  EXPECT_GT(near, 0.8);
+  EXPECT_LT(far, 0.2);
+}
+
+// 8. CT mode and label mode agree where the CT holds the table's HU.
+TEST(Simulate, CtAndLabelsAgree) {
+  // Water (0 HU, label 1) above liver (60 HU, label 4): the knots give the default table's
+  // water and liver there.
+  const Volume labels = phantom([](double, double y, double) { return y >= 15 ? 4 : 1; });
+  Volume ct = Volume::allocate(PixelType::Int16, labels.grid());
+  for (int64_t i = 0; i < labels.grid().voxel_count(); ++i)
+    ct.data_as<int16_t>()[i] = labels.data_as<uint8_t>()[i] == 4 ? 60 : 0;
+  const auto st = envelope_settings();
+  const Simulator a(labels, SimulationSource::Labels, linear_probe(), default_tissues(), st);
+  const Simulator b(ct, SimulationSource::HounsfieldUnits, linear_probe(), {}, st);
+  const auto ia = envelope(a, {pose_at(25)}), ib = envelope(b, {pose_at(25)});
+  const int w = a.width(), h = a.height();
+  // Deep in the liver (rows 60..120): the same speckle, the same attenuation.
+  const auto ra = region(ia, w, h, 0, 60, 120, 10, 90), rb = region(ib, w, h, 0, 60, 120, 10, 90);
+  std::printf("[ CT vs labels ] liver mean %.4g vs %.4g, correlation %.3f\n", mean(ra), mean(rb),
+              correlation(ra, rb));
+  EXPECT_NEAR(mean(rb), mean(ra), 0.02 * mean(ra));
+  EXPECT_GT(correlation(ra, rb), 0.99);
+}
+
+TEST(Simulate, BadInputIsNamed) {
+  const Volume v = phantom([](double, double, double) { return 7; });
+  EXPECT_THROW(Simulator(v, SimulationSource::Labels, linear_probe(), {tissue(1, 1.6, 0, 0)}),
+               InputError);  // label 7 missing
+  EXPECT_THROW(Simulator(v, SimulationSource::Labels, linear_probe(),
+                         {tissue(7, 1.6, 0, 0), tissue(7, 1.5, 0, 0)}),
+               InputError);  // label twice
+  EXPECT_THROW(Simulator(v, SimulationSource::Labels, linear_probe(), {tissue(7, -1, 0, 0)}),
+               InputError);
+  SimulationSettings st;
+  st.frequency_mhz = std::nan("");
+  EXPECT_THROW(Simulator(v, SimulationSource::Labels, linear_probe(), {tissue(7, 1.6, 0, 0)}, st),
+               InputError);
+  const Simulator sim(v, SimulationSource::Labels, linear_probe(), {tissue(7, 1.6, 0, 0.02)});
+  Pose bad = pose_at(25);
+  bad.m[0][0] = std::nan("");
+  std::vector<uint8_t> out(sim.image_bytes(), 42);
+  EXPECT_THROW(sim.simulate(&bad, 1, out.data()), InputError);
+  EXPECT_EQ(out[0], 42);  // nothing written
+}
+
+}  // namespace
+}  // namespace sonoslice
