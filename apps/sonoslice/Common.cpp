@@ -48,6 +48,34 @@ VolumeReadOptions VolumeFlags::options() const {
   return o;
 }
 
+std::string gib(uint64_t bytes) {
+  std::ostringstream s;
+  s.precision(3);
+  s << double(bytes) / double(1ull << 30) << " GiB";
+  return s.str();
+}
+
+uint64_t check_stack_resources(const std::string& out, const StackSpec& spec, int64_t chunk,
+                               uint64_t extra_held) {
+  const uint64_t held = stack_memory_bytes(out, spec, chunk) + extra_held;
+  const uint64_t available = available_memory_bytes();
+  if (held > available)
+    throw ResourceError("output '" + out + "' needs " + gib(held) + " in memory (" +
+                        std::to_string(spec.count) + " images of " + std::to_string(spec.width) +
+                        "x" + std::to_string(spec.height) + " " + to_string(spec.type) +
+                        ") but only " + gib(available) +
+                        " is available; write .npy or a PNG directory (streamed) instead");
+  if (stack_format(out) == StackFormat::Npy) {
+    const uint64_t total = uint64_t(spec.count) * uint64_t(spec.width) * uint64_t(spec.height) *
+                           pixel_size(spec.type) * uint64_t(spec.components);
+    const uint64_t free_bytes = free_disk_bytes(out);
+    if (total > free_bytes)
+      throw ResourceError("output '" + out + "' needs " + gib(total) + " on disk but only " +
+                          gib(free_bytes) + " is free");
+  }
+  return held;
+}
+
 std::string flag_of(const std::string& parameter) {
   static const std::map<std::string, std::string> renamed = {
       {"spacing_mm", "--spacing"},

@@ -79,6 +79,15 @@ class ProgressBar {
   int64_t last_done_ = -1;
 };
 
+/// "1.5 GiB": a byte count for messages.
+std::string gib(uint64_t bytes);
+
+/// Before writing a stack of `spec` to `out` in chunks of `chunk` images: ResourceError when the
+/// writer's buffers (plus `extra_held` bytes) do not fit in the available memory, or a .npy does
+/// not fit on its disk. Returns the bytes the writers hold in memory.
+uint64_t check_stack_resources(const std::string& out, const StackSpec& spec, int64_t chunk,
+                               uint64_t extra_held = 0);
+
 /// Writes the H×W probe mask: .png scaled to 0/255, other formats as 0/1 uint8 (`together`: as
 /// for write_image).
 void write_mask(const std::string& path, const ProbeGeometry& probe,

@@ -7,7 +7,9 @@
 #include "Commands.h"
 #include "Common.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/PoseFile.h"
+#include "sonoslice/io/TissueFile.h"
 #include "sonoslice/phantom/Phantom.h"
 
 namespace sonoslice {
@@ -37,6 +39,9 @@ void run_phantom(const PhantomFlags& f) {
   const std::string labels = (std::filesystem::path(f.out_dir) / ("labels." + f.format)).string();
   write_volume(ct, phantom.ct);
   write_volume(labels, phantom.labels);
+  // The labels' acoustic properties, for `sonoslice simulate --labels ... --tissues`.
+  const std::string tissues = (std::filesystem::path(f.out_dir) / "tissues.json").string();
+  write_text_file(tissues, tissue_table_json(phantom_tissues()));
   if (f.poses > 0) {
     // The benchmark's poses (random, inside the body) and probes on the skin, to slice with.
     write_poses_npy((std::filesystem::path(f.out_dir) / "poses.npy").string(),

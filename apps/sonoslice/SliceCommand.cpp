@@ -34,13 +34,6 @@ struct SliceFlags {
   bool interp_given = false, dtype_given = false;
 };
 
-std::string gib(uint64_t bytes) {
-  std::ostringstream s;
-  s.precision(3);
-  s << double(bytes) / double(1ull << 30) << " GiB";
-  return s.str();
-}
-
 // Where the images come from: a volume (intensities or labels) or surface meshes.
 struct Source {
   std::unique_ptr<Slicer> slicer;              // volumes, and voxelised meshes
@@ -184,22 +177,8 @@ void run_slice(const SliceFlags& f) {
   const size_t image_bytes = size_t(probe.image.pixel_count()) * pixel_size(spec.type);
   const int64_t chunk = chunk_images(
       image_bytes + (f.colors.empty() ? 0 : 3 * size_t(probe.image.pixel_count())), spec.count);
-  const uint64_t total_bytes = uint64_t(image_bytes) * uint64_t(spec.count);
-  uint64_t held = stack_memory_bytes(f.out, spec, chunk);
-  if (!f.colors.empty()) held += stack_memory_bytes(f.colors, color_spec, chunk);
-  const uint64_t available = available_memory_bytes();
-  if (held > available)
-    throw ResourceError("output '" + f.out + "' needs " + gib(held) + " in memory (" +
-                        std::to_string(spec.count) + " images of " + std::to_string(spec.width) +
-                        "x" + std::to_string(spec.height) + " " + dtype + ") but only " +
-                        gib(available) +
-                        " is available; write .npy or a PNG directory (streamed) instead");
-  if (format == StackFormat::Npy) {
-    const uint64_t free_bytes = free_disk_bytes(f.out);
-    if (total_bytes > free_bytes)
-      throw ResourceError("output '" + f.out + "' needs " + gib(total_bytes) +
-                          " on disk but only " + gib(free_bytes) + " is free");
-  }
+  const uint64_t held = check_stack_resources(
+      f.out, spec, chunk, f.colors.empty() ? 0 : stack_memory_bytes(f.colors, color_spec, chunk));
 
   double load_seconds = 0;
   const Source source = make_source(f, probe, settings, device, &load_seconds);

@@ -76,7 +76,7 @@ inline double dome_z(double x, double y) {
 enum class Clip { None, BelowDiaphragm, AboveDiaphragm };
 
 // What a voxel is made of: its label, mean HU, noise, and whether it gets smooth texture.
-struct Tissue {
+struct Material {
   uint8_t label;
   double hu, noise_sd;
   bool textured;
@@ -88,7 +88,7 @@ struct Shape {
   double q[3];          // ellipsoid radii; cylinder (rx, ry, unused); capsule end
   double radius;        // capsule radius
   double lo[3], hi[3];  // bounding box
-  Tissue tissue;
+  Material tissue;
   Clip clip;
   double gas_below_y = -1e9;  // content anterior of this y is gas (a supine patient's stomach)
 
@@ -286,7 +286,7 @@ inline bool inside_cavity(double x, double y, const BodySection& s) {
 
 // Layers every voxel starts from: air, skin, fat, muscle wall, then the cavity (visceral fat
 // below the diaphragm, lungs above it). `s` is the body's section at z.
-inline Tissue base_tissue(double x, double y, double z, const BodySection& s) {
+inline Material base_tissue(double x, double y, double z, const BodySection& s) {
   if (y > kBackY || ellipse_level(x, y, s.a, s.b) > 1) return {kAir, -1000, 4, false};
   if (ellipse_level(x, y, s.a - 2.5, s.b - 2.5) > 1) return {kSoftTissue, 30, 10, false};  // skin
   if (ellipse_level(x, y, s.a - kFatDepth, s.b - kFatDepth * 0.8) > 1)
@@ -320,6 +320,41 @@ const char* to_string(PhantomSize size) {
       return "full";
   }
   return "?";
+}
+
+std::vector<sonoslice::Tissue> phantom_tissues() {
+  // By name from the default table, so the two never disagree; the phantom's own variants
+  // (bowel, lesion, spleen) are derived from them.
+  const std::vector<sonoslice::Tissue> base = default_tissues();
+  const auto get = [&](const char* name) {
+    for (const sonoslice::Tissue& t : base)
+      if (t.name == name) return t;
+    throw Error(std::string("phantom_tissues: no default tissue '") + name + "'");
+  };
+  const auto as = [](sonoslice::Tissue t, int label, const char* name) {
+    t.label = label;
+    t.name = name;
+    return t;
+  };
+  sonoslice::Tissue bowel = as(get("soft tissue"), kBowel, "bowel");
+  bowel.scatter_mean = 0.035;  // mixed content: brighter than the wall
+  sonoslice::Tissue lesion = as(get("liver"), kLesion, "lesion");
+  lesion.scatter_mean = 0.012;  // hypoechoic
+  sonoslice::Tissue spleen = as(get("liver"), kSpleen, "spleen");
+  spleen.scatter_mean = 0.022;
+  return {as(get("gas"), kAir, "air"),
+          as(get("fat"), kFat, "fat"),
+          as(get("soft tissue"), kSoftTissue, "soft tissue"),
+          as(get("liver"), kLiver, "liver"),
+          as(get("blood"), kHepaticVessel, "hepatic vessel"),
+          as(get("blood"), kGreatVessel, "great vessel"),
+          as(get("bone"), kBone, "bone"),
+          as(get("gas"), kLung, "lung"),
+          as(get("kidney"), kKidney, "kidney"),
+          spleen,
+          bowel,
+          lesion,
+          as(get("water"), kGallbladder, "gallbladder")};
 }
 
 const char* phantom_label_name(int label) {
@@ -360,7 +395,7 @@ Phantom make_phantom(PhantomSize size) {
       const double y = grid.origin_mm[1] + j * grid.spacing_mm[1];
       for (int64_t i = 0; i < nx; ++i) {
         const double x = grid.origin_mm[0] + i * grid.spacing_mm[0];
-        Tissue t = base_tissue(x, y, z, body);
+        Material t = base_tissue(x, y, z, body);
         if (t.label != kAir) {
           const bool in_cavity = inside_cavity(x, y, body);
           const Shape* hit = nullptr;

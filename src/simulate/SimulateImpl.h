@@ -22,6 +22,10 @@ struct Props {
 struct NoiseTile {
   const float* nodes;  // n³ × 2
   int n;
+  // Lattice coordinate k (floor) → node k mod n, for k in [-wrap_offset, wrap_count -
+  // wrap_offset - 1] (the volume and the slice thickness around it): a table, not a division.
+  const int32_t* wrap;
+  int wrap_offset, wrap_count;
 };
 
 /// Everything one image needs, in the probe frame (mm) and the volume's continuous index.
@@ -107,12 +111,12 @@ inline void noise_at(const ImageModel& m, double cx, double cy, double cz, doubl
     int n0[3], n1[3];
     double f[3];
     for (int k = 0; k < 3; ++k) {
-      const double fl = std::floor(q[k]);
-      f[k] = q[k] - fl;
-      int64_t w = int64_t(fl) % t.n;
-      if (w < 0) w += t.n;
-      n0[k] = int(w);
-      n1[k] = n0[k] + 1 == t.n ? 0 : n0[k] + 1;
+      // q is inside the table's range (Simulator sizes it); the clamp only guards rounding.
+      int i = int(q[k] + t.wrap_offset);
+      i = i < 0 ? 0 : (i > t.wrap_count - 2 ? t.wrap_count - 2 : i);
+      f[k] = q[k] + t.wrap_offset - i;
+      n0[k] = t.wrap[i];
+      n1[k] = t.wrap[i + 1];
     }
     for (int c = 0; c < 8; ++c) {
       const int x = c & 1 ? n1[0] : n0[0], y = c & 2 ? n1[1] : n0[1], z = c & 4 ? n1[2] : n0[2];
@@ -126,6 +130,9 @@ inline void noise_at(const ImageModel& m, double cx, double cy, double cz, doubl
   *re = r;
   *im = i;
 }
+
+/// Impedances below this (MRayl) are gas (air: 0.0004; the tables give lung and bowel gas that).
+constexpr float kGasImpedance = 0.1f;
 
 /// The specular echo's amplitude falls as cos^8 of the angle between the interface normal and
 /// the beam (−10 dB at 30°): most of a tilted interface's echo misses the aperture.
@@ -159,13 +166,22 @@ inline void trace_beam(const ImageModel& m, int b, float* echo, float* loss_db) 
   double transmitted = 1;  // intensity transmission down to here (interfaces)
   double att_db = 0;       // one-way attenuation down to here
   float z_before = -1;
+  bool in_tissue = false;
   const double step_cm = m.step_mm / 10;
   for (int s = 0; s < m.samples; ++s) {
     const double depth = (s + 0.5) * m.step_mm;
     const double px = o[0] + depth * d[0], py = o[1] + depth * d[1];
     double c[3];
     index_of(px, py, 0, c);
-    const Props p = props_at(m, c[0], c[1], c[2]);
+    Props p = props_at(m, c[0], c[1], c[2]);
+    // Coupling: gas between the face and the first tissue along the beam is gel (the probe is
+    // pressed on; a face that only partly touches a curved skin is not left in air).
+    if (!in_tissue) {
+      if (p.z < kGasImpedance)
+        p = m.outside;
+      else
+        in_tissue = true;
+    }
     if (z_before < 0) z_before = p.z;
     // Attenuation of the step that led here, at this sample's tissue.
     att_db += double(p.alpha) * m.frequency_mhz * step_cm;

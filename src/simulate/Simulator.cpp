@@ -27,6 +27,7 @@ struct Model {
   std::vector<Props> label_props;  // label source: 65536 entries
   std::vector<Props> hu_table;
   std::vector<float> tiles[2];
+  std::vector<int32_t> wraps[2];
   ImageModel base;  // everything but the pose
 };
 
@@ -142,11 +143,11 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
   b.gradient_mm = std::max(
       b.step_mm, 2 * std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]}));
   const double sigma_el = elevation * simulate_impl::kFwhmToSigma;
-  // The slice thickness: elevation samples half a lattice step apart over ±1.5σ, Gaussian
+  // The slice thickness: elevation samples about a lattice step apart over ±1.5σ, Gaussian
   // weights (a quadrature of the beam's elevation profile, so that a small elevational move
   // changes the sum smoothly), normalised to unit variance for independent samples.
-  const int half = std::min(simulate_impl::kMaxElevations / 2 - 1,
-                            int(std::ceil(1.5 * sigma_el / (lambda / 2))));
+  const int half =
+      std::min(simulate_impl::kMaxElevations / 2 - 1, int(std::ceil(1.5 * sigma_el / lambda)));
   b.elevations = 2 * half + 1;
   double wsum = 0;
   for (int e = 0; e < b.elevations; ++e) {
@@ -159,11 +160,21 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
 
   // The speckle lattice: one node per wavelength in the volume frame, two co-prime tiles.
   const int sizes[2] = {37, 41};
+  for (int k = 0; k < 3; ++k) b.lattice_per_index[k] = grid.spacing_mm[k] / lambda;
+  // Lattice coordinates met: the volume (noise is drawn only inside it) and the slice thickness
+  // around it, plus a margin.
+  const double reach = 1.5 * sigma_el / lambda + 4;
+  int extent = 0;
+  for (int k = 0; k < 3; ++k)
+    extent = std::max(extent, int(std::ceil(double(grid.dims[k]) * b.lattice_per_index[k])));
+  const int offset = int(std::ceil(reach)), count = extent + 2 * offset + 2;
   for (int t = 0; t < 2; ++t) {
     m.tiles[t] = simulate_impl::noise_tile(sizes[t], settings.seed * 2 + uint64_t(t) + 1);
-    b.tiles[t] = {m.tiles[t].data(), sizes[t]};
+    m.wraps[t].resize(size_t(count));
+    for (int i = 0; i < count; ++i)
+      m.wraps[t][size_t(i)] = ((i - offset) % sizes[t] + sizes[t]) % sizes[t];
+    b.tiles[t] = {m.tiles[t].data(), sizes[t], m.wraps[t].data(), offset, count};
   }
-  for (int k = 0; k < 3; ++k) b.lattice_per_index[k] = grid.spacing_mm[k] / lambda;
 
   // Beams: one per image column, over the probe's shape.
   const ImageGrid& img = probe.image;
@@ -249,15 +260,19 @@ void simulate_image(const ImageModel& m, void* out, std::vector<float>& echo,
         m.curvilinear ? (m.start + (s + 0.5) * m.step_mm) * m.beam_step : m.beam_step;
     gauss_complex(echo.data() + 2 * size_t(s), B, S, m.sigma_lateral_mm / spacing_mm, tmp.data());
   }
-  // TGC: the mean round-trip loss across the beams at each depth (auto), or none.
+  // TGC: the median round-trip attenuation across the beams at each depth (auto), or none. The
+  // median, not the mean: a few beams through gas or bone lose far more, and compensating them
+  // would flood the others.
   std::vector<float>& level = tmp;
   level.assign(size_t(S), 0.f);
-  if (m.tgc_auto)
+  if (m.tgc_auto) {
+    std::vector<float> across(static_cast<size_t>(B));
     for (int s = 0; s < S; ++s) {
-      double mean_loss = 0;
-      for (int b = 0; b < B; ++b) mean_loss += loss[size_t(b) * S + s];
-      level[size_t(s)] = float(mean_loss / B);
+      for (int b = 0; b < B; ++b) across[size_t(b)] = loss[size_t(b) * S + s];
+      std::nth_element(across.begin(), across.begin() + B / 2, across.end());
+      level[size_t(s)] = across[size_t(B / 2)];
     }
+  }
   // Scan conversion: the complex echo bilinear in (beam, sample) at each pixel inside the mask
   // (interpolating the complex signal keeps the speckle's statistics; an envelope would be
   // smoothed), then the envelope, TGC and log compression.

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "sonoslice/geometry/Pose.h"
+#include "sonoslice/simulate/Simulator.h"
 #include "sonoslice/volume/Volume.h"
 
 namespace sonoslice {
@@ -36,6 +37,11 @@ enum PhantomLabel : uint8_t {
 };
 constexpr int kPhantomLabelCount = 13;
 const char* phantom_label_name(int label);
+
+/// The tissue table of the phantom's labels for simulation (docs/simulation.md §1): air and
+/// lung as gas, fat, soft tissue, liver, both vessel labels as blood, bone, kidney, spleen,
+/// bowel (soft tissue, brighter), lesions (liver, darker) and gallbladder (bile, as water).
+std::vector<Tissue> phantom_tissues();
 
 struct Phantom {
   Volume ct;      ///< int16, Hounsfield units

@@ -62,6 +62,19 @@ struct SimulationSettings {
   void validate() const;
 };
 
+/// A named probe and frequency (docs/simulation.md §7): the probe a simulation uses when none is
+/// given, and the frequency when none is given.
+struct SimulationPreset {
+  std::string name, description;
+  double frequency_mhz = 5;
+  ProbeGeometry probe;
+};
+/// "abdominal" (3.5 MHz curvilinear), "laparoscopic" (7.5 MHz linear), "lus" (fan-slicer's
+/// laparoscopic ultrasound configuration, W1, 6.5 MHz).
+std::vector<SimulationPreset> simulation_presets();
+/// The preset named `name`; InputError listing the names otherwise.
+SimulationPreset simulation_preset(const std::string& name);
+
 namespace simulate_impl {
 struct Model;
 }

@@ -1,0 +1,221 @@
+// sonoslice simulate: a CT (HU), a label volume with a tissue table, or surface meshes, a probe
+// and a pose file → a stack of simulated ultrasound images (docs/simulation.md).
+#include <cstdio>
+#include <iostream>
+#include <memory>
+
+#include "Commands.h"
+#include "Common.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/MeshFile.h"
+#include "sonoslice/io/PoseFile.h"
+#include "sonoslice/io/ProbeFile.h"
+#include "sonoslice/io/TissueFile.h"
+#include "sonoslice/simulate/Simulator.h"
+#include "sonoslice/surface/Voxelize.h"
+
+namespace sonoslice {
+namespace cli {
+namespace {
+
+struct SimulateFlags {
+  VolumeFlags volume;
+  std::string labels, tissues;
+  std::vector<std::string> meshes;
+  double voxel_size = 0.5;
+  std::string probe, poses, out, mask, preset, world = "LPS", device = "cpu";
+  std::string tgc = "auto", output = "bmode";
+  int downsampling = 1;
+  std::optional<double> frequency;
+  double dynamic_range = 60;
+  uint64_t seed = 0;
+  std::optional<int> threads;
+  bool quiet = false, verbose = false, list_presets = false, print_tissues = false;
+};
+
+void run_simulate(const SimulateFlags& f) {
+  if (f.list_presets) {
+    for (const SimulationPreset& p : simulation_presets())
+      std::printf("%-14s %s\n", p.name.c_str(), p.description.c_str());
+    return;
+  }
+  if (f.print_tissues) {
+    std::cout << tissue_table_json(default_tissues());
+    return;
+  }
+  Stopwatch total;
+  const int sources = !f.volume.path.empty() + !f.labels.empty() + !f.meshes.empty();
+  if (sources != 1) throw InputError("simulate: give exactly one of --volume, --labels, --meshes");
+  if (!f.tissues.empty() && !f.volume.path.empty())
+    throw InputError(
+        "--tissues: a CT (--volume) maps HU to tissues itself; --tissues is for "
+        "--labels and --meshes");
+  if (f.device != "cpu")
+    throw InputError("--device " + f.device +
+                     ": simulation runs on the CPU only so far (docs/simulation.md §6)");
+  setup_threads(f.threads);
+  if (f.poses.empty()) throw InputError("simulate: --poses is required");
+  if (f.out.empty()) throw InputError("simulate: --out is required");
+  if (f.probe.empty() && f.preset.empty())
+    throw InputError("simulate: give --probe or --preset (sonoslice simulate --list-presets)");
+
+  SimulationSettings settings;
+  std::optional<SimulationPreset> preset;
+  if (!f.preset.empty()) preset = simulation_preset(f.preset);
+  settings.frequency_mhz = f.frequency ? *f.frequency : preset ? preset->frequency_mhz : 5.0;
+  settings.seed = f.seed;
+  settings.dynamic_range_db = f.dynamic_range;
+  if (f.tgc != "auto" && f.tgc != "off")
+    throw InputError("--tgc " + f.tgc + ": expected auto or off");
+  settings.tgc_auto = f.tgc == "auto";
+  if (f.output != "bmode" && f.output != "envelope")
+    throw InputError("--output " + f.output + ": expected bmode or envelope");
+  settings.output = f.output == "bmode" ? SimulationOutput::BMode : SimulationOutput::Envelope;
+  settings.validate();
+  if (!(f.voxel_size > 0)) throw InputError("--voxel-size must be > 0 mm");
+
+  // Everything small and checkable first, so a typo fails before a CT is loaded.
+  std::vector<NamedPath> inputs = {
+      {"--volume", f.volume.path}, {"--labels", f.labels}, {"--tissues", f.tissues},
+      {"--probe", f.probe},        {"--poses", f.poses},   {"--npy-config", f.volume.npy_config}};
+  for (const std::string& mesh : f.meshes) inputs.push_back({"--meshes", mesh});
+  check_distinct_outputs({{"--out", f.out}, {"--mask", f.mask}}, inputs);
+  ProbeGeometry probe;
+  if (!f.probe.empty()) {
+    probe = read_probe(f.probe, f.downsampling);
+  } else {
+    if (f.downsampling != 1) throw InputError("--downsampling applies to --probe files");
+    probe = preset->probe;
+  }
+  const WorldFrame frame = parse_world_frame(f.world);
+  const std::vector<Pose> poses = read_poses(f.poses, frame);
+  const std::vector<Tissue> tissues =
+      f.tissues.empty() ? default_tissues() : read_tissue_table(f.tissues);
+  const StackFormat format = stack_format(f.out);
+  check_output_path(f.out, format == StackFormat::PngDirectory);
+  if (!f.mask.empty()) check_image_output(f.mask, "--mask");
+
+  Stopwatch load;
+  Volume volume;
+  SimulationSource source = SimulationSource::Labels;
+  std::string description;
+  if (!f.volume.path.empty()) {
+    volume = read_volume(f.volume.path, f.volume.options());
+    source = SimulationSource::HounsfieldUnits;
+    description = f.volume.path + " (HU)";
+  } else if (!f.labels.empty()) {
+    volume = read_volume(f.labels, f.volume.options());
+    if (volume.pixel_type() != PixelType::UInt8 && volume.pixel_type() != PixelType::UInt16)
+      throw InputError("--labels '" + f.labels +
+                       "': a label volume is uint8 or uint16, this one is " +
+                       to_string(volume.pixel_type()));
+    description = f.labels + " (labels)";
+  } else {
+    // Meshes: label k for the k-th mesh, voxelised at --voxel-size.
+    std::vector<TriangleMesh> meshes;
+    std::vector<uint16_t> labels;
+    for (const std::string& path : f.meshes) {
+      meshes.push_back(read_mesh(path, frame));
+      labels.push_back(uint16_t(labels.size() + 1));
+    }
+    VolumeGrid grid;
+    try {
+      grid = voxel_grid_around(meshes, f.voxel_size, f.voxel_size);
+    } catch (const ParameterError& e) {
+      throw InputError("--voxel-size " + e.detail());
+    }
+    volume = voxelize(meshes, grid, labels);
+    description = std::to_string(meshes.size()) + " meshes voxelised at " +
+                  std::to_string(f.voxel_size) + " mm";
+  }
+  const double load_seconds = load.seconds();
+  const Simulator sim(volume, source, probe, tissues, settings);
+
+  StackSpec spec;
+  spec.type = settings.output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32;
+  spec.width = probe.image.width;
+  spec.height = probe.image.height;
+  spec.count = int64_t(poses.size());
+  spec.spacing_mm[0] = probe.image.spacing_mm[0];
+  spec.spacing_mm[1] = probe.image.spacing_mm[1];
+  spec.poses = poses;
+  spec.mask = sim.mask().data();
+  // B-mode grey levels are final: PNGs show them as they are (0..255), not auto-windowed.
+  if (settings.output == SimulationOutput::BMode) spec.window = std::make_pair(127.5, 255.0);
+  const int64_t chunk = chunk_images(sim.image_bytes(), spec.count);
+  check_stack_resources(f.out, spec, chunk);
+
+  std::unique_ptr<StackWriter> writer = StackWriter::create(f.out, spec);
+  ProgressBar progress("simulating", spec.count, !f.quiet);
+  double simulate_seconds = 0, write_seconds = 0;
+  for (int64_t first = 0; first < spec.count; first += chunk) {
+    const int64_t count = std::min(chunk, spec.count - first);
+    void* out = writer->buffer(first, count);
+    Stopwatch s;
+    sim.simulate(poses.data() + first, size_t(count), out, size_t(first));
+    simulate_seconds += s.seconds();
+    Stopwatch w;
+    writer->write(first, count);
+    write_seconds += w.seconds();
+    progress.update(first + count);
+  }
+  Stopwatch commit_clock;
+  OutputSet outputs;  // all outputs or none
+  writer->finish(outputs);
+  if (!f.mask.empty()) write_mask(f.mask, probe, sim.mask(), &outputs);
+  outputs.commit();
+  write_seconds += commit_clock.seconds();
+  progress.finish();
+  if (f.verbose)
+    std::fprintf(stderr,
+                 "sonoslice: source %s\n"
+                 "sonoslice: probe: %s; %d beams x %d samples, %.2f MHz\n"
+                 "sonoslice: load %.3f s, simulate %.3f s (%.1f images/s, %d threads), write "
+                 "%.3f s, total %.3f s\n",
+                 description.c_str(), probe.describe().c_str(), sim.beams(), sim.samples_per_beam(),
+                 settings.frequency_mhz, load_seconds, simulate_seconds,
+                 double(spec.count) / std::max(simulate_seconds, 1e-9), cpu_threads(),
+                 write_seconds, total.seconds());
+}
+
+}  // namespace
+
+void add_simulate_command(CLI::App& app) {
+  auto flags = std::make_shared<SimulateFlags>();
+  CLI::App* cmd = app.add_subcommand(
+      "simulate", "Simulate ultrasound images from a CT, labels or meshes (docs/simulation.md)");
+  flags->volume.add_to(*cmd, /*path_required=*/false);
+  cmd->add_option("--labels", flags->labels, "A label volume (uint8/uint16) with --tissues");
+  cmd->add_option("--tissues", flags->tissues,
+                  "Tissue table JSON for labels and meshes (default: --print-tissues)");
+  cmd->add_option("--meshes", flags->meshes, "Surface meshes: label k for the k-th, voxelised");
+  cmd->add_option("--voxel-size", flags->voxel_size, "Meshes: voxel size (mm, default 0.5)");
+  cmd->add_option("--probe", flags->probe, "Probe JSON (native or fan-slicer config)");
+  cmd->add_option("--preset", flags->preset,
+                  "A probe and frequency: abdominal, laparoscopic, lus (--list-presets)");
+  cmd->add_option("--poses", flags->poses, "Pose file: .npy, .txt/.csv, .json");
+  cmd->add_option("--out", flags->out,
+                  "Output: .nii/.nii.gz/.mha/.nrrd stack, .npy (N,H,W), or a directory of PNGs");
+  cmd->add_option("--downsampling", flags->downsampling, "Divide the probe image size by K");
+  cmd->add_option("--mask", flags->mask, "Also write the HxW fan mask here");
+  cmd->add_option("--frequency", flags->frequency,
+                  "Centre frequency in MHz (default: the preset's, else 5)");
+  cmd->add_option("--seed", flags->seed, "Speckle seed (default 0)");
+  cmd->add_option("--dynamic-range", flags->dynamic_range, "Log compression range in dB (60)");
+  cmd->add_option("--tgc", flags->tgc, "Time-gain compensation: auto (default) or off");
+  cmd->add_option("--output", flags->output,
+                  "bmode (uint8, default) or envelope (float32, before TGC and log compression)");
+  cmd->add_option("--world", flags->world, "Frame of the poses and meshes: LPS (default) or RAS");
+  add_threads_option(*cmd, flags->threads);
+  cmd->add_option("--device", flags->device, "cpu (default; CUDA not yet)");
+  cmd->add_flag("--list-presets", flags->list_presets, "Print the presets and exit");
+  cmd->add_flag("--print-tissues", flags->print_tissues,
+                "Write the default tissue table to stdout as JSON and exit");
+  cmd->add_flag("--quiet,-q", flags->quiet, "No progress bar");
+  cmd->add_flag("--verbose,-v", flags->verbose, "Print time spent loading, simulating, writing");
+  cmd->callback([flags] { run_simulate(*flags); });
+}
+
+}  // namespace cli
+}  // namespace sonoslice
