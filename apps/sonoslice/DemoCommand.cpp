@@ -14,6 +14,7 @@
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/simulate/Simulator.h"
 
 namespace fs = std::filesystem;
 
@@ -56,6 +57,26 @@ std::vector<uint8_t> windowed(const std::vector<float>& images, size_t offset, s
   return out;
 }
 
+// Writes one image per pose, of `type`, as a PNG directory shown with `window` (level, width).
+void write_png_stack(const std::string& dir, const ProbeGeometry& probe,
+                     const std::vector<Pose>& poses, PixelType type,
+                     std::pair<double, double> window, const void* images) {
+  StackSpec spec;
+  spec.type = type;
+  spec.width = probe.image.width;
+  spec.height = probe.image.height;
+  spec.count = int64_t(poses.size());
+  spec.spacing_mm[0] = probe.image.spacing_mm[0];
+  spec.spacing_mm[1] = probe.image.spacing_mm[1];
+  spec.window = window;
+  spec.poses = poses;
+  auto writer = StackWriter::create(dir, spec);
+  std::memcpy(writer->buffer(0, spec.count), images,
+              size_t(spec.count) * size_t(probe.image.pixel_count()) * pixel_size(type));
+  writer->write(0, spec.count);
+  writer->commit();
+}
+
 // Slices all poses with one probe and writes them as a PNG directory; returns the images.
 std::vector<float> slice_and_write(const Volume& ct, const ProbeGeometry& probe,
                                    const std::vector<Pose>& poses, const std::string& dir) {
@@ -64,19 +85,21 @@ std::vector<float> slice_and_write(const Volume& ct, const ProbeGeometry& probe,
   const Slicer slicer(ct, probe, settings);
   std::vector<float> images(poses.size() * size_t(probe.image.pixel_count()));
   slicer.slice(poses.data(), poses.size(), images.data());
-  StackSpec spec;
-  spec.type = PixelType::Float32;
-  spec.width = probe.image.width;
-  spec.height = probe.image.height;
-  spec.count = int64_t(poses.size());
-  spec.spacing_mm[0] = probe.image.spacing_mm[0];
-  spec.spacing_mm[1] = probe.image.spacing_mm[1];
-  spec.window = std::make_pair(kLevel, kWidth);
-  spec.poses = poses;
-  auto writer = StackWriter::create(dir, spec);
-  std::memcpy(writer->buffer(0, spec.count), images.data(), images.size() * sizeof(float));
-  writer->write(0, spec.count);
-  writer->commit();
+  write_png_stack(dir, probe, poses, PixelType::Float32, {kLevel, kWidth}, images.data());
+  return images;
+}
+
+// Simulated ultrasound of the CT at the fan poses (the "lus" preset's 6.5 MHz), written as a PNG
+// directory; returns the B-mode images.
+std::vector<uint8_t> simulate_and_write(const Volume& ct, const ProbeGeometry& probe,
+                                        const std::vector<Pose>& poses, const std::string& dir) {
+  SimulationSettings settings;
+  settings.frequency_mhz = simulation_preset("lus").frequency_mhz;
+  const Simulator sim(ct, SimulationSource::HounsfieldUnits, probe, {}, settings);
+  std::vector<uint8_t> images(poses.size() * sim.image_bytes());
+  sim.simulate(poses.data(), poses.size(), images.data());
+  write_png_stack(dir, probe, poses, PixelType::UInt8, {127.5, 255.0},  // grey levels as they are
+                  images.data());
   return images;
 }
 
@@ -97,6 +120,8 @@ void run_demo(const DemoFlags& f) {
   const auto fan_images = slice_and_write(phantom.ct, fan, fan_poses, (out / "fan").string());
   const auto linear_images =
       slice_and_write(phantom.ct, linear, linear_poses, (out / "linear").string());
+  const auto simulated =
+      simulate_and_write(phantom.ct, fan, fan_poses, (out / "simulated").string());
   write_text_file((out / "fan_probe.json").string(), probe_to_json(fan) + "\n");
   write_text_file((out / "linear_probe.json").string(), probe_to_json(linear) + "\n");
   write_poses_text((out / "fan_poses.txt").string(), fan_poses);
@@ -145,28 +170,35 @@ void run_demo(const DemoFlags& f) {
                   (kPhantomLabelCount - 1));
 
   // Contact sheet: on the left the axial CT with the probes and the label map; on the right the
-  // fan images (two rows) and the linear images (two rows) from the same skin positions.
+  // fan images, the simulated ultrasound at the same poses, and the linear images from the same
+  // skin positions.
   const int gap = 8, columns = 4;
   const int rows = (f.poses + columns - 1) / columns;
   const int cell_w = std::max(fan.image.width, linear.image.width);
   const int width = gap + overview + gap + columns * (cell_w + gap);
-  const int height = std::max(gap + 2 * (overview + gap), gap + rows * (fan.image.height + gap) +
-                                                              rows * (linear.image.height + gap));
+  const int height =
+      std::max(gap + 2 * (overview + gap),
+               gap + 2 * rows * (fan.image.height + gap) + rows * (linear.image.height + gap));
   Canvas sheet(width, height, 48);
   sheet.paste(axial_view.pixels.data(), overview, overview, gap, gap);
   sheet.paste(label_view.pixels.data(), overview, overview, gap, gap + overview + gap);
   const int x_images = gap + overview + gap;
+  auto paste_one = [&](const uint8_t* img, const ProbeGeometry& probe, int n, int y_top) {
+    const int x = x_images + (n % columns) * (cell_w + gap) + (cell_w - probe.image.width) / 2;
+    const int y = y_top + (n / columns) * (probe.image.height + gap);
+    sheet.paste(img, probe.image.width, probe.image.height, x, y);
+  };
   auto paste_all = [&](const std::vector<float>& images, const ProbeGeometry& probe, int y_top) {
     const size_t pixels = size_t(probe.image.pixel_count());
-    for (int n = 0; n < f.poses; ++n) {
-      const auto img = windowed(images, size_t(n) * pixels, pixels);
-      const int x = x_images + (n % columns) * (cell_w + gap) + (cell_w - probe.image.width) / 2;
-      const int y = y_top + (n / columns) * (probe.image.height + gap);
-      sheet.paste(img.data(), probe.image.width, probe.image.height, x, y);
-    }
+    for (int n = 0; n < f.poses; ++n)
+      paste_one(windowed(images, size_t(n) * pixels, pixels).data(), probe, n, y_top);
   };
+  const int fan_rows_h = rows * (fan.image.height + gap);
   paste_all(fan_images, fan, gap);
-  paste_all(linear_images, linear, gap + rows * (fan.image.height + gap));
+  for (int n = 0; n < f.poses; ++n)
+    paste_one(simulated.data() + size_t(n) * size_t(fan.image.pixel_count()), fan, n,
+              gap + fan_rows_h);
+  paste_all(linear_images, linear, gap + 2 * fan_rows_h);
   const std::string sheet_path = (out / "contact_sheet.png").string();
   write_image(sheet_path, sheet.pixels.data(), PixelType::UInt8, {width, height}, {1.0, 1.0});
 
@@ -174,10 +206,10 @@ void run_demo(const DemoFlags& f) {
     std::fprintf(
         stderr,
         "sonoslice: demo in %.1f s: %s (left: axial CT with the %d probe positions, and its "
-        "labels; right: fan images, then linear images at the same positions); PNG stacks in "
-        "%s and %s\n",
+        "labels; right: fan images, simulated ultrasound at the same poses, then linear images "
+        "at the same positions); PNG stacks in %s, %s and %s\n",
         clock.seconds(), sheet_path.c_str(), f.poses, (out / "fan").c_str(),
-        (out / "linear").c_str());
+        (out / "simulated").c_str(), (out / "linear").c_str());
 }
 
 }  // namespace

@@ -35,6 +35,8 @@ __all__ = [
     "Grid", "Compounder", "BeamGeometry", "HoleFillingElement", "FrameClip", "grid_around", "grid_around_beams",
     "clip_mask", "PlusSequence", "PlusConfig", "TransformRepository", "read_plus_sequence", "write_plus_sequence",
     "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
+    # ultrasound simulation (docs/simulation.md)
+    "Simulator", "default_tissues", "phantom_tissues", "simulation_presets",
 ]
 __version__ = "0.1.0"
 
@@ -448,6 +450,116 @@ class Slicer(_ImageSlicer):
 
     def __repr__(self) -> str:
         return f"Slicer({self.probe!r} on {self.device}, {self.interpolation}, {self.dtype})"
+
+
+# ---- ultrasound simulation (docs/simulation.md) -----------------------------------------------
+def default_tissues() -> list:
+    """The default tissue table: a list of dicts (name, label, impedance_mrayl,
+    attenuation_db_cm_mhz, scatter_mean, scatter_density), as ``sonoslice simulate
+    --print-tissues`` prints it."""
+    import json
+    return json.loads(_ext.default_tissues_json())["tissues"]
+
+
+def phantom_tissues() -> list:
+    """The tissue table of the built-in phantom's labels (:data:`PHANTOM_LABELS`)."""
+    import json
+    return json.loads(_ext.phantom_tissues_json())["tissues"]
+
+
+def simulation_presets() -> dict:
+    """{name: description} of the presets (a probe and a centre frequency)."""
+    return dict(_ext.simulation_presets())
+
+
+def _tissues_json(tissues) -> str:
+    """A tissue table given as a path, a list of dicts or {"tissues": [...]}, as JSON text."""
+    import json
+    if tissues is None:
+        return ""
+    if isinstance(tissues, (str, bytes, os.PathLike)):
+        return _ext.read_tissue_table_json(_path(tissues, "tissues"))
+    if isinstance(tissues, dict):
+        return json.dumps(tissues)
+    if isinstance(tissues, (list, tuple)):
+        return json.dumps({"tissues": list(tissues)})
+    raise TypeError(f"tissues: expected a path, a list of dicts or a dict, got {type(tissues).__name__}")
+
+
+class Simulator:
+    """Ultrasound-looking images of a CT in Hounsfield units or a label volume at probe poses
+    (docs/simulation.md): reflections at impedance changes, shadows, attenuation, speckle fixed
+    in the volume, log compression. Deterministic: the same seed and pose give the same bytes.
+
+    ``volume_or_labels``: a :class:`Volume`. ``kind``: "ct" or "labels"; by default "labels"
+    when ``tissues`` is given or the volume is uint8, else "ct". ``tissues``: for labels, a
+    path to a JSON table, a list of dicts as :func:`default_tissues` returns, or None for the
+    default table. ``probe``: a :class:`Probe` or a preset name ("abdominal", "laparoscopic",
+    "lus"; its frequency is used unless ``frequency`` is given). ``tgc``: "auto" or "off".
+    CPU only so far (``device="cpu"``).
+    """
+
+    def __init__(self, volume_or_labels: Volume, probe, tissues=None, frequency: Optional[float] = None,
+                 seed: int = 0, device: str = "cpu", *, kind: Optional[str] = None,
+                 dynamic_range: float = 60.0, tgc: str = "auto"):
+        if not isinstance(volume_or_labels, Volume):
+            raise TypeError("volume_or_labels: expected a sonoslice.Volume")
+        if str(device) != "cpu":
+            raise ValueError(f"device {device!r}: simulation runs on the CPU only so far")
+        if isinstance(probe, str):
+            if frequency is None:
+                frequency = _ext.simulation_preset_frequency(probe)
+            probe = Probe(_ext.simulation_preset_probe(probe))
+        if not isinstance(probe, Probe):
+            raise TypeError("probe: expected a sonoslice.Probe or a preset name")
+        if kind is None:
+            kind = "labels" if tissues is not None or volume_or_labels.dtype == np.uint8 else "ct"
+        if tgc not in ("auto", "off"):
+            raise ValueError(f'tgc {tgc!r}: expected "auto" or "off"')
+        self.volume, self.probe, self.kind = volume_or_labels, probe, kind
+        self._args = (volume_or_labels._cpp, probe._cpp, kind, _tissues_json(tissues),
+                      float(5.0 if frequency is None else frequency), int(seed), float(dynamic_range),
+                      tgc == "auto")
+        self._cpp = {"bmode": _ext.Simulator(*self._args, "bmode")}
+
+    def _engine(self, output: str):
+        if output not in ("bmode", "envelope"):
+            raise ValueError(f'output {output!r}: expected "bmode" or "envelope"')
+        if output not in self._cpp:
+            self._cpp[output] = _ext.Simulator(*self._args, output)
+        return self._cpp[output]
+
+    width = property(lambda self: self._cpp["bmode"].width)
+    height = property(lambda self: self._cpp["bmode"].height)
+    frequency = property(lambda self: self._args[4], doc="centre frequency, MHz")
+    seed = property(lambda self: self._args[5])
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) uint8 probe mask (the same as :class:`Slicer`'s)."""
+        return self._cpp["bmode"].mask()
+
+    def simulate(self, poses, output: str = "bmode", out=None, *,
+                 progress: Union[None, bool, Callable[[int, int], None]] = None, world: str = "LPS",
+                 chunk: Optional[int] = None) -> np.ndarray:
+        """Images at ``poses`` ((N, 4, 4) or (4, 4) probe→world, mm): (N, H, W) uint8 B-mode, or
+        float32 linear envelope for ``output="envelope"`` (before TGC and log compression).
+        ``out``: a C-contiguous array of that shape and dtype, filled in place without a copy."""
+        engine = self._engine(output)
+        p = _as_pose_array(poses, world)
+        dtype = np.uint8 if output == "bmode" else np.float32
+        out = _out_array(out)
+        if out is None:
+            out = np.empty((p.shape[0], self.height, self.width), dtype=dtype)
+        callback, chunk = _progress_and_chunk(progress, p.shape[0], chunk)
+        engine.simulate_into(p, out, callback, chunk)
+        return out
+
+    def __call__(self, poses, **kwargs):
+        return self.simulate(poses, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"Simulator({self.probe!r}, {self.kind}, {self.frequency} MHz, seed {self.seed})"
 
 
 # ---- devices, threads ------------------------------------------------------------------------

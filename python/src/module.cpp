@@ -58,4 +58,5 @@ NB_MODULE(_sonoslice, m) {
   bindings::bind_compounding(m);
   bindings::bind_io(m);
   bindings::bind_reconstruction(m);
+  bindings::bind_simulation(m);
 }

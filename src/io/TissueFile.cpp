@@ -7,9 +7,8 @@
 
 namespace sonoslice {
 
-std::vector<Tissue> read_tissue_table(const std::string& path) {
-  const nlohmann::json doc = read_json_file(path, "tissues", OpenErrorReason::Append);
-  const std::string where = "tissues '" + path + "'";
+namespace {
+std::vector<Tissue> tissues_from(const nlohmann::json& doc, const std::string& where) {
   if (!doc.is_object() || !doc.contains("tissues") || !doc["tissues"].is_array())
     throw InputError(where + ": expected an object with a \"tissues\" array");
   std::vector<Tissue> out;
@@ -47,6 +46,22 @@ std::vector<Tissue> read_tissue_table(const std::string& path) {
   }
   validate_tissues(out, where);
   return out;
+}
+}  // namespace
+
+std::vector<Tissue> read_tissue_table(const std::string& path) {
+  const nlohmann::json doc = read_json_file(path, "tissues", OpenErrorReason::Append);
+  return tissues_from(doc, "tissues '" + path + "'");
+}
+
+std::vector<Tissue> parse_tissue_table(const std::string& text, const std::string& where) {
+  nlohmann::json doc;
+  try {
+    doc = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(where + ": invalid JSON (" + json_detail(e) + ")");
+  }
+  return tissues_from(doc, where);
 }
 
 std::string tissue_table_json(const std::vector<Tissue>& tissues) {

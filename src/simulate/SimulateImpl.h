@@ -55,7 +55,11 @@ struct ImageModel {
   int elevations = 1;
   double elevation_mm[kMaxElevations], elevation_weight[kMaxElevations];
   double frequency_mhz = 5;
+  // The PSF: for the speckle, what the lattice's smoothness leaves to add; for interfaces, all.
   double sigma_axial_samples = 1, sigma_lateral_mm = 0.5;
+  double specular_sigma_axial_samples = 1, specular_sigma_lateral_mm = 0.5;
+  // Makes a tissue's mean speckle envelope its scatter_mean (Simulator calibrates it).
+  double speckle_gain = 1;
   bool tgc_auto = true, bmode = true;
   double dynamic_range_db = 60;
   // Output grid.
@@ -111,17 +115,29 @@ inline void noise_at(const ImageModel& m, double cx, double cy, double cz, doubl
     int n0[3], n1[3];
     double f[3];
     for (int k = 0; k < 3; ++k) {
-      // q is inside the table's range (Simulator sizes it); the clamp only guards rounding.
-      int i = int(q[k] + t.wrap_offset);
-      i = i < 0 ? 0 : (i > t.wrap_count - 2 ? t.wrap_count - 2 : i);
-      f[k] = q[k] + t.wrap_offset - i;
-      n0[k] = t.wrap[i];
-      n1[k] = t.wrap[i + 1];
+      const double shifted = q[k] + t.wrap_offset;
+      const double fl = std::floor(shifted);
+      f[k] = shifted - fl;
+      if (fl >= 0 && fl <= t.wrap_count - 2) {  // the volume and its margin: a table
+        n0[k] = t.wrap[int(fl)];
+        n1[k] = t.wrap[int(fl) + 1];
+      } else {  // anywhere else (calibration patches): the division
+        int64_t w = (int64_t(fl) - t.wrap_offset) % t.n;
+        w = w < 0 ? w + t.n : w;
+        n0[k] = int(w);
+        n1[k] = n0[k] + 1 == t.n ? 0 : n0[k] + 1;
+      }
     }
+    // Divided by the weights' root sum of squares: interpolated white noise is 8 times weaker
+    // mid-cell than at a node, which a beam running along a lattice axis would show as streaks;
+    // normalised, its variance is the same everywhere.
+    const double norm = 1 / std::sqrt((f[0] * f[0] + (1 - f[0]) * (1 - f[0])) *
+                                      (f[1] * f[1] + (1 - f[1]) * (1 - f[1])) *
+                                      (f[2] * f[2] + (1 - f[2]) * (1 - f[2])));
     for (int c = 0; c < 8; ++c) {
       const int x = c & 1 ? n1[0] : n0[0], y = c & 2 ? n1[1] : n0[1], z = c & 4 ? n1[2] : n0[2];
       const double w =
-          (c & 1 ? f[0] : 1 - f[0]) * (c & 2 ? f[1] : 1 - f[1]) * (c & 4 ? f[2] : 1 - f[2]);
+          norm * (c & 1 ? f[0] : 1 - f[0]) * (c & 2 ? f[1] : 1 - f[1]) * (c & 4 ? f[2] : 1 - f[2]);
       const float* node = t.nodes + 2 * ((int64_t(z) * t.n + y) * t.n + x);
       r += w * node[0];
       i += w * node[1];
@@ -131,8 +147,14 @@ inline void noise_at(const ImageModel& m, double cx, double cy, double cz, doubl
   *im = i;
 }
 
-/// Impedances below this (MRayl) are gas (air: 0.0004; the tables give lung and bowel gas that).
-constexpr float kGasImpedance = 0.1f;
+/// Coupling: along a beam, samples below this impedance (MRayl) before the first one above it are
+/// gel. Air is 0.0004 and fat 1.38; a CT's skin voxels, part air and part tissue, lie between,
+/// and would otherwise dim each beam by a different amount (streaks down the image).
+constexpr float kCouplingImpedance = 1.0f;
+
+/// Intensity reflections at or below this (−50 dB) are not interfaces: the small impedance steps
+/// of CT noise and texture neither echo nor dim the beam.
+constexpr double kMinReflection = 1e-5;
 
 /// The specular echo's amplitude falls as cos^8 of the angle between the interface normal and
 /// the beam (−10 dB at 30°): most of a tilted interface's echo misses the aperture.
@@ -154,9 +176,11 @@ inline void beam_line(const ImageModel& m, int b, double* o, double* d) {
   }
 }
 
-/// Pass 1, one beam: the complex echo (re, im) of every sample, and the one-way attenuation in
-/// dB met down to it (for TGC). docs/simulation.md §2.
-inline void trace_beam(const ImageModel& m, int b, float* echo, float* loss_db) {
+/// Pass 1, one beam: the complex diffuse echo (re, im) and the specular echo of every sample
+/// (kept apart: they get different filters, §3), and the round-trip attenuation in dB met down
+/// to it (for TGC). docs/simulation.md §2.
+inline void trace_beam(const ImageModel& m, int b, float* echo, float* specular_echo,
+                       float* loss_db) {
   double o[2], d[2];
   beam_line(m, b, o, d);
   const auto index_of = [&](double px, double py, double pz, double* c) {
@@ -174,10 +198,11 @@ inline void trace_beam(const ImageModel& m, int b, float* echo, float* loss_db) 
     double c[3];
     index_of(px, py, 0, c);
     Props p = props_at(m, c[0], c[1], c[2]);
-    // Coupling: gas between the face and the first tissue along the beam is gel (the probe is
-    // pressed on; a face that only partly touches a curved skin is not left in air).
+    // Coupling: gas (and the skin's part-air voxels) between the face and the first tissue
+    // along the beam is gel (the probe is pressed on; a face that only partly touches a curved
+    // skin is not left in air).
     if (!in_tissue) {
-      if (p.z < kGasImpedance)
+      if (p.z < kCouplingImpedance)
         p = m.outside;
       else
         in_tissue = true;
@@ -188,7 +213,7 @@ inline void trace_beam(const ImageModel& m, int b, float* echo, float* loss_db) 
     double specular = 0;
     const double dz = double(p.z) - z_before;
     const double r = (dz / (double(p.z) + z_before)) * (dz / (double(p.z) + z_before));
-    if (r > 1e-5) {
+    if (r > kMinReflection) {
       // The interface's normal from the impedance gradient (central differences over
       // ±gradient_mm around the sample); the echo that returns falls as cos^8 of the angle
       // between the normal and the beam (docs/simulation.md §2).
@@ -223,23 +248,30 @@ inline void trace_beam(const ImageModel& m, int b, float* echo, float* loss_db) 
     // Round trip: the intensity transmission both ways is transmitted², an amplitude factor of
     // transmitted; the attenuation both ways is 2·att_db.
     const double amplitude = transmitted * std::pow(10.0, -2 * att_db / 20);
-    echo[2 * s] = float(amplitude * (p.scatter * nr + specular));
-    echo[2 * s + 1] = float(amplitude * p.scatter * ni);
+    echo[2 * s] = float(amplitude * p.scatter * m.speckle_gain * nr);
+    echo[2 * s + 1] = float(amplitude * p.scatter * m.speckle_gain * ni);
+    specular_echo[2 * s] = float(amplitude * specular);
+    specular_echo[2 * s + 1] = 0.f;
     loss_db[s] = float(2 * att_db);
-    transmitted *= 1 - r;
+    if (r > kMinReflection) transmitted *= 1 - r;  // CT noise neither echoes nor dims
     z_before = p.z;
   }
 }
 
+/// How a filter is scaled: its peak 1 (axially: an echo keeps the pulse's amplitude) or its sum
+/// 1 (laterally: a plane reflector across the beams keeps its amplitude).
+enum class Scale { Peak, Sum };
+
 /// 1D Gaussian convolution of n complex samples spaced `stride` complex values apart, σ in
 /// samples (truncated at 3σ, at most 48 taps each side; edges clamped). `tmp`: n complex values.
-inline void gauss_complex(float* data, int n, int stride, double sigma, float* tmp) {
+inline void gauss_complex(float* data, int n, int stride, double sigma, Scale scale, float* tmp) {
   if (!(sigma > 0.3)) return;
   int r = int(std::ceil(3 * sigma));
   r = r > 48 ? 48 : r;
   double w[97], wsum = 0;
   for (int k = -r; k <= r; ++k) wsum += w[k + r] = std::exp(-0.5 * k * k / (sigma * sigma));
-  for (int k = 0; k <= 2 * r; ++k) w[k] /= wsum;
+  if (scale == Scale::Sum)
+    for (int k = 0; k <= 2 * r; ++k) w[k] /= wsum;
   for (int i = 0; i < n; ++i) {
     tmp[2 * i] = data[2 * int64_t(i) * stride];
     tmp[2 * i + 1] = data[2 * int64_t(i) * stride + 1];

@@ -62,11 +62,70 @@ Props props_of(const Tissue& t) {
 }
 
 }  // namespace
+
+/// The gain that makes fully developed speckle's mean envelope 1 (so a tissue's is its
+/// scatter_mean): the noise, the slice-thickness sum and the filters of this model on a patch of
+/// 96 beams × 384 samples along an oblique line, with a fixed seed. The same for every image
+/// of a simulator, so images stay comparable.
+double speckle_gain(const ImageModel& model) {
+  ImageModel m = model;
+  m.A[0] = 0.8;  // probe x → index: a rotation, so the patch is oblique to the lattice
+  m.A[1] = -0.36;
+  m.A[2] = 0.48;
+  m.A[3] = 0.6;
+  m.A[4] = 0.48;
+  m.A[5] = -0.64;
+  m.A[6] = 0;
+  m.A[7] = 0.8;
+  m.A[8] = 0.6;
+  // ... in mm: index = rotation · p / spacing (spacing = lattice_per_index · λ, λ = 4Δ).
+  for (int k = 0; k < 3; ++k) {
+    const double spacing = m.lattice_per_index[k] * 4 * m.step_mm;
+    for (int j = 0; j < 3; ++j) m.A[3 * k + j] /= spacing;
+    m.a[k] = 1000.5;
+  }
+  const int B = 96, S = 384;
+  const double lateral_step =
+      m.curvilinear ? (m.start + 0.5 * m.samples * m.step_mm) * m.beam_step : m.beam_step;
+  std::vector<float> field(size_t(B) * S * 2), tmp(size_t(S) * 2);
+  for (int b = 0; b < B; ++b)
+    for (int s = 0; s < S; ++s) {
+      const double px = b * lateral_step, py = s * m.step_mm;
+      double nr = 0, ni = 0;
+      for (int e = 0; e < m.elevations; ++e) {
+        double c[3], er, ei;
+        for (int k = 0; k < 3; ++k)
+          c[k] =
+              m.A[3 * k] * px + m.A[3 * k + 1] * py + m.A[3 * k + 2] * m.elevation_mm[e] + m.a[k];
+        noise_at(m, c[0], c[1], c[2], &er, &ei);
+        nr += m.elevation_weight[e] * er;
+        ni += m.elevation_weight[e] * ei;
+      }
+      field[2 * (size_t(b) * S + s)] = float(nr);
+      field[2 * (size_t(b) * S + s) + 1] = float(ni);
+    }
+  for (int b = 0; b < B; ++b)
+    gauss_complex(field.data() + 2 * size_t(b) * S, S, 1, m.sigma_axial_samples, Scale::Peak,
+                  tmp.data());
+  for (int s = 0; s < S; ++s)
+    gauss_complex(field.data() + 2 * size_t(s), B, S, m.sigma_lateral_mm / lateral_step, Scale::Sum,
+                  tmp.data());
+  double sum = 0;
+  int n = 0;
+  for (int b = 16; b < B - 16; ++b)
+    for (int s = 32; s < S - 32; ++s, ++n) {
+      const float* v = &field[2 * (size_t(b) * S + s)];
+      sum += std::sqrt(double(v[0]) * v[0] + double(v[1]) * v[1]);
+    }
+  return sum > 0 ? n / sum : 1.0;
+}
+
 }  // namespace simulate_impl
 
 using simulate_impl::ImageModel;
 using simulate_impl::Model;
 using simulate_impl::Props;
+using simulate_impl::Scale;
 
 Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe,
                      std::vector<Tissue> tissues, SimulationSettings settings)
@@ -136,8 +195,18 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
   const double axial = settings.axial_fwhm_mm > 0 ? settings.axial_fwhm_mm : lambda;
   const double lateral = settings.lateral_fwhm_mm > 0 ? settings.lateral_fwhm_mm : 2 * lambda;
   const double elevation = settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda;
-  b.sigma_axial_samples = axial * simulate_impl::kFwhmToSigma / b.step_mm;
-  b.sigma_lateral_mm = lateral * simulate_impl::kFwhmToSigma;
+  // The speckle field is already smooth at the lattice's scale: trilinear interpolation between
+  // nodes λ apart is a triangle kernel of variance λ²/6 along any direction. The filters add
+  // what is missing, so that the speckle's size is the PSF's (validation 2).
+  const double lattice_var = lambda * lambda / 6;
+  const auto filter_sigma = [&](double fwhm) {
+    const double s = fwhm * simulate_impl::kFwhmToSigma;
+    return std::sqrt(std::max(s * s - lattice_var, 0.0));
+  };
+  b.sigma_axial_samples = filter_sigma(axial) / b.step_mm;
+  b.sigma_lateral_mm = filter_sigma(lateral);
+  b.specular_sigma_axial_samples = axial * simulate_impl::kFwhmToSigma / b.step_mm;
+  b.specular_sigma_lateral_mm = lateral * simulate_impl::kFwhmToSigma;
   // Interface normals from impedance differences over a millimetre-scale neighbourhood: at
   // least two voxels, so that a voxelised oblique surface shows its slope, not its stairs.
   b.gradient_mm = std::max(
@@ -204,6 +273,7 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
     throw InputError("probe: " + std::to_string(b.beams) + " beams of " +
                      std::to_string(b.samples) + " samples at " + std::to_string(b.step_mm) +
                      " mm is too many for one image");
+  b.speckle_gain = simulate_impl::speckle_gain(b);
   b.tgc_auto = settings.tgc_auto;
   b.bmode = settings.output == SimulationOutput::BMode;
   b.dynamic_range_db = settings.dynamic_range_db;
@@ -245,21 +315,32 @@ namespace {
 /// One image: trace every beam, the PSF (axial, then lateral at each depth), the envelope, TGC
 /// and log compression, then scan conversion onto the probe's grid.
 void simulate_image(const ImageModel& m, void* out, std::vector<float>& echo,
-                    std::vector<float>& loss, std::vector<float>& tmp) {
+                    std::vector<float>& specular, std::vector<float>& loss,
+                    std::vector<float>& tmp) {
   const int B = m.beams, S = m.samples;
   echo.resize(size_t(B) * S * 2);
+  specular.resize(size_t(B) * S * 2);
   loss.resize(size_t(B) * S);
   tmp.resize(size_t(std::max(B, S)) * 2);
   for (int b = 0; b < B; ++b)
-    trace_beam(m, b, echo.data() + 2 * size_t(b) * S, loss.data() + size_t(b) * S);
-  for (int b = 0; b < B; ++b)
-    gauss_complex(echo.data() + 2 * size_t(b) * S, S, 1, m.sigma_axial_samples, tmp.data());
+    trace_beam(m, b, echo.data() + 2 * size_t(b) * S, specular.data() + 2 * size_t(b) * S,
+               loss.data() + size_t(b) * S);
+  for (int b = 0; b < B; ++b) {
+    gauss_complex(echo.data() + 2 * size_t(b) * S, S, 1, m.sigma_axial_samples, Scale::Peak,
+                  tmp.data());
+    gauss_complex(specular.data() + 2 * size_t(b) * S, S, 1, m.specular_sigma_axial_samples,
+                  Scale::Peak, tmp.data());
+  }
   for (int s = 0; s < S; ++s) {
     // Beams are beam_step apart: in mm at this depth for a fan, as given for a linear probe.
     const double spacing_mm =
         m.curvilinear ? (m.start + (s + 0.5) * m.step_mm) * m.beam_step : m.beam_step;
-    gauss_complex(echo.data() + 2 * size_t(s), B, S, m.sigma_lateral_mm / spacing_mm, tmp.data());
+    gauss_complex(echo.data() + 2 * size_t(s), B, S, m.sigma_lateral_mm / spacing_mm, Scale::Sum,
+                  tmp.data());
+    gauss_complex(specular.data() + 2 * size_t(s), B, S, m.specular_sigma_lateral_mm / spacing_mm,
+                  Scale::Sum, tmp.data());
   }
+  for (size_t i = 0; i < echo.size(); i += 2) echo[i] += specular[i];
   // TGC: the median round-trip attenuation across the beams at each depth (auto), or none. The
   // median, not the mean: a few beams through gas or bone lose far more, and compensating them
   // would flood the others.
@@ -340,9 +421,9 @@ void Simulator::simulate(const Pose* poses, size_t count, void* out, size_t firs
       for (int k = 0; k < 3; ++k) t += L.m[r][k] * p.m[k][3];
       im.a[r] = t;
     }
-    thread_local std::vector<float> echo, loss, tmp;
-    simulate_impl::simulate_image(im, static_cast<uint8_t*>(out) + size_t(n) * bytes, echo, loss,
-                                  tmp);
+    thread_local std::vector<float> echo, specular, loss, tmp;
+    simulate_impl::simulate_image(im, static_cast<uint8_t*>(out) + size_t(n) * bytes, echo,
+                                  specular, loss, tmp);
   });
 }
 

@@ -123,8 +123,66 @@ TEST(Simulate, FullyDevelopedSpeckleIsRayleigh) {
   const double snr = mean(env) / stdev(env), log_sd = stdev(logs);
   std::printf("[ speckle ] SNR %.3f (Rayleigh 1.913), log-envelope sd %.3f dB (5.57)\n", snr,
               log_sd);
+  // Calibration: a tissue's mean speckle envelope is its scatter_mean.
+  std::printf("[ speckle ] mean envelope %.4f (scatter_mean 0.02)\n", mean(env));
+  EXPECT_NEAR(mean(env), 0.02, 0.1 * 0.02);
   EXPECT_NEAR(snr, 1.913, 0.05 * 1.913);
   EXPECT_NEAR(log_sd, 5.57, 0.05 * 5.57);
+}
+
+/// Full width at half maximum (in pixels, linear between lags) of the autocorrelation of the
+/// envelope's fluctuation along rows (dx = 1) or columns (dy = 1) of a w × h image.
+double acf_fwhm(const std::vector<float>& img, int w, int h, int dx, int dy) {
+  double mean = 0;
+  for (float v : img) mean += v;
+  mean /= double(img.size());
+  std::vector<double> acf;
+  for (int lag = 0; lag < 40; ++lag) {
+    double s = 0;
+    int n = 0;
+    for (int y = 0; y + lag * dy < h; ++y)
+      for (int x = 0; x + lag * dx < w; ++x) {
+        s +=
+            (img[size_t(y) * w + x] - mean) * (img[size_t(y + lag * dy) * w + x + lag * dx] - mean);
+        ++n;
+      }
+    acf.push_back(s / n);
+  }
+  for (int lag = 1; lag < 40; ++lag)
+    if (acf[size_t(lag)] < 0.5 * acf[0]) {
+      const double a = acf[size_t(lag - 1)] / acf[0], b = acf[size_t(lag)] / acf[0];
+      return 2 * (lag - 1 + (a - 0.5) / (a - b));
+    }
+  return 80;
+}
+
+// 2. Speckle size: the envelope intensity's autocorrelation has the PSF's widths (for a Gaussian
+// PSF of amplitude FWHM F, fully developed speckle's intensity autocorrelation has FWHM F).
+TEST(Simulate, SpeckleSizeIsThePsf) {
+  ProbeGeometry probe;
+  probe.type = ProbeType::Linear;
+  probe.image.width = probe.image.height = 300;
+  probe.image.spacing_mm[0] = probe.image.spacing_mm[1] = 0.03;
+  probe.image.set_default_origin();
+  SimulationSettings st = envelope_settings();
+  st.axial_fwhm_mm = 0.4;
+  st.lateral_fwhm_mm = 0.8;
+  const Simulator sim(phantom([](double, double, double) { return 1; }), SimulationSource::Labels,
+                      probe, {tissue(1, 1.6, 0.0, 0.02)}, st);
+  double axial = 0, lateral = 0;
+  for (int k = 0; k < 4; ++k) {
+    const auto env = envelope(sim, {pose_at(15 + 5 * k, 10)});
+    std::vector<float> intensity(env.size());
+    for (size_t i = 0; i < env.size(); ++i) intensity[i] = env[i] * env[i];
+    axial += 0.25 * 0.03 * acf_fwhm(intensity, 300, 300, 0, 1);
+    lateral += 0.25 * 0.03 * acf_fwhm(intensity, 300, 300, 1, 0);
+  }
+  std::printf(
+      "[ speckle size ] intensity autocorrelation FWHM: axial %.3f mm (PSF 0.4), lateral "
+      "%.3f mm (PSF 0.8)\n",
+      axial, lateral);
+  EXPECT_NEAR(axial, 0.4, 0.15 * 0.4);
+  EXPECT_NEAR(lateral, 0.8, 0.15 * 0.8);
 }
 
 // 3. Attenuation: with TGC off the mean log envelope falls 2·α·f dB per cm; with auto TGC the

@@ -15,6 +15,9 @@ namespace sonoslice {
 /// validate_tissues refuses.
 std::vector<Tissue> read_tissue_table(const std::string& path);
 
+/// The same from JSON text; errors name `where`.
+std::vector<Tissue> parse_tissue_table(const std::string& text, const std::string& where);
+
 /// The table as JSON text (two-space indent, one tissue per object, a trailing newline).
 std::string tissue_table_json(const std::vector<Tissue>& tissues);
 

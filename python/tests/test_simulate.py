@@ -1,0 +1,187 @@
+"""sonoslice simulate (issue 13): the CLI contract, outputs and bad input.
+
+The model's own checks (speckle statistics, attenuation, shadows, ...) are the C++ tests
+tests/simulate/test_simulate.cpp; these run the command as users do.
+"""
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+
+def run(cli, *args, cwd=None):
+    return subprocess.run([cli, *args], capture_output=True, encoding="utf-8", errors="replace",
+                          timeout=600, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def ph(cli, tmp_path_factory):
+    d = tmp_path_factory.mktemp("sim")
+    r = run(cli, "phantom", str(d / "ph"), "--poses", "6", "-q")
+    assert r.returncode == 0, r.stderr
+    poses = np.load(d / "ph" / "poses.npy")[:3]
+    np.save(d / "p3.npy", poses)
+    return d
+
+
+def one_line_error(r, needle):
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert r.stderr.startswith("sonoslice: error: ") and r.stderr.count("\n") == 1, r.stderr
+    assert needle in r.stderr, r.stderr
+
+
+def test_presets_and_default_tissue_table(cli, tmp_path):
+    r = run(cli, "simulate", "--list-presets")
+    assert r.returncode == 0, r.stderr
+    names = [line.split()[0] for line in r.stdout.splitlines()]
+    assert names == ["abdominal", "laparoscopic", "lus"]
+    r = run(cli, "simulate", "--print-tissues")
+    assert r.returncode == 0, r.stderr
+    table = json.loads(r.stdout)["tissues"]
+    assert [t["name"] for t in table] == ["water", "blood", "fat", "liver", "kidney", "muscle",
+                                          "soft tissue", "vessel wall", "bone", "gas"]
+    for t in table:
+        assert set(t) == {"name", "label", "impedance_mrayl", "attenuation_db_cm_mhz",
+                          "scatter_mean", "scatter_density"}
+    assert table[6]["impedance_mrayl"] == 1.63 and table[6]["attenuation_db_cm_mhz"] == 0.54
+    assert os.listdir(tmp_path) == []
+
+
+def test_simulate_ct_labels_and_meshless_outputs(cli, ph):
+    base = ["--preset", "lus", "--poses", str(ph / "p3.npy"), "-q"]
+    r = run(cli, "simulate", "--volume", str(ph / "ph" / "ct.nii.gz"), "--out", str(ph / "ct.npy"),
+            "--mask", str(ph / "mask.npy"), *base)
+    assert r.returncode == 0, r.stderr
+    ct = np.load(ph / "ct.npy")
+    assert ct.shape == (3, 272, 334) and ct.dtype == np.uint8
+    # The fan mask is slice's: the same file slice --mask writes for the same probe.
+    r = run(cli, "slice", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe",
+            os.path.join(os.path.dirname(__file__), "..", "..", "data", "fanslicer",
+                         "models_intensity_LUS_config.json"),
+            "--downsampling", "2", "--poses", str(ph / "p3.npy"), "--out", str(ph / "slice.npy"),
+            "--mask", str(ph / "slice_mask.npy"), "-q")
+    assert r.returncode == 0, r.stderr
+    mask = np.load(ph / "mask.npy")
+    assert np.array_equal(mask, np.load(ph / "slice_mask.npy"))
+    assert (ct[:, mask == 0] == 0).all()
+    assert ct[:, mask == 1].std() > 5  # speckle, not a flat fill
+
+    r = run(cli, "simulate", "--labels", str(ph / "ph" / "labels.nii.gz"), "--tissues",
+            str(ph / "ph" / "tissues.json"), "--out", str(ph / "env.npy"), "--output", "envelope",
+            "--tgc", "off", *base)
+    assert r.returncode == 0, r.stderr
+    env = np.load(ph / "env.npy")
+    assert env.dtype == np.float32 and env.shape == (3, 272, 334)
+    assert (env >= 0).all() and env[:, mask == 1].max() > 0
+
+
+def test_same_seed_same_bytes_any_threads(cli, ph):
+    outs = []
+    for threads, seed in (("1", "5"), ("2", "5"), ("2", "6")):
+        out = ph / f"s{threads}_{seed}.npy"
+        r = run(cli, "simulate", "--volume", str(ph / "ph" / "ct.nii.gz"), "--preset", "lus",
+                "--poses", str(ph / "p3.npy"), "--out", str(out), "--threads", threads, "--seed",
+                seed, "-q")
+        assert r.returncode == 0, r.stderr
+        outs.append(np.load(out))
+    assert np.array_equal(outs[0], outs[1])
+    assert not np.array_equal(outs[0], outs[2])
+
+
+def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
+    ct = str(ph / "ph" / "ct.nii.gz")
+    labels = str(ph / "ph" / "labels.nii.gz")
+    poses = str(ph / "p3.npy")
+    good = tmp_path / "good.npy"
+    np.save(good, np.zeros(3))
+    before = good.read_bytes()
+    bad_table = tmp_path / "bad.json"
+    bad_table.write_text(json.dumps({"tissues": [{"name": "x", "label": 1, "impedance_mrayl": 1.5,
+                                                   "attenuation_db_cm_mhz": 0.5}]}))
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps({"tissues": [{"name": "fat", "label": 1, "impedance_mrayl": 1.38,
+                                                 "attenuation_db_cm_mhz": 0.48, "scatter_mean": 0.01,
+                                                 "colour": "yellow"}]}))
+    nan = np.load(poses)
+    nan[1, 0, 0] = np.nan
+    np.save(tmp_path / "nan.npy", nan)
+    common = ["--out", str(good), "-q"]
+    cases = [
+        (["--volume", ct, "--poses", poses, "--preset", "nope"], "--preset nope: unknown (presets: abdominal"),
+    ] + [(["--preset", "lus", *args], needle) for args, needle in [
+        (["--volume", ct, "--poses", poses, "--tgc", "on"], "--tgc on: expected auto or off"),
+        (["--volume", ct, "--poses", poses, "--output", "rf"], "--output rf: expected bmode or envelope"),
+        (["--volume", ct, "--poses", poses, "--device", "cuda"], "simulation runs on the CPU only"),
+        (["--volume", ct, "--poses", poses, "--frequency", "0"], "frequency 0"),
+        (["--volume", ct, "--poses", poses, "--dynamic-range", "-3"], "dynamic range -3"),
+        (["--volume", ct, "--labels", labels, "--poses", poses], "exactly one of --volume, --labels"),
+        (["--volume", ct, "--tissues", str(partial), "--poses", poses], "--tissues is for --labels"),
+        (["--labels", labels, "--tissues", str(tmp_path / "none.json"), "--poses", poses], "none.json"),
+        (["--labels", labels, "--tissues", str(bad_table), "--poses", poses], 'missing "scatter_mean"'),
+        (["--labels", labels, "--tissues", str(partial), "--poses", poses], "holds label 0, which the tissue table does not list"),
+        (["--labels", ct, "--poses", poses], "uint8 or uint16, this one is int16"),
+        (["--volume", ct, "--poses", str(tmp_path / "nan.npy")], "pose 1"),
+        (["--volume", str(tmp_path / "missing.nii.gz"), "--poses", poses], "missing.nii.gz"),
+    ]]
+    for args, needle in cases:
+        r = run(cli, "simulate", *common, *args)
+        one_line_error(r, needle)
+        assert good.read_bytes() == before, args
+    r = run(cli, "simulate", "--volume", ct, "--poses", poses, "--out", str(tmp_path / "x.npy"))
+    one_line_error(r, "give --probe or --preset")
+    assert sorted(os.listdir(tmp_path)) == ["bad.json", "good.npy", "nan.npy", "partial.json"]
+
+
+# ---- Python: sonoslice.Simulator ---------------------------------------------------------------
+def test_python_simulator_ct_labels_and_out(phantom, poses):
+    import sonoslice
+    ct, labels = phantom
+    sim = sonoslice.Simulator(ct, "lus", seed=4)
+    assert sim.kind == "ct" and sim.frequency == 6.5
+    images = sim.simulate(poses[:3])
+    assert images.shape == (3, sim.height, sim.width) == (3, 272, 334) and images.dtype == np.uint8
+    assert np.array_equal(sim.mask, sonoslice.Slicer(ct, sonoslice.Probe.workload("W1")).mask)
+    # In place, zero-copy, and the same bytes again.
+    out = np.zeros_like(images)
+    assert sim.simulate(poses[:3], out=out) is out
+    assert np.array_equal(out, images)
+    env = sim.simulate(poses[:3], output="envelope")
+    assert env.dtype == np.float32 and (env >= 0).all()
+    # Labels with the phantom's table: the kind follows from the table.
+    lab = sonoslice.Simulator(labels, sonoslice.Probe.workload("W1"), tissues=sonoslice.phantom_tissues(),
+                              frequency=6.5, seed=4)
+    assert lab.kind == "labels"
+    li = lab.simulate(poses[:3])
+    assert li.shape == images.shape and li[:, lab.mask == 1].std() > 5
+
+
+def test_python_simulator_bad_input(phantom, poses, tmp_path):
+    import sonoslice
+    ct, labels = phantom
+    with pytest.raises(ValueError, match="simulation runs on the CPU only"):
+        sonoslice.Simulator(ct, "lus", device="cuda")
+    with pytest.raises(ValueError, match="--preset nope: unknown"):
+        sonoslice.Simulator(ct, "nope")
+    with pytest.raises(ValueError, match="holds label 0, which the tissue table does not list"):
+        sonoslice.Simulator(labels, "lus", tissues=sonoslice.default_tissues())
+    bad = [dict(t) for t in sonoslice.phantom_tissues()]
+    bad[2]["impedance_mrayl"] = -1
+    with pytest.raises(ValueError, match="impedance_mrayl must be > 0"):
+        sonoslice.Simulator(labels, "lus", tissues=bad)
+    sim = sonoslice.Simulator(ct, "lus")
+    p = np.array(poses[:2])
+    p[1, 0, 0] = np.nan
+    out = np.full((2, sim.height, sim.width), 7, np.uint8)
+    with pytest.raises(ValueError, match="pose 1"):
+        sim.simulate(p, out=out)
+    assert (out == 7).all()
+    with pytest.raises(ValueError, match="output 'rf'"):
+        sim.simulate(poses[:1], output="rf")
+    with pytest.raises(ValueError, match="out: expected shape"):
+        sim.simulate(poses[:2], out=np.zeros((1, sim.height, sim.width), np.uint8))
+    table = tmp_path / "t.json"
+    table.write_text("{not json")
+    with pytest.raises(OSError, match="invalid JSON"):
+        sonoslice.Simulator(labels, "lus", tissues=table)
