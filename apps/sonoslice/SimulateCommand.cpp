@@ -51,6 +51,10 @@ void run_simulate(const SimulateFlags& f) {
     throw InputError(
         "--tissues: a CT (--volume) maps HU to tissues itself; --tissues is for "
         "--labels and --meshes");
+  if (!f.meshes.empty() && f.tissues.empty())
+    throw InputError(
+        "--meshes: give --tissues, a table for label 0 (outside every mesh) and "
+        "label k (inside the k-th mesh)");
   if (f.device != "cpu")
     throw InputError("--device " + f.device +
                      ": simulation runs on the CPU only so far (docs/simulation.md §6)");
