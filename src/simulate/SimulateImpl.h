@@ -96,6 +96,7 @@ inline Props props_at(const ImageModel& m, double cx, double cy, double cz) {
   const double c11 = at(x0, y1, z1) + tx * (at(x1, y1, z1) - at(x0, y1, z1));
   const double c0 = c00 + ty * (c10 - c00), c1 = c01 + ty * (c11 - c01);
   const double hu = c0 + tz * (c1 - c0);
+  if (!(hu == hu)) return m.outside;  // a NaN voxel nearby: no data, as outside the volume
   const double k = clampd(hu - m.hu_min, 0, m.hu_count - 1.000001);
   const int i = int(k);
   const double w = k - i;

@@ -388,6 +388,20 @@ TEST(Simulate, CtAndLabelsAgree) {
   EXPECT_GT(correlation(ra, rb), 0.99);
 }
 
+// A float CT with NaN and infinite voxels (missing data) simulates without a crash; NaN reads as
+// outside the volume.
+TEST(Simulate, NonFiniteHuIsNoData) {
+  const Volume labels = phantom([](double, double, double) { return 1; });
+  Volume ct = Volume::allocate(PixelType::Float32, labels.grid());
+  float* v = ct.data_as<float>();
+  for (int64_t i = 0; i < labels.grid().voxel_count(); ++i)
+    v[i] = i % 7 == 0 ? std::nanf("") : (i % 11 == 0 ? INFINITY : 50.f);
+  const Simulator sim(ct, SimulationSource::HounsfieldUnits, linear_probe(), {},
+                      envelope_settings());
+  const auto img = envelope(sim, {pose_at(25)});
+  for (float e : img) ASSERT_TRUE(std::isfinite(e));
+}
+
 TEST(Simulate, BadInputIsNamed) {
   const Volume v = phantom([](double, double, double) { return 7; });
   EXPECT_THROW(Simulator(v, SimulationSource::Labels, linear_probe(), {tissue(1, 1.6, 0, 0)}),
