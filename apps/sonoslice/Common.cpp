@@ -48,6 +48,19 @@ VolumeReadOptions VolumeFlags::options() const {
   return o;
 }
 
+StackSpec probe_stack_spec(const ProbeGeometry& probe, PixelType type,
+                           const std::vector<Pose>& poses) {
+  StackSpec spec;
+  spec.type = type;
+  spec.width = probe.image.width;
+  spec.height = probe.image.height;
+  spec.count = int64_t(poses.size());
+  spec.spacing_mm[0] = probe.image.spacing_mm[0];
+  spec.spacing_mm[1] = probe.image.spacing_mm[1];
+  spec.poses = poses;
+  return spec;
+}
+
 std::string gib(uint64_t bytes) {
   std::ostringstream s;
   s.precision(3);

@@ -79,6 +79,11 @@ class ProgressBar {
   int64_t last_done_ = -1;
 };
 
+/// The stack of one `type` image per pose of `probe` (size, pixel spacing, poses); the caller
+/// adds the window, the mask and the components where it has them.
+StackSpec probe_stack_spec(const ProbeGeometry& probe, PixelType type,
+                           const std::vector<Pose>& poses);
+
 /// "1.5 GiB": a byte count for messages.
 std::string gib(uint64_t bytes);
 

@@ -61,15 +61,8 @@ std::vector<uint8_t> windowed(const std::vector<float>& images, size_t offset, s
 void write_png_stack(const std::string& dir, const ProbeGeometry& probe,
                      const std::vector<Pose>& poses, PixelType type,
                      std::pair<double, double> window, const void* images) {
-  StackSpec spec;
-  spec.type = type;
-  spec.width = probe.image.width;
-  spec.height = probe.image.height;
-  spec.count = int64_t(poses.size());
-  spec.spacing_mm[0] = probe.image.spacing_mm[0];
-  spec.spacing_mm[1] = probe.image.spacing_mm[1];
+  StackSpec spec = probe_stack_spec(probe, type, poses);
   spec.window = window;
-  spec.poses = poses;
   auto writer = StackWriter::create(dir, spec);
   std::memcpy(writer->buffer(0, spec.count), images,
               size_t(spec.count) * size_t(probe.image.pixel_count()) * pixel_size(type));

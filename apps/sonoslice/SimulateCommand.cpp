@@ -136,14 +136,9 @@ void run_simulate(const SimulateFlags& f) {
   const double load_seconds = load.seconds();
   const Simulator sim(volume, source, probe, tissues, settings);
 
-  StackSpec spec;
-  spec.type = settings.output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32;
-  spec.width = probe.image.width;
-  spec.height = probe.image.height;
-  spec.count = int64_t(poses.size());
-  spec.spacing_mm[0] = probe.image.spacing_mm[0];
-  spec.spacing_mm[1] = probe.image.spacing_mm[1];
-  spec.poses = poses;
+  StackSpec spec = probe_stack_spec(
+      probe, settings.output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32,
+      poses);
   spec.mask = sim.mask().data();
   // B-mode grey levels are final: PNGs show them as they are (0..255), not auto-windowed.
   if (settings.output == SimulationOutput::BMode) spec.window = std::make_pair(127.5, 255.0);

@@ -161,15 +161,8 @@ void run_slice(const SliceFlags& f) {
   if (!f.colors.empty())
     check_output_path(f.colors, stack_format(f.colors) == StackFormat::PngDirectory);
 
-  StackSpec spec;
-  spec.type = settings.output_type;
-  spec.width = probe.image.width;
-  spec.height = probe.image.height;
-  spec.count = int64_t(poses.size());
-  spec.spacing_mm[0] = probe.image.spacing_mm[0];
-  spec.spacing_mm[1] = probe.image.spacing_mm[1];
+  StackSpec spec = probe_stack_spec(probe, settings.output_type, poses);
   spec.window = window;
-  spec.poses = poses;
   StackSpec color_spec = spec;
   color_spec.type = PixelType::UInt8;
   color_spec.components = 3;

@@ -173,13 +173,18 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
     b.labels = volume.data_as<uint16_t>();
     b.label_props = m.label_props.data();
   } else {
-    m.hu.resize(size_t(voxels));
-    visit_pixel_type(volume.pixel_type(), [&](auto zero) {
-      using T = decltype(zero);
-      const T* v = volume.data_as<T>();
-      for (int64_t i = 0; i < voxels; ++i) m.hu[size_t(i)] = float(v[i]);
-    });
-    b.hu = m.hu.data();
+    // The kernel reads HU as float: a float32 volume as it is (shared), others converted once.
+    if (volume.pixel_type() == PixelType::Float32) {
+      b.hu = volume.data_as<float>();
+    } else {
+      m.hu.resize(size_t(voxels));
+      visit_pixel_type(volume.pixel_type(), [&](auto zero) {
+        using T = decltype(zero);
+        const T* v = volume.data_as<T>();
+        for (int64_t i = 0; i < voxels; ++i) m.hu[size_t(i)] = float(v[i]);
+      });
+      b.hu = m.hu.data();
+    }
     b.hu_min = -1024;
     b.hu_count = 4096 + 1024;  // -1024 .. 4095 HU
     for (int k = 0; k < b.hu_count; ++k)
