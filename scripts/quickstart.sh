@@ -5,4 +5,4 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scripts/install-deps.sh
 scripts/build.sh
 build/bin/sonoslice demo demo_out
-echo "Open demo_out/contact_sheet.png (axial CT with the probe positions, fan images, linear images)."
+echo "Open demo_out/contact_sheet.png (axial CT with the probe positions, fan images, simulated ultrasound, linear images)."
