@@ -175,6 +175,22 @@ inline Vec8f broadcast_quad(const float* p) {
 inline Vec8f halves(const float* lo, const float* hi) {
   return _mm256_blend_ps(_mm256_broadcast_ss(lo), _mm256_broadcast_ss(hi), 0xF0);
 }
+/// Lanes 0-3 lo[0..3], lanes 4-7 hi[0..3] (two unaligned quads).
+inline Vec8f quads(const float* lo, const float* hi) {
+  return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(lo)), _mm_loadu_ps(hi), 1);
+}
+/// a·b + c, fused.
+inline Vec8f fmadd(Vec8f a, Vec8f b, Vec8f c) {
+  return _mm256_fmadd_ps(a.v, b.v, c.v);
+}
+/// The sums of the even lanes and of the odd lanes (the real and imaginary parts of four
+/// interleaved complex values).
+inline void sum_even_odd(Vec8f v, float& even, float& odd) {
+  __m128 q = _mm_add_ps(_mm256_castps256_ps128(v.v), _mm256_extractf128_ps(v.v, 1));
+  q = _mm_add_ps(q, _mm_movehl_ps(q, q));  // (0 + 2, 1 + 3, ...)
+  even = _mm_cvtss_f32(q);
+  odd = _mm_cvtss_f32(_mm_shuffle_ps(q, q, 1));
+}
 
 /// Stores the lanes' bit patterns as floats (masks that keep_if reads back one at a time).
 inline void store_mask(Vec8i mask, float* p) {

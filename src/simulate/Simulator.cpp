@@ -6,8 +6,8 @@
 #include <cmath>
 #include <limits>
 
-#include "../backend/ParallelFor.h"
 #include "SimulateImpl.h"
+#include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
 
@@ -26,12 +26,17 @@ struct Model {
   std::vector<float> hu;           // HU source: the voxels as float
   std::vector<Props> label_props;  // label source: 65536 entries
   std::vector<Props> hu_table;
-  std::vector<float> tiles[2];
-  std::vector<int32_t> wraps[2];
+  std::vector<float> tiles[2];  // padded (n+1)³ complex
+  std::vector<float> axial_speckle, axial_specular, lateral_speckle, lateral_specular;
+  std::vector<int32_t> scan_index;
+  std::vector<uint8_t> scan_steps;
+  std::vector<float> scan_weights;
   ImageModel base;  // everything but the pose
 };
 
 namespace {
+
+constexpr int kTileSizes[2] = {37, 41};
 
 /// splitmix64: the seed's stream of 64-bit values (public-domain constants, Steele et al.).
 uint64_t splitmix(uint64_t& state) {
@@ -41,7 +46,8 @@ uint64_t splitmix(uint64_t& state) {
   return z ^ (z >> 31);
 }
 
-/// n³ complex nodes, each re and im standard normal / sqrt(2) (Box–Muller), from the seed.
+/// n³ complex nodes, each re and im standard normal / sqrt(2) (Box–Muller), from the seed,
+/// stored padded to (n+1)³: node n along an axis repeats node 0.
 std::vector<float> noise_tile(int n, uint64_t seed) {
   std::vector<float> t(size_t(n) * n * n * 2);
   uint64_t state = seed;
@@ -54,6 +60,27 @@ std::vector<float> noise_tile(int n, uint64_t seed) {
     t[i] = float(radius * std::cos(kTwoPi * u2));
     t[i + 1] = float(radius * std::sin(kTwoPi * u2));
   }
+  const int p = n + 1;
+  std::vector<float> padded(size_t(p) * p * p * 2);
+  for (int z = 0; z < p; ++z)
+    for (int y = 0; y < p; ++y)
+      for (int x = 0; x < p; ++x)
+        for (int c = 0; c < 2; ++c)
+          padded[((size_t(z) * p + y) * p + x) * 2 + c] =
+              t[((size_t(z % n) * n + y % n) * n + x % n) * 2 + c];
+  return padded;
+}
+
+/// Tile nodes (padded, n + 1 per axis) seen from lattice coordinates shifted by `offset`.
+simulate_impl::NoiseTile tile_view(const std::vector<float>& nodes, int n, int offset) {
+  const int p = n + 1;
+  simulate_impl::NoiseTile t;
+  t.nodes = nodes.data();
+  t.stride_y = 2 * p;
+  t.stride_z = 2 * p * p;
+  t.n = n;
+  t.shift = (n - offset % n) % n;
+  t.inverse_n = 1.0f / float(n);
   return t;
 }
 
@@ -61,71 +88,134 @@ Props props_of(const Tissue& t) {
   return {float(t.impedance_mrayl), float(t.attenuation_db_cm_mhz), float(t.scatter_mean)};
 }
 
+/// Gaussian taps −radius..radius of σ (in samples), peak 1 or sum 1; radius 0 (no filter) when
+/// σ ≤ 0.3, at most `max_radius`.
+std::vector<float> gauss_taps(double sigma, bool unit_sum, int max_radius) {
+  if (!(sigma > 0.3)) return {1.f};
+  const int r = std::min(int(std::ceil(3 * sigma)), max_radius);
+  std::vector<double> w(size_t(2 * r + 1));
+  double sum = 0;
+  for (int k = -r; k <= r; ++k) sum += w[size_t(k + r)] = std::exp(-0.5 * k * k / (sigma * sigma));
+  std::vector<float> out;
+  for (double x : w) out.push_back(float(unit_sum ? x / sum : x));
+  return out;
+}
+
+/// The lateral kernels of every depth as a [tap][s] table (taps −kMaxLateralRadius..), sum 1,
+/// for σ (mm) over the beam spacing at each depth; returns the largest radius used.
+int lateral_table(const ImageModel& m, double sigma_mm, std::vector<float>& table) {
+  const int taps = 2 * simulate_impl::kMaxLateralRadius + 1;
+  table.assign(size_t(taps) * size_t(m.samples), 0.f);
+  int radius = 0;
+  for (int s = 0; s < m.samples; ++s) {
+    // Beams are beam_step apart: in mm at this depth for a fan, as given for a linear probe.
+    const double spacing_mm =
+        m.curvilinear ? (m.start + (s + 0.5) * m.step_mm) * m.beam_step : m.beam_step;
+    const std::vector<float> w =
+        gauss_taps(sigma_mm / spacing_mm, true, simulate_impl::kMaxLateralRadius);
+    const int r = int(w.size() / 2);
+    radius = std::max(radius, r);
+    for (int k = -r; k <= r; ++k)
+      table[size_t(k + simulate_impl::kMaxLateralRadius) * size_t(m.samples) + size_t(s)] =
+          w[size_t(k + r)];
+  }
+  return radius;
+}
+
 }  // namespace
 
 /// The gain that makes fully developed speckle's mean envelope 1 (so a tissue's is its
 /// scatter_mean): the noise, the slice-thickness sum and the filters of this model on a patch of
-/// 96 beams × 384 samples along an oblique line, with a fixed seed. The same for every image
+/// 96 beams × 384 samples along an oblique line, with a fixed seed, interpolated as scan conversion
+/// does. The same for every image
 /// of a simulator, so images stay comparable.
-double speckle_gain(const ImageModel& model) {
+double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2]) {
   ImageModel m = model;
-  m.A[0] = 0.8;  // probe x → index: a rotation, so the patch is oblique to the lattice
-  m.A[1] = -0.36;
-  m.A[2] = 0.48;
-  m.A[3] = 0.6;
-  m.A[4] = 0.48;
-  m.A[5] = -0.64;
-  m.A[6] = 0;
-  m.A[7] = 0.8;
-  m.A[8] = 0.6;
-  // ... in mm: index = rotation · p / spacing (spacing = lattice_per_index · λ, λ = 4Δ).
-  for (int k = 0; k < 3; ++k) {
-    const double spacing = m.lattice_per_index[k] * 4 * m.step_mm;
-    for (int j = 0; j < 3; ++j) m.A[3 * k + j] /= spacing;
-    m.a[k] = 1000.5;
-  }
   const int B = 96, S = 384;
+  // A rotation, so the patch is oblique to the lattice; probe mm → lattice: rotation / λ.
+  const double R[9] = {0.8, -0.36, 0.48, 0.6, 0.48, -0.64, 0, 0.8, 0.6};
   const double lateral_step =
       m.curvilinear ? (m.start + 0.5 * m.samples * m.step_mm) * m.beam_step : m.beam_step;
-  std::vector<float> field(size_t(B) * S * 2), tmp(size_t(S) * 2);
+  // The patch's reach in lattice steps (one per wavelength), with the slice thickness.
+  double reach = 4;
+  for (int e = 0; e < m.elevations; ++e)
+    reach = std::max(reach, 4 + std::fabs(double(m.elevation_mm[e])) / m.wavelength_mm);
+  const double extent = (B * lateral_step + S * double(m.step_mm)) / m.wavelength_mm;
+  const int offset = int(std::ceil(reach)) + 2, count = int(std::ceil(2 * extent)) + 2 * offset + 4;
+  for (int t = 0; t < 2; ++t) m.tiles[t] = tile_view(tiles[t], kTileSizes[t], offset);
+  m.lattice_count = count;
+  // Probe mm → lattice coordinates directly (index = lattice here).
+  IndexMap map;
+  double* A = map.A;
+  double* a = map.a;
+  for (int k = 0; k < 9; ++k) A[k] = R[k] / m.wavelength_mm;
+  // The rotated patch spans at most [-extent, extent] on each axis: start it mid-table.
+  for (int k = 0; k < 3; ++k) {
+    m.lattice_per_index[k] = 1;
+    a[k] = extent;
+  }
+  m.lattice_offset = float(offset);
+  set_pose(m, map);
+  std::vector<float> field(size_t(B) * S * 2), out(size_t(B) * S * 2), tmp(size_t(S) * 2);
   for (int b = 0; b < B; ++b)
     for (int s = 0; s < S; ++s) {
-      const double px = b * lateral_step, py = s * m.step_mm;
-      double nr = 0, ni = 0;
-      for (int e = 0; e < m.elevations; ++e) {
-        double c[3], er, ei;
-        for (int k = 0; k < 3; ++k)
-          c[k] =
-              m.A[3 * k] * px + m.A[3 * k + 1] * py + m.A[3 * k + 2] * m.elevation_mm[e] + m.a[k];
-        noise_at(m, c[0], c[1], c[2], &er, &ei);
-        nr += m.elevation_weight[e] * er;
-        ni += m.elevation_weight[e] * ei;
-      }
-      field[2 * (size_t(b) * S + s)] = float(nr);
-      field[2 * (size_t(b) * S + s) + 1] = float(ni);
+      const float px = float(b * lateral_step), py = float(s * double(m.step_mm));
+      float nr = 0, ni = 0, acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+      const float qx = m.Q[0] * px + m.Q[1] * py + m.q[0];
+      const float qy = m.Q[3] * px + m.Q[4] * py + m.q[1];
+      const float qz = m.Q[6] * px + m.Q[7] * py + m.q[2];
+      for (int e = 0; e < m.elevations; ++e)
+        simulate_impl::add_noise(m, qx + m.elevation_q[e][0], qy + m.elevation_q[e][1],
+                                 qz + m.elevation_q[e][2], m.elevation_weight[e], acc);
+      simulate_impl::speckle_sum(acc, nr, ni);
+      field[2 * (size_t(b) * S + s)] = nr;
+      field[2 * (size_t(b) * S + s) + 1] = ni;
     }
   for (int b = 0; b < B; ++b)
-    gauss_complex(field.data() + 2 * size_t(b) * S, S, 1, m.sigma_axial_samples, Scale::Peak,
-                  tmp.data());
-  for (int s = 0; s < S; ++s)
-    gauss_complex(field.data() + 2 * size_t(s), B, S, m.sigma_lateral_mm / lateral_step, Scale::Sum,
-                  tmp.data());
+    simulate_impl::filter_axial(field.data() + 2 * size_t(b) * S, S, 2, m.axial_speckle,
+                                m.axial_speckle_radius, tmp.data());
+  const std::vector<float> lateral =
+      gauss_taps(m.sigma_lateral_speckle_mm / lateral_step, true, simulate_impl::kMaxLateralRadius);
+  const int r = int(lateral.size() / 2);
+  for (int b = 0; b < B; ++b)
+    for (int s = 0; s < S; ++s)
+      for (int c = 0; c < 2; ++c) {
+        float acc = 0;
+        for (int k = -r; k <= r; ++k) {
+          const int j = std::min(std::max(b + k, 0), B - 1);
+          acc += lateral[size_t(k + r)] * field[2 * (size_t(j) * S + s) + c];
+        }
+        out[2 * (size_t(b) * S + s) + c] = acc;
+      }
+  // The mean envelope where the image's pixels fall: anywhere between samples and beams, where
+  // scan conversion interpolates the complex echo (a little below the samples' own mean).
   double sum = 0;
   int n = 0;
   for (int b = 16; b < B - 16; ++b)
-    for (int s = 32; s < S - 32; ++s, ++n) {
-      const float* v = &field[2 * (size_t(b) * S + s)];
-      sum += std::sqrt(double(v[0]) * v[0] + double(v[1]) * v[1]);
-    }
+    for (int s = 32; s < S - 32; ++s)
+      for (int fb = 0; fb < 4; ++fb)
+        for (int fs = 0; fs < 4; ++fs, ++n) {
+          const double tb = 0.125 + 0.25 * fb, ts = 0.125 + 0.25 * fs;
+          double c[2];
+          for (int k = 0; k < 2; ++k) {
+            const auto at = [&](int bb, int ss) {
+              return double(out[2 * (size_t(bb) * S + ss) + k]);
+            };
+            const double lo = at(b, s) + ts * (at(b, s + 1) - at(b, s));
+            const double hi = at(b + 1, s) + ts * (at(b + 1, s + 1) - at(b + 1, s));
+            c[k] = lo + tb * (hi - lo);
+          }
+          sum += std::sqrt(c[0] * c[0] + c[1] * c[1]);
+        }
   return sum > 0 ? n / sum : 1.0;
 }
 
 }  // namespace simulate_impl
 
 using simulate_impl::ImageModel;
+using simulate_impl::IndexMap;
 using simulate_impl::Model;
 using simulate_impl::Props;
-using simulate_impl::Scale;
 
 Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe,
                      std::vector<Tissue> tissues, SimulationSettings settings)
@@ -173,9 +263,12 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
     b.labels = volume.data_as<uint16_t>();
     b.label_props = m.label_props.data();
   } else {
-    // The kernel reads HU as float: a float32 volume as it is (shared), others converted once.
+    // The kernel reads a float32 or int16 volume as it is (shared); others are converted to
+    // float once.
     if (volume.pixel_type() == PixelType::Float32) {
       b.hu = volume.data_as<float>();
+    } else if (volume.pixel_type() == PixelType::Int16) {
+      b.hu16 = volume.data_as<int16_t>();
     } else {
       m.hu.resize(size_t(voxels));
       visit_pixel_type(volume.pixel_type(), [&](auto zero) {
@@ -194,9 +287,14 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
   m.volume = std::move(volume);
 
   // Wavelength, sampling and the point-spread function (docs/simulation.md §3).
+  const ImageGrid& img = probe.image;
   const double lambda = simulate_impl::kSoundSpeedMmPerUs / settings.frequency_mhz;
-  b.frequency_mhz = settings.frequency_mhz;
-  b.step_mm = lambda / 4;
+  b.frequency_mhz = float(settings.frequency_mhz);
+  b.wavelength_mm = lambda;
+  // The axial step: two samples per image row, between λ/4 and λ/2. The complex echo's
+  // spectrum (the PSF's, axial FWHM λ) is sampled at λ/2 or finer; a finer step only matters
+  // when the image's rows are finer.
+  b.step_mm = float(std::min(lambda / 2, std::max(lambda / 4, img.spacing_mm[1] / 2)));
   const double axial = settings.axial_fwhm_mm > 0 ? settings.axial_fwhm_mm : lambda;
   const double lateral = settings.lateral_fwhm_mm > 0 ? settings.lateral_fwhm_mm : 2 * lambda;
   const double elevation = settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda;
@@ -208,14 +306,15 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
     const double s = fwhm * simulate_impl::kFwhmToSigma;
     return std::sqrt(std::max(s * s - lattice_var, 0.0));
   };
-  b.sigma_axial_samples = filter_sigma(axial) / b.step_mm;
-  b.sigma_lateral_mm = filter_sigma(lateral);
-  b.specular_sigma_axial_samples = axial * simulate_impl::kFwhmToSigma / b.step_mm;
-  b.specular_sigma_lateral_mm = lateral * simulate_impl::kFwhmToSigma;
+  b.sigma_lateral_speckle_mm = filter_sigma(lateral);
   // Interface normals from impedance differences over a millimetre-scale neighbourhood: at
   // least two voxels, so that a voxelised oblique surface shows its slope, not its stairs.
-  b.gradient_mm = std::max(
-      b.step_mm, 2 * std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]}));
+  b.gradient_mm =
+      float(std::max(double(b.step_mm),
+                     2 * std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]})));
+  b.gradient_reuse = int(b.gradient_mm / (2 * b.step_mm));
+  const double quarter_steps = b.step_mm / (lambda / 4);
+  b.min_reflection = float(simulate_impl::kMinReflection * quarter_steps * quarter_steps);
   const double sigma_el = elevation * simulate_impl::kFwhmToSigma;
   // The slice thickness: elevation samples about a lattice step apart over ±1.5σ, Gaussian
   // weights (a quadrature of the beam's elevation profile, so that a small elevational move
@@ -224,16 +323,17 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
       std::min(simulate_impl::kMaxElevations / 2 - 1, int(std::ceil(1.5 * sigma_el / lambda)));
   b.elevations = 2 * half + 1;
   double wsum = 0;
+  double weights[simulate_impl::kMaxElevations];
   for (int e = 0; e < b.elevations; ++e) {
     const double offset = (e - half) * (1.5 * sigma_el / std::max(half, 1));
-    b.elevation_mm[e] = offset;
-    b.elevation_weight[e] = std::exp(-0.5 * offset * offset / (sigma_el * sigma_el));
-    wsum += b.elevation_weight[e] * b.elevation_weight[e];
+    b.elevation_mm[e] = float(offset);
+    weights[e] = std::exp(-0.5 * offset * offset / (sigma_el * sigma_el));
+    wsum += weights[e] * weights[e];
   }
-  for (int e = 0; e < b.elevations; ++e) b.elevation_weight[e] /= std::sqrt(wsum);
+  for (int e = 0; e < b.elevations; ++e)
+    b.elevation_weight[e] = float(weights[e] / std::sqrt(wsum));
 
   // The speckle lattice: one node per wavelength in the volume frame, two co-prime tiles.
-  const int sizes[2] = {37, 41};
   for (int k = 0; k < 3; ++k) b.lattice_per_index[k] = grid.spacing_mm[k] / lambda;
   // Lattice coordinates met: the volume (noise is drawn only inside it) and the slice thickness
   // around it, plus a margin.
@@ -242,22 +342,17 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
   for (int k = 0; k < 3; ++k)
     extent = std::max(extent, int(std::ceil(double(grid.dims[k]) * b.lattice_per_index[k])));
   const int offset = int(std::ceil(reach)), count = extent + 2 * offset + 2;
+  b.lattice_offset = float(offset);
+  b.lattice_count = count;
   for (int t = 0; t < 2; ++t) {
-    m.tiles[t] = simulate_impl::noise_tile(sizes[t], settings.seed * 2 + uint64_t(t) + 1);
-    m.wraps[t].resize(size_t(count));
-    for (int i = 0; i < count; ++i)
-      m.wraps[t][size_t(i)] = ((i - offset) % sizes[t] + sizes[t]) % sizes[t];
-    b.tiles[t] = {m.tiles[t].data(), sizes[t], m.wraps[t].data(), offset, count};
+    m.tiles[t] = simulate_impl::noise_tile(simulate_impl::kTileSizes[t],
+                                           settings.seed * 2 + uint64_t(t) + 1);
+    b.tiles[t] = simulate_impl::tile_view(m.tiles[t], simulate_impl::kTileSizes[t], offset);
   }
 
   // Beams: one per image column, over the probe's shape.
-  const ImageGrid& img = probe.image;
   b.width = img.width;
   b.height = img.height;
-  b.x0 = img.origin_mm[0];
-  b.y0 = img.origin_mm[1];
-  b.sx = img.spacing_mm[0];
-  b.sy = img.spacing_mm[1];
   b.beams = img.width;
   const double last_row_y = img.origin_mm[1] + (img.height - 1) * img.spacing_mm[1];
   if (probe.type == ProbeType::Curvilinear) {
@@ -278,11 +373,59 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
     throw InputError("probe: " + std::to_string(b.beams) + " beams of " +
                      std::to_string(b.samples) + " samples at " + std::to_string(b.step_mm) +
                      " mm is too many for one image");
-  b.speckle_gain = simulate_impl::speckle_gain(b);
+
+  // The filters: axial in samples (peak 1: an echo keeps the pulse's amplitude), lateral per
+  // depth in beams (sum 1: a plane reflector across the beams keeps its amplitude).
+  m.axial_speckle = simulate_impl::gauss_taps(filter_sigma(axial) / b.step_mm, false, 48);
+  m.axial_specular =
+      simulate_impl::gauss_taps(axial * simulate_impl::kFwhmToSigma / b.step_mm, false, 48);
+  b.axial_speckle = m.axial_speckle.data();
+  b.axial_speckle_radius = int(m.axial_speckle.size() / 2);
+  b.axial_specular = m.axial_specular.data();
+  b.axial_specular_radius = int(m.axial_specular.size() / 2);
+  b.lateral_radius = std::max(
+      simulate_impl::lateral_table(b, b.sigma_lateral_speckle_mm, m.lateral_speckle),
+      simulate_impl::lateral_table(b, lateral * simulate_impl::kFwhmToSigma, m.lateral_specular));
+  b.lateral_speckle = m.lateral_speckle.data();
+  b.lateral_specular = m.lateral_specular.data();
+
+  // Scan conversion: each pixel's place in the (beam, sample) grid, once.
+  const int64_t pixels = int64_t(img.width) * img.height;
+  m.scan_index.assign(size_t(pixels), 0);
+  m.scan_steps.assign(size_t(pixels), 0);
+  m.scan_weights.assign(size_t(pixels) * 2, 0.f);
+  for (int v = 0; v < img.height; ++v)
+    for (int u = 0; u < img.width; ++u) {
+      const size_t i = size_t(v) * size_t(img.width) + size_t(u);
+      if (!m.mask[i]) continue;
+      const double x = img.origin_mm[0] + u * img.spacing_mm[0],
+                   y = img.origin_mm[1] + v * img.spacing_mm[1];
+      double fb, fs;
+      if (b.curvilinear) {
+        const double dy = y - b.apex_y;
+        fb = (std::atan2(x, dy) - b.beam0) / b.beam_step;
+        fs = (std::sqrt(x * x + dy * dy) - b.start) / b.step_mm - 0.5;
+      } else {
+        fb = (x - b.beam0) / b.beam_step;
+        fs = (y - b.start) / b.step_mm - 0.5;
+      }
+      fb = std::min(std::max(fb, 0.0), double(b.beams - 1));
+      fs = std::min(std::max(fs, 0.0), double(b.samples - 1));
+      const int b0 = int(fb), s0 = int(fs);
+      m.scan_index[i] = b0 * b.samples + s0;
+      m.scan_steps[i] = uint8_t((b0 + 1 < b.beams ? 1 : 0) | (s0 + 1 < b.samples ? 2 : 0));
+      m.scan_weights[2 * i] = float(fb - b0);
+      m.scan_weights[2 * i + 1] = float(fs - s0);
+    }
+  b.mask = m.mask.data();
+  b.scan_index = m.scan_index.data();
+  b.scan_steps = m.scan_steps.data();
+  b.scan_weights = m.scan_weights.data();
+
+  b.speckle_gain = float(simulate_impl::speckle_gain(b, m.tiles));
   b.tgc_auto = settings.tgc_auto;
   b.bmode = settings.output == SimulationOutput::BMode;
-  b.dynamic_range_db = settings.dynamic_range_db;
-  b.mask = m.mask.data();
+  b.dynamic_range_db = float(settings.dynamic_range_db);
 }
 
 Simulator::~Simulator() = default;
@@ -315,94 +458,10 @@ size_t Simulator::image_bytes() const {
 }
 
 namespace simulate_impl {
-namespace {
-
-/// One image: trace every beam, the PSF (axial, then lateral at each depth), the envelope, TGC
-/// and log compression, then scan conversion onto the probe's grid.
-void simulate_image(const ImageModel& m, void* out, std::vector<float>& echo,
-                    std::vector<float>& specular, std::vector<float>& loss,
-                    std::vector<float>& tmp) {
-  const int B = m.beams, S = m.samples;
-  echo.resize(size_t(B) * S * 2);
-  specular.resize(size_t(B) * S * 2);
-  loss.resize(size_t(B) * S);
-  tmp.resize(size_t(std::max(B, S)) * 2);
-  for (int b = 0; b < B; ++b)
-    trace_beam(m, b, echo.data() + 2 * size_t(b) * S, specular.data() + 2 * size_t(b) * S,
-               loss.data() + size_t(b) * S);
-  for (int b = 0; b < B; ++b) {
-    gauss_complex(echo.data() + 2 * size_t(b) * S, S, 1, m.sigma_axial_samples, Scale::Peak,
-                  tmp.data());
-    gauss_complex(specular.data() + 2 * size_t(b) * S, S, 1, m.specular_sigma_axial_samples,
-                  Scale::Peak, tmp.data());
-  }
-  for (int s = 0; s < S; ++s) {
-    // Beams are beam_step apart: in mm at this depth for a fan, as given for a linear probe.
-    const double spacing_mm =
-        m.curvilinear ? (m.start + (s + 0.5) * m.step_mm) * m.beam_step : m.beam_step;
-    gauss_complex(echo.data() + 2 * size_t(s), B, S, m.sigma_lateral_mm / spacing_mm, Scale::Sum,
-                  tmp.data());
-    gauss_complex(specular.data() + 2 * size_t(s), B, S, m.specular_sigma_lateral_mm / spacing_mm,
-                  Scale::Sum, tmp.data());
-  }
-  for (size_t i = 0; i < echo.size(); i += 2) echo[i] += specular[i];
-  // TGC: the median round-trip attenuation across the beams at each depth (auto), or none. The
-  // median, not the mean: a few beams through gas or bone lose far more, and compensating them
-  // would flood the others.
-  std::vector<float>& level = tmp;
-  level.assign(size_t(S), 0.f);
-  if (m.tgc_auto) {
-    std::vector<float> across(static_cast<size_t>(B));
-    for (int s = 0; s < S; ++s) {
-      for (int b = 0; b < B; ++b) across[size_t(b)] = loss[size_t(b) * S + s];
-      std::nth_element(across.begin(), across.begin() + B / 2, across.end());
-      level[size_t(s)] = across[size_t(B / 2)];
-    }
-  }
-  // Scan conversion: the complex echo bilinear in (beam, sample) at each pixel inside the mask
-  // (interpolating the complex signal keeps the speckle's statistics; an envelope would be
-  // smoothed), then the envelope, TGC and log compression.
-  for (int v = 0; v < m.height; ++v)
-    for (int u = 0; u < m.width; ++u) {
-      const int64_t i = int64_t(v) * m.width + u;
-      double env = 0, gain_db = 0;
-      if (m.mask[i]) {
-        const double x = m.x0 + u * m.sx, y = m.y0 + v * m.sy;
-        double fb, fs;
-        if (m.curvilinear) {
-          const double dy = y - m.apex_y;
-          fb = (std::atan2(x, dy) - m.beam0) / m.beam_step;
-          fs = (std::sqrt(x * x + dy * dy) - m.start) / m.step_mm - 0.5;
-        } else {
-          fb = (x - m.beam0) / m.beam_step;
-          fs = (y - m.start) / m.step_mm - 0.5;
-        }
-        fb = clampd(fb, 0, B - 1);
-        fs = clampd(fs, 0, S - 1);
-        const int b0 = int(fb), s0 = int(fs);
-        const int b1 = b0 + 1 < B ? b0 + 1 : b0, s1 = s0 + 1 < S ? s0 + 1 : s0;
-        const double tb = fb - b0, ts = fs - s0;
-        double c[2];
-        for (int k = 0; k < 2; ++k) {
-          const auto at = [&](int b, int s) { return double(echo[2 * (size_t(b) * S + s) + k]); };
-          const double lo = at(b0, s0) + ts * (at(b0, s1) - at(b0, s0));
-          const double hi = at(b1, s0) + ts * (at(b1, s1) - at(b1, s0));
-          c[k] = lo + tb * (hi - lo);
-        }
-        env = std::sqrt(c[0] * c[0] + c[1] * c[1]);
-        gain_db = level[size_t(s0)] + ts * (level[size_t(s1)] - level[size_t(s0)]);
-      }
-      if (!m.bmode) {
-        static_cast<float*>(out)[i] = float(env);
-        continue;
-      }
-      const double db = env > 0 ? 20 * std::log10(env) + gain_db : -1e9;
-      const double grey = clampd(255.0 * (1.0 + db / m.dynamic_range_db), 0.0, 255.0);
-      static_cast<uint8_t*>(out)[i] = uint8_t(std::floor(grey + 0.5));
-    }
-}
-
-}  // namespace
+void simulate_cpu(const ImageModel& base, const IndexMap* maps, size_t count, uint8_t* out,
+                  size_t image_bytes);
+void simulate_cpu_avx2(const ImageModel& base, const IndexMap* maps, size_t count, uint8_t* out,
+                       size_t image_bytes);
 }  // namespace simulate_impl
 
 void Simulator::simulate(const Pose* poses, size_t count, void* out, size_t first_index) const {
@@ -412,24 +471,31 @@ void Simulator::simulate(const Pose* poses, size_t count, void* out, size_t firs
   const VolumeGrid& grid = m.volume.grid();
   const Mat3 L = grid.world_to_index_linear();
   const Vec3 o = grid.world_to_index_offset();
-  const size_t bytes = image_bytes();
-  backend::parallel_for(int64_t(count), [&](int64_t n) {
-    ImageModel im = m.base;
+  std::vector<simulate_impl::IndexMap> maps(count);
+  for (size_t n = 0; n < count; ++n) {
     const Pose& p = poses[n];
+    double* A = maps[n].A;
+    double* a = maps[n].a;
     for (int r = 0; r < 3; ++r) {
       for (int c = 0; c < 3; ++c) {
         double s = 0;
         for (int k = 0; k < 3; ++k) s += L.m[r][k] * p.m[k][c];
-        im.A[3 * r + c] = s;
+        A[3 * r + c] = s;
       }
       double t = o[r];
       for (int k = 0; k < 3; ++k) t += L.m[r][k] * p.m[k][3];
-      im.a[r] = t;
+      a[r] = t;
     }
-    thread_local std::vector<float> echo, specular, loss, tmp;
-    simulate_impl::simulate_image(im, static_cast<uint8_t*>(out) + size_t(n) * bytes, echo,
-                                  specular, loss, tmp);
-  });
+  }
+#ifdef SONOSLICE_HAVE_AVX2_KERNELS
+  if (cpu_kernel_isa() == "avx2") {
+    simulate_impl::simulate_cpu_avx2(m.base, maps.data(), count, static_cast<uint8_t*>(out),
+                                     image_bytes());
+    return;
+  }
+#endif
+  simulate_impl::simulate_cpu(m.base, maps.data(), count, static_cast<uint8_t*>(out),
+                              image_bytes());
 }
 
 }  // namespace sonoslice

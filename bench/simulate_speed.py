@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""Simulation speed against slicing on the same poses (issue 13's target): W1 (fan-slicer's LUS
+fan at --downsampling 2, the `lus` preset's probe, 334x272) on the full phantom CT, through the
+CLI, written to .npy. Each figure is the compute time that `--verbose` reports ("simulate X s",
+"slice X s": no loading or writing) and the command's wall time, for the same poses, in runs that
+alternate so that both see the same machine.
+
+  build/venv/bin/python bench/simulate_speed.py [--poses 400] [--threads 2] [--repeat 5]
+      [--phantom DIR]                # a phantom written by `sonoslice phantom DIR --size full`
+      [--baseline OTHER/sonoslice]   # also time another build's simulate, alternating
+
+This machine is shared: single runs move by ±30 %, so the median and the best of each are
+reported, and the ratio simulate : slice is taken from the medians of the same run.
+"""
+import argparse
+import os
+import re
+import statistics
+import subprocess
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CLI = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonoslice"))
+W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+COMPUTE = re.compile(r"(?:simulate|slice) ([0-9.]+) s \(")
+
+
+def timed(cmd):
+    """(compute seconds from --verbose, wall seconds) of one run."""
+    start = time.perf_counter()
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if run.returncode != 0:
+        raise SystemExit(f"failed: {' '.join(cmd)}\n{run.stderr}")
+    match = COMPUTE.search(run.stderr)
+    if not match:
+        raise SystemExit(f"no timing in the output of {' '.join(cmd)}:\n{run.stderr}")
+    return float(match.group(1)), wall
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--poses", type=int, default=400)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--phantom", help="a directory with ct.* from `sonoslice phantom --size full`")
+    ap.add_argument("--baseline", help="another build's sonoslice executable, timed alternately")
+    args = ap.parse_args()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        phantom = args.phantom
+        if not phantom:
+            phantom = os.path.join(tmp, "phantom")
+            print("writing the full phantom (512x512x400) ...", flush=True)
+            subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
+        ct = next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom)) if f.startswith("ct."))
+        # Random poses inside the body: the phantom command's benchmark poses, cycled to --poses.
+        subprocess.run([CLI, "phantom", os.path.join(tmp, "poses"), "--size", "full", "--format", "nii",
+                        "--poses", "64", "-q"], check=True)
+        base = np.load(os.path.join(tmp, "poses", "poses.npy"))
+        poses = os.path.join(tmp, "poses.npy")
+        np.save(poses, np.concatenate([base] * (args.poses // len(base) + 1))[: args.poses])
+        out = os.path.join(tmp, "out.npy")
+        threads = ["--threads", str(args.threads), "-v"]
+        runs = {
+            "slice": [CLI, "slice", "--volume", ct, "--probe", W1, "--downsampling", "2", "--poses", poses,
+                      "--out", out] + threads,
+            "simulate": [CLI, "simulate", "--volume", ct, "--preset", "lus", "--poses", poses, "--out", out]
+            + threads,
+        }
+        if args.baseline:
+            runs["simulate (baseline)"] = [args.baseline] + runs["simulate"][1:]
+        times = {name: [] for name in runs}
+        for _ in range(args.repeat):
+            for name, cmd in runs.items():
+                times[name].append(timed(cmd))
+
+    n = args.poses
+    print(f"\nW1 (334x272, lus preset, 6.5 MHz) on the full phantom CT, {n} poses, {args.threads} threads, "
+          f"{args.repeat} alternating runs\n")
+    print("| command | images/s, compute (median; best) | images/s, wall incl. load and write (median) |")
+    print("|---|---|---|")
+    medians = {}
+    for name, t in times.items():
+        compute = [c for c, _ in t]
+        wall = [w for _, w in t]
+        medians[name] = statistics.median(compute)
+        print(f"| {name} | {n / medians[name]:.1f}; {n / min(compute):.1f} | {n / statistics.median(wall):.1f} |")
+    print(f"\nsimulate costs {medians['simulate'] / medians['slice']:.1f}x slice (medians of the same run); "
+          f"issue 13's targets: >= 1000 images/s and <= ~4x slice")
+    if args.baseline:
+        print(f"this build against the baseline: {medians['simulate (baseline)'] / medians['simulate']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()

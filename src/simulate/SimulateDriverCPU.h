@@ -1,0 +1,90 @@
+#pragma once
+/// @file The CPU driver of the simulation kernel (SimulateImpl.h): one image per task, its
+/// stages run in a fixed order on one thread with that thread's buffers, so the bytes do not
+/// depend on the number of threads. Included by SimulateCPU.cpp (generic x86-64) and
+/// SimulateCPUAvx2.cpp (AVX2 + FMA); Simulator.cpp picks one at run time.
+#include <algorithm>
+#include <vector>
+
+#include "../backend/ParallelFor.h"
+#include "SimulateImpl.h"
+
+namespace sonoslice {
+namespace simulate_impl {
+inline namespace SONOSLICE_KERNEL_ISA {
+
+/// One thread's buffers for one image at a time (beam-major, sample s of beam b at b·S + s).
+struct Scratch {
+  std::vector<float> echo, echo_filtered, specular, specular_filtered, loss, tmp, level, across;
+};
+
+/// One image: trace every beam, the PSF (axial along each beam, then lateral across the beams
+/// at each depth), TGC levels, then scan conversion, envelope and log compression.
+inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
+  const int B = m.beams, S = m.samples;
+  const size_t n = size_t(B) * size_t(S);
+  w.echo.resize(2 * n);
+  w.echo_filtered.resize(2 * n);
+  w.specular.resize(n);
+  w.specular_filtered.resize(n);
+  w.loss.resize(n);
+  w.tmp.resize(2 * size_t(S));
+  w.level.assign(size_t(S), 0.f);
+  w.across.resize(size_t(B));
+  for (int b = 0; b < B; ++b) {
+    trace_beam(m, b, w.echo.data(), w.specular.data(), w.loss.data());
+    add_speckle(m, b, w.echo.data());
+  }
+  for (int b = 0; b < B; ++b) {
+    filter_axial(w.echo.data() + 2 * size_t(b) * S, S, 2, m.axial_speckle, m.axial_speckle_radius,
+                 w.tmp.data());
+    filter_axial(w.specular.data() + size_t(b) * S, S, 1, m.axial_specular, m.axial_specular_radius,
+                 w.tmp.data());
+  }
+  for (int b = 0; b < B; ++b) {
+    filter_lateral(w.echo.data(), w.echo_filtered.data(), B, S, 2, m.lateral_speckle,
+                   m.lateral_radius, b);
+    filter_lateral(w.specular.data(), w.specular_filtered.data(), B, S, 1, m.lateral_specular,
+                   m.lateral_radius, b);
+  }
+  for (size_t i = 0; i < n; ++i) w.echo_filtered[2 * i] += w.specular_filtered[i];
+  // TGC: the median round-trip attenuation across the beams at each depth (auto), or none. The
+  // median, not the mean: a few beams through gas or bone lose far more, and compensating them
+  // would flood the others. Taken every kTgcStride samples and linear between: the attenuation
+  // met grows by hundredths of a dB per sample, and each median reads a sample of every beam.
+  if (m.tgc_auto) {
+    constexpr int kTgcStride = 8;
+    const auto median_at = [&](int s) {
+      for (int b = 0; b < B; ++b) w.across[size_t(b)] = w.loss[size_t(b) * S + size_t(s)];
+      std::nth_element(w.across.begin(), w.across.begin() + B / 2, w.across.end());
+      return w.across[size_t(B / 2)];
+    };
+    float before = median_at(0);
+    w.level[0] = before;
+    for (int s0 = 0; s0 < S - 1; s0 += kTgcStride) {
+      const int s1 = std::min(s0 + kTgcStride, S - 1);
+      const float after = median_at(s1);
+      for (int s = s0 + 1; s <= s1; ++s)
+        w.level[size_t(s)] = before + (after - before) * float(s - s0) / float(s1 - s0);
+      before = after;
+    }
+  }
+  const int64_t pixels = int64_t(m.width) * m.height;
+  for (int64_t i = 0; i < pixels; ++i)
+    scan_pixel(m, w.echo_filtered.data(), w.level.data(), i, out);
+}
+
+/// `count` images, pose n's map maps[n], into out (image n at n·image_bytes).
+inline void simulate_images(const ImageModel& base, const IndexMap* maps, size_t count,
+                            uint8_t* out, size_t image_bytes) {
+  backend::parallel_for(int64_t(count), [&](int64_t n) {
+    ImageModel im = base;
+    set_pose(im, maps[n]);
+    thread_local Scratch scratch;
+    simulate_image(im, out + size_t(n) * image_bytes, scratch);
+  });
+}
+
+}  // namespace SONOSLICE_KERNEL_ISA
+}  // namespace simulate_impl
+}  // namespace sonoslice
