@@ -12,5 +12,6 @@ void add_bench_command(CLI::App& app);
 void add_voxelize_command(CLI::App& app);
 void add_compound_command(CLI::App& app);
 void add_simulate_command(CLI::App& app);
+void add_register_command(CLI::App& app);
 }  // namespace cli
 }  // namespace sonoslice

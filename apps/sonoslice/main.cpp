@@ -71,6 +71,7 @@ int main(int argc, char** argv) {
   sonoslice::cli::add_voxelize_command(app);
   sonoslice::cli::add_compound_command(app);
   sonoslice::cli::add_simulate_command(app);
+  sonoslice::cli::add_register_command(app);
   sonoslice::cli::add_bench_command(app);
   sonoslice::set_warning_handler(&print_warning);
   // Ctrl-C, SIGTERM or a file-size limit mid-write: the half-written temporaries go, good outputs

@@ -341,6 +341,48 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
 #endif
 }
 
+Volume read_image_stack(const std::string& path, const std::string& what) {
+  std::error_code ec;
+  if (!fs::is_directory(path, ec)) {
+    if (!fs::exists(path, ec)) throw FileError(what + " '" + path + "': no such file");
+    // A stack of images has no voxel geometry to warn about: .npy frames get the default one.
+    VolumeReadOptions options;
+    if (image_format(path, what) == ImageFormat::Npy) options.spacing_mm = Vec3{1, 1, 1};
+    return read_volume(path, options);
+  }
+  std::vector<std::string> files;
+  for (const auto& entry : fs::directory_iterator(path, ec))
+    if (entry.is_regular_file() && file_extension(entry.path().string()) == ".png")
+      files.push_back(entry.path().string());
+  if (ec) throw FileError(what + " '" + path + "': cannot list the folder (" + ec.message() + ")");
+  if (files.empty()) throw InputError(what + " '" + path + "': a folder without .png images");
+  std::sort(files.begin(), files.end());
+#ifdef SONOSLICE_HAVE_ITK
+  Volume stack;
+  for (size_t k = 0; k < files.size(); ++k) {
+    const Volume image = itk_io::read_image_file(files[k]);
+    const VolumeGrid& g = image.grid();
+    if (g.dims[2] != 1) throw InputError(what + " '" + files[k] + "': not a 2-D image");
+    if (k == 0) {
+      VolumeGrid grid = g;
+      grid.dims[2] = int64_t(files.size());
+      stack = Volume::allocate(image.pixel_type(), grid);
+    } else if (g.dims[0] != stack.grid().dims[0] || g.dims[1] != stack.grid().dims[1] ||
+               image.pixel_type() != stack.pixel_type()) {
+      throw InputError(what + " '" + files[k] + "': " + std::to_string(g.dims[0]) + "x" +
+                       std::to_string(g.dims[1]) + " " + to_string(image.pixel_type()) +
+                       ", unlike the first image's " + std::to_string(stack.grid().dims[0]) + "x" +
+                       std::to_string(stack.grid().dims[1]) + " " + to_string(stack.pixel_type()));
+    }
+    const size_t bytes = size_t(g.dims[0] * g.dims[1]) * pixel_size(image.pixel_type());
+    std::memcpy(static_cast<uint8_t*>(stack.data()) + k * bytes, image.data(), bytes);
+  }
+  return stack;
+#else
+  no_itk(path);
+#endif
+}
+
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
 #ifdef SONOSLICE_HAVE_ITK
   return itk_io::list_dicom_series(directory);

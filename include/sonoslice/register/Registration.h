@@ -1,0 +1,115 @@
+#pragma once
+/// @file Registration of ultrasound frames to a volume (issue 14, first part): analytic pose
+/// gradients of slice-to-frame similarity metrics, fused in one pass over the pixels (no image
+/// is materialised), and Gauss–Newton / Levenberg–Marquardt pose optimisation with multi-start
+/// and a coarse-to-fine schedule. docs/registration.md has the formulas.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "sonoslice/geometry/Pose.h"
+#include "sonoslice/geometry/Probe.h"
+#include "sonoslice/volume/Volume.h"
+
+namespace sonoslice {
+
+enum class RegistrationMetric {
+  SSD,  ///< mean squared difference (frame and volume on the same intensity scale)
+  NCC   ///< normalised cross-correlation (any linear intensity relation); cost 1 − NCC
+};
+enum class RegistrationOptimizer { GaussNewton, LevenbergMarquardt };
+enum class RegistrationMode {
+  PerFrame,   ///< each frame's pose refined on its own (6 DoF each)
+  RigidSweep  ///< one world-frame correction X shared by all frames: refined poses X · T_i
+};
+
+RegistrationMetric parse_registration_metric(const std::string& name);        ///< "ssd", "ncc"
+RegistrationOptimizer parse_registration_optimizer(const std::string& name);  ///< "gn", "lm"
+RegistrationMode parse_registration_mode(const std::string& name);            ///< "per-frame", ...
+const char* to_string(RegistrationMetric metric);
+
+struct RegistrationSettings {
+  RegistrationMetric metric = RegistrationMetric::NCC;
+  RegistrationOptimizer optimizer = RegistrationOptimizer::LevenbergMarquardt;
+  RegistrationMode mode = RegistrationMode::PerFrame;
+  /// Optimisations per frame (per sweep in rigid-sweep mode): the initial pose, then starts − 1
+  /// points drawn around it (rotation up to search_rot_deg about a random axis through the
+  /// frame's centre, translation uniform in a ball of search_trans_mm); the best end wins.
+  int starts = 1;
+  double search_rot_deg = 10, search_trans_mm = 10;
+  uint64_t seed = 0;  ///< the multi-start draws
+  /// Coarse to fine: at level k the volume is averaged over blocks of pyramid[k]³ voxels and
+  /// the frame over blocks of pyramid[k]² pixels, of which one pixel per block is compared.
+  std::vector<int> pyramid = {8, 4, 2, 1};
+  int max_iterations = 50;  ///< per level
+  /// Converged when a step moves the frame's centre less than this (mm) and turns it less than
+  /// tolerance_deg.
+  double tolerance_mm = 1e-3, tolerance_deg = 1e-3;
+  /// Throws InputError for starts < 1, negative or non-finite spreads, an empty pyramid or a
+  /// level < 1, max_iterations < 1, non-positive tolerances.
+  void validate() const;
+};
+
+/// One frame's outcome (JSON report fields, docs/registration.md §4).
+struct FrameReport {
+  size_t index = 0;
+  double metric = 0;  ///< the final cost at full resolution (SSD, or 1 − NCC)
+  int64_t evaluations = 0, iterations = 0;
+  double translation_change_mm = 0, rotation_change_deg = 0;  ///< refined against initial
+};
+
+struct RegistrationReport {
+  std::vector<FrameReport> frames;
+  int64_t evaluations = 0;
+  double seconds = 0;
+};
+
+/// The metric's sums at one pose over the pixels of one frame, and their derivatives with
+/// respect to a world-frame increment ξ = (v, ω) of the pose about a centre c:
+/// T(ξ) = Tr(c)·exp(ξ)·Tr(−c)·T, i.e. a pixel's world point w moves by v + ω × (w − c).
+/// J = dI/dξ = (∇I, (w − c) × ∇I) per pixel, with ∇I the trilinear gradient in world mm.
+struct PoseTerms {
+  double n = 0;  ///< pixels compared (inside the masks and volume)
+  double si = 0, sf = 0, sii = 0, sff = 0, sif = 0;  ///< Σ I, Σ F, Σ I², Σ F², Σ I·F
+  double sj[6] = {}, sij[6] = {}, sfj[6] = {};       ///< Σ J, Σ I·J, Σ F·J
+  double sjj[21] = {};                               ///< Σ J·Jᵀ, upper triangle row by row
+  void add(const PoseTerms& other);
+};
+
+/// The cost (SSD: Σ(I − F)²/n; NCC: 1 − ρ), its gradient and a Gauss–Newton matrix (6×6,
+/// row-major) from the terms; cost is +inf with fewer than 16 pixels.
+double metric_cost(RegistrationMetric metric, const PoseTerms& t, double* gradient = nullptr,
+                   double* hessian = nullptr);
+
+/// Applies the increment ξ = (v, ω) about centre c to pose T: Tr(c)·exp(ξ)·Tr(−c)·T.
+Pose apply_increment(const Pose& pose, const double xi[6], const Vec3& centre);
+
+/// Bound to one volume (read as float, shared when float32), one probe, a stack of frames
+/// (count × H × W floats, the probe's grid) and an optional H×W user mask (non-zero: compare).
+class FrameRegistration {
+ public:
+  FrameRegistration(const Volume& volume, const ProbeGeometry& probe, const float* frames,
+                    size_t frame_count, const uint8_t* user_mask = nullptr);
+  ~FrameRegistration();
+
+  /// The terms of frame `frame` at `pose` at pyramid level `level` (a block size of the
+  /// settings' pyramid; 1: every pixel of the full-resolution volume), with their derivatives
+  /// about `centre` when `gradients`.
+  PoseTerms terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
+                  bool gradients) const;
+  /// The world point of the centre of frame `frame`'s compared pixels at `pose`.
+  Vec3 centre(size_t frame, const Pose& pose) const;
+
+  /// Refines the initial poses (one per frame; InputError naming "pose <i>" for a bad one) and
+  /// reports. Frames are optimised in parallel, each on one thread: the result does not depend
+  /// on the thread count.
+  std::vector<Pose> run(const std::vector<Pose>& initial, const RegistrationSettings& settings,
+                        RegistrationReport* report) const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
+}  // namespace sonoslice

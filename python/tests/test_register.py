@@ -1,0 +1,163 @@
+"""sonoslice register (issue 14): the CLI contract, outputs and bad input.
+
+Gradients and recovery are checked in C++ (tests/register/test_register.cpp); these run the
+command as users do: frames written by `sonoslice slice`, poses perturbed here.
+"""
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+REPORT_KEYS = {"index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg"}
+
+
+def run(cli, *args):
+    return subprocess.run([cli, *args], capture_output=True, encoding="utf-8", errors="replace", timeout=600)
+
+
+def rotation(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+def perturbed(poses, mm, deg, seed):
+    """Each pose turned by `deg` about a random axis through its origin and moved by `mm`."""
+    rng = np.random.default_rng(seed)
+    out = poses.copy()
+    for p in out:
+        d = rng.normal(size=3)
+        p[:3, :3] = rotation(rng.normal(size=3), np.deg2rad(deg)) @ p[:3, :3]
+        p[:3, 3] += mm * d / np.linalg.norm(d)
+    return out
+
+
+def one_line_error(r, needle):
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert r.stderr.startswith("sonoslice: error: ") and r.stderr.count("\n") == 1, r.stderr
+    assert needle in r.stderr, r.stderr
+
+
+@pytest.fixture(scope="module")
+def case(cli, tmp_path_factory):
+    """The small phantom's CT, 4 W1 fans at --downsampling 4 of true poses, initial poses 3 mm
+    and 3 degrees off."""
+    d = tmp_path_factory.mktemp("reg")
+    r = run(cli, "phantom", str(d / "ph"), "--poses", "4", "-q")
+    assert r.returncode == 0, r.stderr
+    truth = np.load(d / "ph" / "poses.npy")
+    np.save(d / "truth.npy", truth)
+    r = run(cli, "slice", "--volume", str(d / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
+            "--poses", str(d / "truth.npy"), "--out", str(d / "frames.npy"), "-q")
+    assert r.returncode == 0, r.stderr
+    np.save(d / "init.npy", perturbed(truth, 3, 3, 1))
+    return d
+
+
+def base_args(d, out="refined.npy"):
+    return ["register", "--volume", str(d / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
+            "--frames", str(d / "frames.npy"), "--poses", str(d / "init.npy"), "--out", str(d / out)]
+
+
+def errors(a, b):
+    mm = np.linalg.norm(a[:, :3, 3] - b[:, :3, 3], axis=1)
+    rel = np.einsum("nij,nkj->nik", a[:, :3, :3], b[:, :3, :3])
+    deg = np.rad2deg(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    return mm, deg
+
+
+def test_per_frame_refines_poses_and_reports(cli, case):
+    r = run(cli, *base_args(case), "--report", str(case / "report.json"), "--starts", "4",
+            "--search-rot-deg", "3", "--search-trans-mm", "3")
+    assert r.returncode == 0, r.stderr
+    refined = np.load(case / "refined.npy")
+    assert refined.shape == (4, 4, 4) and refined.dtype == np.float64
+    truth, init = np.load(case / "truth.npy"), np.load(case / "init.npy")
+    mm0, deg0 = errors(init, truth)
+    mm, deg = errors(refined, truth)
+    assert np.all(mm0 > 2) and np.all(deg0 > 2.9)
+    assert np.all(mm < 1) and np.all(deg < 1), (mm, deg)
+    report = json.load(open(case / "report.json"))
+    assert len(report["frames"]) == 4 and REPORT_KEYS <= set(report["frames"][0])
+    assert [f["index"] for f in report["frames"]] == [0, 1, 2, 3]
+    assert report["evaluations"] == sum(f["evaluations"] for f in report["frames"]) > 0
+    assert report["seconds"] > 0
+    for f, a, b in zip(report["frames"], mm0, deg0):
+        assert f["translation_change_mm"] > 0 and f["rotation_change_deg"] > 0
+
+
+def test_rigid_sweep_applies_one_correction(cli, case):
+    r = run(cli, *base_args(case, "sweep.npy"), "--mode", "rigid-sweep", "--metric", "ssd", "--optimizer", "gn")
+    assert r.returncode == 0, r.stderr
+    init, refined = np.load(case / "init.npy"), np.load(case / "sweep.npy")
+    # X = refined_i · init_i⁻¹ is the same for every frame.
+    X = [refined[k] @ np.linalg.inv(init[k]) for k in range(4)]
+    for k in range(1, 4):
+        np.testing.assert_allclose(X[k], X[0], atol=1e-9)
+
+
+def test_png_frames_and_a_user_mask(cli, case, tmp_path):
+    r = run(cli, "slice", "--volume", str(case / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
+            "--poses", str(case / "truth.npy"), "--out", str(tmp_path / "png") + "/", "--dtype", "uint16",
+            "--window", "0,4000", "-q")
+    assert r.returncode == 0, r.stderr
+    frames = np.load(case / "frames.npy")
+    mask = np.zeros(frames.shape[1:], np.uint8)
+    mask[: mask.shape[0] // 2] = 1  # the upper half only
+    np.save(tmp_path / "mask.npy", mask[None])
+    args = base_args(case, "png_refined.npy")
+    args[args.index("--frames") + 1] = str(tmp_path / "png")
+    r = run(cli, *args, "--mask", str(tmp_path / "mask.npy"))
+    assert r.returncode == 0, r.stderr
+    assert np.load(case / "png_refined.npy").shape == (4, 4, 4)
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--metric", "mutual"], "--metric mutual"),
+    (["--metric", "lc2"], "not implemented yet"),
+    (["--optimizer", "adam"], "--optimizer adam"),
+    (["--optimizer", "bobyqa"], "not implemented yet"),
+    (["--mode", "sweep"], "--mode sweep"),
+    (["--starts", "0"], "--starts 0"),
+    (["--search-trans-mm", "nan"], "--search-trans-mm"),
+    (["--pyramid", "4,0"], "--pyramid 4,0"),
+    (["--downsampling", "2"], "--frames"),
+])
+def test_bad_settings_are_one_line(cli, case, extra, needle):
+    args = base_args(case, "bad.npy")
+    if extra[0] in args:  # a flag the base arguments already give: replace its value
+        args[args.index(extra[0]) + 1] = extra[1]
+        extra = []
+    one_line_error(run(cli, *args, *extra), needle)
+    assert not os.path.exists(case / "bad.npy")
+
+
+def test_bad_inputs_leave_a_good_output_alone(cli, case, tmp_path):
+    good = tmp_path / "good.npy"
+    np.save(good, np.eye(4)[None])
+    before = good.read_bytes()
+
+    def args(**replace):
+        a = base_args(case)
+        a[a.index("--out") + 1] = str(good)
+        for flag, value in replace.items():
+            a[a.index("--" + flag) + 1] = value
+        return a
+
+    poses = np.load(case / "init.npy")
+    np.save(tmp_path / "three.npy", poses[:3])
+    one_line_error(run(cli, *args(poses=str(tmp_path / "three.npy"))), "3 poses for 4 frames")
+    bad = poses.copy()
+    bad[2, 0, 3] = np.nan
+    np.save(tmp_path / "nan.npy", bad)
+    one_line_error(run(cli, *args(poses=str(tmp_path / "nan.npy"))), "pose 2")
+    one_line_error(run(cli, *args(frames=str(tmp_path / "missing.npy"))), "missing.npy")
+    (tmp_path / "corrupt.npy").write_bytes(b"\x93NUMPY garbage")
+    one_line_error(run(cli, *args(frames=str(tmp_path / "corrupt.npy"))), "corrupt.npy")
+    one_line_error(run(cli, *args(volume=str(tmp_path / "none.nii.gz"))), "none.nii.gz")
+    one_line_error(run(cli, *base_args(case, "refined.txt")), "--out")
+    assert good.read_bytes() == before

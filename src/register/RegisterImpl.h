@@ -1,0 +1,92 @@
+#pragma once
+/// @file The registration kernel (docs/registration.md §2): one image row of one frame at one
+/// pose → the metric's sums and their pose derivatives, without materialising the slice. Plain
+/// structs and pointers; the CPU driver (Registration.cpp) sums the rows in order, so the result
+/// does not depend on the thread count.
+#include <cstdint>
+
+#include "sonoslice/backend/HostDevice.h"
+#include "sonoslice/register/Registration.h"
+
+namespace sonoslice {
+namespace register_impl {
+
+/// One frame at one pose, at one pyramid level.
+struct TermsLaunch {
+  const float* volume = nullptr;  // the level's volume, x fastest
+  int nx = 0, ny = 0, nz = 0;
+  double A[9], a[3];  // probe mm → the level's continuous index: A·p + a (row-major A)
+  double G[9];        // the level's index gradient → world gradient: ∇_w I = G · ∇_c I
+  double P[9], p[3];  // probe mm → world mm (the pose)
+  double centre[3];   // world point the rotation increments turn about
+  const float* frame = nullptr;   // the level's frame, width × height
+  const uint8_t* mask = nullptr;  // the level's mask (fan ∧ user ∧ finite frame)
+  int width = 0, height = 0;
+  double x0 = 0, y0 = 0, sx = 1, sy = 1;  // the level's pixel (u, v) → probe (x0 + u·sx, ...)
+  bool gradients = false;
+};
+
+/// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
+/// (trilinear, 0 ≤ c ≤ n − 1 on every axis).
+SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, PoseTerms& t) {
+  const double y = L.y0 + v * L.sy;
+  const int64_t sy = L.nx, sz = int64_t(L.nx) * L.ny;
+  for (int u = 0; u < L.width; ++u) {
+    const int64_t i = int64_t(v) * L.width + u;
+    if (!L.mask[i]) continue;
+    const double x = L.x0 + u * L.sx;
+    double c[3];
+    for (int k = 0; k < 3; ++k) c[k] = L.A[3 * k] * x + L.A[3 * k + 1] * y + L.a[k];
+    if (!(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= L.nx - 1 && c[1] <= L.ny - 1 &&
+          c[2] <= L.nz - 1))
+      continue;
+    const int x0 = c[0] < L.nx - 1 ? int(c[0]) : L.nx - 2;
+    const int y0 = c[1] < L.ny - 1 ? int(c[1]) : L.ny - 2;
+    const int z0 = c[2] < L.nz - 1 ? int(c[2]) : L.nz - 2;
+    if (x0 < 0 || y0 < 0 || z0 < 0) continue;  // a dimension of one voxel: no trilinear
+    const double tx = c[0] - x0, ty = c[1] - y0, tz = c[2] - z0;
+    const float* q = L.volume + z0 * sz + y0 * sy + x0;
+    const double v000 = q[0], v100 = q[1], v010 = q[sy], v110 = q[sy + 1], v001 = q[sz],
+                 v101 = q[sz + 1], v011 = q[sz + sy], v111 = q[sz + sy + 1];
+    // Trilinear value and its exact derivative along each index axis.
+    const double a00 = v000 + tx * (v100 - v000), a10 = v010 + tx * (v110 - v010);
+    const double a01 = v001 + tx * (v101 - v001), a11 = v011 + tx * (v111 - v011);
+    const double b0 = a00 + ty * (a10 - a00), b1 = a01 + ty * (a11 - a01);
+    const double I = b0 + tz * (b1 - b0);
+    const double F = L.frame[i];
+    t.n += 1;
+    t.si += I;
+    t.sf += F;
+    t.sii += I * I;
+    t.sff += F * F;
+    t.sif += I * F;
+    if (!L.gradients) continue;
+    const double dx00 = v100 - v000, dx10 = v110 - v010, dx01 = v101 - v001, dx11 = v111 - v011;
+    const double dx0 = dx00 + ty * (dx10 - dx00), dx1 = dx01 + ty * (dx11 - dx01);
+    const double gc[3] = {dx0 + tz * (dx1 - dx0), (a10 - a00) + tz * ((a11 - a01) - (a10 - a00)),
+                          b1 - b0};
+    double gw[3], w[3];
+    for (int k = 0; k < 3; ++k) {
+      gw[k] = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
+      w[k] = L.P[3 * k] * x + L.P[3 * k + 1] * y + L.p[k] - L.centre[k];
+    }
+    // J = (∇I, (w − c) × ∇I): a translation v moves the sample by v, a rotation ω about the
+    // centre by ω × (w − c), and ∇I·(ω × r) = ω·(r × ∇I).
+    const double J[6] = {gw[0],
+                         gw[1],
+                         gw[2],
+                         w[1] * gw[2] - w[2] * gw[1],
+                         w[2] * gw[0] - w[0] * gw[2],
+                         w[0] * gw[1] - w[1] * gw[0]};
+    int e = 0;
+    for (int r = 0; r < 6; ++r) {
+      t.sj[r] += J[r];
+      t.sij[r] += I * J[r];
+      t.sfj[r] += F * J[r];
+      for (int k = r; k < 6; ++k) t.sjj[e++] += J[r] * J[k];
+    }
+  }
+}
+
+}  // namespace register_impl
+}  // namespace sonoslice

@@ -1,0 +1,619 @@
+// Registration: the pyramid (block-averaged volume and frames), the metrics from the kernel's
+// sums (RegisterImpl.h), and Gauss–Newton / Levenberg–Marquardt with multi-start per frame or
+// for a whole sweep. docs/registration.md.
+#include "sonoslice/register/Registration.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <deque>
+#include <functional>
+#include <limits>
+
+#include "../backend/ParallelFor.h"
+#include "RegisterImpl.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/volume/PixelType.h"
+
+namespace sonoslice {
+
+RegistrationMetric parse_registration_metric(const std::string& name) {
+  if (name == "ssd") return RegistrationMetric::SSD;
+  if (name == "ncc") return RegistrationMetric::NCC;
+  if (name == "lncc" || name == "mi" || name == "lc2")
+    throw InputError("--metric " + name +
+                     ": not implemented yet (ssd and ncc are; docs/registration.md §6)");
+  throw InputError("--metric " + name + ": expected ssd or ncc");
+}
+
+RegistrationOptimizer parse_registration_optimizer(const std::string& name) {
+  if (name == "gn") return RegistrationOptimizer::GaussNewton;
+  if (name == "lm") return RegistrationOptimizer::LevenbergMarquardt;
+  if (name == "bobyqa" || name == "nelder-mead")
+    throw InputError("--optimizer " + name +
+                     ": not implemented yet (gn and lm are; docs/registration.md §6)");
+  throw InputError("--optimizer " + name + ": expected gn or lm");
+}
+
+RegistrationMode parse_registration_mode(const std::string& name) {
+  if (name == "per-frame") return RegistrationMode::PerFrame;
+  if (name == "rigid-sweep") return RegistrationMode::RigidSweep;
+  throw InputError("--mode " + name + ": expected per-frame or rigid-sweep");
+}
+
+const char* to_string(RegistrationMetric metric) {
+  return metric == RegistrationMetric::SSD ? "ssd" : "ncc";
+}
+
+void RegistrationSettings::validate() const {
+  if (starts < 1) throw InputError("--starts " + std::to_string(starts) + ": must be at least 1");
+  if (!(search_rot_deg >= 0 && search_rot_deg <= 180))
+    throw InputError("--search-rot-deg: must be in [0, 180] degrees");
+  if (!(search_trans_mm >= 0 && std::isfinite(search_trans_mm)))
+    throw InputError("--search-trans-mm: must be a finite distance >= 0 mm");
+  if (pyramid.empty()) throw InputError("pyramid: needs at least one level");
+  for (int f : pyramid)
+    if (f < 1 || f > 64) throw InputError("pyramid: levels are block sizes from 1 to 64");
+  if (max_iterations < 1) throw InputError("max_iterations: must be at least 1");
+  if (!(tolerance_mm > 0) || !(tolerance_deg > 0)) throw InputError("tolerances: must be > 0");
+}
+
+void PoseTerms::add(const PoseTerms& o) {
+  n += o.n;
+  si += o.si;
+  sf += o.sf;
+  sii += o.sii;
+  sff += o.sff;
+  sif += o.sif;
+  for (int k = 0; k < 6; ++k) {
+    sj[k] += o.sj[k];
+    sij[k] += o.sij[k];
+    sfj[k] += o.sfj[k];
+  }
+  for (int k = 0; k < 21; ++k) sjj[k] += o.sjj[k];
+}
+
+namespace {
+
+constexpr double kMinPixels = 16;
+
+/// The full 6×6 Σ J·Jᵀ from its upper triangle.
+void full_jj(const PoseTerms& t, double* out) {
+  int e = 0;
+  for (int r = 0; r < 6; ++r)
+    for (int k = r; k < 6; ++k) out[6 * r + k] = out[6 * k + r] = t.sjj[e++];
+}
+
+}  // namespace
+
+double metric_cost(RegistrationMetric metric, const PoseTerms& t, double* gradient,
+                   double* hessian) {
+  if (t.n < kMinPixels) return std::numeric_limits<double>::infinity();
+  const double n = t.n;
+  if (metric == RegistrationMetric::SSD) {
+    // Σ(I − F)²/n; its gradient 2·Σ(I − F)·J/n; Gauss–Newton 2·Σ J·Jᵀ/n.
+    const double cost = (t.sii - 2 * t.sif + t.sff) / n;
+    if (gradient)
+      for (int k = 0; k < 6; ++k) gradient[k] = 2 * (t.sij[k] - t.sfj[k]) / n;
+    if (hessian) {
+      full_jj(t, hessian);
+      for (int k = 0; k < 36; ++k) hessian[k] *= 2 / n;
+    }
+    return cost;
+  }
+  // NCC: ρ = cov / sqrt(var_I · var_F) over the compared pixels (sums centred by n).
+  const double cov = t.sif - t.si * t.sf / n;
+  const double vi = t.sii - t.si * t.si / n;
+  const double vf = t.sff - t.sf * t.sf / n;
+  if (!(vi > 0) || !(vf > 0)) return std::numeric_limits<double>::infinity();  // flat: no signal
+  const double root = std::sqrt(vi * vf);
+  const double rho = cov / root;
+  if (gradient)
+    for (int k = 0; k < 6; ++k) {
+      const double dcov = t.sfj[k] - t.sf * t.sj[k] / n;
+      const double dvi = 2 * (t.sij[k] - t.si * t.sj[k] / n);
+      gradient[k] = -(dcov / root - 0.5 * rho * dvi / vi);  // of 1 − ρ
+    }
+  if (hessian) {
+    // 1 − ρ = Σ r²/(2n) with r = (I − Ī)/σ_I − (F − F̄)/σ_F; dr ≈ (J − J̄)/σ_I, so the
+    // Gauss–Newton matrix is (Σ J·Jᵀ − n·J̄·J̄ᵀ)/var_I (σ_I² = var_I/n).
+    full_jj(t, hessian);
+    for (int r = 0; r < 6; ++r)
+      for (int k = 0; k < 6; ++k)
+        hessian[6 * r + k] = (hessian[6 * r + k] - t.sj[r] * t.sj[k] / n) / vi;
+  }
+  return 1 - rho;
+}
+
+Pose apply_increment(const Pose& pose, const double xi[6], const Vec3& c) {
+  // Rotation by ω (Rodrigues) about c, then translation by v: w ↦ c + v + R(ω)·(w − c).
+  const double w[3] = {xi[3], xi[4], xi[5]};
+  const double angle = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  Mat3 R;
+  if (angle > 0) {
+    const double k[3] = {w[0] / angle, w[1] / angle, w[2] / angle};
+    const double s = std::sin(angle), one_c = 1 - std::cos(angle);
+    const double K[3][3] = {{0, -k[2], k[1]}, {k[2], 0, -k[0]}, {-k[1], k[0], 0}};
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        double kk = 0;
+        for (int m = 0; m < 3; ++m) kk += K[i][m] * K[m][j];
+        R.m[i][j] = (i == j ? 1.0 : 0.0) + s * K[i][j] + one_c * kk;
+      }
+  }
+  const Vec3 rc = R * c;
+  const Vec3 shift = {c[0] + xi[0] - rc[0], c[1] + xi[1] - rc[1], c[2] + xi[2] - rc[2]};
+  return Mat4::from_rotation_translation(R, shift) * pose;
+}
+
+namespace {
+
+/// One pyramid level: every frame and the mask averaged over f² pixel blocks, the volume over
+/// g³ voxel blocks, g the largest whole number of voxels within f pixels (at least 1): a volume
+/// already coarser than the blocks is not averaged again.
+struct Level {
+  int f = 1, g = 1;
+  std::vector<float> volume_copy;  // empty: the full-resolution float volume, shared
+  const float* volume = nullptr;
+  int nx = 0, ny = 0, nz = 0;
+  std::vector<float> frames;   // count × w × h
+  std::vector<uint8_t> masks;  // count × w × h (fan ∧ user ∧ finite)
+  int width = 0, height = 0;
+};
+
+/// Solves the 6×6 system A·x = b (Gaussian elimination with partial pivoting); false when it is
+/// singular.
+bool solve6(double A[36], double b[6], double x[6]) {
+  int order[6] = {0, 1, 2, 3, 4, 5};
+  for (int col = 0; col < 6; ++col) {
+    int best = col;
+    for (int r = col + 1; r < 6; ++r)
+      if (std::fabs(A[6 * order[r] + col]) > std::fabs(A[6 * order[best] + col])) best = r;
+    std::swap(order[col], order[best]);
+    const double pivot = A[6 * order[col] + col];
+    if (!(std::fabs(pivot) > 1e-300)) return false;
+    for (int r = col + 1; r < 6; ++r) {
+      const double m = A[6 * order[r] + col] / pivot;
+      for (int k = col; k < 6; ++k) A[6 * order[r] + k] -= m * A[6 * order[col] + k];
+      b[order[r]] -= m * b[order[col]];
+    }
+  }
+  for (int col = 5; col >= 0; --col) {
+    double s = b[order[col]];
+    for (int k = col + 1; k < 6; ++k) s -= A[6 * order[col] + k] * x[k];
+    x[col] = s / A[6 * order[col] + col];
+  }
+  for (int k = 0; k < 6; ++k)
+    if (!std::isfinite(x[k])) return false;
+  return true;
+}
+
+uint64_t splitmix(uint64_t& state) {
+  uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+double uniform(uint64_t& state) {
+  return double(splitmix(state) >> 11) * (1.0 / 9007199254740992.0);
+}
+
+/// Start k's increment: k = 0 none; else a rotation of up to rot_deg about a random axis and a
+/// translation uniform in a ball of trans_mm, drawn from (seed, item, k).
+void start_increment(const RegistrationSettings& s, size_t item, int k, double xi[6]) {
+  for (int i = 0; i < 6; ++i) xi[i] = 0;
+  if (k == 0) return;
+  uint64_t state = s.seed * 0x100000001B3ull + item * 1000003ull + uint64_t(k);
+  double axis[3], t[3], n2;
+  do {
+    for (double& a : axis) a = 2 * uniform(state) - 1;
+    n2 = axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2];
+  } while (n2 > 1 || n2 < 1e-6);
+  do {
+    for (double& a : t) a = 2 * uniform(state) - 1;
+  } while (t[0] * t[0] + t[1] * t[1] + t[2] * t[2] > 1);
+  const double angle = uniform(state) * s.search_rot_deg * kPi / 180;
+  for (int i = 0; i < 3; ++i) {
+    xi[i] = t[i] * s.search_trans_mm;
+    xi[3 + i] = axis[i] / std::sqrt(n2) * angle;
+  }
+}
+
+double rotation_angle_deg(const Mat3& a, const Mat3& b) {  // angle of a·bᵀ
+  double trace = 0;
+  for (int i = 0; i < 3; ++i)
+    for (int k = 0; k < 3; ++k) trace += a.m[i][k] * b.m[i][k];
+  return std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2))) * 180 / kPi;
+}
+
+}  // namespace
+
+struct FrameRegistration::State {
+  ProbeGeometry probe;
+  VolumeGrid grid;
+  Mat3 L;  // world → index, linear
+  Vec3 o;
+  size_t count = 0;
+  Volume volume;            // shared, kept alive
+  std::vector<float> full;  // the volume as float when it is not float32
+  const float* full_volume = nullptr;
+  std::deque<Level> levels;       // only added to: references to a level stay valid
+  std::vector<Vec3> mask_centre;  // per frame: the centroid of its compared pixels (probe mm)
+
+  const Level& level(int f) const {
+    for (const Level& l : levels)
+      if (l.f == f) return l;
+    throw InputError("pyramid: level " + std::to_string(f) + " was not prepared");
+  }
+  /// Level f, made when first asked for: level 1 from the caller's frames and the H×W mask,
+  /// the others from level 1.
+  const Level& make_level(int f, const float* frames = nullptr, const uint8_t* mask = nullptr);
+};
+
+const Level& FrameRegistration::State::make_level(int f, const float* frames, const uint8_t* mask) {
+  for (Level& l : levels)
+    if (l.f == f) return l;
+  levels.emplace_back();
+  Level& l = levels.back();
+  const Level& first = levels.front();  // level 1 (made first, by the constructor)
+  const float* volume = full_volume;
+  l.f = f;
+  const int W = probe.image.width, H = probe.image.height;
+  const int64_t nx = grid.dims[0], ny = grid.dims[1], nz = grid.dims[2];
+  const double pixel = std::min(probe.image.spacing_mm[0], probe.image.spacing_mm[1]);
+  const double voxel = std::min({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
+  l.g = std::max(1, int(std::floor(f * pixel / voxel + 1e-9)));
+  if (l.g == 1) {
+    l.volume = volume;
+    l.nx = int(nx);
+    l.ny = int(ny);
+    l.nz = int(nz);
+  } else {
+    const int g = l.g;
+    l.nx = int(std::max<int64_t>(1, nx / g));
+    l.ny = int(std::max<int64_t>(1, ny / g));
+    l.nz = int(std::max<int64_t>(1, nz / g));
+    l.volume_copy.assign(size_t(l.nx) * l.ny * l.nz, 0.f);
+    backend::parallel_for(l.nz, [&](int64_t z) {
+      for (int y = 0; y < l.ny; ++y)
+        for (int x = 0; x < l.nx; ++x) {
+          double s = 0;
+          int n = 0;
+          for (int dz = 0; dz < g && z * g + dz < nz; ++dz)
+            for (int dy = 0; dy < g && int64_t(y) * g + dy < ny; ++dy)
+              for (int dx = 0; dx < g && int64_t(x) * g + dx < nx; ++dx, ++n)
+                s += volume[((z * g + dz) * ny + (int64_t(y) * g + dy)) * nx + int64_t(x) * g + dx];
+          l.volume_copy[(size_t(z) * l.ny + y) * l.nx + x] = float(s / std::max(n, 1));
+        }
+    });
+    l.volume = l.volume_copy.data();
+  }
+  l.width = std::max(1, W / f);
+  l.height = std::max(1, H / f);
+  const size_t plane = size_t(l.width) * l.height;
+  l.frames.assign(count * plane, 0.f);
+  l.masks.assign(count * plane, 0);
+  for (size_t k = 0; k < count; ++k)
+    for (int v = 0; v < l.height; ++v)
+      for (int u = 0; u < l.width; ++u) {
+        double s = 0;
+        bool all = true;
+        for (int dv = 0; dv < f && all; ++dv)
+          for (int du = 0; du < f && all; ++du) {
+            const int uu = std::min(u * f + du, W - 1), vv = std::min(v * f + dv, H - 1);
+            const size_t i = size_t(vv) * W + uu;
+            if (f == 1) {
+              const float value = frames[k * size_t(W) * H + i];
+              all = mask[i] && std::isfinite(value);
+              s += value;
+            } else {
+              all = first.masks[k * size_t(W) * H + i] != 0;
+              s += first.frames[k * size_t(W) * H + i];
+            }
+          }
+        const size_t j = k * plane + size_t(v) * l.width + u;
+        l.masks[j] = all ? 1 : 0;
+        l.frames[j] = all ? float(s / (f * f)) : 0.f;
+      }
+  return l;
+}
+
+FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& probe,
+                                     const float* frames, size_t frame_count,
+                                     const uint8_t* user_mask)
+    : state_(std::make_unique<State>()) {
+  probe.validate("probe");
+  State& s = *state_;
+  s.probe = probe;
+  s.volume = volume;
+  s.grid = volume.grid();
+  s.L = s.grid.world_to_index_linear();
+  s.o = s.grid.world_to_index_offset();
+  s.count = frame_count;
+  if (frame_count == 0) throw InputError("frames: no frames");
+  for (int k = 0; k < 3; ++k)
+    if (s.grid.dims[k] < 2)
+      throw InputError("volume: needs at least 2 voxels along each axis for trilinear gradients");
+  const float* full = nullptr;
+  if (volume.pixel_type() == PixelType::Float32) {
+    full = volume.data_as<float>();
+  } else {
+    const int64_t n = s.grid.voxel_count();
+    s.full.resize(size_t(n));
+    visit_pixel_type(volume.pixel_type(), [&](auto zero) {
+      using T = decltype(zero);
+      const T* v = volume.data_as<T>();
+      for (int64_t i = 0; i < n; ++i) s.full[size_t(i)] = float(v[i]);
+    });
+    full = s.full.data();
+  }
+  s.full_volume = full;
+  std::vector<uint8_t> mask = probe.mask();
+  if (user_mask)
+    for (size_t i = 0; i < mask.size(); ++i) mask[i] = mask[i] && user_mask[i];
+  // Full resolution now (a copy of the frames, masked); coarser levels when run() asks.
+  const Level& l = s.make_level(1, frames, mask.data());
+  s.mask_centre.assign(frame_count, Vec3{0, 0, 0});
+  for (size_t k = 0; k < frame_count; ++k) {
+    double sx = 0, sy = 0, n = 0;
+    for (int v = 0; v < l.height; ++v)
+      for (int u = 0; u < l.width; ++u)
+        if (l.masks[k * size_t(l.width) * l.height + size_t(v) * l.width + u]) {
+          sx += probe.image.origin_mm[0] + u * probe.image.spacing_mm[0];
+          sy += probe.image.origin_mm[1] + v * probe.image.spacing_mm[1];
+          n += 1;
+        }
+    if (n == 0)
+      throw InputError("frames: frame " + std::to_string(k) +
+                       " has no pixel inside the probe's fan and the mask with a finite value");
+    s.mask_centre[k] = {sx / n, sy / n, 0};
+  }
+}
+
+FrameRegistration::~FrameRegistration() = default;
+
+Vec3 FrameRegistration::centre(size_t frame, const Pose& pose) const {
+  return pose.transform_point(state_->mask_centre[frame]);
+}
+
+PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
+                                   bool gradients) const {
+  const State& s = *state_;
+  const Level& l = s.level(level);
+  const int f = l.f, g = l.g;
+  register_impl::TermsLaunch L;
+  L.volume = l.volume;
+  L.nx = l.nx;
+  L.ny = l.ny;
+  L.nz = l.nz;
+  // The level's pixel (u, v) is the centre of a block of f × f full pixels; a level voxel the
+  // centre of g³ full voxels: c_level = (c − (g − 1)/2) / g.
+  const ImageGrid& img = s.probe.image;
+  L.sx = img.spacing_mm[0] * f;
+  L.sy = img.spacing_mm[1] * f;
+  L.x0 = img.origin_mm[0] + 0.5 * (f - 1) * img.spacing_mm[0];
+  L.y0 = img.origin_mm[1] + 0.5 * (f - 1) * img.spacing_mm[1];
+  L.width = l.width;
+  L.height = l.height;
+  const size_t plane = size_t(l.width) * l.height;
+  L.frame = l.frames.data() + frame * plane;
+  L.mask = l.masks.data() + frame * plane;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      double a = 0;
+      for (int k = 0; k < 3; ++k) a += s.L.m[r][k] * pose.m[k][c];
+      L.A[3 * r + c] = a / g;
+      L.P[3 * r + c] = pose.m[r][c];
+      L.G[3 * r + c] = s.L.m[c][r] / g;  // Lᵀ, per level index step
+    }
+    double a = s.o[r];
+    for (int k = 0; k < 3; ++k) a += s.L.m[r][k] * pose.m[k][3];
+    L.a[r] = (a - 0.5 * (g - 1)) / g;
+    L.p[r] = pose.m[r][3];
+    L.centre[r] = centre[r];
+  }
+  L.gradients = gradients;
+  PoseTerms total;
+  for (int v = 0; v < L.height; ++v) {
+    PoseTerms row;
+    register_impl::accumulate_row(L, v, row);
+    total.add(row);
+  }
+  return total;
+}
+
+namespace {
+
+/// What one optimisation of one item (a frame, or the sweep) needs: its terms at a pose
+/// (summed over its frames), its centre.
+struct Problem {
+  std::function<PoseTerms(const Pose& correction, int level, const Vec3& centre, bool gradients)>
+      terms;
+  int64_t frames_per_evaluation = 1;
+};
+
+struct Outcome {
+  Pose correction;  // the increment applied to the initial pose(s), world frame
+  double cost = std::numeric_limits<double>::infinity();
+  int64_t evaluations = 0, iterations = 0;
+};
+
+constexpr double kMaxStepMm = 2, kMaxStepDeg = 2;
+
+/// Gauss–Newton or Levenberg–Marquardt on the correction X (poses X·T), level by level.
+Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& start,
+                 const Vec3& centre) {
+  Outcome out;
+  Pose X = start;
+  const double tol_rad = s.tolerance_deg * kPi / 180;
+  for (int f : s.pyramid) {
+    double lambda = 1e-3;
+    for (int it = 0; it < s.max_iterations; ++it) {
+      // The centre moves with the correction: turn about where the frame now is.
+      const Vec3 c = X.transform_point(centre);
+      double g[6], H[36];
+      const PoseTerms t = p.terms(X, f, c, true);
+      out.evaluations += p.frames_per_evaluation;
+      const double cost = metric_cost(s.metric, t, g, H);
+      if (!std::isfinite(cost)) break;
+      ++out.iterations;
+      bool moved = false, converged = false;
+      for (int attempt = 0; attempt < 12; ++attempt) {
+        double A[36], b[6], xi[6];
+        const double damping =
+            s.optimizer == RegistrationOptimizer::LevenbergMarquardt ? lambda : 0;
+        for (int k = 0; k < 36; ++k) A[k] = H[k];
+        for (int k = 0; k < 6; ++k) {
+          A[7 * k] += damping * H[7 * k] + 1e-12 * (1 + std::fabs(H[7 * k]));
+          b[k] = -g[k];
+        }
+        if (!solve6(A, b, xi)) {
+          lambda *= 10;
+          continue;
+        }
+        if (s.optimizer == RegistrationOptimizer::GaussNewton)  // backtracking
+          for (int k = 0; k < 6; ++k) xi[k] *= std::pow(0.5, attempt);
+        // A trust region: at most kMaxStepMm and kMaxStepDeg a step, so that one step on a
+        // flat stretch of the metric cannot throw the frame far away.
+        const double t_len = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
+        const double r_len = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
+        const double shrink = std::min({1.0, kMaxStepMm / std::max(t_len, 1e-300),
+                                        kMaxStepDeg * kPi / 180 / std::max(r_len, 1e-300)});
+        for (int k = 0; k < 6; ++k) xi[k] *= shrink;
+        const Pose candidate = apply_increment(X, xi, c);
+        const double tried = metric_cost(s.metric, p.terms(candidate, f, c, false));
+        out.evaluations += p.frames_per_evaluation;
+        const double step_mm = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
+        const double step_rad = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
+        if (tried < cost) {
+          X = candidate;
+          lambda = std::max(lambda / 3, 1e-9);
+          moved = true;
+          converged = step_mm < s.tolerance_mm && step_rad < tol_rad;
+          break;
+        }
+        if (step_mm < s.tolerance_mm && step_rad < tol_rad) {
+          converged = true;  // no better point within the tolerance
+          break;
+        }
+        lambda *= 4;
+      }
+      if (!moved || converged) break;
+    }
+  }
+  out.correction = X;
+  const Vec3 c = X.transform_point(centre);
+  out.cost = metric_cost(s.metric, p.terms(X, 1, c, false));
+  out.evaluations += p.frames_per_evaluation;
+  return out;
+}
+
+/// Candidate starting points screened per start: the metric alone (no derivatives) at the
+/// coarsest level is cheap, so many draws are ranked and the best settings.starts optimised.
+constexpr int kCandidatesPerStart = 64;
+
+/// The best of settings.starts optimisations. With one start: from the initial pose. With more:
+/// the initial pose and kCandidatesPerStart·starts − 1 drawn increments about the centre are
+/// ranked by the metric at the coarsest level, and the best `starts` of them are optimised.
+Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,
+                    const Vec3& centre) {
+  int64_t evaluations = 0, iterations = 0;
+  std::vector<std::pair<double, Pose>> candidates;
+  const int draws = s.starts == 1 ? 1 : s.starts * kCandidatesPerStart;
+  for (int k = 0; k < draws; ++k) {
+    double xi[6];
+    start_increment(s, item, k, xi);
+    const Pose X = apply_increment(Pose::identity(), xi, centre);
+    double cost = 0;
+    if (draws > 1) {
+      cost = metric_cost(s.metric, p.terms(X, s.pyramid.front(), X.transform_point(centre), false));
+      evaluations += p.frames_per_evaluation;
+    }
+    candidates.emplace_back(std::isfinite(cost) ? cost : std::numeric_limits<double>::max(), X);
+  }
+  // Stable: equal costs keep their draw order (the initial pose first).
+  std::stable_sort(candidates.begin(), candidates.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  Outcome best;
+  for (int k = 0; k < s.starts && k < int(candidates.size()); ++k) {
+    const Outcome o = optimise(p, s, candidates[size_t(k)].second, centre);
+    evaluations += o.evaluations;
+    iterations += o.iterations;
+    if (k == 0 || o.cost < best.cost) best = o;
+  }
+  best.evaluations = evaluations;
+  best.iterations = iterations;
+  return best;
+}
+
+}  // namespace
+
+std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
+                                         const RegistrationSettings& settings,
+                                         RegistrationReport* report) const {
+  const auto clock = std::chrono::steady_clock::now();
+  settings.validate();
+  State& s = *state_;
+  if (initial.size() != s.count)
+    throw InputError("poses: " + std::to_string(initial.size()) + " poses for " +
+                     std::to_string(s.count) + " frames");
+  validate_poses(initial.data(), initial.size(), "poses");
+  for (int f : settings.pyramid) s.make_level(f);
+
+  std::vector<Pose> refined(s.count);
+  std::vector<FrameReport> frames(s.count);
+  const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations) {
+    FrameReport& r = frames[k];
+    r.index = k;
+    refined[k] = o.correction * initial[k];
+    const Vec3 c = centre(k, refined[k]);
+    r.metric = metric_cost(settings.metric, terms(k, refined[k], 1, c, false));
+    r.evaluations = evaluations;
+    r.iterations = o.iterations;
+    double d = 0;
+    for (int i = 0; i < 3; ++i) d += std::pow(refined[k].m[i][3] - initial[k].m[i][3], 2);
+    r.translation_change_mm = std::sqrt(d);
+    r.rotation_change_deg = rotation_angle_deg(refined[k].linear(), initial[k].linear());
+  };
+  if (settings.mode == RegistrationMode::PerFrame) {
+    backend::parallel_for(int64_t(s.count), [&](int64_t k) {
+      Problem p;
+      p.terms = [&, k](const Pose& X, int f, const Vec3& c, bool g) {
+        return terms(size_t(k), X * initial[size_t(k)], f, c, g);
+      };
+      const Outcome o = multi_start(p, settings, size_t(k), centre(size_t(k), initial[size_t(k)]));
+      describe(size_t(k), o, o.evaluations);
+    });
+  } else {
+    // One correction for the sweep: each evaluation sums every frame's terms (in parallel, then
+    // in frame order), turning about the mean of the frames' centres.
+    Vec3 mean = {0, 0, 0};
+    for (size_t k = 0; k < s.count; ++k) {
+      const Vec3 c = centre(k, initial[k]);
+      for (int i = 0; i < 3; ++i) mean[i] += c[i] / double(s.count);
+    }
+    Problem p;
+    p.frames_per_evaluation = int64_t(s.count);
+    p.terms = [&](const Pose& X, int f, const Vec3& c, bool g) {
+      std::vector<PoseTerms> each(s.count);
+      backend::parallel_for(int64_t(s.count), [&](int64_t k) {
+        each[size_t(k)] = terms(size_t(k), X * initial[size_t(k)], f, c, g);
+      });
+      PoseTerms sum;
+      for (const PoseTerms& t : each) sum.add(t);
+      return sum;
+    };
+    const Outcome o = multi_start(p, settings, 0, mean);
+    for (size_t k = 0; k < s.count; ++k) describe(k, o, o.evaluations / int64_t(s.count));
+  }
+  if (report) {
+    report->frames = frames;
+    report->evaluations = 0;
+    for (const FrameReport& r : frames) report->evaluations += r.evaluations;
+    report->seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - clock).count();
+  }
+  return refined;
+}
+
+}  // namespace sonoslice
