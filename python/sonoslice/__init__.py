@@ -37,6 +37,8 @@ __all__ = [
     "read_plus_config", "plus_image_to_reference", "reconstruct_plus",
     # ultrasound simulation (docs/simulation.md)
     "Simulator", "default_tissues", "phantom_tissues", "simulation_presets",
+    # registration (docs/registration.md)
+    "register",
 ]
 __version__ = "0.1.0"
 
@@ -768,3 +770,34 @@ from .compound import (  # noqa: E402  (it uses Volume, defined above)
     clip_mask, grid_around, grid_around_beams, plus_image_to_reference, read_plus_config, read_plus_sequence,
     reconstruct_plus, write_plus_sequence,
 )
+
+
+def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc", optimizer: str = "lm",
+             mode: str = "per-frame", starts: int = 1, search_rot_deg: float = 10.0, search_trans_mm: float = 10.0,
+             seed: int = 0, pyramid: Sequence[int] = (8, 4, 2, 1), mask=None, world: str = "LPS"):
+    """Refines the poses of ``frames`` ((N, H, W) on ``probe``'s grid, any real dtype) against
+    ``volume`` from ``poses`` ((N, 4, 4) probe→world, mm), as ``sonoslice register`` does
+    (docs/registration.md). ``mask``: an (H, W) array, non-zero where pixels are compared (with
+    the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
+    "frames" (one dict per frame: index, metric, evaluations, iterations,
+    translation_change_mm, rotation_change_deg), "evaluations" and "seconds"."""
+    if not isinstance(volume, Volume):
+        raise TypeError("volume: expected a sonoslice.Volume")
+    if not isinstance(probe, Probe):
+        raise TypeError("probe: expected a sonoslice.Probe")
+    f = np.ascontiguousarray(_real_array(frames, "frames"), dtype=np.float32)
+    if f.ndim == 2:
+        f = f[None]
+    if f.ndim != 3:
+        raise ValueError(f"frames: expected (N, H, W), got shape {f.shape}")
+    p = _as_pose_array(poses, world)
+    m = None if mask is None else np.ascontiguousarray(_real_array(mask, "mask") != 0, dtype=np.uint8)
+    refined, rows, evaluations, seconds = _ext.register_frames(
+        volume._cpp, probe._cpp, f, p, m, str(metric), str(optimizer), str(mode), int(starts),
+        float(search_rot_deg), float(search_trans_mm), int(seed), [int(x) for x in pyramid])
+    if str(world).upper() == "RAS":  # back to the caller's frame (the flip is its own inverse)
+        refined = refined.copy()
+        refined[:, :2, :] *= -1
+    keys = ("index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg")
+    report = {"frames": [dict(zip(keys, r)) for r in rows], "evaluations": int(evaluations), "seconds": float(seconds)}
+    return refined, report

@@ -59,4 +59,5 @@ NB_MODULE(_sonoslice, m) {
   bindings::bind_io(m);
   bindings::bind_reconstruction(m);
   bindings::bind_simulation(m);
+  bindings::bind_registration(m);
 }

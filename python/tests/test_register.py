@@ -161,3 +161,25 @@ def test_bad_inputs_leave_a_good_output_alone(cli, case, tmp_path):
     one_line_error(run(cli, *args(volume=str(tmp_path / "none.nii.gz"))), "none.nii.gz")
     one_line_error(run(cli, *base_args(case, "refined.txt")), "--out")
     assert good.read_bytes() == before
+
+
+def test_python_register_matches_the_command(cli, case):
+    import sonoslice
+
+    ct = sonoslice.Volume.from_file(str(case / "ph" / "ct.nii.gz"))
+    probe = sonoslice.Probe.from_fanslicer(W1, downsampling=4)
+    frames = np.load(case / "frames.npy")
+    init, truth = np.load(case / "init.npy"), np.load(case / "truth.npy")
+    refined, report = sonoslice.register(ct, probe, frames, init, starts=2, search_rot_deg=3, search_trans_mm=3)
+    assert refined.shape == (4, 4, 4) and refined.dtype == np.float64
+    assert [set(f) for f in report["frames"]] == [REPORT_KEYS] * 4
+    mm, deg = errors(refined, truth)
+    assert np.all(mm < 1) and np.all(deg < 1), (mm, deg)
+    # The command with the same settings gives the same poses.
+    r = run(cli, *base_args(case, "same.npy"), "--starts", "2", "--search-rot-deg", "3", "--search-trans-mm", "3")
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(np.load(case / "same.npy"), refined, atol=1e-12)
+    with pytest.raises(ValueError, match="frames"):
+        sonoslice.register(ct, probe, frames[:, :-1], init)
+    with pytest.raises(ValueError, match="metric"):
+        sonoslice.register(ct, probe, frames, init, metric="mi")
