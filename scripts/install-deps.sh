@@ -18,6 +18,7 @@ packages=(
   libvtk9-dev                            # VTK 9.1: surface meshes (.vtk, .vtp, .stl, .obj, .ply)
   nlohmann-json3-dev libcli11-dev
   libpugixml-dev                         # PLUS configuration XML
+  libnlopt-cxx-dev                       # registration's BOBYQA and Nelder-Mead
   googletest libgtest-dev libbenchmark-dev
   python3-venv python3-numpy python3-pytest python3-tqdm python3-torch   # the Python package's tests
 )

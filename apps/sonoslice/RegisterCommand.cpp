@@ -86,11 +86,13 @@ void run_register(const RegisterFlags& f) {
     throw InputError("--out '" + f.out + "': refined poses are written as .npy (N, 4, 4)");
   if (!f.report.empty() && file_extension(f.report) != ".json")
     throw InputError("--report '" + f.report + "': the report is JSON (.json)");
-  check_distinct_outputs({{"--out", f.out}, {"--report", f.report}}, {{"--volume", f.volume.path},
-                                                                      {"--probe", f.probe},
-                                                                      {"--frames", f.frames},
-                                                                      {"--poses", f.poses},
-                                                                      {"--mask", f.user_mask}});
+  // The refined poses' .npy has no geometry sidecar: REFINED.npy beside REFINED.json is fine.
+  check_distinct_outputs({{"--out", f.out, false}, {"--report", f.report}},
+                         {{"--volume", f.volume.path},
+                          {"--probe", f.probe},
+                          {"--frames", f.frames},
+                          {"--poses", f.poses, false},
+                          {"--mask", f.user_mask}});
   check_output_path(f.out);
   if (!f.report.empty()) check_output_path(f.report);
 

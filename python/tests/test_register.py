@@ -100,6 +100,18 @@ def test_rigid_sweep_applies_one_correction(cli, case):
         np.testing.assert_allclose(X[k], X[0], atol=1e-9)
 
 
+@pytest.mark.parametrize("optimizer", ["bobyqa", "nelder-mead"])
+def test_derivative_free_optimisers(cli, case, optimizer):
+    r = run(cli, *base_args(case, f"{optimizer}.npy"), "--optimizer", optimizer, "--report",
+            str(case / f"{optimizer}.json"))
+    if "built without NLopt" in r.stderr:
+        pytest.skip("this sonoslice was built without NLopt")
+    assert r.returncode == 0, r.stderr
+    report = json.load(open(case / f"{optimizer}.json"))
+    assert report["optimizer"] == optimizer and report["evaluations"] > 0
+    assert np.load(case / f"{optimizer}.npy").shape == (4, 4, 4)
+
+
 def test_png_frames_and_a_user_mask(cli, case, tmp_path):
     r = run(cli, "slice", "--volume", str(case / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
             "--poses", str(case / "truth.npy"), "--out", str(tmp_path / "png") + "/", "--dtype", "uint16",
@@ -120,7 +132,6 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
     (["--metric", "mutual"], "--metric mutual"),
     (["--metric", "lc2"], "not implemented yet"),
     (["--optimizer", "adam"], "--optimizer adam"),
-    (["--optimizer", "bobyqa"], "not implemented yet"),
     (["--mode", "sweep"], "--mode sweep"),
     (["--starts", "0"], "--starts 0"),
     (["--search-trans-mm", "nan"], "--search-trans-mm"),

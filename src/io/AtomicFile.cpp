@@ -546,9 +546,10 @@ fs::path identity_of(const fs::path& p) {
 }
 
 // The files reading or writing `path` touches: the file, and what its format keeps beside it.
-std::vector<fs::path> files_of(const std::string& path) {
+std::vector<fs::path> files_of(const std::string& path, bool companions = true) {
   const fs::path p = identity_of(path);
   std::vector<fs::path> files{p};
+  if (!companions) return files;
   const std::string ext = file_extension(path);
   auto with = [&](const char* extension) {
     fs::path q = p;
@@ -595,8 +596,8 @@ void check_distinct_outputs(const std::vector<NamedPath>& outputs,
   for (const NamedPath& i : inputs)
     if (!i.path.empty()) ins.push_back(&i);
   auto overlap = [](const NamedPath& a, const NamedPath& b) {
-    for (const fs::path& x : files_of(a.path))
-      for (const fs::path& y : files_of(b.path))
+    for (const fs::path& x : files_of(a.path, a.companions))
+      for (const fs::path& y : files_of(b.path, b.companions))
         if (same_file(x, y)) return true;
     return false;
   };

@@ -15,6 +15,10 @@
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
 
+#ifdef SONOSLICE_HAVE_NLOPT
+#include <nlopt.hpp>
+#endif
+
 namespace sonoslice {
 
 RegistrationMetric parse_registration_metric(const std::string& name) {
@@ -26,13 +30,24 @@ RegistrationMetric parse_registration_metric(const std::string& name) {
   throw InputError("--metric " + name + ": expected ssd or ncc");
 }
 
+bool built_with_nlopt() {
+#ifdef SONOSLICE_HAVE_NLOPT
+  return true;
+#else
+  return false;
+#endif
+}
+
 RegistrationOptimizer parse_registration_optimizer(const std::string& name) {
   if (name == "gn") return RegistrationOptimizer::GaussNewton;
   if (name == "lm") return RegistrationOptimizer::LevenbergMarquardt;
-  if (name == "bobyqa" || name == "nelder-mead")
-    throw InputError("--optimizer " + name +
-                     ": not implemented yet (gn and lm are; docs/registration.md §6)");
-  throw InputError("--optimizer " + name + ": expected gn or lm");
+  if (name == "bobyqa" || name == "nelder-mead") {
+    if (!built_with_nlopt())
+      throw InputError("--optimizer " + name +
+                       ": this sonoslice was built without NLopt (Debian: libnlopt-cxx-dev)");
+    return name == "bobyqa" ? RegistrationOptimizer::Bobyqa : RegistrationOptimizer::NelderMead;
+  }
+  throw InputError("--optimizer " + name + ": expected gn, lm, bobyqa or nelder-mead");
 }
 
 RegistrationMode parse_registration_mode(const std::string& name) {
@@ -440,9 +455,74 @@ struct Outcome {
 
 constexpr double kMaxStepMm = 2, kMaxStepDeg = 2;
 
+/// BOBYQA or Nelder–Mead (NLopt) on the correction X, level by level: the metric alone, as a
+/// function of an increment about the frame's centre; the first level's initial step is
+/// kMaxStepMm and kMaxStepDeg, halved at each finer level. An evaluation is an iteration.
+Outcome optimise_derivative_free(const Problem& p, const RegistrationSettings& s, const Pose& start,
+                                 const Vec3& centre) {
+  Outcome out;
+  Pose X = start;
+#ifdef SONOSLICE_HAVE_NLOPT
+  double step_mm = kMaxStepMm, step_rad = kMaxStepDeg * kPi / 180;
+  for (int f : s.pyramid) {
+    const Pose level_start = X;
+    const Vec3 c = X.transform_point(centre);
+    nlopt::opt opt(
+        s.optimizer == RegistrationOptimizer::Bobyqa ? nlopt::LN_BOBYQA : nlopt::LN_NELDERMEAD, 6);
+    struct Context {
+      const Problem* p;
+      const RegistrationSettings* s;
+      const Pose* base;
+      Vec3 c;
+      int f;
+      Outcome* out;
+    } ctx{&p, &s, &level_start, c, f, &out};
+    opt.set_min_objective(
+        [](unsigned, const double* x, double*, void* data) {
+          const Context& k = *static_cast<Context*>(data);
+          k.out->evaluations += k.p->frames_per_evaluation;
+          ++k.out->iterations;
+          const double cost = metric_cost(
+              k.s->metric, k.p->terms(apply_increment(*k.base, x, k.c), k.f, k.c, false));
+          return std::isfinite(cost) ? cost : 1e30;  // NLopt's models need finite values
+        },
+        &ctx);
+    opt.set_initial_step(
+        std::vector<double>{step_mm, step_mm, step_mm, step_rad, step_rad, step_rad});
+    const double tol_rad = s.tolerance_deg * kPi / 180;
+    opt.set_xtol_abs(std::vector<double>{s.tolerance_mm, s.tolerance_mm, s.tolerance_mm, tol_rad,
+                                         tol_rad, tol_rad});
+    opt.set_maxeval(20 * s.max_iterations);
+    std::vector<double> x(6, 0.0);
+    double best = 0;
+    try {
+      opt.optimize(x, best);
+    } catch (const std::exception&) {
+      // NLopt reports a stop it cannot explain (round-off, a forced stop) as an exception; the
+      // best point it found is in x either way.
+    }
+    X = apply_increment(level_start, x.data(), c);
+    step_mm /= 2;
+    step_rad /= 2;
+  }
+#else
+  (void)p;
+  (void)centre;
+  throw InputError("optimizer: this sonoslice was built without NLopt");
+#endif
+  out.correction = X;
+  const Vec3 c = X.transform_point(centre);
+  out.cost = metric_cost(s.metric, p.terms(X, 1, c, false));
+  out.evaluations += p.frames_per_evaluation;
+  return out;
+}
+
 /// Gauss–Newton or Levenberg–Marquardt on the correction X (poses X·T), level by level.
 Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& start,
                  const Vec3& centre) {
+  if (s.optimizer == RegistrationOptimizer::Bobyqa ||
+      s.optimizer == RegistrationOptimizer::NelderMead)
+    return optimise_derivative_free(p, s, start, centre);
   Outcome out;
   Pose X = start;
   const double tol_rad = s.tolerance_deg * kPi / 180;

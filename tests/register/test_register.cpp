@@ -166,6 +166,33 @@ TEST(Register, RigidSweepRecoversOneSharedCorrection) {
     EXPECT_NEAR(report.frames[k].rotation_change_deg, report.frames[0].rotation_change_deg, 1e-6);
 }
 
+TEST(Register, DerivativeFreeOptimisersRecoverPoses) {
+  if (!built_with_nlopt()) GTEST_SKIP() << "built without NLopt";
+  const std::vector<Pose> truth = phantom_random_poses(8, 11);
+  const std::vector<Pose> two = {truth[1], truth[5]};
+  const std::vector<float> frames = noisy_fans(two, 20);
+  const FrameRegistration reg(phantom().ct, probe(), frames.data(), two.size());
+  std::vector<Pose> initial;
+  for (size_t k = 0; k < two.size(); ++k)
+    initial.push_back(
+        perturbed(two[k], two[k].transform_point(fan_centre()), 3, 3, unsigned(200 + k)));
+  for (RegistrationOptimizer optimizer :
+       {RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead}) {
+    RegistrationSettings settings;
+    settings.optimizer = optimizer;
+    RegistrationReport report;
+    const std::vector<Pose> refined = reg.run(initial, settings, &report);
+    for (size_t k = 0; k < two.size(); ++k) {
+      const auto e = pose_error(refined[k], two[k], fan_centre());
+      std::printf("[ %s ] frame %zu: 3 mm 3 deg -> %.3f mm %.3f deg (%lld evaluations)\n",
+                  optimizer == RegistrationOptimizer::Bobyqa ? "bobyqa" : "nelder-mead", k, e.first,
+                  e.second, static_cast<long long>(report.frames[k].evaluations));
+      EXPECT_LT(e.first, 1);
+      EXPECT_LT(e.second, 1);
+    }
+  }
+}
+
 TEST(Register, BadInputIsNamed) {
   const std::vector<Pose> truth = phantom_random_poses(2, 5);
   const std::vector<float> frames = fans(truth);

@@ -107,6 +107,9 @@ unsigned long long free_disk_bytes(const std::string& path);
 /// A path a command reads or writes, with the flag that named it (for messages).
 struct NamedPath {
   std::string flag, path;
+  /// Whether the format's companion files count (a .npy volume's .json geometry sidecar, a
+  /// .mhd's .raw); false for a file that has none, such as a .npy of poses.
+  bool companions = true;
 };
 
 /// Refuses (InputError, naming both flags and the path) two outputs that would write the same

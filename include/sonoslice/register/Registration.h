@@ -18,15 +18,23 @@ enum class RegistrationMetric {
   SSD,  ///< mean squared difference (frame and volume on the same intensity scale)
   NCC   ///< normalised cross-correlation (any linear intensity relation); cost 1 − NCC
 };
-enum class RegistrationOptimizer { GaussNewton, LevenbergMarquardt };
+enum class RegistrationOptimizer {
+  GaussNewton,
+  LevenbergMarquardt,
+  Bobyqa,     ///< derivative-free (NLopt's LN_BOBYQA); needs a build with NLopt
+  NelderMead  ///< derivative-free (NLopt's LN_NELDERMEAD); needs a build with NLopt
+};
+/// True when this build has NLopt (the derivative-free optimisers).
+bool built_with_nlopt();
 enum class RegistrationMode {
   PerFrame,   ///< each frame's pose refined on its own (6 DoF each)
   RigidSweep  ///< one world-frame correction X shared by all frames: refined poses X · T_i
 };
 
-RegistrationMetric parse_registration_metric(const std::string& name);        ///< "ssd", "ncc"
-RegistrationOptimizer parse_registration_optimizer(const std::string& name);  ///< "gn", "lm"
-RegistrationMode parse_registration_mode(const std::string& name);            ///< "per-frame", ...
+RegistrationMetric parse_registration_metric(const std::string& name);  ///< "ssd", "ncc"
+/// "gn", "lm", "bobyqa", "nelder-mead" (the last two: InputError in a build without NLopt).
+RegistrationOptimizer parse_registration_optimizer(const std::string& name);
+RegistrationMode parse_registration_mode(const std::string& name);  ///< "per-frame", ...
 const char* to_string(RegistrationMetric metric);
 
 struct RegistrationSettings {
