@@ -94,6 +94,8 @@ def main():
     ap.add_argument("--errors", type=float, nargs="+", default=[2, 4, 6, 8, 10])
     ap.add_argument("--starts", type=int, nargs="+", default=[1, 8])
     ap.add_argument("--metric", default="ncc")
+    ap.add_argument("--simulated", action="store_true",
+                    help="frames from `sonoslice simulate --preset lus` (B-mode) instead of CT fans with noise")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--plot", help="write the capture-range curves here (.svg)")
     args = ap.parse_args()
@@ -115,11 +117,16 @@ def main():
         image = geometry.get("image", geometry)
         origin, spacing = image["origin_mm"], image["spacing_mm"]
         centre = np.array([origin[0] + u.mean() * spacing[0], origin[1] + v.mean() * spacing[1], 0.0])
-        frames = sonoslice.Slicer(ct, probe).slice(truth).astype(np.float32)
-        rng = np.random.default_rng(1)
-        frames += rng.normal(0, args.noise, frames.shape).astype(np.float32)
         frames_path = os.path.join(tmp, "frames.npy")
-        np.save(frames_path, frames)
+        if args.simulated:  # the lus preset's probe is W1
+            np.save(os.path.join(tmp, "truth.npy"), truth)
+            subprocess.run([CLI, "simulate", "--volume", ct_path, "--preset", "lus", "--poses",
+                            os.path.join(tmp, "truth.npy"), "--out", frames_path, "-q"], check=True)
+        else:
+            frames = sonoslice.Slicer(ct, probe).slice(truth).astype(np.float32)
+            rng = np.random.default_rng(1)
+            frames += rng.normal(0, args.noise, frames.shape).astype(np.float32)
+            np.save(frames_path, frames)
         curves = {}
         rows = []
         for starts in args.starts:
@@ -144,8 +151,9 @@ def main():
                              report["seconds"]))
                 print(f"starts {starts}, error {e:g}: {100 * ok.mean():.0f} % within 1 mm and 1 deg", file=sys.stderr)
             curves[f"{args.metric}, {starts} start{'s' if starts > 1 else ''}"] = rates
-    print(f"\n{args.poses} W1 CT fans of the full phantom, noise {args.noise:g} HU, metric {args.metric}, "
-          f"LM, pyramid 8-4-2-1, {args.threads} threads\n")
+    kind = "simulated B-mode frames (lus preset)" if args.simulated else f"CT fans with {args.noise:g} HU noise"
+    print(f"\n{args.poses} W1 {kind} of the full phantom, metric {args.metric}, default optimizer, "
+          f"pyramid 8-4-2-1, {args.threads} threads\n")
     print("| starts | initial error (mm and deg) | within 1 mm and 1 deg | median error after | pose evaluations "
           "| seconds |")
     print("|---|---|---|---|---|---|")

@@ -60,7 +60,11 @@ void run_register(const RegisterFlags& f) {
   setup_threads(f.threads);
   RegistrationSettings settings;
   settings.metric = parse_registration_metric(f.metric);
-  settings.optimizer = parse_registration_optimizer(f.optimizer.empty() ? "lm" : f.optimizer);
+  // Default: LM for the metrics with derivatives (ssd, ncc), BOBYQA for lc2.
+  const std::string optimizer = !f.optimizer.empty()                         ? f.optimizer
+                                : settings.metric == RegistrationMetric::LC2 ? "bobyqa"
+                                                                             : "lm";
+  settings.optimizer = parse_registration_optimizer(optimizer);
   settings.mode = parse_registration_mode(f.mode);
   settings.starts = f.starts;
   settings.search_rot_deg = f.search_rot_deg;
@@ -139,7 +143,7 @@ void run_register(const RegisterFlags& f) {
   if (!f.report.empty()) {
     nlohmann::json j;
     j["metric"] = f.metric;
-    j["optimizer"] = f.optimizer.empty() ? "lm" : f.optimizer;
+    j["optimizer"] = optimizer;
     j["mode"] = f.mode;
     j["starts"] = f.starts;
     j["frames"] = nlohmann::json::array();
@@ -178,8 +182,9 @@ void add_register_command(CLI::App& app) {
                   "Frames: .npy (N,H,W), .nii/.mha/.nrrd stack, or a folder of PNGs");
   cmd->add_option("--poses", flags->poses, "Initial poses, one per frame: .npy, .txt/.csv, .json");
   cmd->add_option("--out", flags->out, "Refined poses: .npy (N,4,4)");
-  cmd->add_option("--metric", flags->metric, "ncc (default) or ssd");
-  cmd->add_option("--optimizer", flags->optimizer, "lm (default) or gn");
+  cmd->add_option("--metric", flags->metric, "ncc (default), ssd or lc2");
+  cmd->add_option("--optimizer", flags->optimizer,
+                  "lm (default for ssd, ncc), gn, bobyqa (default for lc2) or nelder-mead");
   cmd->add_option("--starts", flags->starts, "Optimisations per frame from spread points (1)");
   cmd->add_option("--search-rot-deg", flags->search_rot_deg,
                   "Spread of the extra starts' rotations, degrees (10)");

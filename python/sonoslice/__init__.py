@@ -772,7 +772,7 @@ from .compound import (  # noqa: E402  (it uses Volume, defined above)
 )
 
 
-def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc", optimizer: str = "lm",
+def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc", optimizer: Optional[str] = None,
              mode: str = "per-frame", starts: int = 1, search_rot_deg: float = 10.0, search_trans_mm: float = 10.0,
              seed: int = 0, pyramid: Sequence[int] = (8, 4, 2, 1), mask=None, world: str = "LPS"):
     """Refines the poses of ``frames`` ((N, H, W) on ``probe``'s grid, any real dtype) against
@@ -780,7 +780,10 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc"
     (docs/registration.md). ``mask``: an (H, W) array, non-zero where pixels are compared (with
     the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
     "frames" (one dict per frame: index, metric, evaluations, iterations,
-    translation_change_mm, rotation_change_deg), "evaluations" and "seconds"."""
+    translation_change_mm, rotation_change_deg), "evaluations" and "seconds". ``optimizer``: by
+    default "lm" for "ssd" and "ncc", "bobyqa" for "lc2"."""
+    if optimizer is None:
+        optimizer = "bobyqa" if str(metric) == "lc2" else "lm"
     if not isinstance(volume, Volume):
         raise TypeError("volume: expected a sonoslice.Volume")
     if not isinstance(probe, Probe):

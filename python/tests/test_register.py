@@ -100,6 +100,16 @@ def test_rigid_sweep_applies_one_correction(cli, case):
         np.testing.assert_allclose(X[k], X[0], atol=1e-9)
 
 
+def test_lc2_defaults_to_bobyqa(cli, case):
+    r = run(cli, *base_args(case, "lc2.npy"), "--metric", "lc2", "--report", str(case / "lc2.json"))
+    if "built without NLopt" in r.stderr:
+        pytest.skip("this sonoslice was built without NLopt")
+    assert r.returncode == 0, r.stderr
+    report = json.load(open(case / "lc2.json"))
+    assert report["metric"] == "lc2" and report["optimizer"] == "bobyqa"
+    assert all(0 <= f["metric"] <= 1 for f in report["frames"])
+
+
 @pytest.mark.parametrize("optimizer", ["bobyqa", "nelder-mead"])
 def test_derivative_free_optimisers(cli, case, optimizer):
     r = run(cli, *base_args(case, f"{optimizer}.npy"), "--optimizer", optimizer, "--report",
@@ -130,7 +140,8 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
 
 @pytest.mark.parametrize("extra, needle", [
     (["--metric", "mutual"], "--metric mutual"),
-    (["--metric", "lc2"], "not implemented yet"),
+    (["--metric", "mi"], "not implemented yet"),
+    (["--metric", "lc2", "--optimizer", "lm"], "no analytic derivatives"),
     (["--optimizer", "adam"], "--optimizer adam"),
     (["--mode", "sweep"], "--mode sweep"),
     (["--starts", "0"], "--starts 0"),

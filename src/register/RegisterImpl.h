@@ -3,6 +3,7 @@
 /// pose → the metric's sums and their pose derivatives, without materialising the slice. Plain
 /// structs and pointers; the CPU driver (Registration.cpp) sums the rows in order, so the result
 /// does not depend on the thread count.
+#include <cmath>
 #include <cstdint>
 
 #include "sonoslice/backend/HostDevice.h"
@@ -24,7 +25,15 @@ struct TermsLaunch {
   int width = 0, height = 0;
   double x0 = 0, y0 = 0, sx = 1, sy = 1;  // the level's pixel (u, v) → probe (x0 + u·sx, ...)
   bool gradients = false;
+  // LC2 (accumulate_lc2_row): the beam direction at each pixel (curvilinear: from the apex at
+  // probe (0, apex_y); linear: probe +y), and the patch grid of the local fits.
+  bool curvilinear = false;
+  double apex_y = 0;
+  int patch = 9, patches_x = 1;
 };
+
+/// Sums per LC2 patch: n, ΣU, Σp, Σg, ΣU², Σp², Σg², ΣUp, ΣUg, Σpg.
+constexpr int kLc2Sums = 10;
 
 /// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
 /// (trilinear, 0 ≤ c ≤ n − 1 on every axis).
@@ -85,6 +94,65 @@ SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, Po
       t.sfj[r] += F * J[r];
       for (int k = r; k < 6; ++k) t.sjj[e++] += J[r] * J[k];
     }
+  }
+}
+
+/// LC2 (Wein et al. 2008), row v: for each pixel inside the mask and the volume, the frame's
+/// value U, the volume's p and its gradient magnitude along the beam g = |∇I · beam|, added to
+/// the sums of the pixel's patch (patch × patch pixels, row-major over the level's grid).
+SONOSLICE_HOST_DEVICE inline void accumulate_lc2_row(const TermsLaunch& L, int v, double* sums) {
+  const double y = L.y0 + v * L.sy;
+  const int64_t sy = L.nx, sz = int64_t(L.nx) * L.ny;
+  for (int u = 0; u < L.width; ++u) {
+    const int64_t i = int64_t(v) * L.width + u;
+    if (!L.mask[i]) continue;
+    const double x = L.x0 + u * L.sx;
+    double c[3];
+    for (int k = 0; k < 3; ++k) c[k] = L.A[3 * k] * x + L.A[3 * k + 1] * y + L.a[k];
+    if (!(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= L.nx - 1 && c[1] <= L.ny - 1 &&
+          c[2] <= L.nz - 1))
+      continue;
+    const int x0 = c[0] < L.nx - 1 ? int(c[0]) : L.nx - 2;
+    const int y0 = c[1] < L.ny - 1 ? int(c[1]) : L.ny - 2;
+    const int z0 = c[2] < L.nz - 1 ? int(c[2]) : L.nz - 2;
+    if (x0 < 0 || y0 < 0 || z0 < 0) continue;
+    const double tx = c[0] - x0, ty = c[1] - y0, tz = c[2] - z0;
+    const float* q = L.volume + z0 * sz + y0 * sy + x0;
+    const double v000 = q[0], v100 = q[1], v010 = q[sy], v110 = q[sy + 1], v001 = q[sz],
+                 v101 = q[sz + 1], v011 = q[sz + sy], v111 = q[sz + sy + 1];
+    const double a00 = v000 + tx * (v100 - v000), a10 = v010 + tx * (v110 - v010);
+    const double a01 = v001 + tx * (v101 - v001), a11 = v011 + tx * (v111 - v011);
+    const double b0 = a00 + ty * (a10 - a00), b1 = a01 + ty * (a11 - a01);
+    const double p = b0 + tz * (b1 - b0);
+    const double dx00 = v100 - v000, dx10 = v110 - v010, dx01 = v101 - v001, dx11 = v111 - v011;
+    const double dx0 = dx00 + ty * (dx10 - dx00), dx1 = dx01 + ty * (dx11 - dx01);
+    const double gc[3] = {dx0 + tz * (dx1 - dx0), (a10 - a00) + tz * ((a11 - a01) - (a10 - a00)),
+                          b1 - b0};
+    // The beam through this pixel, in the probe frame, then in world.
+    double bx = 0, by = 1;
+    if (L.curvilinear) {
+      const double dy = y - L.apex_y, r = std::sqrt(x * x + dy * dy);
+      bx = r > 0 ? x / r : 0;
+      by = r > 0 ? dy / r : 1;
+    }
+    double g = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double gw = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
+      g += gw * (L.P[3 * k] * bx + L.P[3 * k + 1] * by);
+    }
+    g = g < 0 ? -g : g;
+    const double U = L.frame[i];
+    double* t = sums + kLc2Sums * (int64_t(v / L.patch) * L.patches_x + u / L.patch);
+    t[0] += 1;
+    t[1] += U;
+    t[2] += p;
+    t[3] += g;
+    t[4] += U * U;
+    t[5] += p * p;
+    t[6] += g * g;
+    t[7] += U * p;
+    t[8] += U * g;
+    t[9] += p * g;
   }
 }
 

@@ -24,10 +24,11 @@ namespace sonoslice {
 RegistrationMetric parse_registration_metric(const std::string& name) {
   if (name == "ssd") return RegistrationMetric::SSD;
   if (name == "ncc") return RegistrationMetric::NCC;
-  if (name == "lncc" || name == "mi" || name == "lc2")
+  if (name == "lc2") return RegistrationMetric::LC2;
+  if (name == "lncc" || name == "mi")
     throw InputError("--metric " + name +
-                     ": not implemented yet (ssd and ncc are; docs/registration.md §6)");
-  throw InputError("--metric " + name + ": expected ssd or ncc");
+                     ": not implemented yet (ssd, ncc and lc2 are; docs/registration.md §6)");
+  throw InputError("--metric " + name + ": expected ssd, ncc or lc2");
 }
 
 bool built_with_nlopt() {
@@ -57,7 +58,9 @@ RegistrationMode parse_registration_mode(const std::string& name) {
 }
 
 const char* to_string(RegistrationMetric metric) {
-  return metric == RegistrationMetric::SSD ? "ssd" : "ncc";
+  return metric == RegistrationMetric::SSD   ? "ssd"
+         : metric == RegistrationMetric::NCC ? "ncc"
+                                             : "lc2";
 }
 
 void RegistrationSettings::validate() const {
@@ -71,6 +74,10 @@ void RegistrationSettings::validate() const {
     if (f < 1 || f > 64) throw InputError("pyramid: levels are block sizes from 1 to 64");
   if (max_iterations < 1) throw InputError("max_iterations: must be at least 1");
   if (!(tolerance_mm > 0) || !(tolerance_deg > 0)) throw InputError("tolerances: must be > 0");
+  if (metric == RegistrationMetric::LC2 && (optimizer == RegistrationOptimizer::GaussNewton ||
+                                            optimizer == RegistrationOptimizer::LevenbergMarquardt))
+    throw InputError(
+        "--metric lc2 has no analytic derivatives: use --optimizer bobyqa or nelder-mead");
 }
 
 void PoseTerms::add(const PoseTerms& o) {
@@ -103,6 +110,8 @@ void full_jj(const PoseTerms& t, double* out) {
 
 double metric_cost(RegistrationMetric metric, const PoseTerms& t, double* gradient,
                    double* hessian) {
+  if (metric == RegistrationMetric::LC2)
+    throw InputError("metric_cost: LC2 is computed per patch (FrameRegistration::lc2)");
   if (t.n < kMinPixels) return std::numeric_limits<double>::infinity();
   const double n = t.n;
   if (metric == RegistrationMetric::SSD) {
@@ -391,10 +400,12 @@ Vec3 FrameRegistration::centre(size_t frame, const Pose& pose) const {
   return pose.transform_point(state_->mask_centre[frame]);
 }
 
-PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
-                                   bool gradients) const {
-  const State& s = *state_;
-  const Level& l = s.level(level);
+namespace {
+
+/// The kernel's view of frame `frame` at `pose` on level `l`.
+register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const Mat3& L_world,
+                                       const Vec3& o, const Level& l, size_t frame,
+                                       const Pose& pose, const Vec3& centre) {
   const int f = l.f, g = l.g;
   register_impl::TermsLaunch L;
   L.volume = l.volume;
@@ -403,7 +414,7 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
   L.nz = l.nz;
   // The level's pixel (u, v) is the centre of a block of f × f full pixels; a level voxel the
   // centre of g³ full voxels: c_level = (c − (g − 1)/2) / g.
-  const ImageGrid& img = s.probe.image;
+  const ImageGrid& img = probe.image;
   L.sx = img.spacing_mm[0] * f;
   L.sy = img.spacing_mm[1] * f;
   L.x0 = img.origin_mm[0] + 0.5 * (f - 1) * img.spacing_mm[0];
@@ -416,17 +427,34 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) {
       double a = 0;
-      for (int k = 0; k < 3; ++k) a += s.L.m[r][k] * pose.m[k][c];
+      for (int k = 0; k < 3; ++k) a += L_world.m[r][k] * pose.m[k][c];
       L.A[3 * r + c] = a / g;
       L.P[3 * r + c] = pose.m[r][c];
-      L.G[3 * r + c] = s.L.m[c][r] / g;  // Lᵀ, per level index step
+      L.G[3 * r + c] = L_world.m[c][r] / g;  // Lᵀ, per level index step
     }
-    double a = s.o[r];
-    for (int k = 0; k < 3; ++k) a += s.L.m[r][k] * pose.m[k][3];
+    double a = o[r];
+    for (int k = 0; k < 3; ++k) a += L_world.m[r][k] * pose.m[k][3];
     L.a[r] = (a - 0.5 * (g - 1)) / g;
     L.p[r] = pose.m[r][3];
     L.centre[r] = centre[r];
   }
+  L.curvilinear = probe.type == ProbeType::Curvilinear;
+  L.apex_y = probe.face_y_mm - probe.radius_mm;
+  return L;
+}
+
+/// LC2 patches: 11 full-resolution pixels a side (2.7 mm on W1), at least 3 level pixels.
+int lc2_patch(int f) {
+  return std::max(3, (11 + f / 2) / f);
+}
+
+}  // namespace
+
+PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
+                                   bool gradients) const {
+  const State& s = *state_;
+  register_impl::TermsLaunch L =
+      make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, centre);
   L.gradients = gradients;
   PoseTerms total;
   for (int v = 0; v < L.height; ++v) {
@@ -437,13 +465,58 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
   return total;
 }
 
+std::pair<double, double> FrameRegistration::lc2(size_t frame, const Pose& pose, int level) const {
+  const State& s = *state_;
+  register_impl::TermsLaunch L =
+      make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, Vec3{0, 0, 0});
+  L.patch = lc2_patch(s.level(level).f);
+  L.patches_x = (L.width + L.patch - 1) / L.patch;
+  const int patches_y = (L.height + L.patch - 1) / L.patch;
+  std::vector<double> sums(size_t(L.patches_x) * patches_y * register_impl::kLc2Sums, 0.0);
+  for (int v = 0; v < L.height; ++v) register_impl::accumulate_lc2_row(L, v, sums.data());
+  double weighted = 0, weight = 0;
+  for (size_t k = 0; k < sums.size(); k += register_impl::kLc2Sums) {
+    const double* t = &sums[k];
+    const double n = t[0];
+    if (n < 8) continue;  // too few pixels for a 3-parameter fit
+    const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
+    const double vu = t[4] / n - mu * mu;
+    if (!(vu > 1e-12)) continue;  // flat frame patch: nothing to explain
+    // The least-squares fit U ≈ α·p + β·g + γ: R² = bᵀ·C⁻¹·b / var U, with C the covariance of
+    // (p, g) and b their covariances with U (a small ridge keeps a flat p or g solvable).
+    double cpp = t[5] / n - mp * mp, cgg = t[6] / n - mg * mg;
+    const double cpg = t[9] / n - mp * mg, bup = t[7] / n - mu * mp, bug = t[8] / n - mu * mg;
+    const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
+    cpp += ridge;
+    cgg += ridge;
+    const double det = cpp * cgg - cpg * cpg;
+    double r2 =
+        det > 0 ? (bup * (cgg * bup - cpg * bug) + bug * (cpp * bug - cpg * bup)) / det / vu : 0;
+    r2 = std::min(1.0, std::max(0.0, r2));
+    const double sigma = std::sqrt(vu);
+    weighted += sigma * r2;
+    weight += sigma;
+  }
+  return {weighted, weight};
+}
+
+double FrameRegistration::cost(size_t frame, const Pose& pose, int level,
+                               RegistrationMetric metric) const {
+  if (metric == RegistrationMetric::LC2) {
+    const auto [weighted, weight] = lc2(frame, pose, level);
+    return weight > 0 ? 1 - weighted / weight : std::numeric_limits<double>::infinity();
+  }
+  return metric_cost(metric, terms(frame, pose, level, centre(frame, pose), false));
+}
+
 namespace {
 
-/// What one optimisation of one item (a frame, or the sweep) needs: its terms at a pose
-/// (summed over its frames), its centre.
+/// What one optimisation of one item (a frame, or the sweep) needs, as functions of the
+/// correction X: its terms (summed over its frames; SSD and NCC) and its cost (any metric).
 struct Problem {
   std::function<PoseTerms(const Pose& correction, int level, const Vec3& centre, bool gradients)>
       terms;
+  std::function<double(const Pose& correction, int level)> cost;
   int64_t frames_per_evaluation = 1;
 };
 
@@ -482,8 +555,7 @@ Outcome optimise_derivative_free(const Problem& p, const RegistrationSettings& s
           const Context& k = *static_cast<Context*>(data);
           k.out->evaluations += k.p->frames_per_evaluation;
           ++k.out->iterations;
-          const double cost = metric_cost(
-              k.s->metric, k.p->terms(apply_increment(*k.base, x, k.c), k.f, k.c, false));
+          const double cost = k.p->cost(apply_increment(*k.base, x, k.c), k.f);
           return std::isfinite(cost) ? cost : 1e30;  // NLopt's models need finite values
         },
         &ctx);
@@ -511,8 +583,7 @@ Outcome optimise_derivative_free(const Problem& p, const RegistrationSettings& s
   throw InputError("optimizer: this sonoslice was built without NLopt");
 #endif
   out.correction = X;
-  const Vec3 c = X.transform_point(centre);
-  out.cost = metric_cost(s.metric, p.terms(X, 1, c, false));
+  out.cost = p.cost(X, 1);
   out.evaluations += p.frames_per_evaluation;
   return out;
 }
@@ -561,7 +632,7 @@ Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& st
                                         kMaxStepDeg * kPi / 180 / std::max(r_len, 1e-300)});
         for (int k = 0; k < 6; ++k) xi[k] *= shrink;
         const Pose candidate = apply_increment(X, xi, c);
-        const double tried = metric_cost(s.metric, p.terms(candidate, f, c, false));
+        const double tried = p.cost(candidate, f);
         out.evaluations += p.frames_per_evaluation;
         const double step_mm = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
         const double step_rad = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
@@ -582,8 +653,7 @@ Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& st
     }
   }
   out.correction = X;
-  const Vec3 c = X.transform_point(centre);
-  out.cost = metric_cost(s.metric, p.terms(X, 1, c, false));
+  out.cost = p.cost(X, 1);
   out.evaluations += p.frames_per_evaluation;
   return out;
 }
@@ -606,7 +676,7 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
     const Pose X = apply_increment(Pose::identity(), xi, centre);
     double cost = 0;
     if (draws > 1) {
-      cost = metric_cost(s.metric, p.terms(X, s.pyramid.front(), X.transform_point(centre), false));
+      cost = p.cost(X, s.pyramid.front());
       evaluations += p.frames_per_evaluation;
     }
     candidates.emplace_back(std::isfinite(cost) ? cost : std::numeric_limits<double>::max(), X);
@@ -646,8 +716,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     FrameReport& r = frames[k];
     r.index = k;
     refined[k] = o.correction * initial[k];
-    const Vec3 c = centre(k, refined[k]);
-    r.metric = metric_cost(settings.metric, terms(k, refined[k], 1, c, false));
+    r.metric = cost(k, refined[k], 1, settings.metric);
     r.evaluations = evaluations;
     r.iterations = o.iterations;
     double d = 0;
@@ -660,6 +729,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       Problem p;
       p.terms = [&, k](const Pose& X, int f, const Vec3& c, bool g) {
         return terms(size_t(k), X * initial[size_t(k)], f, c, g);
+      };
+      p.cost = [&, k](const Pose& X, int f) {
+        return cost(size_t(k), X * initial[size_t(k)], f, settings.metric);
       };
       const Outcome o = multi_start(p, settings, size_t(k), centre(size_t(k), initial[size_t(k)]));
       describe(size_t(k), o, o.evaluations);
@@ -682,6 +754,21 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       PoseTerms sum;
       for (const PoseTerms& t : each) sum.add(t);
       return sum;
+    };
+    // The sweep's cost: SSD and NCC over all its pixels together; LC2 over all its patches.
+    p.cost = [&](const Pose& X, int f) {
+      if (settings.metric != RegistrationMetric::LC2)
+        return metric_cost(settings.metric, p.terms(X, f, mean, false));
+      std::vector<std::pair<double, double>> each(s.count);
+      backend::parallel_for(int64_t(s.count), [&](int64_t k) {
+        each[size_t(k)] = lc2(size_t(k), X * initial[size_t(k)], f);
+      });
+      double weighted = 0, weight = 0;
+      for (const auto& [a, b] : each) {
+        weighted += a;
+        weight += b;
+      }
+      return weight > 0 ? 1 - weighted / weight : std::numeric_limits<double>::infinity();
     };
     const Outcome o = multi_start(p, settings, 0, mean);
     for (size_t k = 0; k < s.count; ++k) describe(k, o, o.evaluations / int64_t(s.count));

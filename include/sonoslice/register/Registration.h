@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "sonoslice/geometry/Pose.h"
@@ -16,7 +17,12 @@ namespace sonoslice {
 
 enum class RegistrationMetric {
   SSD,  ///< mean squared difference (frame and volume on the same intensity scale)
-  NCC   ///< normalised cross-correlation (any linear intensity relation); cost 1 − NCC
+  NCC,  ///< normalised cross-correlation (any linear intensity relation); cost 1 − NCC
+  /// Wein et al. 2008's linear correlation of linear combination, for ultrasound against CT:
+  /// in each patch the frame is fitted by the volume's intensity and its gradient magnitude
+  /// along the beam; LC2 is the patches' R² weighted by the frame's local standard deviation;
+  /// cost 1 − LC2. No analytic derivatives: BOBYQA or Nelder–Mead.
+  LC2
 };
 enum class RegistrationOptimizer {
   GaussNewton,
@@ -31,7 +37,7 @@ enum class RegistrationMode {
   RigidSweep  ///< one world-frame correction X shared by all frames: refined poses X · T_i
 };
 
-RegistrationMetric parse_registration_metric(const std::string& name);  ///< "ssd", "ncc"
+RegistrationMetric parse_registration_metric(const std::string& name);  ///< "ssd", "ncc", "lc2"
 /// "gn", "lm", "bobyqa", "nelder-mead" (the last two: InputError in a build without NLopt).
 RegistrationOptimizer parse_registration_optimizer(const std::string& name);
 RegistrationMode parse_registration_mode(const std::string& name);  ///< "per-frame", ...
@@ -55,7 +61,8 @@ struct RegistrationSettings {
   /// tolerance_deg.
   double tolerance_mm = 1e-3, tolerance_deg = 1e-3;
   /// Throws InputError for starts < 1, negative or non-finite spreads, an empty pyramid or a
-  /// level < 1, max_iterations < 1, non-positive tolerances.
+  /// level < 1, max_iterations < 1, non-positive tolerances, LC2 with a derivative-based
+  /// optimiser.
   void validate() const;
 };
 
@@ -106,6 +113,11 @@ class FrameRegistration {
   /// about `centre` when `gradients`.
   PoseTerms terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
                   bool gradients) const;
+  /// LC2 of frame `frame` at `pose` at pyramid level `level`, as its two sums: Σ σ_U·R² and
+  /// Σ σ_U over the patches (LC2 = the first over the second; both 0 without a usable patch).
+  std::pair<double, double> lc2(size_t frame, const Pose& pose, int level) const;
+  /// The cost of `metric` (SSD, 1 − NCC or 1 − LC2) for frame `frame` at `pose`, level `level`.
+  double cost(size_t frame, const Pose& pose, int level, RegistrationMetric metric) const;
   /// The world point of the centre of frame `frame`'s compared pixels at `pose`.
   Vec3 centre(size_t frame, const Pose& pose) const;
 
