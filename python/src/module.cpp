@@ -18,6 +18,10 @@ using namespace nb::literals;
 NB_MODULE(_sonoslice, m) {
   using namespace sonoslice;
   m.doc() = "sonoslice C++ core (use the sonoslice package, not this module)";
+  // An autograd graph still alive when Python exits (a loss kept in a global) holds a Volume and
+  // a Probe in its context (sonoslice.torch) and is torn down after this module: nanobind would
+  // report those as leaks at exit, alarming and harmless. The objects are freed with the graph.
+  nb::set_leak_warnings(false);
 
   // C++ errors → the Python exceptions users expect. Messages are the C++ ones.
   nb::register_exception_translator([](const std::exception_ptr& p, void*) {

@@ -1,5 +1,6 @@
 // Registration: FrameRegistration::run on NumPy frames and poses → refined poses and the report.
 #include <nanobind/stl/optional.h>
+#include <nanobind/stl/pair.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
@@ -7,6 +8,7 @@
 #include <tuple>
 
 #include "bindings.h"
+#include "sonoslice/register/Differentiable.h"
 #include "sonoslice/register/Registration.h"
 
 namespace sonoslice::bindings {
@@ -15,10 +17,59 @@ namespace {
 using namespace nb::literals;
 using Frames = nb::ndarray<const float, nb::shape<-1, -1, -1>, nb::c_contig, nb::device::cpu>;
 using MaskArray = nb::ndarray<const uint8_t, nb::shape<-1, -1>, nb::c_contig, nb::device::cpu>;
+using Images = nb::ndarray<const double, nb::shape<-1, -1, -1>, nb::c_contig, nb::device::cpu>;
 
 }  // namespace
 
 void bind_registration(nb::module_& m) {
+  m.def(
+      "slice_linear_f64",
+      [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Matrices pose_array,
+         double fill) {
+        auto source = volume_source(volume.h);
+        if (source) source->check("slice");
+        const std::vector<Pose> poses = matrices_from(pose_array);
+        auto out = std::make_shared<std::vector<double>>(poses.size() * size_t(probe.image.width) *
+                                                         size_t(probe.image.height));
+        {
+          nb::gil_scoped_release release;
+          slice_linear_f64(*volume.p, probe, poses.data(), poses.size(), fill, out->data());
+        }
+        return numpy_view(out->data(),
+                          {poses.size(), size_t(probe.image.height), size_t(probe.image.width)},
+                          PixelType::Float64, out);
+      },
+      "volume"_a, "probe"_a, "poses"_a, "fill"_a);
+  m.def(
+      "slice_linear_backward",
+      [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Matrices pose_array,
+         Images grad_images, bool volume_gradient) {
+        auto source = volume_source(volume.h);
+        if (source) source->check("slice");
+        const std::vector<Pose> poses = matrices_from(pose_array);
+        if (grad_images.shape(0) != poses.size() ||
+            int64_t(grad_images.shape(1)) != probe.image.height ||
+            int64_t(grad_images.shape(2)) != probe.image.width)
+          throw InputError("grad_images: expected (N, H, W) of the forward's images");
+        auto grad_poses = std::make_shared<std::vector<double>>(poses.size() * 16);
+        auto grad_volume = std::make_shared<std::vector<double>>(
+            volume_gradient ? size_t(volume.p->grid().voxel_count()) : 0);
+        {
+          nb::gil_scoped_release release;
+          slice_linear_backward(*volume.p, probe, poses.data(), poses.size(), grad_images.data(),
+                                grad_poses->data(),
+                                volume_gradient ? grad_volume->data() : nullptr);
+        }
+        const auto& d = volume.p->grid().dims;
+        return std::make_pair(
+            numpy_view(grad_poses->data(), {poses.size(), 4, 4}, PixelType::Float64, grad_poses),
+            numpy_view(grad_volume->data(),
+                       volume_gradient
+                           ? std::vector<size_t>{size_t(d[2]), size_t(d[1]), size_t(d[0])}
+                           : std::vector<size_t>{0},
+                       PixelType::Float64, grad_volume));
+      },
+      "volume"_a, "probe"_a, "poses"_a, "grad_images"_a, "volume_gradient"_a);
   m.def(
       "register_frames",
       [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Frames frames,
