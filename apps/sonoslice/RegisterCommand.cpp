@@ -60,10 +60,10 @@ void run_register(const RegisterFlags& f) {
   setup_threads(f.threads);
   RegistrationSettings settings;
   settings.metric = parse_registration_metric(f.metric);
-  // Default: LM for the metrics with derivatives (ssd, ncc), BOBYQA for lc2.
-  const std::string optimizer = !f.optimizer.empty()                         ? f.optimizer
-                                : settings.metric == RegistrationMetric::LC2 ? "bobyqa"
-                                                                             : "lm";
+  // Default: LM for the metrics with derivatives (ssd, ncc), BOBYQA for lncc, mi and lc2.
+  const std::string optimizer = !f.optimizer.empty()                      ? f.optimizer
+                                : metric_has_derivatives(settings.metric) ? "lm"
+                                                                          : "bobyqa";
   settings.optimizer = parse_registration_optimizer(optimizer);
   settings.mode = parse_registration_mode(f.mode);
   settings.starts = f.starts;
@@ -182,9 +182,10 @@ void add_register_command(CLI::App& app) {
                   "Frames: .npy (N,H,W), .nii/.mha/.nrrd stack, or a folder of PNGs");
   cmd->add_option("--poses", flags->poses, "Initial poses, one per frame: .npy, .txt/.csv, .json");
   cmd->add_option("--out", flags->out, "Refined poses: .npy (N,4,4)");
-  cmd->add_option("--metric", flags->metric, "ncc (default), ssd or lc2");
-  cmd->add_option("--optimizer", flags->optimizer,
-                  "lm (default for ssd, ncc), gn, bobyqa (default for lc2) or nelder-mead");
+  cmd->add_option("--metric", flags->metric, "ncc (default), ssd, lncc, mi or lc2");
+  cmd->add_option(
+      "--optimizer", flags->optimizer,
+      "lm (default for ssd, ncc), gn, bobyqa (default for lncc, mi, lc2) or nelder-mead");
   cmd->add_option("--starts", flags->starts, "Optimisations per frame from spread points (1)");
   cmd->add_option("--search-rot-deg", flags->search_rot_deg,
                   "Spread of the extra starts' rotations, degrees (10)");

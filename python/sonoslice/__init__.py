@@ -781,9 +781,9 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc"
     the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
     "frames" (one dict per frame: index, metric, evaluations, iterations,
     translation_change_mm, rotation_change_deg), "evaluations" and "seconds". ``optimizer``: by
-    default "lm" for "ssd" and "ncc", "bobyqa" for "lc2"."""
+    default "lm" for "ssd" and "ncc", "bobyqa" for "lncc", "mi" and "lc2"."""
     if optimizer is None:
-        optimizer = "bobyqa" if str(metric) == "lc2" else "lm"
+        optimizer = "lm" if str(metric) in ("ssd", "ncc") else "bobyqa"
     if not isinstance(volume, Volume):
         raise TypeError("volume: expected a sonoslice.Volume")
     if not isinstance(probe, Probe):

@@ -100,14 +100,16 @@ def test_rigid_sweep_applies_one_correction(cli, case):
         np.testing.assert_allclose(X[k], X[0], atol=1e-9)
 
 
-def test_lc2_defaults_to_bobyqa(cli, case):
-    r = run(cli, *base_args(case, "lc2.npy"), "--metric", "lc2", "--report", str(case / "lc2.json"))
+@pytest.mark.parametrize("metric", ["lc2", "lncc", "mi"])
+def test_metrics_without_derivatives_default_to_bobyqa(cli, case, metric):
+    r = run(cli, *base_args(case, f"{metric}.npy"), "--metric", metric, "--report", str(case / f"{metric}.json"))
     if "built without NLopt" in r.stderr:
         pytest.skip("this sonoslice was built without NLopt")
     assert r.returncode == 0, r.stderr
-    report = json.load(open(case / "lc2.json"))
-    assert report["metric"] == "lc2" and report["optimizer"] == "bobyqa"
-    assert all(0 <= f["metric"] <= 1 for f in report["frames"])
+    report = json.load(open(case / f"{metric}.json"))
+    assert report["metric"] == metric and report["optimizer"] == "bobyqa"
+    costs = [f["metric"] for f in report["frames"]]
+    assert all(c <= 0 for c in costs) if metric == "mi" else all(0 <= c <= 2 for c in costs), costs
 
 
 @pytest.mark.parametrize("optimizer", ["bobyqa", "nelder-mead"])
@@ -140,7 +142,7 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
 
 @pytest.mark.parametrize("extra, needle", [
     (["--metric", "mutual"], "--metric mutual"),
-    (["--metric", "mi"], "not implemented yet"),
+    (["--metric", "mi", "--optimizer", "gn"], "no analytic derivatives"),
     (["--metric", "lc2", "--optimizer", "lm"], "no analytic derivatives"),
     (["--optimizer", "adam"], "--optimizer adam"),
     (["--mode", "sweep"], "--mode sweep"),
@@ -204,4 +206,4 @@ def test_python_register_matches_the_command(cli, case):
     with pytest.raises(ValueError, match="frames"):
         sonoslice.register(ct, probe, frames[:, :-1], init)
     with pytest.raises(ValueError, match="metric"):
-        sonoslice.register(ct, probe, frames, init, metric="mi")
+        sonoslice.register(ct, probe, frames, init, metric="mutual")

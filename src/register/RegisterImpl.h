@@ -35,33 +35,62 @@ struct TermsLaunch {
 /// Sums per LC2 patch: n, ΣU, Σp, Σg, ΣU², Σp², Σg², ΣUp, ΣUg, Σpg.
 constexpr int kLc2Sums = 10;
 
-/// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
-/// (trilinear, 0 ≤ c ≤ n − 1 on every axis).
-SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, PoseTerms& t) {
-  const double y = L.y0 + v * L.sy;
+/// The trilinear sample of the level's volume at probe point (x, y) and, with `gradient`, its
+/// exact derivative along each index axis; false outside the volume (0 ≤ c ≤ n − 1 on every axis).
+struct CellSample {
+  double value = 0, gc[3] = {0, 0, 0};
+};
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool sample_cell(const TermsLaunch& L, double x, double y,
+                                                        bool gradient, CellSample& out) {
   const int64_t sy = L.nx, sz = int64_t(L.nx) * L.ny;
+  double c[3];
+  for (int k = 0; k < 3; ++k) c[k] = L.A[3 * k] * x + L.A[3 * k + 1] * y + L.a[k];
+  if (!(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= L.nx - 1 && c[1] <= L.ny - 1 &&
+        c[2] <= L.nz - 1))
+    return false;
+  const int x0 = c[0] < L.nx - 1 ? int(c[0]) : L.nx - 2;
+  const int y0 = c[1] < L.ny - 1 ? int(c[1]) : L.ny - 2;
+  const int z0 = c[2] < L.nz - 1 ? int(c[2]) : L.nz - 2;
+  if (x0 < 0 || y0 < 0 || z0 < 0) return false;  // a dimension of one voxel: no trilinear
+  const double tx = c[0] - x0, ty = c[1] - y0, tz = c[2] - z0;
+  const float* q = L.volume + z0 * sz + y0 * sy + x0;
+  const double v000 = q[0], v100 = q[1], v010 = q[sy], v110 = q[sy + 1], v001 = q[sz],
+               v101 = q[sz + 1], v011 = q[sz + sy], v111 = q[sz + sy + 1];
+  const double a00 = v000 + tx * (v100 - v000), a10 = v010 + tx * (v110 - v010);
+  const double a01 = v001 + tx * (v101 - v001), a11 = v011 + tx * (v111 - v011);
+  const double b0 = a00 + ty * (a10 - a00), b1 = a01 + ty * (a11 - a01);
+  out.value = b0 + tz * (b1 - b0);
+  if (gradient) {
+    const double dx00 = v100 - v000, dx10 = v110 - v010, dx01 = v101 - v001, dx11 = v111 - v011;
+    const double dx0 = dx00 + ty * (dx10 - dx00), dx1 = dx01 + ty * (dx11 - dx01);
+    out.gc[0] = dx0 + tz * (dx1 - dx0);
+    out.gc[1] = (a10 - a00) + tz * ((a11 - a01) - (a10 - a00));
+    out.gc[2] = b1 - b0;
+  }
+  return true;
+}
+
+/// f(i, x, cs) for each pixel i of row v inside the mask whose sample lies inside the volume
+/// (x: its probe x; cs: its sample, with derivatives when `gradient`).
+template <typename F>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void for_each_row_sample(const TermsLaunch& L, int v,
+                                                                bool gradient, const F& f) {
+  const double y = L.y0 + v * L.sy;
   for (int u = 0; u < L.width; ++u) {
     const int64_t i = int64_t(v) * L.width + u;
     if (!L.mask[i]) continue;
     const double x = L.x0 + u * L.sx;
-    double c[3];
-    for (int k = 0; k < 3; ++k) c[k] = L.A[3 * k] * x + L.A[3 * k + 1] * y + L.a[k];
-    if (!(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= L.nx - 1 && c[1] <= L.ny - 1 &&
-          c[2] <= L.nz - 1))
-      continue;
-    const int x0 = c[0] < L.nx - 1 ? int(c[0]) : L.nx - 2;
-    const int y0 = c[1] < L.ny - 1 ? int(c[1]) : L.ny - 2;
-    const int z0 = c[2] < L.nz - 1 ? int(c[2]) : L.nz - 2;
-    if (x0 < 0 || y0 < 0 || z0 < 0) continue;  // a dimension of one voxel: no trilinear
-    const double tx = c[0] - x0, ty = c[1] - y0, tz = c[2] - z0;
-    const float* q = L.volume + z0 * sz + y0 * sy + x0;
-    const double v000 = q[0], v100 = q[1], v010 = q[sy], v110 = q[sy + 1], v001 = q[sz],
-                 v101 = q[sz + 1], v011 = q[sz + sy], v111 = q[sz + sy + 1];
-    // Trilinear value and its exact derivative along each index axis.
-    const double a00 = v000 + tx * (v100 - v000), a10 = v010 + tx * (v110 - v010);
-    const double a01 = v001 + tx * (v101 - v001), a11 = v011 + tx * (v111 - v011);
-    const double b0 = a00 + ty * (a10 - a00), b1 = a01 + ty * (a11 - a01);
-    const double I = b0 + tz * (b1 - b0);
+    CellSample cs;
+    if (sample_cell(L, x, y, gradient, cs)) f(i, x, cs);
+  }
+}
+
+/// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
+/// (trilinear, 0 ≤ c ≤ n − 1 on every axis).
+SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, PoseTerms& t) {
+  const double y = L.y0 + v * L.sy;
+  for_each_row_sample(L, v, L.gradients, [&](int64_t i, double x, const CellSample& cs) {
+    const double I = cs.value;
     const double F = L.frame[i];
     t.n += 1;
     t.si += I;
@@ -69,11 +98,8 @@ SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, Po
     t.sii += I * I;
     t.sff += F * F;
     t.sif += I * F;
-    if (!L.gradients) continue;
-    const double dx00 = v100 - v000, dx10 = v110 - v010, dx01 = v101 - v001, dx11 = v111 - v011;
-    const double dx0 = dx00 + ty * (dx10 - dx00), dx1 = dx01 + ty * (dx11 - dx01);
-    const double gc[3] = {dx0 + tz * (dx1 - dx0), (a10 - a00) + tz * ((a11 - a01) - (a10 - a00)),
-                          b1 - b0};
+    if (!L.gradients) return;
+    const double* gc = cs.gc;
     double gw[3], w[3];
     for (int k = 0; k < 3; ++k) {
       gw[k] = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
@@ -94,7 +120,38 @@ SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, Po
       t.sfj[r] += F * J[r];
       for (int k = r; k < 6; ++k) t.sjj[e++] += J[r] * J[k];
     }
-  }
+  });
+}
+
+/// Bins of the mutual information's joint histogram per axis.
+constexpr int kMiBins = 32;
+
+/// Mutual information, row v: each pixel inside the mask and the volume adds 1 to the joint
+/// histogram (volume × frame, kMiBins²) split over the 2 × 2 bins around its (clipped, scaled)
+/// intensities by bilinear weights, so that the histogram changes continuously with the pose.
+SONOSLICE_HOST_DEVICE inline void accumulate_mi_row(const TermsLaunch& L, int v, double* joint,
+                                                    double vol_lo, double vol_scale, double fr_lo,
+                                                    double fr_scale) {
+  for_each_row_sample(L, v, false, [&](int64_t i, double, const CellSample& cs) {
+    const double p = cs.value;
+    const auto bin = [](double value, double lo, double scale, int* at, double* frac) {
+      double t = (value - lo) * scale;
+      t = t < 0 ? 0 : (t > kMiBins - 1 ? kMiBins - 1 : t);
+      int b = int(t);
+      b = b > kMiBins - 2 ? kMiBins - 2 : b;
+      *at = b;
+      *frac = t - b;
+    };
+    int bi, bf;
+    double ti, tf;
+    bin(p, vol_lo, vol_scale, &bi, &ti);
+    bin(double(L.frame[i]), fr_lo, fr_scale, &bf, &tf);
+    double* h = joint + int64_t(bi) * kMiBins + bf;
+    h[0] += (1 - ti) * (1 - tf);
+    h[1] += (1 - ti) * tf;
+    h[kMiBins] += ti * (1 - tf);
+    h[kMiBins + 1] += ti * tf;
+  });
 }
 
 /// LC2 (Wein et al. 2008), row v: for each pixel inside the mask and the volume, the frame's
@@ -102,32 +159,9 @@ SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, Po
 /// the sums of the pixel's patch (patch × patch pixels, row-major over the level's grid).
 SONOSLICE_HOST_DEVICE inline void accumulate_lc2_row(const TermsLaunch& L, int v, double* sums) {
   const double y = L.y0 + v * L.sy;
-  const int64_t sy = L.nx, sz = int64_t(L.nx) * L.ny;
-  for (int u = 0; u < L.width; ++u) {
-    const int64_t i = int64_t(v) * L.width + u;
-    if (!L.mask[i]) continue;
-    const double x = L.x0 + u * L.sx;
-    double c[3];
-    for (int k = 0; k < 3; ++k) c[k] = L.A[3 * k] * x + L.A[3 * k + 1] * y + L.a[k];
-    if (!(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= L.nx - 1 && c[1] <= L.ny - 1 &&
-          c[2] <= L.nz - 1))
-      continue;
-    const int x0 = c[0] < L.nx - 1 ? int(c[0]) : L.nx - 2;
-    const int y0 = c[1] < L.ny - 1 ? int(c[1]) : L.ny - 2;
-    const int z0 = c[2] < L.nz - 1 ? int(c[2]) : L.nz - 2;
-    if (x0 < 0 || y0 < 0 || z0 < 0) continue;
-    const double tx = c[0] - x0, ty = c[1] - y0, tz = c[2] - z0;
-    const float* q = L.volume + z0 * sz + y0 * sy + x0;
-    const double v000 = q[0], v100 = q[1], v010 = q[sy], v110 = q[sy + 1], v001 = q[sz],
-                 v101 = q[sz + 1], v011 = q[sz + sy], v111 = q[sz + sy + 1];
-    const double a00 = v000 + tx * (v100 - v000), a10 = v010 + tx * (v110 - v010);
-    const double a01 = v001 + tx * (v101 - v001), a11 = v011 + tx * (v111 - v011);
-    const double b0 = a00 + ty * (a10 - a00), b1 = a01 + ty * (a11 - a01);
-    const double p = b0 + tz * (b1 - b0);
-    const double dx00 = v100 - v000, dx10 = v110 - v010, dx01 = v101 - v001, dx11 = v111 - v011;
-    const double dx0 = dx00 + ty * (dx10 - dx00), dx1 = dx01 + ty * (dx11 - dx01);
-    const double gc[3] = {dx0 + tz * (dx1 - dx0), (a10 - a00) + tz * ((a11 - a01) - (a10 - a00)),
-                          b1 - b0};
+  for_each_row_sample(L, v, true, [&](int64_t i, double x, const CellSample& cs) {
+    const double p = cs.value;
+    const double* gc = cs.gc;
     // The beam through this pixel, in the probe frame, then in world.
     double bx = 0, by = 1;
     if (L.curvilinear) {
@@ -142,6 +176,7 @@ SONOSLICE_HOST_DEVICE inline void accumulate_lc2_row(const TermsLaunch& L, int v
     }
     g = g < 0 ? -g : g;
     const double U = L.frame[i];
+    const int64_t u = i - int64_t(v) * L.width;
     double* t = sums + kLc2Sums * (int64_t(v / L.patch) * L.patches_x + u / L.patch);
     t[0] += 1;
     t[1] += U;
@@ -153,7 +188,7 @@ SONOSLICE_HOST_DEVICE inline void accumulate_lc2_row(const TermsLaunch& L, int v
     t[7] += U * p;
     t[8] += U * g;
     t[9] += p * g;
-  }
+  });
 }
 
 }  // namespace register_impl

@@ -4,6 +4,7 @@
 #include "sonoslice/register/Registration.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <deque>
@@ -25,10 +26,9 @@ RegistrationMetric parse_registration_metric(const std::string& name) {
   if (name == "ssd") return RegistrationMetric::SSD;
   if (name == "ncc") return RegistrationMetric::NCC;
   if (name == "lc2") return RegistrationMetric::LC2;
-  if (name == "lncc" || name == "mi")
-    throw InputError("--metric " + name +
-                     ": not implemented yet (ssd, ncc and lc2 are; docs/registration.md §6)");
-  throw InputError("--metric " + name + ": expected ssd, ncc or lc2");
+  if (name == "lncc") return RegistrationMetric::LNCC;
+  if (name == "mi") return RegistrationMetric::MI;
+  throw InputError("--metric " + name + ": expected ssd, ncc, lncc, mi or lc2");
 }
 
 bool built_with_nlopt() {
@@ -58,9 +58,23 @@ RegistrationMode parse_registration_mode(const std::string& name) {
 }
 
 const char* to_string(RegistrationMetric metric) {
-  return metric == RegistrationMetric::SSD   ? "ssd"
-         : metric == RegistrationMetric::NCC ? "ncc"
-                                             : "lc2";
+  switch (metric) {
+    case RegistrationMetric::SSD:
+      return "ssd";
+    case RegistrationMetric::NCC:
+      return "ncc";
+    case RegistrationMetric::LNCC:
+      return "lncc";
+    case RegistrationMetric::MI:
+      return "mi";
+    case RegistrationMetric::LC2:
+      return "lc2";
+  }
+  return "?";
+}
+
+bool metric_has_derivatives(RegistrationMetric metric) {
+  return metric == RegistrationMetric::SSD || metric == RegistrationMetric::NCC;
 }
 
 void RegistrationSettings::validate() const {
@@ -74,10 +88,10 @@ void RegistrationSettings::validate() const {
     if (f < 1 || f > 64) throw InputError("pyramid: levels are block sizes from 1 to 64");
   if (max_iterations < 1) throw InputError("max_iterations: must be at least 1");
   if (!(tolerance_mm > 0) || !(tolerance_deg > 0)) throw InputError("tolerances: must be > 0");
-  if (metric == RegistrationMetric::LC2 && (optimizer == RegistrationOptimizer::GaussNewton ||
-                                            optimizer == RegistrationOptimizer::LevenbergMarquardt))
-    throw InputError(
-        "--metric lc2 has no analytic derivatives: use --optimizer bobyqa or nelder-mead");
+  if (!metric_has_derivatives(metric) && (optimizer == RegistrationOptimizer::GaussNewton ||
+                                          optimizer == RegistrationOptimizer::LevenbergMarquardt))
+    throw InputError(std::string("--metric ") + to_string(metric) +
+                     " has no analytic derivatives: use --optimizer bobyqa or nelder-mead");
 }
 
 void PoseTerms::add(const PoseTerms& o) {
@@ -110,8 +124,9 @@ void full_jj(const PoseTerms& t, double* out) {
 
 double metric_cost(RegistrationMetric metric, const PoseTerms& t, double* gradient,
                    double* hessian) {
-  if (metric == RegistrationMetric::LC2)
-    throw InputError("metric_cost: LC2 is computed per patch (FrameRegistration::lc2)");
+  if (!metric_has_derivatives(metric))
+    throw InputError(std::string("metric_cost: ") + to_string(metric) +
+                     " is computed by FrameRegistration::cost");
   if (t.n < kMinPixels) return std::numeric_limits<double>::infinity();
   const double n = t.n;
   if (metric == RegistrationMetric::SSD) {
@@ -263,6 +278,9 @@ struct FrameRegistration::State {
   const float* full_volume = nullptr;
   std::deque<Level> levels;       // only added to: references to a level stay valid
   std::vector<Vec3> mask_centre;  // per frame: the centroid of its compared pixels (probe mm)
+  // MI's intensity ranges: the volume's and each frame's 1st and 99th percentiles.
+  double volume_range[2] = {0, 1};
+  std::vector<std::array<double, 2>> frame_range;
 
   const Level& level(int f) const {
     for (const Level& l : levels)
@@ -392,6 +410,38 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
                        " has no pixel inside the probe's fan and the mask with a finite value");
     s.mask_centre[k] = {sx / n, sy / n, 0};
   }
+  // MI's ranges (robust: a few bright voxels or pixels do not squeeze the histogram).
+  const auto percentiles = [](std::vector<float> values, double out[2]) {
+    if (values.empty()) {
+      out[0] = 0;
+      out[1] = 1;
+      return;
+    }
+    const size_t lo = values.size() / 100, hi = values.size() - 1 - values.size() / 100;
+    std::nth_element(values.begin(), values.begin() + lo, values.end());
+    out[0] = values[lo];
+    std::nth_element(values.begin(), values.begin() + hi, values.end());
+    out[1] = values[hi];
+    if (!(out[1] > out[0])) out[1] = out[0] + 1;
+  };
+  {
+    const int64_t voxels = s.grid.voxel_count();
+    const int64_t stride = std::max<int64_t>(1, voxels / 1000000);
+    std::vector<float> sample;
+    for (int64_t i = 0; i < voxels; i += stride)
+      if (std::isfinite(full[i])) sample.push_back(full[i]);
+    percentiles(std::move(sample), s.volume_range);
+  }
+  s.frame_range.resize(frame_count);
+  for (size_t k = 0; k < frame_count; ++k) {
+    std::vector<float> values;
+    const size_t plane = size_t(l.width) * l.height;
+    for (size_t i = 0; i < plane; ++i)
+      if (l.masks[k * plane + i]) values.push_back(l.frames[k * plane + i]);
+    double r[2];
+    percentiles(std::move(values), r);
+    s.frame_range[k] = {r[0], r[1]};
+  }
 }
 
 FrameRegistration::~FrameRegistration() = default;
@@ -465,7 +515,8 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
   return total;
 }
 
-std::pair<double, double> FrameRegistration::lc2(size_t frame, const Pose& pose, int level) const {
+std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pose& pose, int level,
+                                                         RegistrationMetric metric) const {
   const State& s = *state_;
   register_impl::TermsLaunch L =
       make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, Vec3{0, 0, 0});
@@ -478,14 +529,21 @@ std::pair<double, double> FrameRegistration::lc2(size_t frame, const Pose& pose,
   for (size_t k = 0; k < sums.size(); k += register_impl::kLc2Sums) {
     const double* t = &sums[k];
     const double n = t[0];
-    if (n < 8) continue;  // too few pixels for a 3-parameter fit
+    if (n < 8) continue;  // too few pixels for a 3-parameter fit or a local correlation
     const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
     const double vu = t[4] / n - mu * mu;
     if (!(vu > 1e-12)) continue;  // flat frame patch: nothing to explain
-    // The least-squares fit U ≈ α·p + β·g + γ: R² = bᵀ·C⁻¹·b / var U, with C the covariance of
-    // (p, g) and b their covariances with U (a small ridge keeps a flat p or g solvable).
     double cpp = t[5] / n - mp * mp, cgg = t[6] / n - mg * mg;
-    const double cpg = t[9] / n - mp * mg, bup = t[7] / n - mu * mp, bug = t[8] / n - mu * mg;
+    const double bup = t[7] / n - mu * mp;
+    if (metric == RegistrationMetric::LNCC) {
+      // The patch's NCC of frame and volume, every patch alike; a flat volume patch scores 0.
+      if (cpp > 1e-12) weighted += bup / std::sqrt(vu * cpp);
+      weight += 1;
+      continue;
+    }
+    // LC2: the least-squares fit U ≈ α·p + β·g + γ, R² = bᵀ·C⁻¹·b / var U with C the covariance
+    // of (p, g) and b their covariances with U (a small ridge keeps a flat p or g solvable).
+    const double cpg = t[9] / n - mp * mg, bug = t[8] / n - mu * mg;
     const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
     cpp += ridge;
     cgg += ridge;
@@ -500,11 +558,46 @@ std::pair<double, double> FrameRegistration::lc2(size_t frame, const Pose& pose,
   return {weighted, weight};
 }
 
+double FrameRegistration::mutual_information(size_t frame, const Pose& pose, int level) const {
+  const State& s = *state_;
+  const register_impl::TermsLaunch L =
+      make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, Vec3{0, 0, 0});
+  constexpr int B = register_impl::kMiBins;
+  std::vector<double> joint(size_t(B) * B, 0.0);
+  const double vol_lo = s.volume_range[0],
+               vol_scale = (B - 1) / (s.volume_range[1] - s.volume_range[0]);
+  const double fr_lo = s.frame_range[frame][0],
+               fr_scale = (B - 1) / (s.frame_range[frame][1] - s.frame_range[frame][0]);
+  for (int v = 0; v < L.height; ++v)
+    register_impl::accumulate_mi_row(L, v, joint.data(), vol_lo, vol_scale, fr_lo, fr_scale);
+  double total = 0;
+  for (double h : joint) total += h;
+  if (total < kMinPixels) return std::numeric_limits<double>::quiet_NaN();
+  double pi[B] = {}, pf[B] = {};
+  for (int i = 0; i < B; ++i)
+    for (int j = 0; j < B; ++j) {
+      pi[i] += joint[size_t(i) * B + j] / total;
+      pf[j] += joint[size_t(i) * B + j] / total;
+    }
+  double mi = 0;
+  for (int i = 0; i < B; ++i)
+    for (int j = 0; j < B; ++j) {
+      const double p = joint[size_t(i) * B + j] / total;
+      if (p > 0) mi += p * std::log(p / (pi[i] * pf[j]));
+    }
+  return mi;
+}
+
 double FrameRegistration::cost(size_t frame, const Pose& pose, int level,
                                RegistrationMetric metric) const {
-  if (metric == RegistrationMetric::LC2) {
-    const auto [weighted, weight] = lc2(frame, pose, level);
-    return weight > 0 ? 1 - weighted / weight : std::numeric_limits<double>::infinity();
+  const double inf = std::numeric_limits<double>::infinity();
+  if (metric == RegistrationMetric::LC2 || metric == RegistrationMetric::LNCC) {
+    const auto [weighted, weight] = patch_score(frame, pose, level, metric);
+    return weight > 0 ? 1 - weighted / weight : inf;
+  }
+  if (metric == RegistrationMetric::MI) {
+    const double mi = mutual_information(frame, pose, level);
+    return std::isfinite(mi) ? -mi : inf;
   }
   return metric_cost(metric, terms(frame, pose, level, centre(frame, pose), false));
 }
@@ -755,20 +848,26 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       for (const PoseTerms& t : each) sum.add(t);
       return sum;
     };
-    // The sweep's cost: SSD and NCC over all its pixels together; LC2 over all its patches.
+    // The sweep's cost: SSD and NCC over all its pixels together; LC2 and LNCC over all its
+    // patches; MI the mean of the frames' (each frame has its own intensity range).
     p.cost = [&](const Pose& X, int f) {
-      if (settings.metric != RegistrationMetric::LC2)
+      if (settings.metric == RegistrationMetric::SSD || settings.metric == RegistrationMetric::NCC)
         return metric_cost(settings.metric, p.terms(X, f, mean, false));
       std::vector<std::pair<double, double>> each(s.count);
       backend::parallel_for(int64_t(s.count), [&](int64_t k) {
-        each[size_t(k)] = lc2(size_t(k), X * initial[size_t(k)], f);
+        const Pose pose = X * initial[size_t(k)];
+        if (settings.metric == RegistrationMetric::MI)
+          each[size_t(k)] = {cost(size_t(k), pose, f, settings.metric), 1.0};
+        else
+          each[size_t(k)] = patch_score(size_t(k), pose, f, settings.metric);
       });
       double weighted = 0, weight = 0;
       for (const auto& [a, b] : each) {
         weighted += a;
         weight += b;
       }
-      return weight > 0 ? 1 - weighted / weight : std::numeric_limits<double>::infinity();
+      if (!(weight > 0)) return std::numeric_limits<double>::infinity();
+      return settings.metric == RegistrationMetric::MI ? weighted / weight : 1 - weighted / weight;
     };
     const Outcome o = multi_start(p, settings, 0, mean);
     for (size_t k = 0; k < s.count; ++k) describe(k, o, o.evaluations / int64_t(s.count));

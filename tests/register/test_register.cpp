@@ -195,37 +195,42 @@ TEST(Register, DerivativeFreeOptimisersRecoverPoses) {
   }
 }
 
-TEST(Register, Lc2PrefersTheTruePoseAndRecoversFromCtLikeFrames) {
+TEST(Register, PatchAndHistogramMetricsPreferTheTruePoseAndRecoverFromCtLikeFrames) {
   if (!built_with_nlopt()) GTEST_SKIP() << "built without NLopt";
-  // Frames that are a linear function of the CT plus noise: LC2's fit explains them, so it is
-  // highest at the true pose and BOBYQA finds it.
+  // Frames that are a linear function of the CT plus noise: LC2's fit, the local NCCs and the
+  // joint histogram all explain them best at the true pose, and BOBYQA finds it.
   const std::vector<Pose> truth = phantom_random_poses(8, 11);
   const std::vector<Pose> two = {truth[1], truth[5]};
   std::vector<float> frames = noisy_fans(two, 20);
   for (float& v : frames) v = 0.25f * v + 40;
   const FrameRegistration reg(phantom().ct, probe(), frames.data(), two.size());
   std::vector<Pose> initial;
-  for (size_t k = 0; k < two.size(); ++k) {
+  for (size_t k = 0; k < two.size(); ++k)
     initial.push_back(
         perturbed(two[k], two[k].transform_point(fan_centre()), 3, 3, unsigned(300 + k)));
-    const double at_truth = reg.cost(k, two[k], 1, RegistrationMetric::LC2);
-    const double off = reg.cost(k, initial[k], 1, RegistrationMetric::LC2);
-    std::printf("[ lc2 ] frame %zu: 1 - LC2 %.4f at the truth, %.4f 3 mm and 3 deg off\n", k,
-                at_truth, off);
-    EXPECT_LT(at_truth, off);
+  for (RegistrationMetric metric :
+       {RegistrationMetric::LC2, RegistrationMetric::LNCC, RegistrationMetric::MI}) {
+    for (size_t k = 0; k < two.size(); ++k) {
+      const double at_truth = reg.cost(k, two[k], 1, metric);
+      const double off = reg.cost(k, initial[k], 1, metric);
+      std::printf("[ %s ] frame %zu: cost %.4f at the truth, %.4f 3 mm and 3 deg off\n",
+                  to_string(metric), k, at_truth, off);
+      EXPECT_LT(at_truth, off);
+    }
+    RegistrationSettings settings;
+    settings.metric = metric;
+    settings.optimizer = RegistrationOptimizer::Bobyqa;
+    const std::vector<Pose> refined = reg.run(initial, settings, nullptr);
+    for (size_t k = 0; k < two.size(); ++k) {
+      const auto e = pose_error(refined[k], two[k], fan_centre());
+      std::printf("[ %s ] frame %zu: 3 mm 3 deg -> %.3f mm %.3f deg\n", to_string(metric), k,
+                  e.first, e.second);
+      EXPECT_LT(e.first, 1);
+      EXPECT_LT(e.second, 1);
+    }
+    settings.optimizer = RegistrationOptimizer::LevenbergMarquardt;
+    EXPECT_THROW(reg.run(initial, settings, nullptr), InputError);  // no derivatives
   }
-  RegistrationSettings settings;
-  settings.metric = RegistrationMetric::LC2;
-  settings.optimizer = RegistrationOptimizer::Bobyqa;
-  const std::vector<Pose> refined = reg.run(initial, settings, nullptr);
-  for (size_t k = 0; k < two.size(); ++k) {
-    const auto e = pose_error(refined[k], two[k], fan_centre());
-    std::printf("[ lc2 ] frame %zu: 3 mm 3 deg -> %.3f mm %.3f deg\n", k, e.first, e.second);
-    EXPECT_LT(e.first, 1);
-    EXPECT_LT(e.second, 1);
-  }
-  settings.optimizer = RegistrationOptimizer::LevenbergMarquardt;
-  EXPECT_THROW(reg.run(initial, settings, nullptr), InputError);  // no derivatives for LC2
 }
 
 TEST(Register, DifferentiableSliceGradientsMatchFiniteDifferences) {
@@ -296,6 +301,7 @@ TEST(Register, BadInputIsNamed) {
   s.starts = 0;
   EXPECT_THROW(reg.run(truth, s, nullptr), InputError);
   EXPECT_THROW(parse_registration_metric("mutual"), InputError);
+  EXPECT_FALSE(metric_has_derivatives(parse_registration_metric("mi")));
   EXPECT_THROW(parse_registration_optimizer("adam"), InputError);
   EXPECT_THROW(parse_registration_mode("sweep"), InputError);
 }

@@ -18,6 +18,13 @@ namespace sonoslice {
 enum class RegistrationMetric {
   SSD,  ///< mean squared difference (frame and volume on the same intensity scale)
   NCC,  ///< normalised cross-correlation (any linear intensity relation); cost 1 − NCC
+  /// Local NCC: the mean of the NCCs of the fan's patches (11 full-resolution pixels a side);
+  /// cost 1 − LNCC. Derivative-free optimisers only.
+  LNCC,
+  /// Mutual information of a 32 × 32 joint histogram, each sample split over its 2 × 2 nearest
+  /// bins (Parzen, linear kernel: continuous in the pose), intensities clipped to the volume's
+  /// and each frame's 1st–99th percentiles; cost −MI (nats). Derivative-free optimisers only.
+  MI,
   /// Wein et al. 2008's linear correlation of linear combination, for ultrasound against CT:
   /// in each patch the frame is fitted by the volume's intensity and its gradient magnitude
   /// along the beam; LC2 is the patches' R² weighted by the frame's local standard deviation;
@@ -37,7 +44,10 @@ enum class RegistrationMode {
   RigidSweep  ///< one world-frame correction X shared by all frames: refined poses X · T_i
 };
 
-RegistrationMetric parse_registration_metric(const std::string& name);  ///< "ssd", "ncc", "lc2"
+/// "ssd", "ncc", "lncc", "mi", "lc2".
+RegistrationMetric parse_registration_metric(const std::string& name);
+/// True for the metrics with analytic derivatives (SSD, NCC): the ones GN and LM can optimise.
+bool metric_has_derivatives(RegistrationMetric metric);
 /// "gn", "lm", "bobyqa", "nelder-mead" (the last two: InputError in a build without NLopt).
 RegistrationOptimizer parse_registration_optimizer(const std::string& name);
 RegistrationMode parse_registration_mode(const std::string& name);  ///< "per-frame", ...
@@ -113,10 +123,16 @@ class FrameRegistration {
   /// about `centre` when `gradients`.
   PoseTerms terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
                   bool gradients) const;
-  /// LC2 of frame `frame` at `pose` at pyramid level `level`, as its two sums: Σ σ_U·R² and
-  /// Σ σ_U over the patches (LC2 = the first over the second; both 0 without a usable patch).
-  std::pair<double, double> lc2(size_t frame, const Pose& pose, int level) const;
-  /// The cost of `metric` (SSD, 1 − NCC or 1 − LC2) for frame `frame` at `pose`, level `level`.
+  /// The patch metrics of frame `frame` at `pose` at pyramid level `level`, as two sums over
+  /// the patches: LC2: Σ σ_U·R² and Σ σ_U; LNCC: Σ NCC and the patch count (the metric is the
+  /// first over the second; both 0 without a usable patch).
+  std::pair<double, double> patch_score(size_t frame, const Pose& pose, int level,
+                                        RegistrationMetric metric) const;
+  /// The mutual information (nats) of frame `frame` and the volume at `pose`, level `level`;
+  /// NaN with fewer than 16 samples.
+  double mutual_information(size_t frame, const Pose& pose, int level) const;
+  /// The cost of `metric` (SSD, 1 − NCC, 1 − LNCC, −MI or 1 − LC2) for frame `frame` at
+  /// `pose`, level `level`.
   double cost(size_t frame, const Pose& pose, int level, RegistrationMetric metric) const;
   /// The world point of the centre of frame `frame`'s compared pixels at `pose`.
   Vec3 centre(size_t frame, const Pose& pose) const;
