@@ -30,8 +30,8 @@ struct RegisterFlags {
   bool verbose = false;
 };
 
-/// The frames as float (N·H·W), checked against the probe's image size.
-std::vector<float> read_frames(const std::string& path, const ProbeGeometry& probe, size_t* count) {
+/// The frames as a float32 stack (W, H, N), checked against the probe's image size.
+Volume read_frames(const std::string& path, const ProbeGeometry& probe, size_t* count) {
   const Volume stack = read_image_stack(path, "--frames");
   const VolumeGrid& g = stack.grid();
   if (g.dims[0] != probe.image.width || g.dims[1] != probe.image.height)
@@ -40,13 +40,7 @@ std::vector<float> read_frames(const std::string& path, const ProbeGeometry& pro
                      std::to_string(probe.image.width) + "x" + std::to_string(probe.image.height) +
                      " (W x H; check --probe and --downsampling)");
   *count = size_t(g.dims[2]);
-  std::vector<float> frames(size_t(g.voxel_count()));
-  visit_pixel_type(stack.pixel_type(), [&](auto zero) {
-    using T = decltype(zero);
-    const T* v = stack.data_as<T>();
-    for (size_t i = 0; i < frames.size(); ++i) frames[i] = float(v[i]);
-  });
-  return frames;
+  return stack.pixel_type() == PixelType::Float32 ? stack : stack.converted(PixelType::Float32);
 }
 
 void run_register(const RegisterFlags& f) {
@@ -105,7 +99,7 @@ void run_register(const RegisterFlags& f) {
   const WorldFrame world = parse_world_frame(f.world);
   const std::vector<Pose> initial = read_poses(f.poses, world);
   size_t count = 0;
-  const std::vector<float> frames = read_frames(f.frames, probe, &count);
+  const Volume frames = read_frames(f.frames, probe, &count);
   if (initial.size() != count)
     throw InputError("--poses '" + f.poses + "': " + std::to_string(initial.size()) +
                      " poses for " + std::to_string(count) + " frames in '" + f.frames + "'");
@@ -128,7 +122,7 @@ void run_register(const RegisterFlags& f) {
   const Volume volume = read_volume(f.volume.path, f.volume.options());
   const double load_seconds = load.seconds();
 
-  const FrameRegistration reg(volume, probe, frames.data(), count,
+  const FrameRegistration reg(volume, probe, frames.data_as<float>(), count,
                               user_mask.empty() ? nullptr : user_mask.data());
   RegistrationReport report;
   const std::vector<Pose> refined = reg.run(initial, settings, &report);

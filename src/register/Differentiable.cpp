@@ -140,9 +140,11 @@ void slice_linear_backward(const Volume& volume, const ProbeGeometry& probe, con
   visit_pixel_type(volume.pixel_type(), [&](auto zero) {
     using T = decltype(zero);
     const T* v = volume.data_as<T>();
-    // Poses in parallel: dL/dT_ij = Σ dL/dI · (∇_w I)_i · p̃_j with ∇_w I = Lᵀ·∇_c I and
-    // p̃ = (x, y, 0, 1).
-    backend::parallel_for(int64_t(count), [&](int64_t k) {
+    // dL/dT_ij = Σ dL/dI · (∇_w I)_i · p̃_j with ∇_w I = Lᵀ·∇_c I and p̃ = (x, y, 0, 1); with a
+    // volume gradient, each sample's dL/dI is also spread over its eight corners by their
+    // weights (clamped corners coincide and add up). Without it, poses run in parallel; with it,
+    // one pass pose by pose in order, so the sums are the same on any thread count.
+    const auto pose = [&](int64_t k) {
       double G[12] = {};
       const double* go = grad_images + k * plane;
       for_each_sample(
@@ -155,21 +157,16 @@ void slice_linear_backward(const Volume& volume, const ProbeGeometry& probe, con
               G[4 * a + 1] += gw * p[1];
               G[4 * a + 3] += gw;
             }
+            if (grad_volume)
+              for (int q = 0; q < 8; ++q) grad_volume[s.corner[q]] += go[i] * s.weight[q];
           });
       double* out = grad_poses + 16 * k;
       for (int e = 0; e < 16; ++e) out[e] = e < 12 ? G[e] : 0.0;
-    });
-    if (!grad_volume) return;
-    // The volume: each sample's dL/dI spread over its eight corners by their weights (clamped
-    // corners coincide and add up), pose by pose in order.
-    for (size_t k = 0; k < count; ++k) {
-      const double* go = grad_images + int64_t(k) * plane;
-      for_each_sample(
-          g, v, poses[k], [&](int64_t i) { return go[i] == 0; },
-          [&](int64_t i, const double*, const Sample& s) {
-            for (int q = 0; q < 8; ++q) grad_volume[s.corner[q]] += go[i] * s.weight[q];
-          });
-    }
+    };
+    if (grad_volume)
+      for (int64_t k = 0; k < int64_t(count); ++k) pose(k);
+    else
+      backend::parallel_for(int64_t(count), pose);
   });
 }
 

@@ -10,6 +10,7 @@
 #include <deque>
 #include <functional>
 #include <limits>
+#include <optional>
 
 #include "../backend/ParallelFor.h"
 #include "RegisterImpl.h"
@@ -273,9 +274,7 @@ struct FrameRegistration::State {
   Mat3 L;  // world → index, linear
   Vec3 o;
   size_t count = 0;
-  Volume volume;            // shared, kept alive
-  std::vector<float> full;  // the volume as float when it is not float32
-  const float* full_volume = nullptr;
+  Volume volume;                  // float32: the caller's (shared) or a converted copy
   std::deque<Level> levels;       // only added to: references to a level stay valid
   std::vector<Vec3> mask_centre;  // per frame: the centroid of its compared pixels (probe mm)
   // MI's intensity ranges: the volume's and each frame's 1st and 99th percentiles.
@@ -298,7 +297,7 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
   levels.emplace_back();
   Level& l = levels.back();
   const Level& first = levels.front();  // level 1 (made first, by the constructor)
-  const float* volume = full_volume;
+  const float* volume = this->volume.data_as<float>();
   l.f = f;
   const int W = probe.image.width, H = probe.image.height;
   const int64_t nx = grid.dims[0], ny = grid.dims[1], nz = grid.dims[2];
@@ -376,20 +375,9 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
   for (int k = 0; k < 3; ++k)
     if (s.grid.dims[k] < 2)
       throw InputError("volume: needs at least 2 voxels along each axis for trilinear gradients");
-  const float* full = nullptr;
-  if (volume.pixel_type() == PixelType::Float32) {
-    full = volume.data_as<float>();
-  } else {
-    const int64_t n = s.grid.voxel_count();
-    s.full.resize(size_t(n));
-    visit_pixel_type(volume.pixel_type(), [&](auto zero) {
-      using T = decltype(zero);
-      const T* v = volume.data_as<T>();
-      for (int64_t i = 0; i < n; ++i) s.full[size_t(i)] = float(v[i]);
-    });
-    full = s.full.data();
-  }
-  s.full_volume = full;
+  // The kernels read float: a float32 volume is shared, others are converted once.
+  if (volume.pixel_type() != PixelType::Float32) s.volume = volume.converted(PixelType::Float32);
+  const float* full = s.volume.data_as<float>();
   std::vector<uint8_t> mask = probe.mask();
   if (user_mask)
     for (size_t i = 0; i < mask.size(); ++i) mask[i] = mask[i] && user_mask[i];
@@ -493,8 +481,9 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const Mat3& L
   return L;
 }
 
-/// LC2 patches: 11 full-resolution pixels a side (2.7 mm on W1), at least 3 level pixels.
-int lc2_patch(int f) {
+/// LC2 and local NCC patches: 11 full-resolution pixels a side (2.7 mm on W1), at least 3 level
+/// pixels.
+int patch_side(int f) {
   return std::max(3, (11 + f / 2) / f);
 }
 
@@ -520,7 +509,7 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
   const State& s = *state_;
   register_impl::TermsLaunch L =
       make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, Vec3{0, 0, 0});
-  L.patch = lc2_patch(s.level(level).f);
+  L.patch = patch_side(s.level(level).f);
   L.patches_x = (L.width + L.patch - 1) / L.patch;
   const int patches_y = (L.height + L.patch - 1) / L.patch;
   std::vector<double> sums(size_t(L.patches_x) * patches_y * register_impl::kLc2Sums, 0.0);
@@ -805,11 +794,13 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
 
   std::vector<Pose> refined(s.count);
   std::vector<FrameReport> frames(s.count);
-  const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations) {
+  // `metric`: the frame's own final cost (per frame: the optimisation's; a sweep's is shared).
+  const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations,
+                            std::optional<double> metric) {
     FrameReport& r = frames[k];
     r.index = k;
     refined[k] = o.correction * initial[k];
-    r.metric = cost(k, refined[k], 1, settings.metric);
+    r.metric = metric ? *metric : cost(k, refined[k], 1, settings.metric);
     r.evaluations = evaluations;
     r.iterations = o.iterations;
     double d = 0;
@@ -827,7 +818,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
         return cost(size_t(k), X * initial[size_t(k)], f, settings.metric);
       };
       const Outcome o = multi_start(p, settings, size_t(k), centre(size_t(k), initial[size_t(k)]));
-      describe(size_t(k), o, o.evaluations);
+      describe(size_t(k), o, o.evaluations, o.cost);
     });
   } else {
     // One correction for the sweep: each evaluation sums every frame's terms (in parallel, then
@@ -870,7 +861,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       return settings.metric == RegistrationMetric::MI ? weighted / weight : 1 - weighted / weight;
     };
     const Outcome o = multi_start(p, settings, 0, mean);
-    for (size_t k = 0; k < s.count; ++k) describe(k, o, o.evaluations / int64_t(s.count));
+    for (size_t k = 0; k < s.count; ++k)
+      describe(k, o, o.evaluations / int64_t(s.count), std::nullopt);
   }
   if (report) {
     report->frames = frames;

@@ -191,40 +191,8 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int32_t node_offset(const NoiseTile& t, i
   return 2 * wrap_node(t, ix) + t.stride_y * wrap_node(t, iy) + t.stride_z * wrap_node(t, iz);
 }
 
-/// The speckle field at lattice coordinate (x, y, z) (already shifted): the sum of two tiles of
-/// co-prime size (so the pattern repeats only after n1·n2 lattice steps), each trilinear between
-/// its nodes, divided by the weights' root sum of squares: interpolated white noise is 8 times
-/// weaker mid-cell than at a node, which a beam running along a lattice axis would show as
-/// streaks; normalised, its variance is the same everywhere. Both tiles share the cell and its
-/// weights (the same lattice), only the nodes differ.
-/// Adds weight × field to `acc` as four partial sums per tile, (re, im) of the x0 and of the x1
-/// corners: independent sums, so that the additions of successive elevation points do not wait
-/// on each other (speckle_sum() adds them up).
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void add_noise(const ImageModel& m, float x, float y,
-                                                      float z, float weight, float* acc) {
-  const float hi = float(m.lattice_count - 2);
-  x = clampf(x, 0, hi);
-  y = clampf(y, 0, hi);
-  z = clampf(z, 0, hi);
-  const int ix = int(x), iy = int(y), iz = int(z);
-  const float fx = x - float(ix), fy = y - float(iy), fz = z - float(iz);
-  const float gx = 1 - fx, gy = 1 - fy, gz = 1 - fz;
-  const float norm = weight * inverse_root_of_weights(fx * gx) * inverse_root_of_weights(fy * gy) *
-                     inverse_root_of_weights(fz * gz);
-  const float xw[4] = {gx * norm, gx * norm, fx * norm, fx * norm};
-  const float w00 = gy * gz, w10 = fy * gz, w01 = gy * fz, w11 = fy * fz;
-  for (int t = 0; t < 2; ++t) {
-    const NoiseTile& tile = m.tiles[t];
-    const float* n0 = tile.nodes + node_offset(tile, ix, iy, iz);
-    const float* n1 = n0 + tile.stride_y;
-    const float* n2 = n0 + tile.stride_z;
-    const float* n3 = n2 + tile.stride_y;
-    for (int c = 0; c < 4; ++c)
-      acc[4 * t + c] += xw[c] * ((w00 * n0[c] + w10 * n1[c]) + (w01 * n2[c] + w11 * n3[c]));
-  }
-}
-
-/// The complex field from add_noise()'s partial sums.
+/// The complex field from speckle_of_lane()'s partial sums (generic path): per tile, (re, im)
+/// of the x0 and of the x1 corners.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_sum(const float* acc, float& re, float& im) {
   re = (acc[0] + acc[2]) + (acc[4] + acc[6]);
   im = (acc[1] + acc[3]) + (acc[5] + acc[7]);
@@ -385,7 +353,7 @@ struct SpeckleCells {
   int32_t off0[kMaxElevations][kSpeckleLanes], off1[kMaxElevations][kSpeckleLanes];
 };
 
-/// The speckle field of lane l from its cells: add_noise()'s sums over both tiles and every
+/// The speckle field of lane l from its cells: the weighted node sums over both tiles and every
 /// elevation point.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_of_lane(const ImageModel& m,
                                                             const SpeckleCells& c, int l, float& re,
@@ -432,9 +400,14 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_of_lane(const ImageModel& m,
 }
 
 /// Stage 1b, beam b: the diffuse echo weights trace_beam() left in echo's real parts times the
-/// speckle field summed across the slice thickness (add_noise()'s arithmetic, arranged so that
-/// the cells, weights and node offsets of kSpeckleLanes samples are computed together, then the
-/// node loads follow sample by sample).
+/// speckle field summed across the slice thickness. The field at a lattice coordinate is the sum
+/// of two tiles of co-prime size (so the pattern repeats only after n1·n2 lattice steps), each
+/// trilinear between its nodes and divided by the weights' root sum of squares: interpolated
+/// white noise is 8 times weaker mid-cell than at a node, which a beam running along a lattice
+/// axis would show as streaks; normalised, its variance is the same everywhere. Both tiles share
+/// the cell and its weights (the same lattice), only the nodes differ. The cells, weights and
+/// node offsets of kSpeckleLanes samples are computed together, then the node loads follow
+/// sample by sample (speckle_of_lane).
 SONOSLICE_HOST_DEVICE inline void add_speckle(const ImageModel& m, int b, float* echo) {
   float o[2], d[2];
   beam_line(m, b, o, d);

@@ -23,7 +23,6 @@ struct Model {
   ProbeGeometry probe;
   SimulationSettings settings;
   std::vector<uint8_t> mask;
-  std::vector<float> hu;           // HU source: the voxels as float
   std::vector<Props> label_props;  // label source: 65536 entries
   std::vector<Props> hu_table;
   std::vector<float> tiles[2];  // padded (n+1)³ complex
@@ -126,8 +125,8 @@ int lateral_table(const ImageModel& m, double sigma_mm, std::vector<float>& tabl
 
 /// The gain that makes fully developed speckle's mean envelope 1 (so a tissue's is its
 /// scatter_mean): the noise, the slice-thickness sum and the filters of this model on a patch of
-/// 96 beams × 384 samples along an oblique line, with a fixed seed, interpolated as scan conversion
-/// does. The same for every image
+/// 96 beams × 384 samples along an oblique line (the image's own add_speckle and filters), with a
+/// fixed seed, interpolated as scan conversion does. The same for every image
 /// of a simulator, so images stay comparable.
 double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2]) {
   ImageModel m = model;
@@ -156,37 +155,25 @@ double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2
   }
   m.lattice_offset = float(offset);
   set_pose(m, map);
-  std::vector<float> field(size_t(B) * S * 2), out(size_t(B) * S * 2), tmp(size_t(S) * 2);
-  for (int b = 0; b < B; ++b)
-    for (int s = 0; s < S; ++s) {
-      const float px = float(b * lateral_step), py = float(s * double(m.step_mm));
-      float nr = 0, ni = 0, acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-      const float qx = m.Q[0] * px + m.Q[1] * py + m.q[0];
-      const float qy = m.Q[3] * px + m.Q[4] * py + m.q[1];
-      const float qz = m.Q[6] * px + m.Q[7] * py + m.q[2];
-      for (int e = 0; e < m.elevations; ++e)
-        simulate_impl::add_noise(m, qx + m.elevation_q[e][0], qy + m.elevation_q[e][1],
-                                 qz + m.elevation_q[e][2], m.elevation_weight[e], acc);
-      simulate_impl::speckle_sum(acc, nr, ni);
-      field[2 * (size_t(b) * S + s)] = nr;
-      field[2 * (size_t(b) * S + s) + 1] = ni;
-    }
-  for (int b = 0; b < B; ++b)
+  // The patch as B parallel beams of S samples, lateral_step apart, through the image's own
+  // stages: speckle (weight 1 everywhere), then the speckle's axial and lateral filters.
+  m.curvilinear = false;
+  m.beams = B;
+  m.samples = S;
+  m.beam0 = 0;
+  m.beam_step = lateral_step;
+  m.start = 0;
+  std::vector<float> lateral;
+  const int radius = lateral_table(m, m.sigma_lateral_speckle_mm, lateral);
+  std::vector<float> field(size_t(B) * S * 2, 0.f), out(size_t(B) * S * 2), tmp(size_t(S) * 2);
+  for (size_t i = 0; i < field.size(); i += 2) field[i] = 1;
+  for (int b = 0; b < B; ++b) {
+    simulate_impl::add_speckle(m, b, field.data());
     simulate_impl::filter_axial(field.data() + 2 * size_t(b) * S, S, 2, m.axial_speckle,
                                 m.axial_speckle_radius, tmp.data());
-  const std::vector<float> lateral =
-      gauss_taps(m.sigma_lateral_speckle_mm / lateral_step, true, simulate_impl::kMaxLateralRadius);
-  const int r = int(lateral.size() / 2);
+  }
   for (int b = 0; b < B; ++b)
-    for (int s = 0; s < S; ++s)
-      for (int c = 0; c < 2; ++c) {
-        float acc = 0;
-        for (int k = -r; k <= r; ++k) {
-          const int j = std::min(std::max(b + k, 0), B - 1);
-          acc += lateral[size_t(k + r)] * field[2 * (size_t(j) * S + s) + c];
-        }
-        out[2 * (size_t(b) * S + s) + c] = acc;
-      }
+    simulate_impl::filter_lateral(field.data(), out.data(), B, S, 2, lateral.data(), radius, b);
   // The mean envelope where the image's pixels fall: anywhere between samples and beams, where
   // scan conversion interpolates the complex echo (a little below the samples' own mean).
   double sum = 0;
@@ -270,13 +257,8 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
     } else if (volume.pixel_type() == PixelType::Int16) {
       b.hu16 = volume.data_as<int16_t>();
     } else {
-      m.hu.resize(size_t(voxels));
-      visit_pixel_type(volume.pixel_type(), [&](auto zero) {
-        using T = decltype(zero);
-        const T* v = volume.data_as<T>();
-        for (int64_t i = 0; i < voxels; ++i) m.hu[size_t(i)] = float(v[i]);
-      });
-      b.hu = m.hu.data();
+      volume = volume.converted(PixelType::Float32);  // kept in m.volume below
+      b.hu = volume.data_as<float>();
     }
     b.hu_min = -1024;
     b.hu_count = 4096 + 1024;  // -1024 .. 4095 HU

@@ -21,8 +21,8 @@ void slice_linear_f64(const Volume& volume, const ProbeGeometry& probe, const Po
 /// The backward pass of slice_linear_f64 for `grad_images` = dL/d(images) ((count, H, W)):
 /// dL/d(pose) into `grad_poses` ((count, 4, 4) row-major; the last row is 0: it does not move a
 /// pixel) and, when `grad_volume` is not null, dL/d(voxel) added into it (voxel_count values, x
-/// fastest). Pose gradients run in parallel over poses; the volume's are summed pose by pose, in
-/// order, so both are the same on any thread count.
+/// fastest). Without a volume gradient the poses run in parallel; with one, pose by pose in
+/// order: both give the same sums on any thread count.
 void slice_linear_backward(const Volume& volume, const ProbeGeometry& probe, const Pose* poses,
                            size_t count, const double* grad_images, double* grad_poses,
                            double* grad_volume);
