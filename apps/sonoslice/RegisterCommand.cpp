@@ -24,7 +24,7 @@ struct RegisterFlags {
   std::string probe, frames, poses, out, report, user_mask, world = "LPS";
   std::string metric = "ncc", optimizer, mode = "per-frame", pyramid;
   int downsampling = 1, starts = 1;
-  double search_rot_deg = 10, search_trans_mm = 10;
+  double search_rot_deg = 10, search_trans_mm = 10, smoothness = 0.3;
   uint64_t seed = 0;
   std::optional<int> threads;
   bool verbose = false;
@@ -64,6 +64,7 @@ void run_register(const RegisterFlags& f) {
   settings.search_rot_deg = f.search_rot_deg;
   settings.search_trans_mm = f.search_trans_mm;
   settings.seed = f.seed;
+  settings.smoothness = f.smoothness;
   if (!f.pyramid.empty()) {
     settings.pyramid.clear();
     size_t start = 0;
@@ -140,6 +141,7 @@ void run_register(const RegisterFlags& f) {
     j["optimizer"] = optimizer;
     j["mode"] = f.mode;
     j["starts"] = f.starts;
+    if (settings.mode == RegistrationMode::SmoothSweep) j["smoothness"] = f.smoothness;
     j["frames"] = nlohmann::json::array();
     for (const FrameReport& r : report.frames)
       j["frames"].push_back({{"index", r.index},
@@ -189,7 +191,10 @@ void add_register_command(CLI::App& app) {
   cmd->add_option("--pyramid", flags->pyramid,
                   "Coarse-to-fine pixel block sizes (default 8,4,2,1; docs/registration.md)");
   cmd->add_option("--mode", flags->mode,
-                  "per-frame (default) or rigid-sweep (one world correction for all frames)");
+                  "per-frame (default), rigid-sweep (one world correction for all frames) or "
+                  "smooth-sweep (per frame, tied to the neighbours along the sweep)");
+  cmd->add_option("--smoothness", flags->smoothness,
+                  "smooth-sweep: the prior's weight relative to the frames' curvature (0.3)");
   cmd->add_option("--mask", flags->user_mask,
                   "An HxW image: compare only its non-zero pixels (with the fan mask)");
   cmd->add_option("--report", flags->report, "Write a JSON report here");

@@ -774,14 +774,16 @@ from .compound import (  # noqa: E402  (it uses Volume, defined above)
 
 def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc", optimizer: Optional[str] = None,
              mode: str = "per-frame", starts: int = 1, search_rot_deg: float = 10.0, search_trans_mm: float = 10.0,
-             seed: int = 0, pyramid: Sequence[int] = (8, 4, 2, 1), mask=None, world: str = "LPS"):
+             seed: int = 0, pyramid: Sequence[int] = (8, 4, 2, 1), mask=None, world: str = "LPS",
+             smoothness: float = 0.3):
     """Refines the poses of ``frames`` ((N, H, W) on ``probe``'s grid, any real dtype) against
     ``volume`` from ``poses`` ((N, 4, 4) probe→world, mm), as ``sonoslice register`` does
     (docs/registration.md). ``mask``: an (H, W) array, non-zero where pixels are compared (with
     the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
     "frames" (one dict per frame: index, metric, evaluations, iterations,
     translation_change_mm, rotation_change_deg), "evaluations" and "seconds". ``optimizer``: by
-    default "lm" for "ssd" and "ncc", "bobyqa" for "lncc", "mi" and "lc2"."""
+    default "lm" for "ssd" and "ncc", "bobyqa" for "lncc", "mi" and "lc2". ``mode``: "per-frame",
+    "rigid-sweep" or "smooth-sweep" (``smoothness``: the prior's relative weight)."""
     if optimizer is None:
         optimizer = "lm" if str(metric) in ("ssd", "ncc") else "bobyqa"
     if not isinstance(volume, Volume):
@@ -797,7 +799,7 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc"
     m = None if mask is None else np.ascontiguousarray(_real_array(mask, "mask") != 0, dtype=np.uint8)
     refined, rows, evaluations, seconds = _ext.register_frames(
         volume._cpp, probe._cpp, f, p, m, str(metric), str(optimizer), str(mode), int(starts),
-        float(search_rot_deg), float(search_trans_mm), int(seed), [int(x) for x in pyramid])
+        float(search_rot_deg), float(search_trans_mm), int(seed), [int(x) for x in pyramid], float(smoothness))
     if str(world).upper() == "RAS":  # back to the caller's frame (the flip is its own inverse)
         refined = refined.copy()
         refined[:, :2, :] *= -1

@@ -75,7 +75,7 @@ void bind_registration(nb::module_& m) {
       [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Frames frames,
          Matrices pose_array, std::optional<MaskArray> mask, const std::string& metric,
          const std::string& optimizer, const std::string& mode, int starts, double search_rot_deg,
-         double search_trans_mm, uint64_t seed, std::vector<int> pyramid) {
+         double search_trans_mm, uint64_t seed, std::vector<int> pyramid, double smoothness) {
         auto source = volume_source(volume.h);
         if (source) source->check("register");
         RegistrationSettings s;
@@ -87,6 +87,7 @@ void bind_registration(nb::module_& m) {
         s.search_trans_mm = search_trans_mm;
         s.seed = seed;
         s.pyramid = std::move(pyramid);
+        s.smoothness = smoothness;
         s.validate();
         if (int64_t(frames.shape(1)) != probe.image.height ||
             int64_t(frames.shape(2)) != probe.image.width)
@@ -115,7 +116,8 @@ void bind_registration(nb::module_& m) {
                                report.seconds);
       },
       "volume"_a, "probe"_a, "frames"_a, "poses"_a, "mask"_a.none(), "metric"_a, "optimizer"_a,
-      "mode"_a, "starts"_a, "search_rot_deg"_a, "search_trans_mm"_a, "seed"_a, "pyramid"_a);
+      "mode"_a, "starts"_a, "search_rot_deg"_a, "search_trans_mm"_a, "seed"_a, "pyramid"_a,
+      "smoothness"_a);
 }
 
 }  // namespace sonoslice::bindings

@@ -100,6 +100,26 @@ def test_rigid_sweep_applies_one_correction(cli, case):
         np.testing.assert_allclose(X[k], X[0], atol=1e-9)
 
 
+def test_smooth_sweep_reports_and_its_weight_spans_per_frame_to_rigid(cli, case):
+    truth, init = np.load(case / "truth.npy"), np.load(case / "init.npy")
+    # Weight 0: every frame free (from the rigid-sweep correction), so each finds its own pose.
+    r = run(cli, *base_args(case, "smooth0.npy"), "--mode", "smooth-sweep", "--smoothness", "0",
+            "--report", str(case / "smooth0.json"))
+    assert r.returncode == 0, r.stderr
+    mm, deg = errors(np.load(case / "smooth0.npy"), truth)
+    assert np.all(mm < 1) and np.all(deg < 1), (mm, deg)
+    report = json.load(open(case / "smooth0.json"))
+    assert report["mode"] == "smooth-sweep" and report["smoothness"] == 0
+    assert len(report["frames"]) == 4 and REPORT_KEYS <= set(report["frames"][0])
+    # A huge weight: the corrections X_i = refined_i · init_i⁻¹ stay (nearly) one.
+    r = run(cli, *base_args(case, "stiff.npy"), "--mode", "smooth-sweep", "--smoothness", "1e6")
+    assert r.returncode == 0, r.stderr
+    refined = np.load(case / "stiff.npy")
+    X = [refined[k] @ np.linalg.inv(init[k]) for k in range(4)]
+    for k in range(1, 4):
+        np.testing.assert_allclose(X[k][:3, :3], X[0][:3, :3], atol=2e-3)
+
+
 @pytest.mark.parametrize("metric", ["lc2", "lncc", "mi"])
 def test_metrics_without_derivatives_default_to_bobyqa(cli, case, metric):
     r = run(cli, *base_args(case, f"{metric}.npy"), "--metric", metric, "--report", str(case / f"{metric}.json"))
@@ -146,6 +166,8 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
     (["--metric", "lc2", "--optimizer", "lm"], "no analytic derivatives"),
     (["--optimizer", "adam"], "--optimizer adam"),
     (["--mode", "sweep"], "--mode sweep"),
+    (["--mode", "smooth-sweep", "--metric", "mi"], "smooth-sweep"),
+    (["--mode", "smooth-sweep", "--smoothness", "-1"], "--smoothness"),
     (["--starts", "0"], "--starts 0"),
     (["--search-trans-mm", "nan"], "--search-trans-mm"),
     (["--pyramid", "4,0"], "--pyramid 4,0"),

@@ -55,7 +55,8 @@ RegistrationOptimizer parse_registration_optimizer(const std::string& name) {
 RegistrationMode parse_registration_mode(const std::string& name) {
   if (name == "per-frame") return RegistrationMode::PerFrame;
   if (name == "rigid-sweep") return RegistrationMode::RigidSweep;
-  throw InputError("--mode " + name + ": expected per-frame or rigid-sweep");
+  if (name == "smooth-sweep") return RegistrationMode::SmoothSweep;
+  throw InputError("--mode " + name + ": expected per-frame, rigid-sweep or smooth-sweep");
 }
 
 const char* to_string(RegistrationMetric metric) {
@@ -93,6 +94,14 @@ void RegistrationSettings::validate() const {
                                           optimizer == RegistrationOptimizer::LevenbergMarquardt))
     throw InputError(std::string("--metric ") + to_string(metric) +
                      " has no analytic derivatives: use --optimizer bobyqa or nelder-mead");
+  if (!(smoothness >= 0 && std::isfinite(smoothness)))
+    throw InputError("--smoothness: must be a finite weight >= 0");
+  if (mode == RegistrationMode::SmoothSweep &&
+      !(metric_has_derivatives(metric) && (optimizer == RegistrationOptimizer::GaussNewton ||
+                                           optimizer == RegistrationOptimizer::LevenbergMarquardt)))
+    throw InputError(
+        "--mode smooth-sweep: needs --metric ssd or ncc with --optimizer lm or gn (all frames "
+        "are solved jointly from their analytic derivatives)");
 }
 
 void PoseTerms::add(const PoseTerms& o) {
@@ -610,6 +619,21 @@ struct Outcome {
 
 constexpr double kMaxStepMm = 2, kMaxStepDeg = 2;
 
+/// Shapes a solved step ξ in place: halved `attempt` times for Gauss–Newton (backtracking), then
+/// shrunk into the trust region (at most kMaxStepMm and kMaxStepDeg, so that one step on a flat
+/// stretch of the metric cannot throw the frame far away). Gives the step's length in mm and rad.
+void limit_step(const RegistrationSettings& s, int attempt, double xi[6], double* mm, double* rad) {
+  if (s.optimizer == RegistrationOptimizer::GaussNewton)
+    for (int k = 0; k < 6; ++k) xi[k] *= std::pow(0.5, attempt);
+  const double t_len = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
+  const double r_len = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
+  const double shrink = std::min({1.0, kMaxStepMm / std::max(t_len, 1e-300),
+                                  kMaxStepDeg * kPi / 180 / std::max(r_len, 1e-300)});
+  for (int k = 0; k < 6; ++k) xi[k] *= shrink;
+  *mm = t_len * shrink;
+  *rad = r_len * shrink;
+}
+
 /// BOBYQA or Nelder–Mead (NLopt) on the correction X, level by level: the metric alone, as a
 /// function of an increment about the frame's centre; the first level's initial step is
 /// kMaxStepMm and kMaxStepDeg, halved at each finer level. An evaluation is an iteration.
@@ -704,20 +728,11 @@ Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& st
           lambda *= 10;
           continue;
         }
-        if (s.optimizer == RegistrationOptimizer::GaussNewton)  // backtracking
-          for (int k = 0; k < 6; ++k) xi[k] *= std::pow(0.5, attempt);
-        // A trust region: at most kMaxStepMm and kMaxStepDeg a step, so that one step on a
-        // flat stretch of the metric cannot throw the frame far away.
-        const double t_len = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
-        const double r_len = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
-        const double shrink = std::min({1.0, kMaxStepMm / std::max(t_len, 1e-300),
-                                        kMaxStepDeg * kPi / 180 / std::max(r_len, 1e-300)});
-        for (int k = 0; k < 6; ++k) xi[k] *= shrink;
+        double step_mm, step_rad;
+        limit_step(s, attempt, xi, &step_mm, &step_rad);
         const Pose candidate = apply_increment(X, xi, c);
         const double tried = p.cost(candidate, f);
         out.evaluations += p.frames_per_evaluation;
-        const double step_mm = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
-        const double step_rad = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
         if (tried < cost) {
           X = candidate;
           lambda = std::max(lambda / 3, 1e-9);
@@ -778,6 +793,209 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   return best;
 }
 
+/// The rotation vector (axis × angle, rad) of R; R is a small correction here, far from π.
+void rotation_vector(const Mat3& R, double out[3]) {
+  const double trace = R.m[0][0] + R.m[1][1] + R.m[2][2];
+  const double angle = std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2)));
+  const double s = std::sin(angle);
+  const double k = s > 1e-9 ? angle / (2 * s) : 0.5;  // angle/(2 sin angle) → 1/2 at 0
+  out[0] = k * (R.m[2][1] - R.m[1][2]);
+  out[1] = k * (R.m[0][2] - R.m[2][0]);
+  out[2] = k * (R.m[1][0] - R.m[0][1]);
+}
+
+/// Inverts a 6×6 matrix (false when singular).
+bool invert6(const double A[36], double out[36]) {
+  for (int c = 0; c < 6; ++c) {
+    double M[36], b[6] = {0, 0, 0, 0, 0, 0}, x[6];
+    std::copy(A, A + 36, M);
+    b[c] = 1;
+    if (!solve6(M, b, x)) return false;
+    for (int r = 0; r < 6; ++r) out[6 * r + c] = x[r];
+  }
+  return true;
+}
+
+/// smooth-sweep: per-frame corrections X_i, refined jointly. The cost is Σ cost_i(X_i) plus the
+/// prior Σ_i (d_{i+1} − d_i)ᵀ·W·(d_{i+1} − d_i), d_i = (X_i·c_i − c_i, rotation vector of X_i)
+/// with c_i frame i's centre. A Gauss–Newton step moves frame i by ξ_i about its current centre,
+/// which changes d_i by (v_i, ≈ ω_i), so the linearised system is block tridiagonal:
+/// (H_i + 2·deg_i·W)·ξ_i − 2W·(ξ_{i−1} + ξ_{i+1}) = −g_i − 2W·Σ_j (d_i − d_j), solved exactly by
+/// block elimination along the sweep. Frames outside the volume (infinite cost) follow their
+/// neighbours. Per level, W = smoothness × the mean of the frames' Gauss–Newton diagonals.
+struct SweepTerms {
+  std::function<PoseTerms(size_t frame, const Pose& correction, int level, const Vec3& centre,
+                          bool gradients)>
+      terms;
+  std::vector<Vec3> centres;  // each frame's centre at its initial pose (world)
+};
+
+struct SweepOutcome {
+  std::vector<Pose> corrections;
+  std::vector<double> costs;                // each frame's own final cost at full resolution
+  int64_t evaluations = 0, iterations = 0;  // per frame
+};
+
+SweepOutcome smooth_sweep(const SweepTerms& p, const RegistrationSettings& s, const Pose& start) {
+  const size_t n = p.centres.size();
+  SweepOutcome out;
+  std::vector<Pose> X(n, start);
+  const double tol_rad = s.tolerance_deg * kPi / 180;
+  // The sweep's cost at corrections Y: frames outside the volume counted first (fewer is
+  // better), then the frames' costs plus the prior.
+  struct Total {
+    size_t outside = 0;
+    double value = 0;
+    bool operator<(const Total& o) const {
+      return outside != o.outside ? outside < o.outside : value < o.value;
+    }
+  };
+  const auto descriptor = [&](const std::vector<Pose>& Y, size_t k, double d[6]) {
+    const Vec3 moved = Y[k].transform_point(p.centres[k]);
+    for (int i = 0; i < 3; ++i) d[i] = moved[i] - p.centres[k][i];
+    rotation_vector(Y[k].linear(), d + 3);
+  };
+  const auto prior = [&](const std::vector<Pose>& Y, const double w[6]) {
+    double total = 0, a[6], b[6];
+    for (size_t k = 0; k + 1 < n; ++k) {
+      descriptor(Y, k, a);
+      descriptor(Y, k + 1, b);
+      for (int i = 0; i < 6; ++i) total += w[i] * (b[i] - a[i]) * (b[i] - a[i]);
+    }
+    return total;
+  };
+  const auto costs = [&](const std::vector<Pose>& Y, int f, std::vector<double>& each) {
+    each.assign(n, 0.0);
+    backend::parallel_for(int64_t(n), [&](int64_t k) {
+      const Vec3 c = Y[size_t(k)].transform_point(p.centres[size_t(k)]);
+      each[size_t(k)] = metric_cost(s.metric, p.terms(size_t(k), Y[size_t(k)], f, c, false));
+    });
+    out.evaluations += 1;
+  };
+  const auto total = [&](const std::vector<double>& each, const std::vector<Pose>& Y,
+                         const double w[6]) {
+    Total t;
+    for (double c : each) {
+      if (std::isfinite(c))
+        t.value += c;
+      else
+        ++t.outside;
+    }
+    t.value += prior(Y, w);
+    return t;
+  };
+
+  for (int f : s.pyramid) {
+    double lambda = 1e-3, w[6] = {0, 0, 0, 0, 0, 0};
+    for (int it = 0; it < s.max_iterations; ++it) {
+      // Every frame's gradient and Gauss–Newton matrix, about its current centre.
+      std::vector<double> each(n), g(6 * n, 0.0), H(36 * n, 0.0);
+      backend::parallel_for(int64_t(n), [&](int64_t k) {
+        const size_t i = size_t(k);
+        const Vec3 c = X[i].transform_point(p.centres[i]);
+        each[i] = metric_cost(s.metric, p.terms(i, X[i], f, c, true), &g[6 * i], &H[36 * i]);
+        if (!std::isfinite(each[i])) {
+          std::fill(&g[6 * i], &g[6 * i] + 6, 0.0);
+          std::fill(&H[36 * i], &H[36 * i] + 36, 0.0);
+        }
+      });
+      out.evaluations += 1;
+      if (it == 0) {
+        // The prior's weight for this level, from the frames' own curvature.
+        double sum[2] = {0, 0};
+        size_t used = 0;
+        for (size_t i = 0; i < n; ++i)
+          if (std::isfinite(each[i])) {
+            ++used;
+            for (int k = 0; k < 6; ++k) sum[k / 3] += H[36 * i + 7 * k] / 3;
+          }
+        if (used == 0) break;  // no frame inside the volume at this level
+        for (int k = 0; k < 6; ++k) w[k] = s.smoothness * sum[k / 3] / double(used);
+      }
+      const Total current = total(each, X, w);
+      ++out.iterations;
+      std::vector<double> d(6 * n);
+      for (size_t i = 0; i < n; ++i) descriptor(X, i, &d[6 * i]);
+      bool moved = false, converged = false;
+      for (int attempt = 0; attempt < 12; ++attempt) {
+        const double damping =
+            s.optimizer == RegistrationOptimizer::LevenbergMarquardt ? lambda : 0;
+        // Block elimination along the sweep: D'_i = D_i − B·D'_{i−1}⁻¹·B, b'_i likewise, with
+        // the off-diagonal blocks B = −2W (diagonal).
+        std::vector<double> inverse(36 * n), rhs(6 * n), xi(6 * n);
+        bool ok = true;
+        for (size_t i = 0; i < n && ok; ++i) {
+          double D[36], b[6];
+          for (int k = 0; k < 36; ++k) D[k] = H[36 * i + k];
+          for (int k = 0; k < 6; ++k) {
+            const int degree = (i > 0) + (i + 1 < n);
+            D[7 * k] += damping * H[36 * i + 7 * k] + 2 * degree * w[k] +
+                        1e-12 * (1 + std::fabs(H[36 * i + 7 * k]));
+            b[k] = -g[6 * i + k];
+            if (i > 0) b[k] -= 2 * w[k] * (d[6 * i + k] - d[6 * (i - 1) + k]);
+            if (i + 1 < n) b[k] -= 2 * w[k] * (d[6 * i + k] - d[6 * (i + 1) + k]);
+          }
+          if (i > 0) {
+            const double* P = &inverse[36 * (i - 1)];  // D'_{i−1}⁻¹
+            for (int r = 0; r < 6; ++r) {
+              for (int c = 0; c < 6; ++c) D[6 * r + c] -= 4 * w[r] * P[6 * r + c] * w[c];
+              double a = 0;
+              for (int c = 0; c < 6; ++c) a += P[6 * r + c] * rhs[6 * (i - 1) + c];
+              b[r] += 2 * w[r] * a;  // − B·D'⁻¹·b' with B = −2W
+            }
+          }
+          ok = invert6(D, &inverse[36 * i]);
+          std::copy(b, b + 6, &rhs[6 * i]);
+        }
+        if (!ok) {
+          lambda *= 10;
+          continue;
+        }
+        for (size_t i = n; i-- > 0;) {
+          double b[6];
+          for (int k = 0; k < 6; ++k)
+            b[k] = rhs[6 * i + k] + (i + 1 < n ? 2 * w[k] * xi[6 * (i + 1) + k] : 0);
+          for (int r = 0; r < 6; ++r) {
+            double a = 0;
+            for (int c = 0; c < 6; ++c) a += inverse[36 * i + 6 * r + c] * b[c];
+            xi[6 * i + r] = a;
+          }
+        }
+        // Each frame's step: backtracking for Gauss–Newton, inside the trust region.
+        std::vector<Pose> candidate(n);
+        double largest_mm = 0, largest_rad = 0;
+        for (size_t i = 0; i < n; ++i) {
+          double* x = &xi[6 * i];
+          double step_mm, step_rad;
+          limit_step(s, attempt, x, &step_mm, &step_rad);
+          largest_mm = std::max(largest_mm, step_mm);
+          largest_rad = std::max(largest_rad, step_rad);
+          candidate[i] = apply_increment(X[i], x, X[i].transform_point(p.centres[i]));
+        }
+        std::vector<double> tried_each;
+        costs(candidate, f, tried_each);
+        const Total tried = total(tried_each, candidate, w);
+        if (tried < current) {
+          X = std::move(candidate);
+          lambda = std::max(lambda / 3, 1e-9);
+          moved = true;
+          converged = largest_mm < s.tolerance_mm && largest_rad < tol_rad;
+          break;
+        }
+        if (largest_mm < s.tolerance_mm && largest_rad < tol_rad) {
+          converged = true;
+          break;
+        }
+        lambda *= 4;
+      }
+      if (!moved || converged) break;
+    }
+  }
+  out.corrections = X;
+  costs(X, 1, out.costs);
+  return out;
+}
+
 }  // namespace
 
 std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
@@ -821,8 +1039,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       describe(size_t(k), o, o.evaluations, o.cost);
     });
   } else {
-    // One correction for the sweep: each evaluation sums every frame's terms (in parallel, then
-    // in frame order), turning about the mean of the frames' centres.
+    // rigid-sweep, and smooth-sweep's first stage. One correction for the sweep: each evaluation
+    // sums every frame's terms (in parallel, then in frame order), turning about the mean of the
+    // frames' centres.
     Vec3 mean = {0, 0, 0};
     for (size_t k = 0; k < s.count; ++k) {
       const Vec3 c = centre(k, initial[k]);
@@ -861,8 +1080,24 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       return settings.metric == RegistrationMetric::MI ? weighted / weight : 1 - weighted / weight;
     };
     const Outcome o = multi_start(p, settings, 0, mean);
-    for (size_t k = 0; k < s.count; ++k)
-      describe(k, o, o.evaluations / int64_t(s.count), std::nullopt);
+    if (settings.mode == RegistrationMode::RigidSweep) {
+      for (size_t k = 0; k < s.count; ++k)
+        describe(k, o, o.evaluations / int64_t(s.count), std::nullopt);
+    } else {
+      // smooth-sweep: from the shared correction, each frame its own, tied to its neighbours.
+      SweepTerms sweep;
+      sweep.terms = [&](size_t k, const Pose& X, int f, const Vec3& c, bool g) {
+        return terms(k, X * initial[k], f, c, g);
+      };
+      for (size_t k = 0; k < s.count; ++k) sweep.centres.push_back(centre(k, initial[k]));
+      const SweepOutcome smooth = smooth_sweep(sweep, settings, o.correction);
+      for (size_t k = 0; k < s.count; ++k) {
+        Outcome frame;
+        frame.correction = smooth.corrections[k];
+        frame.iterations = o.iterations + smooth.iterations;
+        describe(k, frame, o.evaluations / int64_t(s.count) + smooth.evaluations, smooth.costs[k]);
+      }
+    }
   }
   if (report) {
     report->frames = frames;
