@@ -13,5 +13,7 @@ void add_voxelize_command(CLI::App& app);
 void add_compound_command(CLI::App& app);
 void add_simulate_command(CLI::App& app);
 void add_register_command(CLI::App& app);
+void add_poses_command(CLI::App& app);
+void add_dataset_command(CLI::App& app);
 }  // namespace cli
 }  // namespace sonoslice

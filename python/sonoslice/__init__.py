@@ -39,6 +39,8 @@ __all__ = [
     "Simulator", "default_tissues", "phantom_tissues", "simulation_presets",
     # registration (docs/registration.md)
     "register",
+    # pose samplers and datasets (docs/datasets.md)
+    "PoseSampler", "sample_seeds",
 ]
 __version__ = "0.1.0"
 
@@ -806,3 +808,77 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc"
     keys = ("index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg")
     report = {"frames": [dict(zip(keys, r)) for r in rows], "evaluations": int(evaluations), "seconds": float(seconds)}
     return refined, report
+
+
+# ---- pose samplers (docs/datasets.md) -----------------------------------------------------------
+def sample_seeds(base_seed: int, stream: int, first: int, count: int) -> np.ndarray:
+    """The seeds of samples ``first .. first + count - 1`` of ``stream`` (a dataset's sampler
+    index) under ``base_seed``: (count,) uint64, each computed on its own (counter-based), so a
+    shard knows its samples' seeds without drawing the others."""
+    for name, v in (("base_seed", base_seed), ("stream", stream), ("first", first), ("count", count)):
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
+            raise ValueError(f"{name}: expected an integer >= 0, got {v!r}")
+    return _ext.sample_seeds(int(base_seed) % 2**64, int(stream) % 2**64, int(first), int(count))
+
+
+class PoseSampler:
+    """Probe poses as a pure function of a seed (docs/datasets.md §2): on the skin of a CT
+    (``{"type": "skin"}``), on a mesh (``"mesh"``), inside a label or intensity range
+    (``"region"``), or sweeps (``"sweep"``), with rejection on the fan's content (``"reject"``).
+    ``config``: the sampler's settings as a dict (the SPEC's sampler entry without its dataset
+    keys); unknown keys, keys of another sampler type and bad values raise ValueError naming them.
+    ``volume``: the CT (HU); ``labels``: a label volume; ``mesh``: a :class:`Mesh`."""
+
+    def __init__(self, config: dict, probe: Probe, volume: Optional[Volume] = None,
+                 labels: Optional[Volume] = None, mesh=None):
+        import json
+        if not isinstance(config, dict):
+            raise TypeError("config: expected a dict of sampler settings")
+        if not isinstance(probe, Probe):
+            raise TypeError("probe: expected a sonoslice.Probe")
+        for name, v in (("volume", volume), ("labels", labels)):
+            if v is not None and not isinstance(v, Volume):
+                raise TypeError(f"{name}: expected a sonoslice.Volume or None")
+        if mesh is not None and not isinstance(mesh, Mesh):
+            raise TypeError("mesh: expected a sonoslice.Mesh or None")
+        try:
+            text = json.dumps(config, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"config: not expressible as JSON ({e})") from None
+        self.config, self.probe = dict(config), probe
+        self._cpp = _ext.PoseSampler(text, probe._cpp, None if volume is None else volume._cpp,
+                                     None if labels is None else labels._cpp,
+                                     None if mesh is None else mesh._cpp)
+
+    @property
+    def poses_per_seed(self) -> int:
+        """1, or a sweep's frame count."""
+        return self._cpp.poses_per_seed
+
+    def _seeds(self, seeds) -> np.ndarray:
+        a = np.asarray(seeds)
+        if a.ndim == 0:
+            a = a[None]
+        if a.ndim != 1 or not (np.issubdtype(a.dtype, np.integer) or a.size == 0):
+            raise ValueError(f"seeds: expected a 1-D array of integers, got {a.dtype} {a.shape}")
+        return np.ascontiguousarray(a.astype(np.uint64, copy=False))
+
+    def sample(self, seeds) -> np.ndarray:
+        """(len(seeds) * poses_per_seed, 4, 4) float64 probe→world poses (LPS mm), each seed's
+        first candidate that passes the rejection rules (ValueError after ``max_tries``)."""
+        return self._cpp.sample(self._seeds(seeds))
+
+    def candidates(self, seeds) -> np.ndarray:
+        """Each seed's first candidate, without rejection."""
+        return self._cpp.candidates(self._seeds(seeds))
+
+    def accepts(self, pose) -> bool:
+        """Whether a (4, 4) pose passes the rejection rules."""
+        return self._cpp.accepts(np.ascontiguousarray(np.asarray(pose, float).reshape(1, 4, 4)))
+
+    def surface(self) -> np.ndarray:
+        """Skin sampler: (P, 2, 3) points (mm) and outward unit normals of the body surface."""
+        return self._cpp.surface()
+
+    def __repr__(self) -> str:
+        return f"PoseSampler({self.config.get('type')!r}, {self.poses_per_seed} pose(s) per seed)"

@@ -31,7 +31,8 @@ void bind_compounding(nb::module_& m);     // Compounder and its small classes
 void bind_io(nb::module_& m);              // pose and stack files, PLUS sequences and configs
 void bind_reconstruction(nb::module_& m);  // the reconstruction recipe (reconstruct_plus)
 void bind_simulation(nb::module_& m);      // Simulator, tissue tables, presets
-void bind_registration(nb::module_& m);    // register_frames
+void bind_registration(nb::module_& m);    // register_frame
+void bind_sampling(nb::module_& m);        // PoseSampler, sample_seeds
 
 // ---- volumes that view a caller's array (Volume(array), volumes.cpp)
 /// What a Volume made from a caller's array views. The volume holds the array (and the DLPack

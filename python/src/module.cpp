@@ -64,4 +64,5 @@ NB_MODULE(_sonoslice, m) {
   bindings::bind_reconstruction(m);
   bindings::bind_simulation(m);
   bindings::bind_registration(m);
+  bindings::bind_sampling(m);
 }

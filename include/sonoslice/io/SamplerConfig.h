@@ -1,0 +1,14 @@
+#pragma once
+/// @file Pose sampler settings as JSON (docs/datasets.md §2): the `samplers` entries of a
+/// dataset SPEC and `sonoslice poses --sampler`. Every key is checked: an unknown key, a key
+/// that does not apply to the sampler's type, or a bad value is an InputError naming it.
+#include <string>
+
+#include "sonoslice/sampling/PoseSampler.h"
+
+namespace sonoslice {
+
+/// Settings from a JSON object's text; `where` names it in messages (e.g. "samplers[0]").
+SamplerSettings parse_sampler_json(const std::string& text, const std::string& where);
+
+}  // namespace sonoslice

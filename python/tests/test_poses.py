@@ -1,0 +1,97 @@
+"""sonoslice poses and sonoslice.PoseSampler (issue 15): the command and the binding give the same
+poses, seeds make poses reproducible, bad settings are one line. Geometry (surface distance,
+normals, tilt ranges, uniform rotations) is checked in C++ (tests/sampling/)."""
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+import sonoslice
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+
+
+def run(cli, *args):
+    return subprocess.run([cli, *args], capture_output=True, encoding="utf-8", errors="replace", timeout=600)
+
+
+@pytest.fixture(scope="module")
+def ph(cli, tmp_path_factory):
+    d = tmp_path_factory.mktemp("poses")
+    r = run(cli, "phantom", str(d / "ph"), "-q")
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+def test_command_and_binding_agree(cli, ph):
+    out = ph / "skin.npy"
+    r = run(cli, "poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+            "--downsampling", "2", "--count", "500", "--seed", "9", "--tilt-deg", "-10,10", "--min-body", "0.5",
+            "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    poses = np.load(out)
+    assert poses.shape == (500, 4, 4) and poses.dtype == np.float64
+    ct = sonoslice.Volume.from_file(str(ph / "ph" / "ct.nii.gz"))
+    probe = sonoslice.Probe.from_fanslicer(W1, downsampling=2)
+    sampler = sonoslice.PoseSampler({"type": "skin", "tilt_deg": [-10, 10], "reject": {"min_body": 0.5}}, probe, ct)
+    same = sampler.sample(sonoslice.sample_seeds(9, 0, 0, 500))
+    np.testing.assert_array_equal(same, poses)
+    # Each pose is its seed's: asking for a part gives that part.
+    np.testing.assert_array_equal(sampler.sample(sonoslice.sample_seeds(9, 0, 100, 5)), poses[100:105])
+    assert all(sampler.accepts(p) for p in poses[:50])
+    # Rigid, and the face centre on the body's surface (the skin's sampled points).
+    np.testing.assert_allclose(np.einsum("nji,njk->nik", poses[:, :3, :3], poses[:, :3, :3]),
+                               np.broadcast_to(np.eye(3), (500, 3, 3)), atol=1e-9)
+    surface = sampler.surface()
+    assert surface.shape[1:] == (2, 3) and len(surface) > 1000
+
+
+def test_sweeps_give_their_frames_and_json_settings(cli, ph, tmp_path):
+    spec = tmp_path / "sweep.json"
+    spec.write_text(json.dumps({"type": "sweep", "motion": "linear", "step": 1.5, "frames": 8,
+                                "from": {"type": "skin"}, "jitter_mm": 0.2}))
+    r = run(cli, "poses", "--sampler", str(spec), "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+            "--count", "3", "--out", str(tmp_path / "sweep.txt"))
+    assert r.returncode == 0, r.stderr
+    rows = np.loadtxt(tmp_path / "sweep.txt")
+    assert rows.shape == (24, 16)
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--sampler", "ring"], "--sampler 'ring'"),
+    (["--sampler", '{"type": "skin", "tilt": [0, 1]}'], "unknown key 'tilt'"),
+    (["--sampler", '{"type": "skin", "cone_deg": 3}'], "does not apply to a skin sampler"),
+    (["--sampler", "region"], "label or an intensity range"),
+    (["--tilt-deg", "10,-10"], "tilt_deg"),
+    (["--count", "0"], "--count 0"),
+    (["--min-body", "1.0", "--max-tries", "20", "--depth-mm", "-200,-200"], "20 tries"),
+    (["--out", "poses.png"], "--out"),
+])
+def test_bad_settings_are_one_line(cli, ph, tmp_path, extra, needle):
+    args = ["poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+            "--count", "10", "--out", str(tmp_path / "bad.npy")]
+    for i in range(0, len(extra), 2):
+        if extra[i] in args:
+            args[args.index(extra[i]) + 1] = extra[i + 1]
+        else:
+            args += extra[i:i + 2]
+    r = run(cli, *args)
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert r.stderr.startswith("sonoslice: error: ") and r.stderr.count("\n") == 1, r.stderr
+    assert needle in r.stderr, r.stderr
+    assert not os.path.exists(tmp_path / "bad.npy")
+
+
+def test_python_errors_name_the_setting():
+    probe = sonoslice.Probe.workload("W1")
+    with pytest.raises(ValueError, match="unknown key 'tilt'"):
+        sonoslice.PoseSampler({"type": "skin", "tilt": 3}, probe)
+    with pytest.raises(ValueError, match="needs the CT"):
+        sonoslice.PoseSampler({"type": "skin"}, probe)
+    with pytest.raises(TypeError):
+        sonoslice.PoseSampler("skin", probe)
+    with pytest.raises(ValueError, match="seeds"):
+        sonoslice.PoseSampler({"type": "sweep", "start": np.eye(4).tolist()}, probe).sample([0.5])
