@@ -20,7 +20,7 @@ packages=(
   libpugixml-dev                         # PLUS configuration XML
   libnlopt-cxx-dev                       # registration's BOBYQA and Nelder-Mead
   googletest libgtest-dev libbenchmark-dev
-  python3-venv python3-numpy python3-pytest python3-tqdm python3-torch   # the Python package's tests
+  python3-venv python3-numpy python3-pytest python3-tqdm python3-torch python3-yaml  # the Python package's tests
 )
 if [[ "${1:-}" == "--bench" ]]; then
   packages+=(python3-vtk9 python3-scipy python3-nibabel)

@@ -25,4 +25,7 @@ if [[ -f build/CMakeCache.txt ]]; then
   done
 fi
 build/venv/bin/python -m pip install -q "${options[@]}" .
+# sonoslice dataset: Dask's distributed (--scheduler) and webdataset (its docs' reader, tests)
+# come from PyPI.
+build/venv/bin/python -m pip install -q "distributed>=2023.1" "webdataset>=0.2"
 build/venv/bin/python -c "import sonoslice; print('sonoslice', sonoslice.__version__, 'installed in build/venv')"
