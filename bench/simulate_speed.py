@@ -18,26 +18,19 @@ import re
 import statistics
 import subprocess
 import tempfile
-import time
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-CLI = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonoslice"))
-W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+from benchcommon import CLI, W1, run_timed
 COMPUTE = re.compile(r"(?:simulate|slice) ([0-9.]+) s \(")
 
 
 def timed(cmd):
     """(compute seconds from --verbose, wall seconds) of one run."""
-    start = time.perf_counter()
-    run = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    if run.returncode != 0:
-        raise SystemExit(f"failed: {' '.join(cmd)}\n{run.stderr}")
-    match = COMPUTE.search(run.stderr)
+    wall, stderr = run_timed(cmd)
+    match = COMPUTE.search(stderr)
     if not match:
-        raise SystemExit(f"no timing in the output of {' '.join(cmd)}:\n{run.stderr}")
+        raise SystemExit(f"no timing in the output of {' '.join(cmd)}:\n{stderr}")
     return float(match.group(1)), wall
 
 

@@ -1,10 +1,15 @@
 #!/usr/bin/env python3
 """Feed a PyTorch training loop with freshly sliced ultrasound-shaped images.
 
-An ``IterableDataset`` draws random probe poses around a target, slices them on the GPU (or the
+An ``IterableDataset`` draws probe poses on the phantom's skin with a seeded pose sampler
+(``sonoslice.PoseSampler``, docs/datasets.md §2: the probe's face on the body surface, tilted and
+turned at random, kept when 80 % of its fan is inside the body), slices them on the GPU (or the
 CPU where there is none) and yields (image batch, target) pairs; the images never leave the GPU.
-The toy task: regress the probe's position from its image. A few hundred steps show the loss
-falling; swap in your own network, targets and volume.
+Batch k's poses come from the seeds ``sample_seeds(seed, 0, k * batch, batch)``, so any batch can
+be made again. The toy task: regress the probe's position from its image. A few hundred steps
+show the loss falling; swap in your own network, targets and volume. To train on a dataset
+written to disk by ``sonoslice dataset`` instead, see ``sonoslice.data.ShardDataset``
+(docs/datasets.md §6).
 
     python examples/torch_training_dataset.py [--steps 200] [--device cuda:0]
 """
@@ -17,35 +22,23 @@ from torch.utils.data import DataLoader, IterableDataset
 
 import sonoslice
 
-
-def random_rotations(rng, n):
-    """Uniform random rotations (Shoemake), as (n, 3, 3)."""
-    u1, u2, u3 = rng.random(n), rng.random(n) * 2 * np.pi, rng.random(n) * 2 * np.pi
-    a, b = np.sqrt(1 - u1), np.sqrt(u1)
-    w, x, y, z = a * np.sin(u2), a * np.cos(u2), b * np.sin(u3), b * np.cos(u3)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+SKIN = {"type": "skin", "tilt_deg": [-20, 20], "heel_toe_deg": [-10, 10], "rotation_deg": [0, 360],
+        "reject": {"min_body": 0.8}}
 
 
 class SlicedImages(IterableDataset):
-    """Endless batches of (images (B, 1, H, W), probe positions (B, 3) in cm)."""
+    """Endless batches of (images (B, 1, H, W), probe positions (B, 3) in dm from the volume's centre)."""
 
-    def __init__(self, slicer, centre_mm, radius_mm, batch_size, seed=0):
-        self.slicer, self.centre, self.radius, self.batch, self.seed = slicer, centre_mm, radius_mm, batch_size, seed
+    def __init__(self, slicer, sampler, centre_mm, batch_size, seed=0):
+        self.slicer, self.sampler, self.centre, self.batch, self.seed = slicer, sampler, centre_mm, batch_size, seed
 
     def __iter__(self):
-        rng = np.random.default_rng(self.seed)
         device = self.slicer.device if self.slicer.device.startswith("cuda") else "cpu"
-        while True:
-            poses = np.tile(np.eye(4), (self.batch, 1, 1))
-            poses[:, :3, :3] = random_rotations(rng, self.batch)
-            offset = rng.uniform(-self.radius, self.radius, (self.batch, 3))
-            poses[:, :3, 3] = self.centre + offset
+        for k in range(2 ** 62):
+            poses = self.sampler.sample(sonoslice.sample_seeds(self.seed, 0, k * self.batch, self.batch))
             images = self.slicer.slice(torch.from_numpy(poses))  # (B, H, W), on the slicer's device
             images = images.to(device).unsqueeze(1) / 1000.0      # HU → ~unit range
-            yield images, torch.from_numpy(offset / 10).float().to(device)
+            yield images, torch.from_numpy((poses[:, :3, 3] - self.centre) / 100).float().to(device)
 
 
 def main():
@@ -59,7 +52,9 @@ def main():
     probe = sonoslice.Probe.curvilinear(radius_mm=20, depth_mm=90, sector_deg=70, width=96, height=96,
                                         spacing_mm=1.0)
     slicer = sonoslice.Slicer(ct, probe, device=args.device)
-    data = SlicedImages(slicer, centre_mm=np.array([-40.0, 0.0, 60.0]), radius_mm=30.0, batch_size=args.batch)
+    sampler = sonoslice.PoseSampler(SKIN, probe, volume=ct)
+    centre = ct.index_to_world((np.array(ct.shape[::-1]) - 1) / 2)
+    data = SlicedImages(slicer, sampler, centre_mm=centre, batch_size=args.batch)
     loader = DataLoader(data, batch_size=None)  # the dataset batches already
 
     device = args.device if args.device.startswith("cuda") else "cpu"

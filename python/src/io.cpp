@@ -15,6 +15,7 @@
 #include "bindings.h"
 #include "sonoslice/io/PlusConfig.h"
 #include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/io/Png.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
@@ -24,6 +25,44 @@ namespace sonoslice::bindings {
 using namespace nb::literals;
 
 void bind_io(nb::module_& m) {
+  // ---- PNG bytes (dataset shards), through libpng
+  m.def(
+      "encode_png",
+      [](nb::ndarray<nb::c_contig, nb::device::cpu> image, std::array<double, 2> spacing_mm) {
+        const bool rgb = image.ndim() == 3;
+        if ((image.ndim() != 2 && !rgb) || (rgb && image.shape(2) != 3))
+          throw InputError("encode_png: expected an (H, W) or (H, W, 3) image");
+        PixelType type;
+        if (image.dtype() == nb::dtype<uint8_t>())
+          type = PixelType::UInt8;
+        else if (image.dtype() == nb::dtype<uint16_t>())
+          type = PixelType::UInt16;
+        else
+          throw InputError("encode_png: PNG holds uint8 or uint16 images");
+        std::vector<uint8_t> bytes;
+        {
+          nb::gil_scoped_release release;
+          bytes = encode_png(image.data(), type, int(image.shape(1)), int(image.shape(0)),
+                             rgb ? 3 : 1, spacing_mm.data());
+        }
+        return nb::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+      },
+      "image"_a, "spacing_mm"_a);
+  m.def(
+      "decode_png",
+      [](nb::bytes data) {
+        DecodedPng png;
+        {
+          nb::gil_scoped_release release;
+          png = decode_png(reinterpret_cast<const uint8_t*>(data.c_str()), data.size(), "PNG");
+        }
+        auto pixels = std::make_shared<std::vector<uint8_t>>(std::move(png.pixels));
+        std::vector<size_t> shape = {size_t(png.height), size_t(png.width)};
+        if (png.components == 3) shape.push_back(3);
+        return numpy_view(pixels->data(), shape,
+                          png.bit_depth == 16 ? PixelType::UInt16 : PixelType::UInt8, pixels);
+      },
+      "data"_a);
   // ---- poses and image stacks
   m.def(
       "read_poses",

@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <csetjmp>
 #include <cstdio>
+#include <cstring>
 #endif
 
 namespace sonoslice {
@@ -21,8 +22,9 @@ namespace {
 // object with a destructor may live between setjmp and png_destroy_write_struct.
 struct PngState {
   int fd = -1;
-  int write_errno = 0;     // errno of the failed write, when writing failed
-  char message[256] = {};  // libpng's own complaint otherwise
+  std::vector<uint8_t>* memory = nullptr;  // when set, bytes go here instead of fd
+  int write_errno = 0;                     // errno of the failed write, when writing failed
+  char message[256] = {};                  // libpng's own complaint otherwise
 };
 
 extern "C" void on_png_error(png_structp png, png_const_charp message) {
@@ -35,6 +37,10 @@ extern "C" void on_png_warning(png_structp, png_const_charp) {}  // nothing a us
 
 extern "C" void on_png_write(png_structp png, png_bytep data, size_t n) {
   auto* state = static_cast<PngState*>(png_get_io_ptr(png));
+  if (state->memory) {
+    state->memory->insert(state->memory->end(), data, data + n);
+    return;
+  }
   while (n > 0) {
     const ssize_t written = ::write(state->fd, data, n);
     if (written < 0 && errno == EINTR) continue;
@@ -87,8 +93,10 @@ bool built_with_png() {
   return true;
 }
 
-void write_png(int fd, const std::string& path, const void* pixels, PixelType type, int width,
-               int height, int components, const double spacing_mm[2]) {
+namespace {
+
+void check_png_image(const std::string& path, PixelType type, int width, int height,
+                     int components) {
   if (type != PixelType::UInt8 && type != PixelType::UInt16)
     throw InputError("'" + path + "': PNG holds uint8 or uint16 images, not " + to_string(type));
   if (components != 1 && components != 3)
@@ -96,6 +104,68 @@ void write_png(int fd, const std::string& path, const void* pixels, PixelType ty
   if (width <= 0 || height <= 0)
     throw InputError("'" + path + "': image size " + std::to_string(width) + "x" +
                      std::to_string(height));
+}
+
+/// Reads PNG bytes from memory for libpng.
+struct PngSource {
+  const uint8_t* data;
+  size_t size, at;
+  char message[256];
+};
+
+extern "C" void on_png_read(png_structp png, png_bytep out, size_t n) {
+  auto* src = static_cast<PngSource*>(png_get_io_ptr(png));
+  if (n > src->size - src->at) png_error(png, "truncated PNG");
+  std::memcpy(out, src->data + src->at, n);
+  src->at += n;
+}
+
+extern "C" void on_png_read_error(png_structp png, png_const_charp message) {
+  auto* src = static_cast<PngSource*>(png_get_error_ptr(png));
+  std::snprintf(src->message, sizeof src->message, "%s", message ? message : "libpng error");
+  png_longjmp(png, 1);
+}
+
+// 0 on success. Plain C between setjmp and the end (see PngState); `out` is sized first.
+int decode(PngSource* src, DecodedPng* out) {
+  png_structp png =
+      png_create_read_struct(PNG_LIBPNG_VER_STRING, src, on_png_read_error, on_png_warning);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  if (!info) {
+    png_destroy_read_struct(&png, nullptr, nullptr);
+    std::snprintf(src->message, sizeof src->message, "out of memory");
+    return 1;
+  }
+  if (setjmp(png_jmpbuf(png))) {
+    png_destroy_read_struct(&png, &info, nullptr);
+    return 1;
+  }
+  png_set_read_fn(png, src, on_png_read);
+  png_read_info(png, info);
+  const int color = png_get_color_type(png, info), depth = png_get_bit_depth(png, info);
+  if ((color != PNG_COLOR_TYPE_GRAY && color != PNG_COLOR_TYPE_RGB) || depth < 8 ||
+      png_get_interlace_type(png, info) != PNG_INTERLACE_NONE)
+    png_error(png, "not an 8- or 16-bit grey or RGB PNG");
+  if (depth == 16) png_set_swap(png);  // to native (little-endian) order
+  out->width = int(png_get_image_width(png, info));
+  out->height = int(png_get_image_height(png, info));
+  out->components = color == PNG_COLOR_TYPE_RGB ? 3 : 1;
+  out->bit_depth = depth;
+  const size_t row = png_get_rowbytes(png, info);
+  if (size_t(out->height) * row > size_t(1) << 31) png_error(png, "image too large");
+  out->pixels.resize(size_t(out->height) * row);
+  for (int r = 0; r < out->height; ++r)
+    png_read_row(png, out->pixels.data() + size_t(r) * row, nullptr);
+  png_read_end(png, nullptr);
+  png_destroy_read_struct(&png, &info, nullptr);
+  return 0;
+}
+
+}  // namespace
+
+void write_png(int fd, const std::string& path, const void* pixels, PixelType type, int width,
+               int height, int components, const double spacing_mm[2]) {
+  check_png_image(path, type, width, height, components);
   PngState state;
   state.fd = fd;
   if (encode(&state, static_cast<const unsigned char*>(pixels), type == PixelType::UInt16 ? 16 : 8,
@@ -103,6 +173,29 @@ void write_png(int fd, const std::string& path, const void* pixels, PixelType ty
     return;
   if (state.write_errno != 0) throw FileError(write_error_message(path, state.write_errno));
   throw FileError("cannot write '" + path + "': " + state.message);
+}
+
+std::vector<uint8_t> encode_png(const void* pixels, PixelType type, int width, int height,
+                                int components, const double spacing_mm[2]) {
+  check_png_image("png", type, width, height, components);
+  std::vector<uint8_t> bytes;
+  PngState state;
+  state.memory = &bytes;
+  if (encode(&state, static_cast<const unsigned char*>(pixels), type == PixelType::UInt16 ? 16 : 8,
+             width, height, components, spacing_mm) != 0)
+    throw Error(std::string("PNG encoding failed: ") + state.message);
+  return bytes;
+}
+
+DecodedPng decode_png(const uint8_t* data, size_t size, const std::string& what) {
+  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (size < 8 || std::memcmp(data, kSignature, 8) != 0)
+    throw InputError(what + ": not a PNG (no PNG signature)");
+  PngSource src{data, size, 0, {}};
+  DecodedPng out;
+  if (decode(&src, &out) != 0)
+    throw InputError(what + ": cannot decode the PNG (" + src.message + ")");
+  return out;
 }
 
 #else
@@ -113,6 +206,14 @@ bool built_with_png() {
 
 void write_png(int, const std::string& path, const void*, PixelType, int, int, int, const double*) {
   throw Error("'" + path + "': this sonoslice was built without libpng; write .npy or .nii.gz");
+}
+
+std::vector<uint8_t> encode_png(const void*, PixelType, int, int, int, const double*) {
+  throw Error("PNG images: this sonoslice was built without libpng; use .npy");
+}
+
+DecodedPng decode_png(const uint8_t*, size_t, const std::string& what) {
+  throw Error(what + ": this sonoslice was built without libpng");
 }
 
 #endif

@@ -4,13 +4,12 @@
 // check its writes (ITK's 2-D writer crashed on a full disk, issue 10).
 #include <cstdint>
 #include <string>
+#include <vector>
 
+#include "sonoslice/io/Png.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
-
-/// True when this build writes PNGs (libpng was found).
-bool built_with_png();
 
 /// Encodes a width×height image (rows top to bottom, `components` = 1 grey or 3 RGB, uint8 or
 /// uint16 samples in native byte order) into `fd`, which must be open for writing and empty.
