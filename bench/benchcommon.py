@@ -16,3 +16,16 @@ def run_timed(cmd):
     if run.returncode != 0:
         raise SystemExit(f"failed: {' '.join(cmd)}\n{run.stderr}")
     return wall, run.stderr
+
+
+def full_phantom_ct(phantom, tmp):
+    """The CT of the full phantom: the ct.* file of folder `phantom` (from `sonoslice phantom DIR
+    --size full`), else one written into `tmp` first."""
+    if not phantom:
+        phantom = os.path.join(tmp, "phantom")
+        print("writing the full phantom (512x512x400) ...", flush=True)
+        subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
+    cts = [f for f in sorted(os.listdir(phantom)) if f.startswith("ct.")]
+    if not cts:
+        raise SystemExit(f"{phantom}: no ct.* file (write one with `sonoslice phantom DIR --size full`)")
+    return os.path.join(phantom, cts[0])

@@ -25,7 +25,7 @@ import tempfile
 
 import numpy as np
 
-from benchcommon import CLI, W1, run_timed
+from benchcommon import CLI, W1, full_phantom_ct, run_timed
 COMPUTE = re.compile(r"slice ([0-9.]+) s \(")
 
 
@@ -72,12 +72,7 @@ def main():
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory(dir=args.work) as tmp:
-        phantom = args.phantom
-        if not phantom:
-            phantom = os.path.join(tmp, "phantom")
-            print("writing the full phantom (512x512x400) ...", flush=True)
-            subprocess.run([CLI, "phantom", phantom, "--size", "full", "-q"], check=True)
-        ct = os.path.join(phantom, "ct.nii.gz")
+        ct = full_phantom_ct(args.phantom, tmp)
         spec = os.path.join(tmp, "spec.json")
         write_spec(spec, ct, args.count)
         dataset = [sys.executable, "-m", "sonoslice", "dataset", spec, "-q", "--threads", str(args.threads)]

@@ -23,9 +23,7 @@ import numpy as np
 
 import sonoslice
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-CLI = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonoslice"))
-W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+from benchcommon import CLI, W1, full_phantom_ct
 
 PEER = r'''
 import sys, time, numpy as np, torch
@@ -71,11 +69,7 @@ def main():
     ap.add_argument("--peer-python", default="/usr/bin/python3")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        phantom = args.phantom
-        if not phantom:
-            phantom = os.path.join(tmp, "phantom")
-            subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
-        ct_path = next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom)) if f.startswith("ct."))
+        ct_path = full_phantom_ct(args.phantom, tmp)
         subprocess.run([CLI, "phantom", os.path.join(tmp, "p"), "--poses", str(args.frames), "-q"], check=True)
         truth = np.load(os.path.join(tmp, "p", "poses.npy"))[: args.frames]
         ct = sonoslice.Volume.from_file(ct_path)

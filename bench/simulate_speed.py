@@ -21,7 +21,7 @@ import tempfile
 
 import numpy as np
 
-from benchcommon import CLI, W1, run_timed
+from benchcommon import CLI, W1, full_phantom_ct, run_timed
 COMPUTE = re.compile(r"(?:simulate|slice) ([0-9.]+) s \(")
 
 
@@ -44,12 +44,7 @@ def main():
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
-        phantom = args.phantom
-        if not phantom:
-            phantom = os.path.join(tmp, "phantom")
-            print("writing the full phantom (512x512x400) ...", flush=True)
-            subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
-        ct = next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom)) if f.startswith("ct."))
+        ct = full_phantom_ct(args.phantom, tmp)
         # Random poses inside the body: the phantom command's benchmark poses, cycled to --poses.
         subprocess.run([CLI, "phantom", os.path.join(tmp, "poses"), "--size", "full", "--format", "nii",
                         "--poses", "64", "-q"], check=True)

@@ -13,9 +13,7 @@ import subprocess
 import sys
 import tempfile
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-CLI = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonoslice"))
-W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+from benchcommon import CLI, W1, full_phantom_ct
 
 RUN = r'''
 import json, resource, sys, time
@@ -65,11 +63,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        phantom = args.phantom
-        if not phantom:
-            phantom = os.path.join(tmp, "phantom")
-            subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
-        ct = next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom)) if f.startswith("ct."))
+        ct = full_phantom_ct(args.phantom, tmp)
         subprocess.run([CLI, "phantom", os.path.join(tmp, "p"), "--poses", str(args.batch), "-q"], check=True)
         poses = os.path.join(tmp, "p", "poses.npy")
         script = os.path.join(tmp, "run.py")

@@ -39,4 +39,49 @@ std::optional<Mat4> invert(const Mat4& m) {
   return out;
 }
 
+Mat3 rotation_about(const Vec3& k, double angle) {
+  // R = I + sin θ·K + (1 − cos θ)·K², K the cross-product matrix of k.
+  const double s = std::sin(angle), one_c = 1 - std::cos(angle);
+  const double K[3][3] = {{0, -k[2], k[1]}, {k[2], 0, -k[0]}, {-k[1], k[0], 0}};
+  Mat3 R;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      double kk = 0;
+      for (int m = 0; m < 3; ++m) kk += K[i][m] * K[m][j];
+      R.m[i][j] = (i == j ? 1.0 : 0.0) + s * K[i][j] + one_c * kk;
+    }
+  return R;
+}
+
+Mat3 rotation_from_vector(const Vec3& w) {
+  const double angle = norm(w);
+  return angle > 0 ? rotation_about((1.0 / angle) * w, angle) : Mat3::identity();
+}
+
+Vec3 rotation_vector(const Mat3& R) {
+  const double trace = R.m[0][0] + R.m[1][1] + R.m[2][2];
+  const double angle = std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2)));
+  const double s = std::sin(angle);
+  const double k = s > 1e-9 ? angle / (2 * s) : 0.5;  // angle/(2 sin angle) → 1/2 at 0
+  return {k * (R.m[2][1] - R.m[1][2]), k * (R.m[0][2] - R.m[2][0]), k * (R.m[1][0] - R.m[0][1])};
+}
+
+Mat3 uniform_rotation(double u1, double u2, double u3) {
+  const double t2 = 2 * kPi * u2, t3 = 2 * kPi * u3;
+  const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
+  const double w = a * std::sin(t2), x = a * std::cos(t2), y = b * std::sin(t3),
+               z = b * std::cos(t3);
+  Mat3 r;
+  r.m[0][0] = 1 - 2 * (y * y + z * z);
+  r.m[0][1] = 2 * (x * y - z * w);
+  r.m[0][2] = 2 * (x * z + y * w);
+  r.m[1][0] = 2 * (x * y + z * w);
+  r.m[1][1] = 1 - 2 * (x * x + z * z);
+  r.m[1][2] = 2 * (y * z - x * w);
+  r.m[2][0] = 2 * (x * z - y * w);
+  r.m[2][1] = 2 * (y * z + x * w);
+  r.m[2][2] = 1 - 2 * (x * x + y * y);
+  return r;
+}
+
 }  // namespace sonoslice

@@ -438,21 +438,9 @@ std::vector<Pose> phantom_random_poses(size_t count, uint64_t seed) {
     const BodySection s = body_at(z);
     const double x = uniform(-s.a, s.a), y = uniform(-s.b, s.b);
     if (!inside_cavity(x, y, s)) continue;
-    // Uniform random rotation from a uniform unit quaternion (Shoemake).
-    const double u1 = uniform(0, 1), u2 = uniform(0, 2 * kPi), u3 = uniform(0, 2 * kPi);
-    const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
-    const double qw = a * std::sin(u2), qx = a * std::cos(u2), qy = b * std::sin(u3),
-                 qz = b * std::cos(u3);
-    Mat3 r;
-    r.m[0][0] = 1 - 2 * (qy * qy + qz * qz);
-    r.m[0][1] = 2 * (qx * qy - qz * qw);
-    r.m[0][2] = 2 * (qx * qz + qy * qw);
-    r.m[1][0] = 2 * (qx * qy + qz * qw);
-    r.m[1][1] = 1 - 2 * (qx * qx + qz * qz);
-    r.m[1][2] = 2 * (qy * qz - qx * qw);
-    r.m[2][0] = 2 * (qx * qz - qy * qw);
-    r.m[2][1] = 2 * (qy * qz + qx * qw);
-    r.m[2][2] = 1 - 2 * (qx * qx + qy * qy);
+    // A uniform random rotation (the three draws in this order, as before).
+    const double u1 = uniform(0, 1), u2 = uniform(0, 1), u3 = uniform(0, 1);
+    const Mat3 r = uniform_rotation(u1, u2, u3);
     poses.push_back(Mat4::from_rotation_translation(r, {x, y, z}));
   }
   return poses;

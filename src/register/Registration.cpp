@@ -175,21 +175,8 @@ double metric_cost(RegistrationMetric metric, const PoseTerms& t, double* gradie
 }
 
 Pose apply_increment(const Pose& pose, const double xi[6], const Vec3& c) {
-  // Rotation by ω (Rodrigues) about c, then translation by v: w ↦ c + v + R(ω)·(w − c).
-  const double w[3] = {xi[3], xi[4], xi[5]};
-  const double angle = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-  Mat3 R;
-  if (angle > 0) {
-    const double k[3] = {w[0] / angle, w[1] / angle, w[2] / angle};
-    const double s = std::sin(angle), one_c = 1 - std::cos(angle);
-    const double K[3][3] = {{0, -k[2], k[1]}, {k[2], 0, -k[0]}, {-k[1], k[0], 0}};
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) {
-        double kk = 0;
-        for (int m = 0; m < 3; ++m) kk += K[i][m] * K[m][j];
-        R.m[i][j] = (i == j ? 1.0 : 0.0) + s * K[i][j] + one_c * kk;
-      }
-  }
+  // Rotation by ω about c, then translation by v: w ↦ c + v + R(ω)·(w − c).
+  const Mat3 R = rotation_from_vector({xi[3], xi[4], xi[5]});
   const Vec3 rc = R * c;
   const Vec3 shift = {c[0] + xi[0] - rc[0], c[1] + xi[1] - rc[1], c[2] + xi[2] - rc[2]};
   return Mat4::from_rotation_translation(R, shift) * pose;
@@ -793,17 +780,6 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   return best;
 }
 
-/// The rotation vector (axis × angle, rad) of R; R is a small correction here, far from π.
-void rotation_vector(const Mat3& R, double out[3]) {
-  const double trace = R.m[0][0] + R.m[1][1] + R.m[2][2];
-  const double angle = std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2)));
-  const double s = std::sin(angle);
-  const double k = s > 1e-9 ? angle / (2 * s) : 0.5;  // angle/(2 sin angle) → 1/2 at 0
-  out[0] = k * (R.m[2][1] - R.m[1][2]);
-  out[1] = k * (R.m[0][2] - R.m[2][0]);
-  out[2] = k * (R.m[1][0] - R.m[0][1]);
-}
-
 /// Inverts a 6×6 matrix (false when singular).
 bool invert6(const double A[36], double out[36]) {
   for (int c = 0; c < 6; ++c) {
@@ -853,7 +829,8 @@ SweepOutcome smooth_sweep(const SweepTerms& p, const RegistrationSettings& s, co
   const auto descriptor = [&](const std::vector<Pose>& Y, size_t k, double d[6]) {
     const Vec3 moved = Y[k].transform_point(p.centres[k]);
     for (int i = 0; i < 3; ++i) d[i] = moved[i] - p.centres[k][i];
-    rotation_vector(Y[k].linear(), d + 3);
+    const Vec3 r = rotation_vector(Y[k].linear());
+    for (int i = 0; i < 3; ++i) d[3 + i] = r[i];
   };
   const auto prior = [&](const std::vector<Pose>& Y, const double w[6]) {
     double total = 0, a[6], b[6];

@@ -38,22 +38,6 @@ struct Rng {
 
 constexpr double kDeg = kPi / 180;
 
-/// Rotation by `angle` (rad) about unit axis `k` (Rodrigues).
-Mat3 axis_angle(const Vec3& k, double angle) {
-  const double s = std::sin(angle), c = std::cos(angle), t = 1 - c;
-  Mat3 r;
-  r.m[0][0] = c + t * k[0] * k[0];
-  r.m[0][1] = t * k[0] * k[1] - s * k[2];
-  r.m[0][2] = t * k[0] * k[2] + s * k[1];
-  r.m[1][0] = t * k[1] * k[0] + s * k[2];
-  r.m[1][1] = c + t * k[1] * k[1];
-  r.m[1][2] = t * k[1] * k[2] - s * k[0];
-  r.m[2][0] = t * k[2] * k[0] - s * k[1];
-  r.m[2][1] = t * k[2] * k[1] + s * k[0];
-  r.m[2][2] = c + t * k[2] * k[2];
-  return r;
-}
-
 /// A lateral axis perpendicular to the beam: the world's z (the body axis) crossed with the beam,
 /// or x when the beam runs along z.
 Vec3 lateral_for(const Vec3& beam) {
@@ -65,7 +49,7 @@ Vec3 lateral_for(const Vec3& beam) {
 /// The probe's rotation with beam ŷ = `beam`, turned by `spin` (rad) about it.
 Mat3 frame_for(const Vec3& beam, double spin) {
   const Vec3 x0 = lateral_for(beam);
-  const Vec3 x = axis_angle(beam, spin) * x0;
+  const Vec3 x = rotation_about(beam, spin) * x0;
   const Vec3 z = cross(x, beam);
   Mat3 r;
   for (int i = 0; i < 3; ++i) {
@@ -85,26 +69,13 @@ Pose place(const Mat3& R, const Vec3& anchor, const Vec3& at) {
 Mat3 turn_local(const Mat3& R, int axis, double angle) {
   Vec3 k{0, 0, 0};
   k[size_t(axis)] = 1;
-  return R * axis_angle(k, angle);
+  return R * rotation_about(k, angle);
 }
 
-/// Uniform random rotation (Shoemake's unit quaternion).
-Mat3 uniform_rotation(Rng& rng) {
-  const double u1 = rng.uniform(), u2 = 2 * kPi * rng.uniform(), u3 = 2 * kPi * rng.uniform();
-  const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
-  const double w = a * std::sin(u2), x = a * std::cos(u2), y = b * std::sin(u3),
-               z = b * std::cos(u3);
-  Mat3 r;
-  r.m[0][0] = 1 - 2 * (y * y + z * z);
-  r.m[0][1] = 2 * (x * y - z * w);
-  r.m[0][2] = 2 * (x * z + y * w);
-  r.m[1][0] = 2 * (x * y + z * w);
-  r.m[1][1] = 1 - 2 * (x * x + z * z);
-  r.m[1][2] = 2 * (y * z - x * w);
-  r.m[2][0] = 2 * (x * z - y * w);
-  r.m[2][1] = 2 * (y * z + x * w);
-  r.m[2][2] = 1 - 2 * (x * x + y * y);
-  return r;
+/// Uniform random rotation (three draws, in this order).
+Mat3 random_rotation(Rng& rng) {
+  const double u1 = rng.uniform(), u2 = rng.uniform(), u3 = rng.uniform();
+  return uniform_rotation(u1, u2, u3);
 }
 
 /// Reads voxel i of any pixel type as double.
@@ -115,6 +86,36 @@ std::function<double(int64_t)> voxel_reader(const Volume& v) {
     return [data](int64_t i) { return double(data[i]); };
   });
 }
+
+/// A volume read as double at any pixel type, with its world → index map kept (VolumeGrid
+/// computes it by inverting).
+struct VoxelSource {
+  Volume volume;
+  std::function<double(int64_t)> read;
+  Mat3 L;
+  Vec3 o{0, 0, 0};
+
+  VoxelSource() = default;
+  explicit VoxelSource(const Volume& v)
+      : volume(v),
+        read(voxel_reader(v)),
+        L(v.grid().world_to_index_linear()),
+        o(v.grid().world_to_index_offset()) {}
+  bool empty() const { return volume.empty(); }
+  Vec3 index_of(const Vec3& p) const { return L * p + o; }
+  /// The nearest voxel's flat index, or −1 outside.
+  int64_t nearest(const Vec3& p) const {
+    const VolumeGrid& g = volume.grid();
+    const Vec3 c = index_of(p);
+    int64_t i[3];
+    for (int a = 0; a < 3; ++a) {
+      const double r = std::floor(c[a] + 0.5);
+      if (!(r >= 0 && r < double(g.dims[a]))) return -1;
+      i[a] = int64_t(r);
+    }
+    return (i[2] * g.dims[1] + i[1]) * g.dims[0] + i[0];
+  }
+};
 
 /// Floods the 6-connected region of voxels equal to `from` around `seed` with `to`; its size.
 /// Span by span along x (a scanline fill): each run is filled at once, and the rows beside it
@@ -263,7 +264,7 @@ Pose sweep_frame(const SamplerSettings& s, const Vec3& face, const Pose& start, 
                   rng.normal() * s.jitter_mm};
     const Vec3 w{rng.normal(), rng.normal(), rng.normal()};
     const double angle = s.jitter_deg * kDeg * norm(w) / std::sqrt(3.0);
-    if (angle > 0) R = axis_angle(normalized(w), angle) * R;
+    if (angle > 0) R = rotation_about(normalized(w), angle) * R;
     moved = moved + dt;
   }
   return place(R, face, moved);
@@ -274,13 +275,9 @@ Pose sweep_frame(const SamplerSettings& s, const Vec3& face, const Pose& start, 
 struct PoseSampler::State {
   SamplerSettings s;
   ProbeGeometry probe;
-  Vec3 face{0, 0, 0};    // the face centre, probe mm
-  Vec3 centre{0, 0, 0};  // the fan's centre, probe mm
-  Volume volume, labels;
-  std::function<double(int64_t)> value, label_value;
-  // World → continuous index of each volume (kept: VolumeGrid computes it by inverting).
-  Mat3 volume_L, labels_L;
-  Vec3 volume_o{0, 0, 0}, labels_o{0, 0, 0};
+  Vec3 face{0, 0, 0};      // the face centre, probe mm
+  Vec3 centre{0, 0, 0};    // the fan's centre, probe mm
+  VoxelSource ct, labels;  // either may be empty
   // Skin: surface points and outward normals. Mesh: triangles' corners, normals, area CDF.
   std::vector<Vec3> points, normals;
   std::vector<std::array<Vec3, 3>> triangles;
@@ -291,8 +288,6 @@ struct PoseSampler::State {
   std::vector<Vec3> fan_points, gas_points;
   std::unique_ptr<PoseSampler> base;  // sweep: the sampler of its start poses
 
-  /// Nearest voxel index of world point p, or −1 outside.
-  int64_t voxel_of(const Volume& v, const Vec3& p) const;
   double trilinear(const Vec3& p, bool* inside) const;
   void build_skin();
   void build_mesh(const TriangleMesh& mesh);
@@ -306,22 +301,9 @@ struct PoseSampler::State {
   bool sample_one(uint64_t seed, Pose* out) const;
 };
 
-int64_t PoseSampler::State::voxel_of(const Volume& v, const Vec3& p) const {
-  const VolumeGrid& g = v.grid();
-  const bool is_volume = &v == &volume;
-  const Vec3 c = (is_volume ? volume_L : labels_L) * p + (is_volume ? volume_o : labels_o);
-  int64_t i[3];
-  for (int a = 0; a < 3; ++a) {
-    const double r = std::floor(c[a] + 0.5);
-    if (!(r >= 0 && r < double(g.dims[a]))) return -1;
-    i[a] = int64_t(r);
-  }
-  return (i[2] * g.dims[1] + i[1]) * g.dims[0] + i[0];
-}
-
 double PoseSampler::State::trilinear(const Vec3& p, bool* inside) const {
-  const VolumeGrid& g = volume.grid();
-  const Vec3 c = volume_L * p + volume_o;
+  const VolumeGrid& g = ct.volume.grid();
+  const Vec3 c = ct.index_of(p);
   int64_t i0[3];
   double t[3];
   for (int a = 0; a < 3; ++a) {
@@ -338,18 +320,18 @@ double PoseSampler::State::trilinear(const Vec3& p, bool* inside) const {
     const int dx = k & 1, dy = (k >> 1) & 1, dz = k >> 2;
     const double w = (dx ? t[0] : 1 - t[0]) * (dy ? t[1] : 1 - t[1]) * (dz ? t[2] : 1 - t[2]);
     if (w == 0) continue;
-    sum += w * value(((i0[2] + dz) * g.dims[1] + i0[1] + dy) * g.dims[0] + i0[0] + dx);
+    sum += w * ct.read(((i0[2] + dz) * g.dims[1] + i0[1] + dy) * g.dims[0] + i0[0] + dx);
   }
   return sum;
 }
 
 void PoseSampler::State::build_skin() {
-  const VolumeGrid& g = volume.grid();
+  const VolumeGrid& g = ct.volume.grid();
   const int64_t nx = g.dims[0], ny = g.dims[1], nz = g.dims[2], n = g.voxel_count();
   std::vector<uint8_t> body(size_t(n), 0);
   backend::parallel_for(nz, [&](int64_t z) {
     for (int64_t i = z * nx * ny; i < (z + 1) * nx * ny; ++i)
-      body[size_t(i)] = value(i) > s.threshold_hu ? 1 : 0;
+      body[size_t(i)] = ct.read(i) > s.threshold_hu ? 1 : 0;
   });
   keep_largest_component(body, g.dims.data());
   fill_cavities(body, g.dims.data());  // lungs and bowel gas are inside, not skin
@@ -378,7 +360,7 @@ void PoseSampler::State::build_skin() {
   std::vector<uint8_t> soft(static_cast<size_t>(n));  // 0..255
   backend::parallel_for(nz, [&](int64_t z) {
     for (int64_t j = z * nx * ny; j < (z + 1) * nx * ny; ++j) {
-      const double v = value(j);
+      const double v = ct.read(j);
       const double ramp = std::min(1.0, std::max(0.0, (v - s.threshold_hu) / 1000 + 0.5));
       const double f =
           body[size_t(j)] ? (v > s.threshold_hu ? ramp : 1.0) : (v > s.threshold_hu ? 0.0 : ramp);
@@ -483,11 +465,10 @@ void PoseSampler::State::build_region() {
   const bool by_label = s.label >= 0;
   if (by_label && labels.empty())
     throw InputError("region sampler: label " + std::to_string(s.label) + " needs a label volume");
-  const Volume& v = by_label ? labels : volume;
-  const auto& read = by_label ? label_value : value;
-  const int64_t n = v.grid().voxel_count();
+  const VoxelSource& v = by_label ? labels : ct;
+  const int64_t n = v.volume.grid().voxel_count();
   for (int64_t i = 0; i < n; ++i) {
-    const double x = read(i);
+    const double x = v.read(i);
     if (by_label ? x == double(s.label) : (x >= s.intensity->lo && x <= s.intensity->hi))
       region.push_back(i);
   }
@@ -552,8 +533,7 @@ Pose PoseSampler::State::draw(Rng& rng) const {
       return place(R, face, at + depth * R.column(1));
     }
     case SamplerType::Region: {
-      const Volume& v = s.label >= 0 ? labels : volume;
-      const VolumeGrid& g = v.grid();
+      const VolumeGrid& g = (s.label >= 0 ? labels : ct).volume.grid();
       const int64_t i = region[size_t(rng.next() % region.size())];
       const Vec3 c{double(i % g.dims[0]) + rng.uniform() - 0.5,
                    double((i / g.dims[0]) % g.dims[1]) + rng.uniform() - 0.5,
@@ -561,7 +541,7 @@ Pose PoseSampler::State::draw(Rng& rng) const {
       const Vec3 at = g.index_to_world(c);
       Mat3 R;
       if (s.cone_deg >= 180) {
-        R = uniform_rotation(rng);
+        R = random_rotation(rng);
       } else {
         // The beam uniform on the cap within cone_deg of `direction`, then a spin about it.
         const Vec3 d = normalized(s.direction);
@@ -594,16 +574,16 @@ bool PoseSampler::State::accepts(const Pose& pose) const {
     int inside = 0, in_body = 0, in_label = 0;
     for (const Vec3& p : fan_points) {
       const Vec3 w = R * p + t;
-      if (!volume.empty()) {
-        const int64_t i = voxel_of(volume, w);
+      if (!ct.empty()) {
+        const int64_t i = ct.nearest(w);
         if (i >= 0) {
           ++inside;
-          in_body += value(i) > s.threshold_hu;
+          in_body += ct.read(i) > s.threshold_hu;
         }
       }
       if (r.min_label > 0) {
-        const int64_t i = voxel_of(labels, w);
-        in_label += i >= 0 && label_value(i) == double(r.label);
+        const int64_t i = labels.nearest(w);
+        in_label += i >= 0 && labels.read(i) == double(r.label);
       }
     }
     const double n = double(fan_points.size());
@@ -613,8 +593,8 @@ bool PoseSampler::State::accepts(const Pose& pose) const {
   }
   if (r.no_gas)
     for (const Vec3& p : gas_points) {
-      const int64_t i = voxel_of(volume, R * p + t);
-      if (i < 0 || value(i) < r.gas_hu) return false;
+      const int64_t i = ct.nearest(R * p + t);
+      if (i < 0 || ct.read(i) < r.gas_hu) return false;
     }
   return true;
 }
@@ -629,23 +609,13 @@ PoseSampler::PoseSampler(const SamplerSettings& settings, const ProbeGeometry& p
   st.probe = probe;
   st.face = {0, probe.face_y_mm, 0};
   st.centre = {0, probe.face_y_mm + 0.5 * probe.depth_mm, 0};
-  if (volume) {
-    st.volume = *volume;
-    st.value = voxel_reader(st.volume);
-    st.volume_L = st.volume.grid().world_to_index_linear();
-    st.volume_o = st.volume.grid().world_to_index_offset();
-  }
-  if (labels) {
-    st.labels = *labels;
-    st.label_value = voxel_reader(st.labels);
-    st.labels_L = st.labels.grid().world_to_index_linear();
-    st.labels_o = st.labels.grid().world_to_index_offset();
-  }
+  if (volume) st.ct = VoxelSource(*volume);
+  if (labels) st.labels = VoxelSource(*labels);
   const RejectionRules& r = settings.reject;
   const bool needs_volume = settings.type == SamplerType::Skin ||
                             (settings.type == SamplerType::Region && settings.label < 0) ||
                             r.min_inside > 0 || r.min_body > 0 || r.no_gas;
-  if (needs_volume && st.volume.empty())
+  if (needs_volume && st.ct.empty())
     throw InputError(
         "sampler: needs the CT volume (skin sampler, intensity region or the "
         "min_inside, min_body and no_gas rules)");

@@ -116,6 +116,16 @@ struct Mat4 {
   }
 };
 
+/// Rotation by `angle` (rad) about the unit vector `axis` (Rodrigues).
+Mat3 rotation_about(const Vec3& axis, double angle);
+/// The rotation of rotation vector `w` (unit axis × angle, rad); the identity for w = 0.
+Mat3 rotation_from_vector(const Vec3& w);
+/// The rotation vector of R (its inverse for angles below π).
+Vec3 rotation_vector(const Mat3& R);
+/// A uniformly distributed rotation from three numbers uniform in [0, 1) (Shoemake's unit
+/// quaternion): the phantom's random poses and the region sampler's.
+Mat3 uniform_rotation(double u1, double u2, double u3);
+
 /// The inverse of a 4×4 matrix (Gauss-Jordan elimination with partial pivoting); std::nullopt
 /// when it is singular (a pivot below 1e-12 of the matrix's largest entry) or not finite.
 std::optional<Mat4> invert(const Mat4& m);
