@@ -45,7 +45,7 @@ void BM_Slice(benchmark::State& state, int workload, PixelType type, Interpolati
   }
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(poses.size()));
   state.counters["threads"] = double(cpu_threads());
-  state.SetLabel(cpu_kernel_isa());
+  state.SetLabel(to_string(cpu_kernel_isa()));
   set_cpu_kernel_isa("auto");
   reset_cpu_threads();
 }

@@ -52,8 +52,9 @@ NB_MODULE(_sonoslice, m) {
   m.def("cpu_threads", &cpu_threads);
   m.def("set_cpu_threads", &set_cpu_threads, "n"_a);
   m.def("reset_cpu_threads", &reset_cpu_threads);
-  m.def("cpu_kernel_isa", &cpu_kernel_isa);
-  m.def("set_cpu_kernel_isa", &set_cpu_kernel_isa, "isa"_a);
+  m.def("cpu_kernel_isa", [] { return std::string(to_string(cpu_kernel_isa())); });
+  m.def(
+      "set_cpu_kernel_isa", [](const std::string& isa) { set_cpu_kernel_isa(isa); }, "isa"_a);
 
   // In this order: a class is registered before a later area's default arguments use it.
   bindings::bind_volumes(m);

@@ -68,37 +68,58 @@ void reset_cpu_threads() {
   g_threads = 0;
 }
 
-namespace {
-bool avx2_available() {
+const char* to_string(CpuIsa isa) {
+  switch (isa) {
+    case CpuIsa::Generic:
+      return "generic";
+    case CpuIsa::Avx2:
+      return "avx2";
+  }
+  return "?";
+}
+
+bool cpu_kernel_isa_available(CpuIsa isa) {
+  switch (isa) {
+    case CpuIsa::Generic:
+      return true;
+    case CpuIsa::Avx2:
 #if defined(SONOSLICE_HAVE_AVX2_KERNELS) && (defined(__x86_64__) || defined(__i386__))
-  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+      return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
 #else
-  return false;
+      return false;
 #endif
+  }
+  return false;
 }
-std::string initial_isa() {
+
+namespace {
+CpuIsa default_isa() {
   const char* env = std::getenv("SONOSLICE_CPU_ISA");
-  if (env && std::string(env) == "generic") return "generic";
-  return avx2_available() ? "avx2" : "generic";
+  if (env && std::string(env) == "generic") return CpuIsa::Generic;
+  return cpu_kernel_isa_available(CpuIsa::Avx2) ? CpuIsa::Avx2 : CpuIsa::Generic;
 }
-std::string g_isa = initial_isa();
+CpuIsa g_isa = default_isa();
 }  // namespace
 
-std::string cpu_kernel_isa() {
+CpuIsa cpu_kernel_isa() {
   return g_isa;
 }
 
-void set_cpu_kernel_isa(const std::string& isa) {
-  if (isa == "auto") {
-    g_isa = avx2_available() ? "avx2" : "generic";
-  } else if (isa == "generic") {
-    g_isa = "generic";
-  } else if (isa == "avx2") {
-    if (!avx2_available()) throw InputError("CPU kernels 'avx2': not available on this CPU/build");
-    g_isa = "avx2";
-  } else {
-    throw InputError("CPU kernels '" + isa + "': expected auto, generic or avx2");
+void set_cpu_kernel_isa(CpuIsa isa) {
+  if (!cpu_kernel_isa_available(isa))
+    throw InputError(std::string("CPU kernels '") + to_string(isa) +
+                     "': not available on this CPU/build");
+  g_isa = isa;
+}
+
+void set_cpu_kernel_isa(const std::string& name) {
+  if (name == "auto") {
+    g_isa = cpu_kernel_isa_available(CpuIsa::Avx2) ? CpuIsa::Avx2 : CpuIsa::Generic;
+    return;
   }
+  for (CpuIsa isa : {CpuIsa::Generic, CpuIsa::Avx2})
+    if (name == to_string(isa)) return set_cpu_kernel_isa(isa);
+  throw InputError("CPU kernels '" + name + "': expected auto, generic or avx2");
 }
 
 void require_device(const Device& device) {
@@ -113,7 +134,7 @@ void require_device(const Device& device) {
 std::string describe_devices() {
   std::ostringstream s;
   s << "cpu: " << cpu_threads() << " threads (" << hardware_threads() << " hardware threads), "
-    << cpu_kernel_isa() << " kernels\n";
+    << to_string(cpu_kernel_isa()) << " kernels\n";
 #ifdef SONOSLICE_HAVE_CUDA
   s << cuda::describe_devices();
 #else

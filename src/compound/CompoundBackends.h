@@ -1,9 +1,15 @@
 #pragma once
-// Internal: the entry points of the compounding backends, called by Compounder.cpp.
+/// @file How the compounding dispatch layer (Compounder.cpp) reaches the compounding kernels
+/// (CompoundImpl.h, driven by CompoundDriverCPU.h and CompoundDriverCUDA.cuh) in each of their
+/// builds: one entry point per CPU instruction set (CompoundCPU.cpp, CompoundCPUAvx2.cpp) chosen
+/// by CpuIsa, and, in CUDA builds, the kernels (CompoundCUDA.cu) with the host code that drives
+/// them (CompounderCUDA.cpp). The same wiring as every kernel folder (SliceBackends.h,
+/// SimulateBackends.h; docs/architecture.md).
 #include <memory>
 #include <vector>
 
 #include "CompoundTypes.h"
+#include "sonoslice/backend/Device.h"
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/volume/PixelType.h"
 
@@ -12,14 +18,21 @@ namespace compound_impl {
 
 struct FinishInput;  // FinishImpl.h
 
-/// CPU: `slabs` owner-computes tasks along `axis` over voxel indices [lo, hi), with the
-/// instruction set cpu_kernel_isa() names.
-void compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mode, bool linear,
-                  int axis, int lo, int hi, int slabs);
+/// CPU: `slabs` owner-computes tasks along `axis` over voxel indices [lo, hi), with the kernels
+/// built for each instruction set.
 void compound_cpu_generic(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
                           bool linear, int axis, int lo, int hi, int slabs);
 void compound_cpu_avx2(const AccumulatorView& grid, const FrameBatch& batch, Mode mode, bool linear,
                        int axis, int lo, int hi, int slabs);
+inline void compound_cpu(CpuIsa isa, const AccumulatorView& grid, const FrameBatch& batch,
+                         Mode mode, bool linear, int axis, int lo, int hi, int slabs) {
+  switch (isa) {
+    case CpuIsa::Avx2:
+      return compound_cpu_avx2(grid, batch, mode, linear, axis, lo, hi, slabs);
+    case CpuIsa::Generic:
+      return compound_cpu_generic(grid, batch, mode, linear, axis, lo, hi, slabs);
+  }
+}
 
 #ifdef SONOSLICE_HAVE_CUDA
 /// CUDA: the batch's pointers and the grid's are device pointers.

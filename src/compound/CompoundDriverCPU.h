@@ -607,13 +607,16 @@ void compound_batch_cpu(const AccumulatorView& g, const FrameBatch& b, int axis,
 inline void dispatch_compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
                                   bool linear, int axis, int lo, int hi, int slabs) {
   std::vector<RowClip> clips(size_t(batch.frames) * batch.rows * kMaxSpans);
-  visit_sample_type(batch.type, [&](auto sample_zero) {
-    using T = decltype(sample_zero);
-    visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
-      compound_batch_cpu<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(
-          grid, batch, axis, lo, hi, slabs, clips.data());
-    });
-  });
+  visit_pixel_type(
+      KernelPixelTypes{}, batch.type,
+      [&](auto sample_zero) {
+        using T = decltype(sample_zero);
+        visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
+          compound_batch_cpu<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(
+              grid, batch, axis, lo, hi, slabs, clips.data());
+        });
+      },
+      "compounding kernels");
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

@@ -112,13 +112,16 @@ void compound_batch_cuda(const AccumulatorView& g, const FrameBatch& b, void* st
 /// Calls the driver instantiated for the batch's sample type, mode and interpolation.
 inline void dispatch_compound_cuda(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,
                                    bool linear, void* stream) {
-  visit_sample_type(batch.type, [&](auto sample_zero) {
-    using T = decltype(sample_zero);
-    visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
-      compound_batch_cuda<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(grid, batch,
-                                                                                     stream);
-    });
-  });
+  visit_pixel_type(
+      KernelPixelTypes{}, batch.type,
+      [&](auto sample_zero) {
+        using T = decltype(sample_zero);
+        visit_mode(mode, linear, [&](auto mode_tag, auto linear_tag) {
+          compound_batch_cuda<T, decltype(mode_tag)::value, decltype(linear_tag)::value>(
+              grid, batch, stream);
+        });
+      },
+      "compounding kernels");
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

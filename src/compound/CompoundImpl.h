@@ -148,27 +148,6 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void restart_for_frame(const AccumulatorV
   }
 }
 
-/// Calls f(T{}) for the sample types the kernels are built for.
-template <typename F>
-void visit_sample_type(PixelType type, F&& f) {
-  switch (type) {
-    case PixelType::UInt8:
-      return f(uint8_t{});
-    case PixelType::UInt16:
-      return f(uint16_t{});
-    case PixelType::Int16:
-      return f(int16_t{});
-    case PixelType::Float32:
-      return f(float{});
-    case PixelType::Int8:
-    case PixelType::UInt32:
-    case PixelType::Int32:
-    case PixelType::Float64:
-      break;  // the Compounder converts these to float32 before they reach a kernel
-  }
-  throw Error(std::string("compounding kernels: no kernel for ") + to_string(type) + " samples");
-}
-
 /// Calls f(mode tag, interpolation tag) with compile-time constants for the run-time choice.
 template <typename F>
 void visit_mode(Mode mode, bool linear, F&& f) {

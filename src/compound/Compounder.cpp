@@ -40,17 +40,6 @@ using compound_impl::format_bytes;
 using compound_impl::format_dims;
 using compound_impl::spans_from_mask;
 
-namespace compound_impl {
-void compound_cpu(const AccumulatorView& grid, const FrameBatch& batch, Mode mode, bool linear,
-                  int axis, int lo, int hi, int slabs) {
-#ifdef SONOSLICE_HAVE_AVX2_KERNELS
-  if (cpu_kernel_isa() == "avx2")
-    return compound_cpu_avx2(grid, batch, mode, linear, axis, lo, hi, slabs);
-#endif
-  compound_cpu_generic(grid, batch, mode, linear, axis, lo, hi, slabs);
-}
-}  // namespace compound_impl
-
 namespace {
 
 Mode to_kernel_mode(CompoundingMode m) {
@@ -69,36 +58,6 @@ Mode to_kernel_mode(CompoundingMode m) {
 bool kernel_sample_type(PixelType t) {
   return t == PixelType::UInt8 || t == PixelType::UInt16 || t == PixelType::Int16 ||
          t == PixelType::Float32;
-}
-
-// The affine (3×4) from frame coordinates to continuous voxel index: world_to_index ·
-// frame_to_world.
-struct Affine {
-  double a[3][4];
-  Vec3 apply(double x, double y, double z) const {
-    return Vec3{{a[0][0] * x + a[0][1] * y + a[0][2] * z + a[0][3],
-                 a[1][0] * x + a[1][1] * y + a[1][2] * z + a[1][3],
-                 a[2][0] * x + a[2][1] * y + a[2][2] * z + a[2][3]}};
-  }
-  Vec3 direction(double x, double y, double z) const {
-    return Vec3{{a[0][0] * x + a[0][1] * y + a[0][2] * z, a[1][0] * x + a[1][1] * y + a[1][2] * z,
-                 a[2][0] * x + a[2][1] * y + a[2][2] * z}};
-  }
-};
-
-Affine frame_to_index(const VolumeGrid& grid, const Mat4& frame_to_world) {
-  const Mat3 w = grid.world_to_index_linear();
-  const Vec3 o = grid.world_to_index_offset();
-  Affine r;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 4; ++j) {
-      double s = 0;
-      for (int k = 0; k < 3; ++k) s += w.m[i][k] * frame_to_world.m[k][j];
-      r.a[i][j] = s;
-    }
-    r.a[i][3] += o[i];
-  }
-  return r;
 }
 
 // `offset`: 0.5 for nearest splats (CompoundImpl.h), 0 for linear.
@@ -252,8 +211,9 @@ struct Compounder::Impl {
       }
       if (axis < 0) slabs = std::max(1, slabs / 2);
     }
-    compound_impl::compound_cpu(g, b, mode, settings.interpolation == Interpolation::Linear, axis,
-                                first[axis], last[axis], slabs);
+    compound_impl::compound_cpu(cpu_kernel_isa(), g, b, mode,
+                                settings.interpolation == Interpolation::Linear, axis, first[axis],
+                                last[axis], slabs);
   }
 
   // Frames of other types travel as float32.
@@ -321,15 +281,12 @@ struct Compounder::Impl {
     b.optimization = settings.plus_optimization;
     b.filter = plus_filter(clip, width, height);
     const size_t frame_bytes = size_t(width) * height * pixel_size(type);
-    std::vector<compound_impl::PixelToIndex> matrices;
+    std::vector<IndexMap> matrices;
     for (int64_t first = 0; first < count; first += 64) {
       const int64_t n = std::min<int64_t>(64, count - first);
       matrices.resize(size_t(n));
-      for (int64_t f = 0; f < n; ++f) {
-        const Affine A = frame_to_index(grid, image_to_reference[first + f]);
-        for (int i = 0; i < 3; ++i)
-          for (int j = 0; j < 4; ++j) matrices[size_t(f)].m[i][j] = A.a[i][j];
-      }
+      for (int64_t f = 0; f < n; ++f)
+        matrices[size_t(f)] = grid.index_map(image_to_reference[first + f]);
       b.pixels = static_cast<const char*>(data) + size_t(first) * frame_bytes;
       b.count = n;
       b.matrices = matrices.data();
@@ -461,10 +418,10 @@ void Compounder::add_images(const void* pixels, PixelType type, int width, int h
   // Row v of a frame: pixel (u, v) at A·(u, v, 0).
   im.add_frames(pixels, type, count, height, width, im.spans_for(width, height, clip),
                 [&](int64_t f, RowLine* lines) {
-                  const Affine A = frame_to_index(im.grid, image_to_reference[f]);
-                  const Vec3 dc = A.direction(1, 0, 0);
+                  const IndexMap A = im.grid.index_map(image_to_reference[f]);
+                  const Vec3 dc = A.direction({1, 0, 0});
                   for (int v = 0; v < height; ++v)
-                    lines[v] = make_line(A.apply(0, v, 0), dc, im.line_offset());
+                    lines[v] = make_line(A({0, double(v), 0}), dc, im.line_offset());
                 });
 }
 
@@ -490,13 +447,11 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
   const std::vector<Vec3> directions = beam_directions(geometry);
   // Beam r: sample s at beam_point(r0 + s·dr).
   im.add_frames(samples, type, count, rows, width, spans, [&](int64_t f, RowLine* lines) {
-    const Affine A = frame_to_index(im.grid, probe_to_reference[f]);
+    const IndexMap A = im.grid.index_map(probe_to_reference[f]);
     for (int r = 0; r < rows; ++r) {
       const Vec3& d = directions[size_t(r)];
-      const Vec3 p0 = beam_point(geometry, d, geometry.r0_mm);
-      const Vec3 c0 = A.apply(p0[0], p0[1], p0[2]);
-      const Vec3 dc =
-          A.direction(geometry.dr_mm * d[0], geometry.dr_mm * d[1], geometry.dr_mm * d[2]);
+      const Vec3 c0 = A(beam_point(geometry, d, geometry.r0_mm));
+      const Vec3 dc = A.direction(geometry.dr_mm * d);
       lines[r] = make_line(c0, dc, im.line_offset());
     }
   });

@@ -83,7 +83,7 @@ void insert_slab(const AccumulatorView& g, const PlusExactBatch& b, int zlo, int
   const int64_t frame_pixels = int64_t(b.width) * b.height;
   for (int64_t f = 0; f < b.count; ++f) {
     const T* frame = static_cast<const T*>(b.pixels) + f * frame_pixels;
-    const double(&m)[3][4] = b.matrices[f].m;
+    const IndexMap& m = b.matrices[f];
     for (int y = pf.y0; y <= pf.y1; ++y) {
       const T* row = frame + int64_t(y) * b.width;
       for (int x = pf.x0; x <= pf.x1; ++x) {
@@ -92,10 +92,10 @@ void insert_slab(const AccumulatorView& g, const PlusExactBatch& b, int zlo, int
         if (!pf.in_fan(x, y)) continue;
         // PLUS's matrix × (x, y, 0, 1), term by term; its homogeneous w is exactly 1.
         const double dx = x, dy = y;
-        const double pz = m[2][0] * dx + m[2][1] * dy + m[2][2] * 0.0 + m[2][3];
+        const double pz = m.A[2][0] * dx + m.A[2][1] * dy + m.A[2][2] * 0.0 + m.a[2];
         if (pz < zlo - 2.0 || pz > zhi + 1.0) continue;  // cannot reach this slab
-        const double px = m[0][0] * dx + m[0][1] * dy + m[0][2] * 0.0 + m[0][3];
-        const double py = m[1][0] * dx + m[1][1] * dy + m[1][2] * 0.0 + m[1][3];
+        const double px = m.A[0][0] * dx + m.A[0][1] * dy + m.A[0][2] * 0.0 + m.a[0];
+        const double py = m.A[1][0] * dx + m.A[1][1] * dy + m.A[1][2] * 0.0 + m.a[1];
         if (!b.linear) {
           const int ix = round_(px), iy = round_(py), iz = round_(pz);
           if (ix < 0 || iy < 0 || iz < 0 || ix >= g.nx || iy >= g.ny || iz >= g.nz) continue;
@@ -184,12 +184,12 @@ void insert_slab_optimized(const AccumulatorView& g, const PlusExactBatch& b, in
   const int pixels[2] = {0, b.width - 1};
   for (int64_t f = 0; f < b.count; ++f) {
     const T* frame = static_cast<const T*>(b.pixels) + f * frame_pixels;
-    const double(&m)[3][4] = b.matrices[f].m;
+    const IndexMap& m = b.matrices[f];
     F x_axis[3], y_axis[3], origin[3];
     for (int i = 0; i < 3; ++i) {
-      x_axis[i] = as_f(m[i][0], F{});
-      y_axis[i] = as_f(m[i][1], F{});
-      origin[i] = as_f(m[i][3], F{});  // + 0 × the z axis: frames are 2D
+      x_axis[i] = as_f(m.A[i][0], F{});
+      y_axis[i] = as_f(m.A[i][1], F{});
+      origin[i] = as_f(m.a[i], F{});  // + 0 × the z axis: frames are 2D
     }
     for (int y = 0; y < b.height; ++y) {
       F row[3];

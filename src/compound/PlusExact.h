@@ -6,22 +6,19 @@
 #include "CompoundTypes.h"
 #include "PlusExactImpl.h"
 #include "sonoslice/compound/Compounder.h"
+#include "sonoslice/geometry/VolumeGrid.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
 namespace compound_impl {
-
-/// Pixel (x, y) of frame f lands at continuous voxel index m·(x, y, 0, 1).
-struct PixelToIndex {
-  double m[3][4];
-};
 
 struct PlusExactBatch {
   const void* pixels = nullptr;  ///< count frames of height × width, x fastest
   PixelType type = PixelType::UInt8;
   int width = 0, height = 0;
   int64_t count = 0;
-  const PixelToIndex* matrices = nullptr;  ///< one per frame
+  /// One per frame: pixel (x, y) lands at continuous voxel index A·(x, y, 0) + a.
+  const IndexMap* matrices = nullptr;
   plus_exact::PixelFilter filter;
   bool linear = true;
   Mode mode = Mode::Mean;

@@ -81,6 +81,62 @@ ProbeType parse_probe_type(const std::string& name) {
   throw InputError("probe type '" + name + "': expected curvilinear or linear");
 }
 
+ImageGrid ImageGrid::centred(int width, int height, double sx_mm, double sy_mm) {
+  ImageGrid g;
+  g.width = width;
+  g.height = height;
+  g.spacing_mm[0] = sx_mm;
+  g.spacing_mm[1] = sy_mm;
+  g.set_default_origin();
+  return g;
+}
+
+ProbeGeometry ProbeGeometry::curvilinear(double radius_mm, double depth_mm, double sector_deg,
+                                         const ImageGrid& image, double face_y_mm) {
+  ProbeGeometry p;
+  p.type = ProbeType::Curvilinear;
+  p.image = image;
+  p.radius_mm = radius_mm;
+  p.depth_mm = depth_mm;
+  p.sector_deg = sector_deg;
+  p.face_y_mm = face_y_mm;
+  return p;
+}
+
+ProbeGeometry ProbeGeometry::linear(const ImageGrid& image, std::optional<double> width_mm,
+                                    std::optional<double> depth_mm, double face_y_mm) {
+  ProbeGeometry p;
+  p.type = ProbeType::Linear;
+  p.image = image;
+  p.has_width = width_mm.has_value();
+  p.width_mm = width_mm.value_or(0.0);
+  p.has_depth = depth_mm.has_value();
+  p.depth_mm = depth_mm.value_or(0.0);
+  p.face_y_mm = face_y_mm;
+  return p;
+}
+
+ProbeGeometry probe_from_fanslicer(const FanSlicerProbe& fs, int ds) {
+  ImageGrid image;
+  image.width = fs.image_dimensions[0] / ds;
+  image.height = fs.image_dimensions[1] / ds;
+  image.spacing_mm[0] = fs.pixel_size_mm[0] * ds;
+  image.spacing_mm[1] = fs.pixel_size_mm[1] * ds;
+  const double sx = image.spacing_mm[0];
+  switch (fs.transducer) {
+    case ProbeType::Curvilinear: {
+      image.origin_mm[0] = -image.width * sx / 2.0;
+      const double da = fs.fan_geometry[1];
+      return ProbeGeometry::curvilinear(fs.fan_geometry[4] * da, fs.fan_geometry[3] * da,
+                                        fs.fan_geometry[2], image, fs.fan_geometry[5] * da);
+    }
+    case ProbeType::Linear:
+      image.origin_mm[0] = -double(image.width / 2) * sx;
+      return ProbeGeometry::linear(image);
+  }
+  return ProbeGeometry{};
+}
+
 std::string ProbeGeometry::describe() const {
   std::ostringstream s;
   if (type == ProbeType::Curvilinear)

@@ -47,4 +47,21 @@ Vec3 VolumeGrid::world_to_index(const Vec3& p) const {
   return world_to_index_linear() * (p - origin_mm);
 }
 
+IndexMap VolumeGrid::index_map(const Mat4& frame_to_world) const {
+  const Mat3 w = world_to_index_linear();
+  const Vec3 o = world_to_index_offset();
+  IndexMap r;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      double s = 0;
+      for (int k = 0; k < 3; ++k) s += w.m[i][k] * frame_to_world.m[k][j];
+      r.A[i][j] = s;
+    }
+    double t = 0;
+    for (int k = 0; k < 3; ++k) t += w.m[i][k] * frame_to_world.m[k][3];
+    r.a[i] = t + o[size_t(i)];
+  }
+  return r;
+}
+
 }  // namespace sonoslice

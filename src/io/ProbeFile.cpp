@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -76,11 +77,19 @@ class Keys {
   std::string where_;
 };
 
-void apply_downsampling(ImageGrid& image, int ds) {
-  image.width /= ds;
-  image.height /= ds;
-  image.spacing_mm[0] *= ds;
-  image.spacing_mm[1] *= ds;
+// The "image" block, downsampled: floor(W/ds) × floor(H/ds) pixels of ds·(sx, sy).
+ImageGrid parse_image(const json& root, const std::string& where, int ds) {
+  if (!root.contains("image")) throw InputError(where + ": missing key 'image'");
+  Keys im(root["image"], where + ": image", {"width", "height", "spacing_mm", "origin_mm"});
+  const int width = im.integer("width"), height = im.integer("height");
+  const auto spacing = im.numbers("spacing_mm", 2);
+  ImageGrid image = ImageGrid::centred(width / ds, height / ds, spacing[0] * ds, spacing[1] * ds);
+  if (im.has("origin_mm")) {
+    const auto origin = im.numbers("origin_mm", 2);
+    image.origin_mm[0] = origin[0];
+    image.origin_mm[1] = origin[1];
+  }
+  return image;
 }
 
 ProbeGeometry parse_native(const json& root, const std::string& source, int ds) {
@@ -88,45 +97,25 @@ ProbeGeometry parse_native(const json& root, const std::string& source, int ds) 
   if (!root.contains("type") || !root["type"].is_string())
     throw InputError(where + ": missing key 'type' (curvilinear or linear)");
   const std::string type = root["type"].get<std::string>();
-  ProbeGeometry p;
   if (type == "curvilinear") {
     Keys k(root, where, {"type", "radius_mm", "depth_mm", "sector_deg", "face_y_mm", "image"});
-    p.type = ProbeType::Curvilinear;
-    p.radius_mm = k.number("radius_mm");
-    p.depth_mm = k.number("depth_mm");
-    p.sector_deg = k.number("sector_deg");
-    if (k.has("face_y_mm")) p.face_y_mm = k.number("face_y_mm");
-  } else if (type == "linear") {
+    const double radius = k.number("radius_mm");
+    const double depth = k.number("depth_mm");
+    const double sector = k.number("sector_deg");
+    const double face_y = k.has("face_y_mm") ? k.number("face_y_mm") : 0.0;
+    return ProbeGeometry::curvilinear(radius, depth, sector, parse_image(root, where, ds), face_y);
+  }
+  if (type == "linear") {
     Keys k(root, where, {"type", "width_mm", "depth_mm", "face_y_mm", "image"});
-    p.type = ProbeType::Linear;
-    if (k.has("width_mm")) {
-      p.has_width = true;
-      p.width_mm = k.number("width_mm");
-    }
-    if (k.has("depth_mm")) {
-      p.has_depth = true;
-      p.depth_mm = k.number("depth_mm");
-    }
-    if (k.has("face_y_mm")) p.face_y_mm = k.number("face_y_mm");
-  } else {
-    throw InputError(where + ": type '" + type + "' (expected curvilinear or linear)");
+    const auto optional = [&](const char* key) {
+      return k.has(key) ? std::optional<double>(k.number(key)) : std::nullopt;
+    };
+    const std::optional<double> width = optional("width_mm");
+    const std::optional<double> depth = optional("depth_mm");
+    const double face_y = k.has("face_y_mm") ? k.number("face_y_mm") : 0.0;
+    return ProbeGeometry::linear(parse_image(root, where, ds), width, depth, face_y);
   }
-  if (!root.contains("image")) throw InputError(where + ": missing key 'image'");
-  Keys im(root["image"], where + ": image", {"width", "height", "spacing_mm", "origin_mm"});
-  p.image.width = im.integer("width");
-  p.image.height = im.integer("height");
-  const auto spacing = im.numbers("spacing_mm", 2);
-  p.image.spacing_mm[0] = spacing[0];
-  p.image.spacing_mm[1] = spacing[1];
-  if (ds != 1) apply_downsampling(p.image, ds);
-  if (im.has("origin_mm")) {
-    const auto origin = im.numbers("origin_mm", 2);
-    p.image.origin_mm[0] = origin[0];
-    p.image.origin_mm[1] = origin[1];
-  } else {
-    p.image.set_default_origin();
-  }
-  return p;
+  throw InputError(where + ": type '" + type + "' (expected curvilinear or linear)");
 }
 
 // docs/conventions.md §4: fan-slicer's "simulation" block.
@@ -139,7 +128,7 @@ ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int d
            {"transducer", "fan_geometry", "image_dimensions", "pixel_size", "simulation_models",
             "colors", "opacity"});
 
-  ProbeGeometry p;
+  FanSlicerProbe fs;
   // Early fan-slicer configs (e.g. its EUS example) have no "transducer": they are fans.
   const std::string transducer = sim.has("transducer") ? sim.string("transducer") : "curvilinear";
   const auto dims = sim.numbers("image_dimensions", 2);
@@ -147,31 +136,20 @@ ProbeGeometry parse_fanslicer(const json& root, const std::string& source, int d
   for (double d : dims)
     if (d != std::floor(d) || d <= 0 || d > 1e6)
       throw InputError(where + ": 'image_dimensions' must be two positive integers");
-  p.image.width = int(dims[0]);
-  p.image.height = int(dims[1]);
-  p.image.spacing_mm[0] = pixel[0];
-  p.image.spacing_mm[1] = pixel[1];
-  apply_downsampling(p.image, ds);
-  const double sx = p.image.spacing_mm[0];
-
+  for (int a = 0; a < 2; ++a) {
+    fs.image_dimensions[a] = int(dims[size_t(a)]);
+    fs.pixel_size_mm[a] = pixel[size_t(a)];
+  }
   if (transducer == "curvilinear") {
-    p.type = ProbeType::Curvilinear;
-    // fan_geometry = [dθ (deg), da (mm), Θ (deg), A, C, B]; A, C, B in units of da.
+    fs.transducer = ProbeType::Curvilinear;
     const auto fan = sim.numbers("fan_geometry", 6);
-    const double da = fan[1];
-    p.sector_deg = fan[2];
-    p.depth_mm = fan[3] * da;
-    p.radius_mm = fan[4] * da;
-    p.face_y_mm = fan[5] * da;
-    p.image.origin_mm[0] = -p.image.width * sx / 2.0;
+    std::copy(fan.begin(), fan.end(), fs.fan_geometry);
   } else if (transducer == "linear") {
-    p.type = ProbeType::Linear;  // a fan_geometry, if present, is unused
-    p.image.origin_mm[0] = -double(p.image.width / 2) * sx;
+    fs.transducer = ProbeType::Linear;  // a fan_geometry, if present, is unused
   } else {
     throw InputError(where + ": transducer '" + transducer + "' (expected curvilinear or linear)");
   }
-  p.image.origin_mm[1] = 0.0;
-  return p;
+  return probe_from_fanslicer(fs, ds);
 }
 
 }  // namespace

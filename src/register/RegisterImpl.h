@@ -6,7 +6,9 @@
 #include <cmath>
 #include <cstdint>
 
+#include "../geometry/Sampling.h"
 #include "sonoslice/backend/HostDevice.h"
+#include "sonoslice/geometry/VolumeGrid.h"
 #include "sonoslice/register/Registration.h"
 
 namespace sonoslice {
@@ -15,8 +17,8 @@ namespace register_impl {
 /// One frame at one pose, at one pyramid level.
 struct TermsLaunch {
   const float* volume = nullptr;  // the level's volume, x fastest
-  int nx = 0, ny = 0, nz = 0;
-  double A[9], a[3];  // probe mm → the level's continuous index: A·p + a (row-major A)
+  geometry::VolumeView grid;      // its extent
+  IndexMap probe_to_index;        // probe mm → the level's continuous index
   double G[9];        // the level's index gradient → world gradient: ∇_w I = G · ∇_c I
   double P[9], p[3];  // probe mm → world mm (the pose)
   double centre[3];   // world point the rotation increments turn about
@@ -36,37 +38,20 @@ struct TermsLaunch {
 constexpr int kLc2Sums = 10;
 
 /// The trilinear sample of the level's volume at probe point (x, y) and, with `gradient`, its
-/// exact derivative along each index axis; false outside the volume (0 ≤ c ≤ n − 1 on every axis).
+/// exact derivative along each index axis; false outside the volume. Registration's edge rule
+/// (geometry/Sampling.h, conventions.md §5): 0 ≤ c ≤ n − 1 on every axis, whole cells only.
 struct CellSample {
   double value = 0, gc[3] = {0, 0, 0};
 };
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool sample_cell(const TermsLaunch& L, double x, double y,
                                                         bool gradient, CellSample& out) {
-  const int64_t sy = L.nx, sz = int64_t(L.nx) * L.ny;
+  using geometry::EdgeRule;
   double c[3];
-  for (int k = 0; k < 3; ++k) c[k] = L.A[3 * k] * x + L.A[3 * k + 1] * y + L.a[k];
-  if (!(c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= L.nx - 1 && c[1] <= L.ny - 1 &&
-        c[2] <= L.nz - 1))
-    return false;
-  const int x0 = c[0] < L.nx - 1 ? int(c[0]) : L.nx - 2;
-  const int y0 = c[1] < L.ny - 1 ? int(c[1]) : L.ny - 2;
-  const int z0 = c[2] < L.nz - 1 ? int(c[2]) : L.nz - 2;
-  if (x0 < 0 || y0 < 0 || z0 < 0) return false;  // a dimension of one voxel: no trilinear
-  const double tx = c[0] - x0, ty = c[1] - y0, tz = c[2] - z0;
-  const float* q = L.volume + z0 * sz + y0 * sy + x0;
-  const double v000 = q[0], v100 = q[1], v010 = q[sy], v110 = q[sy + 1], v001 = q[sz],
-               v101 = q[sz + 1], v011 = q[sz + sy], v111 = q[sz + sy + 1];
-  const double a00 = v000 + tx * (v100 - v000), a10 = v010 + tx * (v110 - v010);
-  const double a01 = v001 + tx * (v101 - v001), a11 = v011 + tx * (v111 - v011);
-  const double b0 = a00 + ty * (a10 - a00), b1 = a01 + ty * (a11 - a01);
-  out.value = b0 + tz * (b1 - b0);
-  if (gradient) {
-    const double dx00 = v100 - v000, dx10 = v110 - v010, dx01 = v101 - v001, dx11 = v111 - v011;
-    const double dx0 = dx00 + ty * (dx10 - dx00), dx1 = dx01 + ty * (dx11 - dx01);
-    out.gc[0] = dx0 + tz * (dx1 - dx0);
-    out.gc[1] = (a10 - a00) + tz * ((a11 - a01) - (a10 - a00));
-    out.gc[2] = b1 - b0;
-  }
+  L.probe_to_index.apply(x, y, 0, c);
+  if (!geometry::inside<EdgeRule::Interior>(L.grid, c[0], c[1], c[2])) return false;
+  const auto cell = geometry::linear_cell<EdgeRule::Interior>(L.grid, c[0], c[1], c[2]);
+  out.value = gradient ? geometry::linear_value_gradient<double>(L.volume, cell, out.gc)
+                       : geometry::linear_value<double>(L.volume, cell);
   return true;
 }
 

@@ -13,6 +13,7 @@
 #include <optional>
 
 #include "../backend/ParallelFor.h"
+#include "../core/Random.h"
 #include "RegisterImpl.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
@@ -224,31 +225,21 @@ bool solve6(double A[36], double b[6], double x[6]) {
   return true;
 }
 
-uint64_t splitmix(uint64_t& state) {
-  uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-double uniform(uint64_t& state) {
-  return double(splitmix(state) >> 11) * (1.0 / 9007199254740992.0);
-}
-
 /// Start k's increment: k = 0 none; else a rotation of up to rot_deg about a random axis and a
 /// translation uniform in a ball of trans_mm, drawn from (seed, item, k).
 void start_increment(const RegistrationSettings& s, size_t item, int k, double xi[6]) {
   for (int i = 0; i < 6; ++i) xi[i] = 0;
   if (k == 0) return;
-  uint64_t state = s.seed * 0x100000001B3ull + item * 1000003ull + uint64_t(k);
+  SplitMix64 rng(s.seed * 0x100000001B3ull + item * 1000003ull + uint64_t(k));
   double axis[3], t[3], n2;
   do {
-    for (double& a : axis) a = 2 * uniform(state) - 1;
+    for (double& a : axis) a = 2 * rng.uniform() - 1;
     n2 = axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2];
   } while (n2 > 1 || n2 < 1e-6);
   do {
-    for (double& a : t) a = 2 * uniform(state) - 1;
+    for (double& a : t) a = 2 * rng.uniform() - 1;
   } while (t[0] * t[0] + t[1] * t[1] + t[2] * t[2] > 1);
-  const double angle = uniform(state) * s.search_rot_deg * kPi / 180;
+  const double angle = rng.uniform() * s.search_rot_deg * kPi / 180;
   for (int i = 0; i < 3; ++i) {
     xi[i] = t[i] * s.search_trans_mm;
     xi[3 + i] = axis[i] / std::sqrt(n2) * angle;
@@ -267,8 +258,7 @@ double rotation_angle_deg(const Mat3& a, const Mat3& b) {  // angle of a·bᵀ
 struct FrameRegistration::State {
   ProbeGeometry probe;
   VolumeGrid grid;
-  Mat3 L;  // world → index, linear
-  Vec3 o;
+  Mat3 L;  // world → index, linear (the gradients' chain rule)
   size_t count = 0;
   Volume volume;                  // float32: the caller's (shared) or a converted copy
   std::deque<Level> levels;       // only added to: references to a level stay valid
@@ -365,7 +355,6 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
   s.volume = volume;
   s.grid = volume.grid();
   s.L = s.grid.world_to_index_linear();
-  s.o = s.grid.world_to_index_offset();
   s.count = frame_count;
   if (frame_count == 0) throw InputError("frames: no frames");
   for (int k = 0; k < 3; ++k)
@@ -437,15 +426,13 @@ Vec3 FrameRegistration::centre(size_t frame, const Pose& pose) const {
 namespace {
 
 /// The kernel's view of frame `frame` at `pose` on level `l`.
-register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const Mat3& L_world,
-                                       const Vec3& o, const Level& l, size_t frame,
+register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeGrid& grid,
+                                       const Mat3& L_world, const Level& l, size_t frame,
                                        const Pose& pose, const Vec3& centre) {
   const int f = l.f, g = l.g;
   register_impl::TermsLaunch L;
   L.volume = l.volume;
-  L.nx = l.nx;
-  L.ny = l.ny;
-  L.nz = l.nz;
+  L.grid = geometry::VolumeView::of(l.nx, l.ny, l.nz);
   // The level's pixel (u, v) is the centre of a block of f × f full pixels; a level voxel the
   // centre of g³ full voxels: c_level = (c − (g − 1)/2) / g.
   const ImageGrid& img = probe.image;
@@ -458,17 +445,14 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const Mat3& L
   const size_t plane = size_t(l.width) * l.height;
   L.frame = l.frames.data() + frame * plane;
   L.mask = l.masks.data() + frame * plane;
+  L.probe_to_index = grid.index_map(pose);
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) {
-      double a = 0;
-      for (int k = 0; k < 3; ++k) a += L_world.m[r][k] * pose.m[k][c];
-      L.A[3 * r + c] = a / g;
+      L.probe_to_index.A[r][c] /= g;
       L.P[3 * r + c] = pose.m[r][c];
       L.G[3 * r + c] = L_world.m[c][r] / g;  // Lᵀ, per level index step
     }
-    double a = o[r];
-    for (int k = 0; k < 3; ++k) a += L_world.m[r][k] * pose.m[k][3];
-    L.a[r] = (a - 0.5 * (g - 1)) / g;
+    L.probe_to_index.a[r] = (L.probe_to_index.a[r] - 0.5 * (g - 1)) / g;
     L.p[r] = pose.m[r][3];
     L.centre[r] = centre[r];
   }
@@ -489,7 +473,7 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
                                    bool gradients) const {
   const State& s = *state_;
   register_impl::TermsLaunch L =
-      make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, centre);
+      make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, centre);
   L.gradients = gradients;
   PoseTerms total;
   for (int v = 0; v < L.height; ++v) {
@@ -504,7 +488,7 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
                                                          RegistrationMetric metric) const {
   const State& s = *state_;
   register_impl::TermsLaunch L =
-      make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, Vec3{0, 0, 0});
+      make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, Vec3{0, 0, 0});
   L.patch = patch_side(s.level(level).f);
   L.patches_x = (L.width + L.patch - 1) / L.patch;
   const int patches_y = (L.height + L.patch - 1) / L.patch;
@@ -546,7 +530,7 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
 double FrameRegistration::mutual_information(size_t frame, const Pose& pose, int level) const {
   const State& s = *state_;
   const register_impl::TermsLaunch L =
-      make_launch(s.probe, s.L, s.o, s.level(level), frame, pose, Vec3{0, 0, 0});
+      make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, Vec3{0, 0, 0});
   constexpr int B = register_impl::kMiBins;
   std::vector<double> joint(size_t(B) * B, 0.0);
   const double vol_lo = s.volume_range[0],

@@ -9,6 +9,8 @@
 #include <limits>
 
 #include "../backend/ParallelFor.h"
+#include "../core/Random.h"
+#include "../geometry/Sampling.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
 
@@ -16,24 +18,11 @@ namespace sonoslice {
 
 namespace {
 
-uint64_t mix64(uint64_t z) {  // splitmix64's finaliser: a bijection with good avalanche
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
-/// The random numbers of one candidate: splitmix64 from (seed, try).
-struct Rng {
-  uint64_t state;
+/// The random numbers of one candidate: splitmix64 seeded from (seed, try).
+struct Rng : SplitMix64 {
   Rng(uint64_t seed, uint64_t attempt)
-      : state(mix64(seed ^ mix64(attempt + 0x632BE59BD9B4E019ull))) {}
-  uint64_t next() { return mix64(state += 0x9E3779B97F4A7C15ull); }
-  double uniform() { return double(next() >> 11) * 0x1p-53; }  // [0, 1)
+      : SplitMix64(mix64(seed ^ mix64(attempt + 0x632BE59BD9B4E019ull))) {}
   double in(const Interval& i) { return i.lo + (i.hi - i.lo) * uniform(); }
-  double normal() {  // Box–Muller (one of the pair)
-    const double u = 1.0 - uniform(), v = uniform();
-    return std::sqrt(-2 * std::log(u)) * std::cos(2 * kPi * v);
-  }
 };
 
 constexpr double kDeg = kPi / 180;
@@ -94,26 +83,22 @@ struct VoxelSource {
   std::function<double(int64_t)> read;
   Mat3 L;
   Vec3 o{0, 0, 0};
+  geometry::VolumeView view;
 
   VoxelSource() = default;
   explicit VoxelSource(const Volume& v)
       : volume(v),
         read(voxel_reader(v)),
         L(v.grid().world_to_index_linear()),
-        o(v.grid().world_to_index_offset()) {}
+        o(v.grid().world_to_index_offset()),
+        view(geometry::VolumeView::of(v.grid().dims[0], v.grid().dims[1], v.grid().dims[2])) {}
   bool empty() const { return volume.empty(); }
   Vec3 index_of(const Vec3& p) const { return L * p + o; }
-  /// The nearest voxel's flat index, or −1 outside.
+  /// The nearest voxel's flat index (conventions.md §5 `nearest`), or −1 outside.
   int64_t nearest(const Vec3& p) const {
-    const VolumeGrid& g = volume.grid();
     const Vec3 c = index_of(p);
-    int64_t i[3];
-    for (int a = 0; a < 3; ++a) {
-      const double r = std::floor(c[a] + 0.5);
-      if (!(r >= 0 && r < double(g.dims[a]))) return -1;
-      i[a] = int64_t(r);
-    }
-    return (i[2] * g.dims[1] + i[1]) * g.dims[0] + i[0];
+    if (!geometry::inside(view, c[0], c[1], c[2])) return -1;
+    return geometry::nearest_offset(view, c[0], c[1], c[2]);
   }
 };
 
@@ -302,27 +287,14 @@ struct PoseSampler::State {
 };
 
 double PoseSampler::State::trilinear(const Vec3& p, bool* inside) const {
-  const VolumeGrid& g = ct.volume.grid();
+  // Registration's edge rule (conventions.md §5): the skin search needs the CT to vary across
+  // every sample it bisects, which the clamped half-voxel rim does not.
+  using geometry::EdgeRule;
   const Vec3 c = ct.index_of(p);
-  int64_t i0[3];
-  double t[3];
-  for (int a = 0; a < 3; ++a) {
-    if (!(c[a] >= 0 && c[a] <= double(g.dims[a] - 1))) {
-      *inside = false;
-      return 0;
-    }
-    i0[a] = std::min<int64_t>(int64_t(c[a]), g.dims[a] - 2);
-    t[a] = c[a] - double(i0[a]);
-  }
-  *inside = true;
-  double sum = 0;
-  for (int k = 0; k < 8; ++k) {
-    const int dx = k & 1, dy = (k >> 1) & 1, dz = k >> 2;
-    const double w = (dx ? t[0] : 1 - t[0]) * (dy ? t[1] : 1 - t[1]) * (dz ? t[2] : 1 - t[2]);
-    if (w == 0) continue;
-    sum += w * ct.read(((i0[2] + dz) * g.dims[1] + i0[1] + dy) * g.dims[0] + i0[0] + dx);
-  }
-  return sum;
+  *inside = geometry::inside<EdgeRule::Interior>(ct.view, c[0], c[1], c[2]);
+  if (!*inside) return 0;
+  return geometry::linear_value<double>(
+      ct.read, geometry::linear_cell<EdgeRule::Interior>(ct.view, c[0], c[1], c[2]));
 }
 
 void PoseSampler::State::build_skin() {

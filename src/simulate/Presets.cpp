@@ -13,15 +13,7 @@ std::vector<SimulationPreset> simulation_presets() {
     p.name = "abdominal";
     p.description = "3.5 MHz curvilinear, 60 deg sector, R 50 mm, 160 mm deep, 528x420 at 0.4 mm";
     p.frequency_mhz = 3.5;
-    ProbeGeometry& g = p.probe;
-    g.type = ProbeType::Curvilinear;
-    g.radius_mm = 50;
-    g.depth_mm = 160;
-    g.sector_deg = 60;
-    g.image.width = 528;
-    g.image.height = 420;
-    g.image.spacing_mm[0] = g.image.spacing_mm[1] = 0.4;
-    g.image.set_default_origin();
+    p.probe = ProbeGeometry::curvilinear(50, 160, 60, ImageGrid::centred(528, 420, 0.4, 0.4));
     out.push_back(p);
   }
   {
@@ -30,12 +22,7 @@ std::vector<SimulationPreset> simulation_presets() {
     p.name = "laparoscopic";
     p.description = "7.5 MHz linear, 40 mm wide, 60 mm deep, 320x480 at 0.125 mm";
     p.frequency_mhz = 7.5;
-    ProbeGeometry& g = p.probe;
-    g.type = ProbeType::Linear;
-    g.image.width = 320;
-    g.image.height = 480;
-    g.image.spacing_mm[0] = g.image.spacing_mm[1] = 0.125;
-    g.image.set_default_origin();
+    p.probe = ProbeGeometry::linear(ImageGrid::centred(320, 480, 0.125, 0.125));
     out.push_back(p);
   }
   {

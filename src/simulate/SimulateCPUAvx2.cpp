@@ -2,6 +2,7 @@
 // SimulateDriverCPU.h, built with -mavx2 -mfma (fused multiply-adds throughout: the speckle's
 // trilinear sums and polynomials are a third shorter). Chosen at run time (Simulator.cpp).
 #define SONOSLICE_KERNEL_ISA avx2
+#include "SimulateBackends.h"
 #include "SimulateDriverCPU.h"
 
 namespace sonoslice {

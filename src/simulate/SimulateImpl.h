@@ -13,7 +13,9 @@
 #include <cmath>
 #include <cstdint>
 
+#include "../geometry/Sampling.h"
 #include "sonoslice/backend/HostDevice.h"
+#include "sonoslice/geometry/VolumeGrid.h"
 #if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
 #include "../backend/Avx2Lanes.h"
 #endif
@@ -58,7 +60,7 @@ struct ImageModel {
   const Props* label_props = nullptr;  // label → props (65536 entries)
   const Props* hu_table = nullptr;     // HU source: props at integer HU from hu_min
   int hu_min = -1024, hu_count = 0;
-  int nx = 0, ny = 0, nz = 0;
+  geometry::VolumeView grid;
   Props outside{1.48f, 0.0022f, 0.f};  // outside the volume: water (no echo, no loss)
   // Probe point p (mm) → continuous index: A·p + a (row-major A). Set per pose.
   float A[9], a[3];
@@ -110,11 +112,6 @@ struct ImageModel {
   const float* scan_weights = nullptr;  // (tb, ts) per pixel
 };
 
-/// The probe → continuous index map of one pose: index = A·p + a (row-major A).
-struct IndexMap {
-  double A[9], a[3];
-};
-
 // The functions below are compiled once per instruction set (generic, AVX2 + FMA, CUDA).
 inline namespace SONOSLICE_KERNEL_ISA {
 
@@ -122,38 +119,13 @@ SONOSLICE_HOST_DEVICE inline float clampf(float v, float lo, float hi) {
   return v < lo ? lo : (v > hi ? hi : v);
 }
 
-/// Trilinear between v[0] and its neighbours dx, dy, dz elements on (as float).
-template <typename T>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float trilinear(const T* v, int64_t dx, int64_t dy,
-                                                       int64_t dz, float tx, float ty, float tz) {
-  const auto f = [&](int64_t i) { return float(v[i]); };
-  const float c00 = f(0) + tx * (f(dx) - f(0));
-  const float c10 = f(dy) + tx * (f(dy + dx) - f(dy));
-  const float c01 = f(dz) + tx * (f(dz + dx) - f(dz));
-  const float c11 = f(dz + dy) + tx * (f(dz + dy + dx) - f(dz + dy));
-  const float c0 = c00 + ty * (c10 - c00), c1 = c01 + ty * (c11 - c01);
-  return c0 + tz * (c1 - c0);
-}
-
+/// The properties at continuous index c: docs/conventions.md §5's inside test, then labels by
+/// `nearest` or HU by `linear` and the knots' table.
 SONOSLICE_HOST_DEVICE inline Props props_at(const ImageModel& m, float cx, float cy, float cz) {
-  if (!(cx >= -0.5f && cy >= -0.5f && cz >= -0.5f && cx < m.nx - 0.5f && cy < m.ny - 0.5f &&
-        cz < m.nz - 0.5f))
-    return m.outside;
-  const int64_t sy = m.nx, sz = int64_t(m.nx) * m.ny;
-  if (m.labels) {
-    const int ix = int(cx + 0.5f), iy = int(cy + 0.5f), iz = int(cz + 0.5f);
-    return m.label_props[m.labels[iz * sz + iy * sy + ix]];
-  }
-  // Trilinear HU, clamped at the faces (as slicing's `linear`), then the knots' table.
-  const float fx = clampf(cx, 0, float(m.nx - 1)), fy = clampf(cy, 0, float(m.ny - 1)),
-              fz = clampf(cz, 0, float(m.nz - 1));
-  const int x0 = int(fx), y0 = int(fy), z0 = int(fz);
-  const int64_t dx = x0 + 1 < m.nx ? 1 : 0, dy = y0 + 1 < m.ny ? sy : 0,
-                dz = z0 + 1 < m.nz ? sz : 0;
-  const float tx = fx - float(x0), ty = fy - float(y0), tz = fz - float(z0);
-  const int64_t at = z0 * sz + y0 * sy + x0;
-  const float hu = m.hu16 ? trilinear(m.hu16 + at, dx, dy, dz, tx, ty, tz)
-                          : trilinear(m.hu + at, dx, dy, dz, tx, ty, tz);
+  if (!geometry::inside(m.grid, cx, cy, cz)) return m.outside;
+  if (m.labels) return m.label_props[geometry::sample_nearest(m.labels, m.grid, cx, cy, cz)];
+  const float hu = m.hu16 ? geometry::sample_linear<float>(m.hu16, m.grid, cx, cy, cz)
+                          : geometry::sample_linear<float>(m.hu, m.grid, cx, cy, cz);
   if (!(hu == hu)) return m.outside;  // a NaN voxel nearby: no data, as outside the volume
   const float k = clampf(hu - float(m.hu_min), 0, float(m.hu_count) - 1.0001f);
   const int i = int(k);
@@ -234,15 +206,15 @@ SONOSLICE_HOST_DEVICE inline void beam_line(const ImageModel& m, int b, float* o
 inline void set_pose(ImageModel& im, const IndexMap& map) {
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) {
-      im.A[3 * r + c] = float(map.A[3 * r + c]);
-      im.Q[3 * r + c] = float(map.A[3 * r + c] * im.lattice_per_index[r]);
+      im.A[3 * r + c] = float(map.A[r][c]);
+      im.Q[3 * r + c] = float(map.A[r][c] * im.lattice_per_index[r]);
     }
     im.a[r] = float(map.a[r]);
     im.q[r] = float(map.a[r] * im.lattice_per_index[r] + im.lattice_offset);
   }
   for (int e = 0; e < im.elevations; ++e)
     for (int r = 0; r < 3; ++r)
-      im.elevation_q[e][r] = float(map.A[3 * r + 2] * im.lattice_per_index[r]) * im.elevation_mm[e];
+      im.elevation_q[e][r] = float(map.A[r][2] * im.lattice_per_index[r]) * im.elevation_mm[e];
 }
 
 /// |cos θ| between beam direction d and the impedance gradient at probe point (px, py, 0), from

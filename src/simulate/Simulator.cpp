@@ -6,7 +6,8 @@
 #include <cmath>
 #include <limits>
 
-#include "SimulateImpl.h"
+#include "../core/Random.h"
+#include "SimulateBackends.h"
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
@@ -37,24 +38,15 @@ namespace {
 
 constexpr int kTileSizes[2] = {37, 41};
 
-/// splitmix64: the seed's stream of 64-bit values (public-domain constants, Steele et al.).
-uint64_t splitmix(uint64_t& state) {
-  uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
 /// n³ complex nodes, each re and im standard normal / sqrt(2) (Box–Muller), from the seed,
 /// stored padded to (n+1)³: node n along an axis repeats node 0.
 std::vector<float> noise_tile(int n, uint64_t seed) {
   std::vector<float> t(size_t(n) * n * n * 2);
-  uint64_t state = seed;
+  SplitMix64 rng(seed);
   constexpr double kTwoPi = 6.283185307179586;
   for (size_t i = 0; i < t.size(); i += 2) {
-    // 53-bit uniforms in (0, 1].
-    const double u1 = (double(splitmix(state) >> 11) + 1.0) * (1.0 / 9007199254740992.0);
-    const double u2 = double(splitmix(state) >> 11) * (1.0 / 9007199254740992.0);
+    const double u1 = rng.uniform_nonzero();
+    const double u2 = rng.uniform();
     const double radius = std::sqrt(-std::log(u1));  // sqrt(-2 ln u1) / sqrt(2)
     t[i] = float(radius * std::cos(kTwoPi * u2));
     t[i + 1] = float(radius * std::sin(kTwoPi * u2));
@@ -145,13 +137,11 @@ double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2
   m.lattice_count = count;
   // Probe mm → lattice coordinates directly (index = lattice here).
   IndexMap map;
-  double* A = map.A;
-  double* a = map.a;
-  for (int k = 0; k < 9; ++k) A[k] = R[k] / m.wavelength_mm;
+  for (int k = 0; k < 9; ++k) map.A[k / 3][k % 3] = R[k] / m.wavelength_mm;
   // The rotated patch spans at most [-extent, extent] on each axis: start it mid-table.
   for (int k = 0; k < 3; ++k) {
     m.lattice_per_index[k] = 1;
-    a[k] = extent;
+    map.a[k] = extent;
   }
   m.lattice_offset = float(offset);
   set_pose(m, map);
@@ -200,7 +190,6 @@ double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2
 }  // namespace simulate_impl
 
 using simulate_impl::ImageModel;
-using simulate_impl::IndexMap;
 using simulate_impl::Model;
 using simulate_impl::Props;
 
@@ -216,9 +205,7 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
   m.mask = probe.mask();
   const VolumeGrid grid = volume.grid();
   ImageModel& b = m.base;
-  b.nx = int(grid.dims[0]);
-  b.ny = int(grid.dims[1]);
-  b.nz = int(grid.dims[2]);
+  b.grid = geometry::VolumeView::of(grid.dims[0], grid.dims[1], grid.dims[2]);
   const int64_t voxels = grid.voxel_count();
 
   if (source == SimulationSource::Labels) {
@@ -439,45 +426,14 @@ size_t Simulator::image_bytes() const {
          (model_->settings.output == SimulationOutput::BMode ? 1 : 4);
 }
 
-namespace simulate_impl {
-void simulate_cpu(const ImageModel& base, const IndexMap* maps, size_t count, uint8_t* out,
-                  size_t image_bytes);
-void simulate_cpu_avx2(const ImageModel& base, const IndexMap* maps, size_t count, uint8_t* out,
-                       size_t image_bytes);
-}  // namespace simulate_impl
-
 void Simulator::simulate(const Pose* poses, size_t count, void* out, size_t first_index) const {
   if (count == 0) return;
   validate_poses(poses, count, "poses", first_index, /*warn_non_orthonormal=*/false);
   const Model& m = *model_;
-  const VolumeGrid& grid = m.volume.grid();
-  const Mat3 L = grid.world_to_index_linear();
-  const Vec3 o = grid.world_to_index_offset();
-  std::vector<simulate_impl::IndexMap> maps(count);
-  for (size_t n = 0; n < count; ++n) {
-    const Pose& p = poses[n];
-    double* A = maps[n].A;
-    double* a = maps[n].a;
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) {
-        double s = 0;
-        for (int k = 0; k < 3; ++k) s += L.m[r][k] * p.m[k][c];
-        A[3 * r + c] = s;
-      }
-      double t = o[r];
-      for (int k = 0; k < 3; ++k) t += L.m[r][k] * p.m[k][3];
-      a[r] = t;
-    }
-  }
-#ifdef SONOSLICE_HAVE_AVX2_KERNELS
-  if (cpu_kernel_isa() == "avx2") {
-    simulate_impl::simulate_cpu_avx2(m.base, maps.data(), count, static_cast<uint8_t*>(out),
-                                     image_bytes());
-    return;
-  }
-#endif
-  simulate_impl::simulate_cpu(m.base, maps.data(), count, static_cast<uint8_t*>(out),
-                              image_bytes());
+  std::vector<IndexMap> maps(count);
+  for (size_t n = 0; n < count; ++n) maps[n] = m.volume.grid().index_map(poses[n]);
+  simulate_impl::simulate_cpu(cpu_kernel_isa(), m.base, maps.data(), count,
+                              static_cast<uint8_t*>(out), image_bytes());
 }
 
 }  // namespace sonoslice

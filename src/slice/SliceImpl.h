@@ -3,13 +3,15 @@
 /// (generic x86-64), SliceCPUAvx2.cpp (AVX2 + FMA) and SliceCUDA.cu include this file. Everything
 /// below the dispatch layer takes pre-validated raw pointers and sizes.
 ///
-/// The interpolation formulas are templates over the lane type (float on CUDA and in scalar
-/// code, eight AVX2 lanes in the CPU fast path), so there is exactly one trilinear formula.
+/// The sampling rule itself (inside test, trilinear, nearest) is geometry/Sampling.h, shared with
+/// every other capability; its trilinear blend is a template over the lane type (float on CUDA
+/// and in scalar code, eight AVX2 lanes in the CPU fast path).
 #include <cmath>
 #include <cstdint>
 #include <type_traits>
 
 #include "../backend/Convert.h"
+#include "../geometry/Sampling.h"
 #include "SliceTypes.h"
 #include "sonoslice/backend/HostDevice.h"
 #include "sonoslice/volume/PixelType.h"
@@ -28,51 +30,10 @@ namespace sonoslice {
 namespace slice_impl {
 inline namespace SONOSLICE_KERNEL_ISA {
 
-using backend::lerp;
-
-/// Trilinear blend of a cell's eight corners v[x][y][z] at fractions (fx, fy, fz) in [0, 1).
-template <typename F>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F trilinear(F fx, F fy, F fz, F v000, F v100, F v010, F v110,
-                                                   F v001, F v101, F v011, F v111) {
-  const F c00 = lerp(v000, v100, fx), c10 = lerp(v010, v110, fx);
-  const F c01 = lerp(v001, v101, fx), c11 = lerp(v011, v111, fx);
-  return lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz);
-}
-
-/// docs/conventions.md §5 `linear` at continuous index (cx, cy, cz), already known to be inside
-/// [-0.5, n - 0.5) on every axis. Neighbour indices are clamped to [0, n - 1].
-template <typename Acc, typename TIn>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc sample_linear(const TIn* __restrict__ volume,
-                                                         const VolumeView& g, Acc cx, Acc cy,
-                                                         Acc cz) {
-  // Inside the buffer c >= -0.5, so truncating c + 1 is floor(c) + 1 without a call to floor
-  // (which baseline x86-64 cannot inline). When c + 1 rounds up to an integer, f comes out as
-  // -ulp instead of 1 - ulp at the neighbouring cell: the same value to float precision.
-  const int ix = int(cx + Acc(1)) - 1, iy = int(cy + Acc(1)) - 1, iz = int(cz + Acc(1)) - 1;
-  const Acc fx = cx - Acc(ix), fy = cy - Acc(iy), fz = cz - Acc(iz);
-  // Inside the buffer -1 <= i <= n - 1, so one-sided clamps suffice.
-  const int x0 = ix < 0 ? 0 : ix, x1 = ix + 1 < g.nx ? ix + 1 : g.nx - 1;
-  const int y0 = iy < 0 ? 0 : iy, y1 = iy + 1 < g.ny ? iy + 1 : g.ny - 1;
-  const int z0 = iz < 0 ? 0 : iz, z1 = iz + 1 < g.nz ? iz + 1 : g.nz - 1;
-  const int64_t r00 = z0 * g.stride_z + y0 * g.stride_y, r10 = z0 * g.stride_z + y1 * g.stride_y;
-  const int64_t r01 = z1 * g.stride_z + y0 * g.stride_y, r11 = z1 * g.stride_z + y1 * g.stride_y;
-  return trilinear(fx, fy, fz, Acc(volume[r00 + x0]), Acc(volume[r00 + x1]), Acc(volume[r10 + x0]),
-                   Acc(volume[r10 + x1]), Acc(volume[r01 + x0]), Acc(volume[r01 + x1]),
-                   Acc(volume[r11 + x0]), Acc(volume[r11 + x1]));
-}
-
-/// docs/conventions.md §5 `nearest`: index floor(c + 0.5), clamped.
-template <typename TIn, typename Acc>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE TIn sample_nearest(const TIn* __restrict__ volume,
-                                                          const VolumeView& g, Acc cx, Acc cy,
-                                                          Acc cz) {
-  // c + 0.5 >= 0 inside the buffer: truncation is floor.
-  int ix = int(cx + Acc(0.5)), iy = int(cy + Acc(0.5)), iz = int(cz + Acc(0.5));
-  ix = ix < 0 ? 0 : (ix >= g.nx ? g.nx - 1 : ix);
-  iy = iy < 0 ? 0 : (iy >= g.ny ? g.ny - 1 : iy);
-  iz = iz < 0 ? 0 : (iz >= g.nz ? g.nz - 1 : iz);
-  return volume[iz * g.stride_z + iy * g.stride_y + ix];
-}
+using geometry::inside;
+using geometry::sample_linear;
+using geometry::sample_nearest;
+using geometry::trilinear;
 
 /// One output image row at a time: row r of the batch is row v = r % H of image n = r / H.
 template <typename TIn, typename TOut, bool Linear>
@@ -119,10 +80,7 @@ struct SliceKernel {
     const Acc cx = backend::add_product(s.c[0], Acc(u), s.d[0]);
     const Acc cy = backend::add_product(s.c[1], Acc(u), s.d[1]);
     const Acc cz = backend::add_product(s.c[2], Acc(u), s.d[2]);
-    // docs/conventions.md §5 inside test (ITK's IsInsideBuffer): -0.5 <= c < n - 0.5. Written so
-    // NaN is outside.
-    if (!(cx >= Acc(-0.5) && cx < Acc(grid.nx) - Acc(0.5) && cy >= Acc(-0.5) &&
-          cy < Acc(grid.ny) - Acc(0.5) && cz >= Acc(-0.5) && cz < Acc(grid.nz) - Acc(0.5))) {
+    if (!inside(grid, cx, cy, cz)) {
       s.out[u] = fill;
       return;
     }
@@ -211,13 +169,17 @@ void run_slice_kernel(const SliceLaunch& launch) {
 inline void dispatch_slice(const SliceLaunch& launch) {
   visit_pixel_type(launch.volume_type, [&](auto in_zero) {
     using TIn = decltype(in_zero);
-    visit_output_type(launch.output_type, [&](auto out_zero) {
-      using TOut = decltype(out_zero);
-      if (launch.linear)
-        run_slice_kernel<TIn, TOut, true>(launch);
-      else
-        run_slice_kernel<TIn, TOut, false>(launch);
-    });
+    // Slicer's constructor refuses other output types (is_slice_output_type).
+    visit_pixel_type(
+        KernelPixelTypes{}, launch.output_type,
+        [&](auto out_zero) {
+          using TOut = decltype(out_zero);
+          if (launch.linear)
+            run_slice_kernel<TIn, TOut, true>(launch);
+          else
+            run_slice_kernel<TIn, TOut, false>(launch);
+        },
+        "slicing kernels");
   });
 }
 

@@ -3,19 +3,10 @@
 #include <cmath>
 #include <limits>
 
-#include "SliceTypes.h"
-#ifdef SONOSLICE_HAVE_CUDA
-#include "SliceCUDA.h"
-#endif
+#include "SliceBackends.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
-namespace slice_impl {
-void slice_cpu_generic(const SliceLaunch& launch);
-#ifdef SONOSLICE_HAVE_AVX2_KERNELS
-void slice_cpu_avx2(const SliceLaunch& launch);
-#endif
-}  // namespace slice_impl
 
 bool is_slice_output_type(PixelType type) {
   return type == PixelType::Float32 || type == PixelType::Int16 || type == PixelType::UInt8 ||
@@ -59,18 +50,17 @@ void Slicer::check_output_type(PixelType type) const {
 
 namespace {
 
-// Per image, pose ∘ image grid ∘ world→index reduced to one affine map pixel → continuous index,
-// computed in double, handed to the kernels as floats.
+// Per image, the pixel grid's map into the volume's index (VolumeGrid::index_map) as the
+// kernels step through it: pixel (0, 0)'s index and its change per column and per row, computed
+// in double, handed to the kernels as floats.
 std::vector<slice_impl::PixelToIndex> pixel_to_index(const VolumeGrid& g, const ImageGrid& im,
                                                      const Pose* poses, size_t count) {
-  const Mat3 w2i = g.world_to_index_linear();
   std::vector<slice_impl::PixelToIndex> affines(count);
   for (size_t n = 0; n < count; ++n) {
-    const Pose& T = poses[n];
-    const Vec3 p00 = T.transform_point({im.origin_mm[0], im.origin_mm[1], 0.0});
-    const Vec3 origin = w2i * (p00 - g.origin_mm);
-    const Vec3 per_column = w2i * (im.spacing_mm[0] * T.column3(0));
-    const Vec3 per_row = w2i * (im.spacing_mm[1] * T.column3(1));
+    const IndexMap m = g.index_map(poses[n]);
+    const Vec3 origin = m({im.origin_mm[0], im.origin_mm[1], 0.0});
+    const Vec3 per_column = m.direction({im.spacing_mm[0], 0.0, 0.0});
+    const Vec3 per_row = m.direction({0.0, im.spacing_mm[1], 0.0});
     for (int k = 0; k < 3; ++k) {
       affines[n].origin[k] = float(origin[k]);
       affines[n].per_column[k] = float(per_column[k]);
@@ -87,7 +77,7 @@ slice_impl::SliceLaunch Slicer::launch_template() const {
   slice_impl::SliceLaunch launch{};
   launch.volume = volume_.data();
   launch.volume_type = volume_.pixel_type();
-  launch.grid = {int(g.dims[0]), int(g.dims[1]), int(g.dims[2]), g.dims[0], g.dims[0] * g.dims[1]};
+  launch.grid = geometry::VolumeView::of(g.dims[0], g.dims[1], g.dims[2]);
   launch.mask = mask_.data();
   launch.output_type = settings_.output_type;
   launch.width = probe_.image.width;
@@ -122,14 +112,9 @@ void Slicer::slice(const Pose* poses, size_t count, void* out, size_t first_inde
   launch.poses = affines.data();
   launch.count = int64_t(count);
   launch.out = out;
-#ifdef SONOSLICE_HAVE_AVX2_KERNELS
   // The AVX2 fast path addresses voxels with int32 offsets.
-  if (cpu_kernel_isa() == "avx2" && volume_.grid().voxel_count() < (int64_t(1) << 31) - 4) {
-    slice_impl::slice_cpu_avx2(launch);
-    return;
-  }
-#endif
-  slice_impl::slice_cpu_generic(launch);
+  const bool int32_offsets = volume_.grid().voxel_count() < (int64_t(1) << 31) - 4;
+  slice_impl::slice_cpu(int32_offsets ? cpu_kernel_isa() : CpuIsa::Generic, launch);
 }
 
 DeviceImages Slicer::slice_on_device(const Pose* poses, size_t count, size_t first_index) const {

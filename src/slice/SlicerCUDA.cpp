@@ -6,12 +6,10 @@
 
 #include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
-#include "SliceCUDA.h"
+#include "SliceBackends.h"
 
 namespace sonoslice {
 namespace slice_impl {
-
-void slice_cuda_launch(const SliceLaunch& launch);  // SliceCUDA.cu
 
 struct CudaSliceState {
   int device = 0;

@@ -41,4 +41,8 @@ PixelType parse_pixel_type(const std::string& name) {
                    "int32, float32, float64");
 }
 
+void throw_no_kernel(const char* what, PixelType type) {
+  throw Error(std::string(what) + ": no kernel for " + to_string(type) + " values");
+}
+
 }  // namespace sonoslice

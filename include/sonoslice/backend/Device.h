@@ -29,12 +29,24 @@ void set_cpu_threads(int n);
 /// Restores the default: all hardware threads.
 void reset_cpu_threads();
 
-/// The instruction set the CPU kernels use: "avx2" (eight-lane fast paths, when the build has
-/// them and the CPU supports AVX2 and FMA) or "generic". The environment variable
-/// SONOSLICE_CPU_ISA=generic forces the generic kernels.
-std::string cpu_kernel_isa();
-/// "auto", "generic" or "avx2"; InputError when "avx2" is not available here.
-void set_cpu_kernel_isa(const std::string& isa);
+/// The instruction sets the CPU kernels are compiled for: every kernel source is built once per
+/// set (XCPU.cpp, XCPUAvx2.cpp) and the dispatch layer runs the one cpu_kernel_isa() names.
+enum class CpuIsa {
+  Generic,  ///< the build's baseline (x86-64, or any other CPU)
+  Avx2      ///< AVX2 + FMA: eight-lane fast paths
+};
+const char* to_string(CpuIsa isa);  ///< "generic" / "avx2"
+
+/// The instruction set the CPU kernels use: Avx2 when the build has those kernels and the CPU
+/// supports AVX2 and FMA, else Generic. The environment variable SONOSLICE_CPU_ISA=generic
+/// forces the generic kernels.
+CpuIsa cpu_kernel_isa();
+/// Whether the kernels for `isa` can run here (built for it, and the CPU has it).
+bool cpu_kernel_isa_available(CpuIsa isa);
+/// Sets the instruction set; InputError when it is not available here.
+void set_cpu_kernel_isa(CpuIsa isa);
+/// The same by name: "auto" (the default choice above), "generic" or "avx2".
+void set_cpu_kernel_isa(const std::string& name);
 
 /// Throws Error("... built without CUDA" / "cuda:K: not available") when `device` cannot run
 /// here; returns normally for the CPU.

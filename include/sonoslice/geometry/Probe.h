@@ -1,6 +1,7 @@
 #pragma once
 /// @file Probe shapes and the output image grid (docs/conventions.md §3).
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -21,6 +22,8 @@ struct ImageGrid {
     origin_mm[0] = -(width - 1) * spacing_mm[0] / 2.0;
     origin_mm[1] = 0.0;
   }
+  /// A width × height grid of sx × sy mm pixels at the default origin.
+  static ImageGrid centred(int width, int height, double sx_mm, double sy_mm);
 };
 
 enum class ProbeType {
@@ -57,6 +60,27 @@ struct ProbeGeometry {
   std::vector<uint8_t> mask() const;
 
   std::string describe() const;
+
+  /// A convex fan (docs/conventions.md §3) on `image`: apex at (0, face_y_mm − radius_mm).
+  static ProbeGeometry curvilinear(double radius_mm, double depth_mm, double sector_deg,
+                                   const ImageGrid& image, double face_y_mm = 0.0);
+  /// A linear array on `image`, optionally limited to |x| ≤ width_mm / 2 and to depth_mm below
+  /// the face; without limits the whole image is inside.
+  static ProbeGeometry linear(const ImageGrid& image, std::optional<double> width_mm = std::nullopt,
+                              std::optional<double> depth_mm = std::nullopt,
+                              double face_y_mm = 0.0);
 };
+
+/// A probe as fan-slicer describes it (its configuration's "simulation" block), in its units.
+struct FanSlicerProbe {
+  ProbeType transducer = ProbeType::Curvilinear;
+  /// Curvilinear: [dθ (deg), da (mm), Θ (deg), A, C, B], with A, C, B in units of da.
+  double fan_geometry[6] = {0, 0, 0, 0, 0, 0};
+  int image_dimensions[2] = {0, 0};      ///< W, H
+  double pixel_size_mm[2] = {1.0, 1.0};  ///< (px, py)
+};
+/// docs/conventions.md §4: fan-slicer's probe at `downsampling`, as sonoslice's geometry (grid
+/// floor(W/ds) × floor(H/ds) at ds·(px, py); fan-slicer's lateral origin).
+ProbeGeometry probe_from_fanslicer(const FanSlicerProbe& probe, int downsampling = 1);
 
 }  // namespace sonoslice

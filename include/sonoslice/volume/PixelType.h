@@ -3,6 +3,9 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <tuple>
+#include <type_traits>
+#include <utility>
 
 namespace sonoslice {
 
@@ -11,6 +14,8 @@ enum class PixelType { UInt8, Int8, UInt16, Int16, UInt32, Int32, Float32, Float
 size_t pixel_size(PixelType type);
 std::string to_string(PixelType type);                ///< "uint8", "int16", "float32", ...
 PixelType parse_pixel_type(const std::string& name);  ///< inverse of to_string; InputError
+/// Error("<what>: no kernel for <type> values"): a type that reached a kernel dispatch unchecked.
+[[noreturn]] void throw_no_kernel(const char* what, PixelType type);
 
 template <typename T>
 struct PixelTypeOf;
@@ -47,7 +52,8 @@ struct PixelTypeOf<double> {
   static constexpr PixelType value = PixelType::Float64;
 };
 
-/// Calls f(T{}) with T the C++ type of `type` (one switch for every type-dispatching site).
+/// Calls f(T{}) with T the C++ type of `type`: the one switch every type-dispatching site goes
+/// through (directly, or through the subset form below).
 template <typename F>
 decltype(auto) visit_pixel_type(PixelType type, F&& f) {
   switch (type) {
@@ -69,6 +75,29 @@ decltype(auto) visit_pixel_type(PixelType type, F&& f) {
       break;
   }
   return f(double{});
+}
+
+/// A set of pixel types, for the subset form of visit_pixel_type.
+template <typename... T>
+struct PixelTypes {};
+/// The types the kernels are instantiated for: slicing's outputs and compounding's samples
+/// (other types are converted before they reach a kernel, or refused).
+using KernelPixelTypes = PixelTypes<uint8_t, int16_t, uint16_t, float>;
+
+/// Calls f(T{}) with T the C++ type of `type` when T is one of `Ts`; otherwise throws an Error
+/// that says `what` has no kernel for the type (a dispatch layer checks types before this).
+template <typename... Ts, typename F>
+decltype(auto) visit_pixel_type(PixelTypes<Ts...>, PixelType type, F&& f, const char* what) {
+  return visit_pixel_type(
+      type,
+      [&](auto zero) -> decltype(f(std::declval<std::tuple_element_t<0, std::tuple<Ts...>>>())) {
+        using T = decltype(zero);
+        if constexpr ((std::is_same<T, Ts>::value || ...)) {
+          return f(T{});
+        } else {
+          throw_no_kernel(what, type);
+        }
+      });
 }
 
 }  // namespace sonoslice

@@ -1,15 +1,35 @@
 #pragma once
-// Internal, CUDA builds only: the Slicer's GPU state and the host code that drives the kernel
-// (SlicerCUDA.cpp; the kernel itself is SliceCUDA.cu).
+/// @file How the slicing dispatch layer (Slicer.cpp) reaches the slicing kernel (SliceImpl.h) in
+/// each of its builds: one entry point per CPU instruction set (SliceCPU.cpp, SliceCPUAvx2.cpp)
+/// chosen by CpuIsa, and, in CUDA builds, the kernel (SliceCUDA.cu) with the host code that
+/// drives it (SlicerCUDA.cpp). Every kernel folder wires its backends the same way
+/// (CompoundBackends.h, SimulateBackends.h; docs/architecture.md).
 #include <memory>
 #include <vector>
 
 #include "SliceTypes.h"
+#include "sonoslice/backend/Device.h"
 #include "sonoslice/slice/Slicer.h"
 #include "sonoslice/volume/Volume.h"
 
 namespace sonoslice {
 namespace slice_impl {
+
+/// CPU: the kernel built for each instruction set.
+void slice_cpu_generic(const SliceLaunch& launch);
+void slice_cpu_avx2(const SliceLaunch& launch);
+inline void slice_cpu(CpuIsa isa, const SliceLaunch& launch) {
+  switch (isa) {
+    case CpuIsa::Avx2:
+      return slice_cpu_avx2(launch);
+    case CpuIsa::Generic:
+      return slice_cpu_generic(launch);
+  }
+}
+
+#ifdef SONOSLICE_HAVE_CUDA
+/// CUDA: the kernel, on the launch's stream; every pointer in `launch` is device memory.
+void slice_cuda_launch(const SliceLaunch& launch);
 
 struct CudaSliceState;
 
@@ -36,6 +56,8 @@ void cuda_synchronize(void* stream, int device);
 /// Synchronous device → host copy of `bytes` on `stream`.
 void cuda_copy_to_host(void* host_out, const void* device_data, size_t bytes, void* stream,
                        int device);
+
+#endif  // SONOSLICE_HAVE_CUDA
 
 }  // namespace slice_impl
 }  // namespace sonoslice
