@@ -8,7 +8,7 @@
 #include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/volume/PixelType.h"
 
-#ifdef SONOSLICE_HAVE_ITK  // ITK builds find and link zlib (src/io/CMakeLists.txt)
+#ifdef SONOSLICE_HAVE_ITK  // ITK builds find and link zlib (src/CMakeLists.txt)
 #define SONOSLICE_PLUS_HAVE_ZLIB 1
 #endif
 
