@@ -5,7 +5,7 @@
 #include <string>
 
 #include "FuzzCommon.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice {
 namespace fuzz {

@@ -12,12 +12,12 @@
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/BeamGeometryFile.h"
 #include "sonoslice/io/Npy.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice {
 namespace {

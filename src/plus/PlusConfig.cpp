@@ -13,7 +13,7 @@
 //   - the clip rectangle applies only when both of its sizes are positive.
 // Where PLUS logs an error and carries on with a default (an unparsable number, an unknown
 // enumerated value), we stop with an InputError naming the file, element and attribute.
-#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/plus/PlusConfig.h"
 
 #include <filesystem>
 #include <set>
@@ -22,7 +22,7 @@
 #include <pugixml.hpp>
 #endif
 
-#include "TextParse.h"
+#include "../io/TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

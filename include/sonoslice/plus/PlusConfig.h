@@ -7,7 +7,7 @@
 
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/geometry/VolumeGrid.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice {
 

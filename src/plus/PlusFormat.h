@@ -5,7 +5,7 @@
 #include <map>
 #include <string>
 
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 #include "sonoslice/volume/PixelType.h"
 
 #ifdef SONOSLICE_HAVE_ITK  // ITK builds find and link zlib (src/CMakeLists.txt)

@@ -10,11 +10,11 @@
 #include <string>
 #include <vector>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/geometry/Math.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice {
 
