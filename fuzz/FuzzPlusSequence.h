@@ -6,6 +6,7 @@
 
 #include "FuzzCommon.h"
 #include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace fuzz {

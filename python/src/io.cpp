@@ -19,6 +19,7 @@
 #include "sonoslice/io/VolumeFile.h"
 #include "sonoslice/plus/PlusConfig.h"
 #include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice::bindings {
 

@@ -11,6 +11,7 @@
 
 #include "bindings.h"
 #include "sonoslice/compound/Reconstruction.h"
+#include "sonoslice/plus/FrameSelection.h"
 #include "sonoslice/plus/PlusConfig.h"
 #include "sonoslice/plus/PlusSequence.h"
 

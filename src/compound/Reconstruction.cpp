@@ -16,8 +16,10 @@
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/plus/FrameSelection.h"
 #include "sonoslice/plus/PlusConfig.h"
 #include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace {

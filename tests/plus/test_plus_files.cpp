@@ -16,8 +16,10 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/plus/FrameSelection.h"
 #include "sonoslice/plus/PlusConfig.h"
 #include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace {

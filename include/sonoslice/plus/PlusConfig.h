@@ -7,7 +7,7 @@
 
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/geometry/VolumeGrid.h"
-#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 

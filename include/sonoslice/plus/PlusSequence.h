@@ -1,12 +1,10 @@
 #pragma once
-/// @file PLUS toolkit files (docs/conventions.md §7): tracked-frame sequences (.igs.mha / .seq.mha
-/// / .mha, .igs.nrrd / .seq.nrrd / .nrrd; zlib/gzip-compressed or raw) and the coordinate
-/// definitions of a PLUS configuration XML, with PLUS's transform naming (`AToB` maps coordinates
-/// in A to B).
+/// @file PLUS toolkit tracked-frame sequences (docs/conventions.md §7): .igs.mha / .seq.mha /
+/// .mha, .igs.nrrd / .seq.nrrd / .nrrd; zlib/gzip-compressed or raw. Each frame's transforms
+/// keep PLUS's naming (`AToB` maps coordinates in A to B); TransformRepository.h chains them.
 #include <map>
 #include <optional>
 #include <string>
-#include <utility>
 #include <vector>
 
 #include "sonoslice/geometry/Math.h"
@@ -60,61 +58,5 @@ PlusSequence read_plus_sequence(const std::string& path);
 /// The frames are written in the sequence's `orientation` (flipped back from MF).
 void write_plus_sequence(const std::string& path, const PlusSequence& sequence,
                          bool compress = true);
-
-/// A set of named transforms (PLUS's transform repository): the configuration's
-/// CoordinateDefinitions plus one frame's transforms. Any transform that is a chain of known
-/// ones and their inverses can be asked for.
-class TransformRepository {
- public:
-  /// Adds or replaces `from`To`to` (e.g. set("Image", "Probe", m)); `valid` false records a
-  /// transform whose status is not OK (a chain through it is invalid).
-  void set(const std::string& from, const std::string& to, const Mat4& from_to_to,
-           bool valid = true);
-  /// Adds every transform of a sequence frame ("ProbeToTracker" → set("Probe", "Tracker", ...)),
-  /// invalid ones marked as such.
-  void set_frame(const PlusSequence& sequence, int frame);
-  /// The transform from `from` to `to` through the shortest chain of known transforms;
-  /// std::nullopt when a chain exists but passes through an invalid transform. Throws InputError
-  /// naming both frames and the known transforms when no chain exists at all.
-  std::optional<Mat4> get(const std::string& from, const std::string& to) const;
-  /// Splits "ImageToReference" into {"Image", "Reference"}; InputError when not of that form.
-  static std::pair<std::string, std::string> split_name(const std::string& transform_name);
-
- private:
-  struct Entry {
-    Mat4 matrix;
-    bool valid;
-  };
-  std::map<std::pair<std::string, std::string>, Entry> transforms_;
-};
-
-/// Why `m` cannot place image pixels (or probe points) in space, "" when it can: a non-finite
-/// entry, a last row other than 0 0 0 1 (an all-zero matrix), or columns 0 and 1 (the image's x
-/// and y axes) that are zero or parallel, which would put a frame's pixels on a line or a point.
-std::string transform_problem(const Mat4& m);
-
-/// The frames of a sequence that go into a reconstruction, as PLUS picks them.
-struct PlusFrameSelection {
-  std::vector<int> frames;         ///< indices into the sequence
-  std::vector<Mat4> to_reference;  ///< their `from`→`to` transforms
-  int bad_image = 0;               ///< frames whose image status is not OK
-  int bad_transform = 0;           ///< frames whose chain passes through an invalid transform
-  /// Frames left out because their own transforms cannot place them, with the reason: no chain
-  /// (a transform missing from the frame), a link that cannot be inverted, or a `from`→`to`
-  /// transform with a transform_problem() (an all-zero ProbeToTracker).
-  std::vector<std::pair<int, std::string>> unusable;
-  /// "2 with an invalid ImageToReference transform, 1 with an image status not OK" ("" if none).
-  std::string skipped_reason(const std::string& from, const std::string& to) const;
-};
-
-/// Every `skip`-th frame (0, skip, 2·skip, ...) whose image status is OK and whose `from`→`to`
-/// chain, through the frame's transforms and `calibration` (e.g. a configuration's
-/// CoordinateDefinitions), has no invalid link and gives a usable transform; the others are
-/// counted or listed (`unusable`, with the frame). InputError (prefixed with the sequence's path
-/// and the first frame, followed by `hint`) when no considered frame has a chain at all.
-PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
-                                      const TransformRepository& calibration,
-                                      const std::string& from, const std::string& to, int skip = 1,
-                                      const std::string& hint = "");
 
 }  // namespace sonoslice
