@@ -11,8 +11,8 @@
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
-#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/surface/Colorize.h"
+#include "sonoslice/surface/SurfaceConfig.h"
 #include "sonoslice/surface/SurfaceSlicer.h"
 #include "sonoslice/surface/Voxelize.h"
 

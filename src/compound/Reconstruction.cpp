@@ -9,8 +9,8 @@
 #include <cmath>
 
 #include "PlusExact.h"
+#include "sonoslice/compound/BeamGeometryFile.h"
 #include "sonoslice/core/Error.h"
-#include "sonoslice/io/BeamGeometryFile.h"
 #include "sonoslice/io/Npy.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
