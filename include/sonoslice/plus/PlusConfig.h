@@ -5,7 +5,8 @@
 #include <string>
 #include <vector>
 
-#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/CompoundSettings.h"
+#include "sonoslice/compound/FrameClip.h"
 #include "sonoslice/geometry/VolumeGrid.h"
 #include "sonoslice/plus/TransformRepository.h"
 
