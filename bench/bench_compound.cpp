@@ -16,9 +16,10 @@
 #include <random>
 
 #include "sonoslice/compound/Compounder.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/phantom/Workloads.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace {

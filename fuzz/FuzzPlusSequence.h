@@ -5,7 +5,8 @@
 #include <string>
 
 #include "FuzzCommon.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace fuzz {

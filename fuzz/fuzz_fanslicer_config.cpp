@@ -1,11 +1,11 @@
 // libFuzzer harness: The JSON configurations read from files: read_probe, fan-slicer surface
 // configs (read_fanslicer_models), beam geometry (read_beam_geometry), the .npy volume sidecar and
 // fan-slicer's npy_config (read_volume).
-#include "sonoslice/io/BeamGeometryFile.h"
+#include "sonoslice/compound/BeamGeometryFile.h"
 #include "sonoslice/io/Npy.h"
 #include "sonoslice/io/ProbeFile.h"
-#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/surface/SurfaceConfig.h"
 
 #include <algorithm>
 

@@ -1,6 +1,6 @@
 // libFuzzer harness: PLUS configuration XML (VolumeReconstruction, CoordinateDefinitions) through
 // read_plus_config, its output grid and its Image-to-Reference chain.
-#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/plus/PlusConfig.h"
 
 #include <algorithm>
 

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "sonoslice/core/Error.h"
+#include "sonoslice/core/Memory.h"
 #include "sonoslice/io/AtomicFile.h"
 
 namespace sonoslice {

@@ -12,8 +12,8 @@
 #include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
-#include "sonoslice/io/PlusConfig.h"
 #include "sonoslice/io/PoseFile.h"
+#include "sonoslice/plus/PlusConfig.h"
 
 namespace sonoslice {
 namespace cli {

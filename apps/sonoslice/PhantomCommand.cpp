@@ -9,8 +9,8 @@
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/PoseFile.h"
-#include "sonoslice/io/TissueFile.h"
 #include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/simulate/TissueFile.h"
 
 namespace sonoslice {
 namespace cli {

@@ -14,8 +14,8 @@
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
-#include "sonoslice/io/SamplerConfig.h"
 #include "sonoslice/sampling/PoseSampler.h"
+#include "sonoslice/sampling/SamplerConfig.h"
 
 namespace sonoslice {
 namespace cli {

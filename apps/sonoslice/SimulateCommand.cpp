@@ -11,8 +11,8 @@
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
-#include "sonoslice/io/TissueFile.h"
 #include "sonoslice/simulate/Simulator.h"
+#include "sonoslice/simulate/TissueFile.h"
 #include "sonoslice/surface/Voxelize.h"
 
 namespace sonoslice {

@@ -5,6 +5,7 @@
 #include "Commands.h"
 #include "Common.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/core/Memory.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/surface/Voxelize.h"

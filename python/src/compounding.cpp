@@ -16,9 +16,9 @@
 
 #include "bindings.h"
 #include "sonoslice/backend/Device.h"
+#include "sonoslice/compound/BeamGeometryFile.h"
 #include "sonoslice/compound/Compounder.h"
 #include "sonoslice/geometry/VolumeGrid.h"
-#include "sonoslice/io/BeamGeometryFile.h"
 
 namespace sonoslice::bindings {
 namespace {

@@ -13,12 +13,13 @@
 #include <cstring>
 
 #include "bindings.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/Png.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice::bindings {
 

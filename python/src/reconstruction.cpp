@@ -11,8 +11,9 @@
 
 #include "bindings.h"
 #include "sonoslice/compound/Reconstruction.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/FrameSelection.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice::bindings {
 namespace {

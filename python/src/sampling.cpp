@@ -3,8 +3,8 @@
 #include <nanobind/stl/string.h>
 
 #include "bindings.h"
-#include "sonoslice/io/SamplerConfig.h"
 #include "sonoslice/sampling/PoseSampler.h"
+#include "sonoslice/sampling/SamplerConfig.h"
 
 namespace sonoslice::bindings {
 namespace {

@@ -6,9 +6,9 @@
 #include <memory>
 
 #include "bindings.h"
-#include "sonoslice/io/TissueFile.h"
 #include "sonoslice/phantom/Phantom.h"
 #include "sonoslice/simulate/Simulator.h"
+#include "sonoslice/simulate/TissueFile.h"
 
 namespace sonoslice::bindings {
 namespace {

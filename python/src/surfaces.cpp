@@ -10,9 +10,9 @@
 
 #include "bindings.h"
 #include "sonoslice/io/MeshFile.h"
-#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/surface/Colorize.h"
 #include "sonoslice/surface/Mesh.h"
+#include "sonoslice/surface/SurfaceConfig.h"
 #include "sonoslice/surface/SurfaceSlicer.h"
 #include "sonoslice/surface/Voxelize.h"
 #include "sonoslice/volume/Volume.h"

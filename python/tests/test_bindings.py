@@ -21,7 +21,7 @@ def test_beam_geometry_keywords_positions_defaults_and_repr():
     assert (g.r0_mm, g.dr_mm, g.azimuth0_deg, g.dazimuth_deg, g.elevation0_deg, g.delevation_deg,
             g.apex_offset_mm) == (3, 0.4, -20, 5, -8, 4, 2)
     assert sonoslice.BeamGeometry(3, 0.4, -20, 5, -8, 4, 2) == g  # the dataclass's field order
-    assert sonoslice.BeamGeometry() == sonoslice.BeamGeometry(0, 1, 0, 1, 0, 1, 0)  # Compounder.h's defaults
+    assert sonoslice.BeamGeometry() == sonoslice.BeamGeometry(0, 1, 0, 1, 0, 1, 0)  # BeamGeometry.h's defaults
     assert repr(g) == ("BeamGeometry(r0_mm=3.0, dr_mm=0.4, azimuth0_deg=-20.0, dazimuth_deg=5.0, "
                        "elevation0_deg=-8.0, delevation_deg=4.0, apex_offset_mm=2.0)")
     assert eval(repr(g), {"BeamGeometry": sonoslice.BeamGeometry}) == g
@@ -64,7 +64,7 @@ def test_beam_geometry_from_dicts_paths_and_objects_gives_the_same_reconstructio
 def test_hole_filling_element_keywords_defaults_and_repr():
     e = sonoslice.HoleFillingElement("gaussian", size=5, stdev=1.5, minimum_known_ratio=0.25)
     assert (e.type, e.size, e.stdev, e.minimum_known_ratio) == ("gaussian", 5, 1.5, 0.25)
-    d = sonoslice.HoleFillingElement()  # PLUS's default element (Compounder.h)
+    d = sonoslice.HoleFillingElement()  # PLUS's default element (CompoundSettings.h)
     assert (d.type, d.size, d.stdev, d.minimum_known_ratio, d.stick_length_limit, d.sticks_to_use) == \
         ("gaussian", 3, 0.6667, 0.5, 9, 1)
     assert repr(e) == "HoleFillingElement(type='gaussian', size=5, stdev=1.5, minimum_known_ratio=0.25)"

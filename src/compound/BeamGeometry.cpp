@@ -1,11 +1,12 @@
 // 3D beam-space frames: their geometry's checks and the directions and points of their beams.
-#include "BeamGeometry.h"
+#include "sonoslice/compound/BeamGeometry.h"
 
 #include <cmath>
 #include <cstdint>
 #include <string>
 #include <utility>
 
+#include "BeamPoints.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

@@ -7,8 +7,9 @@
 #include <cstdio>
 #include <vector>
 
-#include "BeamGeometry.h"
+#include "BeamPoints.h"
 #include "CompoundTypes.h"
+#include "sonoslice/compound/Compounder.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/core/Memory.h"
 

@@ -5,7 +5,10 @@
 #include <cstdint>
 #include <string>
 
-#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/CompoundSettings.h"
+#include "sonoslice/geometry/Math.h"
+#include "sonoslice/geometry/VolumeGrid.h"
+#include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
 namespace compound_impl {

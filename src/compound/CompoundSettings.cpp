@@ -1,11 +1,12 @@
 // The compounding settings' spellings (to_string / parse beside each enum) and the checks of
 // the hole-filling elements.
+#include "sonoslice/compound/CompoundSettings.h"
+
 #include <algorithm>
 #include <cmath>
 #include <string>
 
 #include "../core/Text.h"
-#include "sonoslice/compound/Compounder.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

@@ -14,11 +14,11 @@
 
 #include "../backend/LargeBuffer.h"
 #include "../backend/ParallelFor.h"
-#include "BeamGeometry.h"
+#include "BeamPoints.h"
+#include "ClipSpans.h"
 #include "CompoundBackends.h"
 #include "CompoundGrid.h"
 #include "Finish.h"
-#include "FrameClip.h"
 #include "PlusExact.h"
 #include "sonoslice/core/Error.h"
 

@@ -6,7 +6,8 @@
 
 #include "CompoundTypes.h"
 #include "FinishImpl.h"
-#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/CompoundSettings.h"
+#include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
 namespace compound_impl {

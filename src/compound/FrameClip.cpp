@@ -1,13 +1,13 @@
 // Which pixels of a 2D frame go into a reconstruction: the clip rectangle, PLUS's fan test or a
 // custom mask (FrameClip), and the runs of pixels the kernels take.
-#include "FrameClip.h"
+#include "sonoslice/compound/FrameClip.h"
 
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <string>
 
-#include "sonoslice/compound/Compounder.h"
+#include "ClipSpans.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/geometry/Math.h"
 

@@ -9,15 +9,17 @@
 #include <cmath>
 
 #include "PlusExact.h"
+#include "sonoslice/compound/BeamGeometryFile.h"
 #include "sonoslice/core/Error.h"
-#include "sonoslice/io/BeamGeometryFile.h"
 #include "sonoslice/io/Npy.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/plus/FrameSelection.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace {

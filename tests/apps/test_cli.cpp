@@ -25,12 +25,12 @@
 #include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/Npy.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/io/VolumeFile.h"
 #include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice {
 namespace {

@@ -11,8 +11,8 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/MeshFile.h"
-#include "sonoslice/io/SurfaceConfig.h"
 #include "sonoslice/phantom/Workloads.h"
+#include "sonoslice/surface/SurfaceConfig.h"
 #include "sonoslice/surface/SurfaceSlicer.h"
 #include "sonoslice/surface/Voxelize.h"
 

@@ -11,9 +11,9 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
-#include "sonoslice/io/SamplerConfig.h"
 #include "sonoslice/phantom/Workloads.h"
 #include "sonoslice/sampling/PoseSampler.h"
+#include "sonoslice/sampling/SamplerConfig.h"
 
 namespace sonoslice {
 namespace {

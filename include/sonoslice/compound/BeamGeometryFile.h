@@ -5,7 +5,7 @@
 /// (apex_offset_mm optional, default 0). The frame sizes come from the frames' array.
 #include <string>
 
-#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/BeamGeometry.h"
 
 namespace sonoslice {
 

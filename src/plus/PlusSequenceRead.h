@@ -5,7 +5,7 @@
 #include <map>
 #include <string>
 
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {

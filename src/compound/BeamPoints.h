@@ -3,7 +3,7 @@
 // (docs/conventions.md §7), for the dispatch layer and the grid fitted around beams.
 #include <vector>
 
-#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/BeamGeometry.h"
 #include "sonoslice/geometry/Math.h"
 
 namespace sonoslice {

@@ -13,12 +13,12 @@
 #include <string>
 #include <vector>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
 #include "PlusSequenceRead.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/core/Memory.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 #include "sonoslice/volume/Volume.h"
 
 #ifdef SONOSLICE_PLUS_HAVE_ZLIB

@@ -1,5 +1,6 @@
 #pragma once
-// Internal: a 2D frame's clip (FrameClip, Compounder.h) as the runs of pixels the kernels take.
+// Internal: a 2D frame's clip (FrameClip, sonoslice/compound/FrameClip.h) as the runs of pixels
+// the kernels take.
 #include <cstdint>
 #include <vector>
 

@@ -1,8 +1,8 @@
-#include "sonoslice/io/BeamGeometryFile.h"
+#include "sonoslice/compound/BeamGeometryFile.h"
 
 #include <nlohmann/json.hpp>
 
-#include "JsonFile.h"
+#include "../io/JsonFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 

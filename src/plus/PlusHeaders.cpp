@@ -7,9 +7,9 @@
 #include <string>
 #include <vector>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
 #include "PlusSequenceRead.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace fs = std::filesystem;

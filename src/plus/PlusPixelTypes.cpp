@@ -1,8 +1,8 @@
 // The pixel type names of PLUS sequence headers: MetaImage's ElementType and NRRD's type.
 #include <string>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

@@ -14,9 +14,10 @@
 
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Compounder.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace {
@@ -202,7 +203,7 @@ TEST(PlusReconstruction, NwireSweepMatchesPlusReference) {
   EXPECT_LT(max_diff, 0.05);
 }
 
-// --plus-exact (issue 12): PLUS's arithmetic reproduced gives PLUS's reference byte for byte,
+// --plus-exact: PLUS's arithmetic reproduced gives PLUS's reference byte for byte,
 // over the grid both share (PLUS 2.x made this reference one voxel shorter along y), for any
 // thread count.
 // The sweep compounded on `grid` with `settings` on `threads` CPU threads.

@@ -5,10 +5,10 @@
 #include <map>
 #include <string>
 
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 #include "sonoslice/volume/PixelType.h"
 
-#ifdef SONOSLICE_HAVE_ITK  // ITK builds find and link zlib (src/io/CMakeLists.txt)
+#ifdef SONOSLICE_HAVE_ITK  // ITK builds find and link zlib (src/CMakeLists.txt)
 #define SONOSLICE_PLUS_HAVE_ZLIB 1
 #endif
 

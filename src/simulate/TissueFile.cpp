@@ -1,9 +1,9 @@
-// Tissue tables as JSON (include/sonoslice/io/TissueFile.h), through nlohmann-json.
-#include "sonoslice/io/TissueFile.h"
+// Tissue tables as JSON (include/sonoslice/simulate/TissueFile.h), through nlohmann-json.
+#include "sonoslice/simulate/TissueFile.h"
 
 #include <cmath>
 
-#include "JsonFile.h"
+#include "../io/JsonFile.h"
 
 namespace sonoslice {
 

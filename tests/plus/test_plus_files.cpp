@@ -16,8 +16,10 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/core/Error.h"
-#include "sonoslice/io/PlusConfig.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/FrameSelection.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 namespace {
@@ -666,9 +668,10 @@ TEST(PlusTransformRepository, TransformProblems) {
   EXPECT_NE(transform_problem(m).find("onto one line"), std::string::npos);
 }
 
-// What issue 10 found: one all-zero ProbeToTracker turned the Nwire sweep's 101x105x74 grid into
-// 519x689x4084 voxels (33 s, 12.9 GB) without a word; one frame missing its ProbeToTracker failed
-// the whole sweep without naming the frame. Such frames are now left out and named.
+// Why each frame's transform is checked: one all-zero ProbeToTracker once turned the Nwire sweep's
+// 101x105x74 grid into 519x689x4084 voxels (33 s, 12.9 GB) without a word, and one frame missing
+// its ProbeToTracker failed the whole sweep without naming the frame. Such frames are now left out
+// and named.
 // PLUS fits its output box around every frame with a valid transform, also those SkipInterval
 // leaves out; --plus-exact does the same. The default mode fits the frames it inserts.
 TEST(PlusRecipe, PlusExactFitsTheGridAroundFramesTheSkipIntervalLeavesOut) {

@@ -1,6 +1,6 @@
 // The PlusSequence accessors (a frame's fields, image status, transforms, timestamp) and the frame
 // fields' helpers the PLUS files share.
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 #include <cstdio>
 #include <limits>
@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

@@ -5,9 +5,10 @@
 #include <string>
 #include <vector>
 
-#include "sonoslice/compound/Compounder.h"
+#include "sonoslice/compound/CompoundSettings.h"
+#include "sonoslice/compound/FrameClip.h"
 #include "sonoslice/geometry/VolumeGrid.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/TransformRepository.h"
 
 namespace sonoslice {
 

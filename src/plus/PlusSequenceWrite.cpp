@@ -8,11 +8,11 @@
 #include <string>
 #include <vector>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
-#include "sonoslice/io/PlusSequence.h"
+#include "sonoslice/plus/PlusSequence.h"
 
 #ifdef SONOSLICE_PLUS_HAVE_ZLIB
 #include <zlib.h>

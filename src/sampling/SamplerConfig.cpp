@@ -1,6 +1,6 @@
 // Sampler settings from JSON: the one parser behind dataset SPECs, `sonoslice poses` and
 // sonoslice.PoseSampler, so a key means the same everywhere.
-#include "sonoslice/io/SamplerConfig.h"
+#include "sonoslice/sampling/SamplerConfig.h"
 
 #include <map>
 #include <set>

@@ -1,11 +1,11 @@
-#include "sonoslice/io/SurfaceConfig.h"
+#include "sonoslice/surface/SurfaceConfig.h"
 
 #include <algorithm>
 #include <filesystem>
 
 #include <nlohmann/json.hpp>
 
-#include "JsonFile.h"
+#include "../io/JsonFile.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

@@ -15,8 +15,8 @@
 #include <algorithm>
 #include <string>
 
+#include "../io/TextParse.h"
 #include "PlusFormat.h"
-#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {

@@ -13,7 +13,7 @@
 //   - the clip rectangle applies only when both of its sizes are positive.
 // Where PLUS logs an error and carries on with a default (an unparsable number, an unknown
 // enumerated value), we stop with an InputError naming the file, element and attribute.
-#include "sonoslice/io/PlusConfig.h"
+#include "sonoslice/plus/PlusConfig.h"
 
 #include <filesystem>
 #include <set>
@@ -22,7 +22,7 @@
 #include <pugixml.hpp>
 #endif
 
-#include "TextParse.h"
+#include "../io/TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -124,6 +124,7 @@ class Attributes {
   std::set<std::string> seen_;
 };
 
+/// The calibration: every CoordinateDefinitions/Transform, its matrix checked (transform_problem).
 void read_coordinate_definitions(const pugi::xml_node& root, const std::string& path,
                                  PlusReconstructionConfig* config) {
   const pugi::xml_node definitions = root.child("CoordinateDefinitions");
@@ -152,6 +153,8 @@ void read_coordinate_definitions(const pugi::xml_node& root, const std::string& 
   }
 }
 
+/// One HoleFillingElement with the attributes its Type needs; other attributes PLUS knows are
+/// noted as ignored, the rest as unknown.
 HoleFillingKernel read_hole_filling_element(const pugi::xml_node& node, int index,
                                             const std::string& path,
                                             PlusReconstructionConfig* config) {
@@ -214,25 +217,26 @@ HoleFillingKernel read_hole_filling_element(const pugi::xml_node& node, int inde
   return k;
 }
 
-}  // namespace
+// The stages of read_plus_config, called in the order below: the order fixes which of several
+// problems an error names, and the order of the warnings.
 
-PlusReconstructionConfig read_plus_config(const std::string& path) {
+/// Loads the XML; FileError for a missing, unreadable or malformed file.
+void load_document(const std::string& path, pugi::xml_document* doc) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec))
     throw FileError("PLUS configuration '" + path + "' not found");
-  pugi::xml_document doc;
-  const pugi::xml_parse_result parsed = doc.load_file(path.c_str());
+  const pugi::xml_parse_result parsed = doc->load_file(path.c_str());
   if (!parsed) {
     if (parsed.status == pugi::status_file_not_found || parsed.status == pugi::status_io_error)
       throw FileError("cannot read PLUS configuration '" + path + "': " + parsed.description());
     throw FileError("PLUS configuration '" + path + "': malformed XML at byte " +
                     std::to_string(parsed.offset) + ": " + parsed.description());
   }
-  const pugi::xml_node root = doc.document_element();
-  PlusReconstructionConfig config;
-  config.path = path;
-  read_coordinate_definitions(root, path, &config);
+}
 
+/// The VolumeReconstruction element: the root's child, else the first one anywhere below the
+/// root; InputError when there is none (not a reconstruction configuration).
+pugi::xml_node find_volume_reconstruction(const pugi::xml_node& root, const std::string& path) {
   pugi::xml_node recon = root.child("VolumeReconstruction");
   if (!recon)
     recon = root.find_node(
@@ -241,28 +245,31 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
     throw InputError(path +
                      ": no VolumeReconstruction element (not a PLUS volume reconstruction "
                      "configuration)");
+  return recon;
+}
 
-  Attributes a(recon, path, "VolumeReconstruction");
-  CompoundSettings& s = config.settings;
-  FrameClip& clip = config.clip;
-
-  if (a.has("ImageCoordinateFrame")) config.image_frame = trim(a.text("ImageCoordinateFrame"));
+/// The coordinate frames the reconstruction maps between (default Image → Reference).
+void read_coordinate_frames(Attributes& a, PlusReconstructionConfig* config) {
+  if (a.has("ImageCoordinateFrame")) config->image_frame = trim(a.text("ImageCoordinateFrame"));
   if (a.has("ReferenceCoordinateFrame"))
-    config.reference_frame = trim(a.text("ReferenceCoordinateFrame"));
-  if (config.image_frame.empty()) a.fail("ImageCoordinateFrame", "is empty");
-  if (config.reference_frame.empty()) a.fail("ReferenceCoordinateFrame", "is empty");
+    config->reference_frame = trim(a.text("ReferenceCoordinateFrame"));
+  if (config->image_frame.empty()) a.fail("ImageCoordinateFrame", "is empty");
+  if (config->reference_frame.empty()) a.fail("ReferenceCoordinateFrame", "is empty");
+}
 
+/// OutputSpacing, OutputOrigin and OutputExtent, each optional (output_grid() needs all three).
+void read_output_grid(Attributes& a, PlusReconstructionConfig* config) {
   if (a.has("OutputSpacing")) {
     const auto v = a.numbers<3>("OutputSpacing");
     for (double d : v)
       if (!(d > 0))
         a.fail("OutputSpacing",
                "spacings must be positive, got " + quote_value(a.text("OutputSpacing")));
-    config.output_spacing_mm = Vec3{v[0], v[1], v[2]};
+    config->output_spacing_mm = Vec3{v[0], v[1], v[2]};
   }
   if (a.has("OutputOrigin")) {
     const auto v = a.numbers<3>("OutputOrigin");
-    config.output_origin_mm = Vec3{v[0], v[1], v[2]};
+    config->output_origin_mm = Vec3{v[0], v[1], v[2]};
   }
   if (a.has("OutputExtent")) {
     const auto v = a.integers<6>("OutputExtent");
@@ -270,10 +277,13 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
       if (v[2 * i] > v[2 * i + 1])
         a.fail("OutputExtent", "each minimum must not exceed its maximum, got " +
                                    quote_value(a.text("OutputExtent")));
-    config.output_extent = v;
+    config->output_extent = v;
   }
+}
 
-  // Clip rectangle: used only when both sizes are positive (PLUS).
+/// The clip rectangle, used only when both sizes are positive (PLUS), converted from PLUS's
+/// inclusive size to FrameClip's pixel count.
+void read_clip_rectangle(Attributes& a, FrameClip* clip) {
   std::array<int, 2> clip_origin{0, 0}, clip_size{0, 0};
   if (a.has("ClipRectangleOrigin")) clip_origin = a.integers<2>("ClipRectangleOrigin");
   if (a.has("ClipRectangleSize")) clip_size = a.integers<2>("ClipRectangleSize");
@@ -286,31 +296,37 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
   if (clip_size[0] > 0 && clip_size[1] > 0) {
     // PLUS inserts pixels x0 .. x0 + w inclusive (vtkIGSIOPasteSliceIntoVolume's clip extent is
     // [ceil(x0), floor(x0 + w)]): w + 1 of them. FrameClip counts pixels.
-    clip.x = clip_origin[0];
-    clip.y = clip_origin[1];
-    clip.width = clip_size[0] + 1;
-    clip.height = clip_size[1] + 1;
+    clip->x = clip_origin[0];
+    clip->y = clip_origin[1];
+    clip->width = clip_size[0] + 1;
+    clip->height = clip_size[1] + 1;
   }
+}
 
+/// Warns that a deprecated attribute was used (PLUS still reads it).
+void warn_deprecated(const Attributes& a, const std::string& path, const char* old_name,
+                     const char* new_name) {
+  warn(path + ": " + a.label(old_name) + " is deprecated (PLUS: use " + new_name +
+       " with the same value)");
+}
+
+/// The fan (angles, origin, radii), which applies when either angle is non-zero, as in PLUS.
+void read_fan(Attributes& a, const std::string& path, FrameClip* clip) {
   // Fan: deprecated names first, then their replacements (as PLUS reads them).
-  auto deprecated = [&](const char* old_name, const char* new_name) {
-    warn(path + ": " + a.label(old_name) + " is deprecated (PLUS: use " + new_name +
-         " with the same value)");
-  };
   std::array<double, 2> fan_angles{0, 0}, fan_origin{0, 0};
   double fan_start = 0, fan_stop = 500;  // vtkIGSIOPasteSliceIntoVolume's defaults
   if (a.has("FanAngles")) {
-    deprecated("FanAngles", "FanAnglesDeg");
+    warn_deprecated(a, path, "FanAngles", "FanAnglesDeg");
     fan_angles = a.numbers<2>("FanAngles");
   }
   if (a.has("FanAnglesDeg")) fan_angles = a.numbers<2>("FanAnglesDeg");
   if (a.has("FanOrigin")) {
-    deprecated("FanOrigin", "FanOriginPixel");
+    warn_deprecated(a, path, "FanOrigin", "FanOriginPixel");
     fan_origin = a.numbers<2>("FanOrigin");
   }
   if (a.has("FanOriginPixel")) fan_origin = a.numbers<2>("FanOriginPixel");
   if (a.has("FanDepth")) {
-    deprecated("FanDepth", "FanRadiusStopPixel");
+    warn_deprecated(a, path, "FanDepth", "FanRadiusStopPixel");
     fan_stop = a.number("FanDepth");
   }
   if (a.has("FanRadiusStartPixel")) fan_start = a.number("FanRadiusStartPixel");
@@ -322,39 +338,47 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
     if (fan_start < 0 || fan_stop <= fan_start)
       a.fail(a.has("FanRadiusStopPixel") ? "FanRadiusStopPixel" : "FanRadiusStartPixel",
              "the fan radius range must satisfy 0 <= start < stop");
-    clip.fan = true;
-    clip.fan_angles_deg[0] = fan_angles[0];
-    clip.fan_angles_deg[1] = fan_angles[1];
-    clip.fan_origin_px[0] = fan_origin[0];
-    clip.fan_origin_px[1] = fan_origin[1];
-    clip.fan_radius_px[0] = fan_start;
-    clip.fan_radius_px[1] = fan_stop;
+    clip->fan = true;
+    clip->fan_angles_deg[0] = fan_angles[0];
+    clip->fan_angles_deg[1] = fan_angles[1];
+    clip->fan_origin_px[0] = fan_origin[0];
+    clip->fan_origin_px[1] = fan_origin[1];
+    clip->fan_radius_px[0] = fan_start;
+    clip->fan_radius_px[1] = fan_stop;
   }
+}
 
-  if (a.has("PixelRejectionThreshold")) s.rejection_threshold = a.number("PixelRejectionThreshold");
+/// Which samples and frames go in: PixelRejectionThreshold and SkipInterval (below 1: 1, as PLUS).
+void read_rejection_and_skip(Attributes& a, const std::string& path,
+                             PlusReconstructionConfig* config) {
+  if (a.has("PixelRejectionThreshold"))
+    config->settings.rejection_threshold = a.number("PixelRejectionThreshold");
   if (a.has("SkipInterval")) {
-    config.skip_interval = a.integer("SkipInterval");
-    if (config.skip_interval < 1) {
-      warn(path + ": " + a.label("SkipInterval") + " = " + std::to_string(config.skip_interval) +
+    config->skip_interval = a.integer("SkipInterval");
+    if (config->skip_interval < 1) {
+      warn(path + ": " + a.label("SkipInterval") + " = " + std::to_string(config->skip_interval) +
            " must be at least 1; using 1 (as PLUS does)");
-      config.skip_interval = 1;
+      config->skip_interval = 1;
     }
   }
+}
 
-  s.interpolation = Interpolation::Nearest;  // PLUS's default
+/// Interpolation and CompoundingMode, with PLUS's defaults and its deprecated spellings.
+void read_compounding(Attributes& a, const std::string& path, CompoundSettings* s) {
+  s->interpolation = Interpolation::Nearest;  // PLUS's default
   if (a.has("Interpolation"))
-    s.interpolation = a.choice("Interpolation", {"LINEAR", "NEAREST_NEIGHBOR"}) == "LINEAR"
-                          ? Interpolation::Linear
-                          : Interpolation::Nearest;
+    s->interpolation = a.choice("Interpolation", {"LINEAR", "NEAREST_NEIGHBOR"}) == "LINEAR"
+                           ? Interpolation::Linear
+                           : Interpolation::Nearest;
 
   // Compounding: CompoundingMode, else the deprecated Calculation / Compounding.
   std::string calculation, compounding;
   if (a.has("Calculation")) {
-    deprecated("Calculation", "CompoundingMode");
+    warn_deprecated(a, path, "Calculation", "CompoundingMode");
     calculation = a.choice("Calculation", {"WEIGHTED_AVERAGE", "MAXIMUM"});
   }
   if (a.has("Compounding")) {
-    deprecated("Compounding", "CompoundingMode");
+    warn_deprecated(a, path, "Compounding", "CompoundingMode");
     compounding = a.choice("Compounding", {"ON", "OFF"});
   }
   if (a.has("CompoundingMode")) {
@@ -364,66 +388,76 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
              "IMPORTANCE_MASK compounding is not supported (use MEAN, MAXIMUM "
              "or LATEST)");
     const std::string m = a.choice("CompoundingMode", {"MEAN", "MAXIMUM", "LATEST"});
-    s.mode = m == "MEAN"      ? CompoundingMode::Mean
-             : m == "MAXIMUM" ? CompoundingMode::Max
-                              : CompoundingMode::Latest;
+    s->mode = m == "MEAN"      ? CompoundingMode::Mean
+              : m == "MAXIMUM" ? CompoundingMode::Max
+                               : CompoundingMode::Latest;
   } else {
     std::string assumed = "MEAN";
-    s.mode = CompoundingMode::Mean;
+    s->mode = CompoundingMode::Mean;
     if (calculation == "MAXIMUM") {
-      s.mode = CompoundingMode::Max;
+      s->mode = CompoundingMode::Max;
       assumed = "MAXIMUM";
     } else if (compounding == "OFF") {
-      s.mode = CompoundingMode::Latest;
+      s->mode = CompoundingMode::Latest;
       assumed = "LATEST";
     }
     warn(path + ": VolumeReconstruction has no CompoundingMode; assuming " + assumed +
          " (as PLUS does)");
   }
+}
 
+/// FillHoles and, when ON, the HoleFilling element's HoleFillingElements in order.
+void read_hole_filling(const pugi::xml_node& recon, Attributes& a, const std::string& path,
+                       PlusReconstructionConfig* config) {
+  CompoundSettings& s = config->settings;
   if (a.has("FillHoles")) s.fill_holes = a.choice("FillHoles", {"ON", "OFF"}) == "ON";
-  if (s.fill_holes) {
-    const pugi::xml_node holes = recon.child("HoleFilling");
-    if (!holes)
-      throw InputError(path +
-                       ": VolumeReconstruction/@FillHoles is ON but there is no "
-                       "HoleFilling element");
-    s.hole_filling.clear();
-    int index = 0;
-    for (const pugi::xml_node& e : holes.children()) {
-      if (e.type() != pugi::node_element) continue;
-      if (upper(e.name()) != "HOLEFILLINGELEMENT") continue;  // PLUS skips other elements
-      s.hole_filling.push_back(read_hole_filling_element(e, ++index, path, &config));
-    }
-    for (const pugi::xml_attribute& attr : holes.attributes())
-      config.unknown_attributes.push_back(std::string("VolumeReconstruction/HoleFilling/@") +
-                                          attr.name());
-    if (s.hole_filling.empty()) {
-      warn(path +
-           ": FillHoles is ON but HoleFilling has no HoleFillingElement; no holes are filled");
-      s.fill_holes = false;
-    }
+  if (!s.fill_holes) return;
+  const pugi::xml_node holes = recon.child("HoleFilling");
+  if (!holes)
+    throw InputError(path +
+                     ": VolumeReconstruction/@FillHoles is ON but there is no "
+                     "HoleFilling element");
+  s.hole_filling.clear();
+  int index = 0;
+  for (const pugi::xml_node& e : holes.children()) {
+    if (e.type() != pugi::node_element) continue;
+    if (upper(e.name()) != "HOLEFILLINGELEMENT") continue;  // PLUS skips other elements
+    s.hole_filling.push_back(read_hole_filling_element(e, ++index, path, config));
   }
+  for (const pugi::xml_attribute& attr : holes.attributes())
+    config->unknown_attributes.push_back(std::string("VolumeReconstruction/HoleFilling/@") +
+                                         attr.name());
+  if (s.hole_filling.empty()) {
+    warn(path + ": FillHoles is ON but HoleFilling has no HoleFillingElement; no holes are filled");
+    s.fill_holes = false;
+  }
+}
 
+/// The Optimization attribute, upper-cased for the reconstruction recipe (and in the settings
+/// when it names one of PLUS's CPU paths).
+void read_optimization(Attributes& a, const std::string& path, PlusReconstructionConfig* config) {
   // Only --plus-exact acts on it (the recipe parses it there, so that an unknown value or GPU
   // stops a --plus-exact run and nothing else); absent: FULL, PLUS's default.
-  if (a.has("Optimization")) {
-    config.optimization = upper(trim(a.text("Optimization")));
-    try {
-      config.settings.plus_optimization =
-          parse_plus_optimization(config.optimization, path + ": " + a.label("Optimization"));
-    } catch (const InputError&) {
-      // GPU or a typo: settings keep FULL; a --plus-exact reconstruction refuses it.
-    }
+  if (!a.has("Optimization")) return;
+  config->optimization = upper(trim(a.text("Optimization")));
+  try {
+    config->settings.plus_optimization =
+        parse_plus_optimization(config->optimization, path + ": " + a.label("Optimization"));
+  } catch (const InputError&) {
+    // GPU or a typo: settings keep FULL; a --plus-exact reconstruction refuses it.
   }
-  // Read by PLUS, not acted on here.
+}
+
+/// Attributes PLUS reads that sonoslice does not act on; a warning for those switched on.
+void collect_ignored_attributes(Attributes& a, const std::string& path,
+                                PlusReconstructionConfig* config) {
   for (const char* name :
        {"NumberOfThreads", "ImportanceMaskFilename", "FanAnglesAutoDetectBrightnessThreshold",
         "FanAnglesAutoDetectFilterRadiusPixel"})
-    if (a.has(name)) config.ignored_attributes.push_back(name);
+    if (a.has(name)) config->ignored_attributes.push_back(name);
   for (const char* name : {"EnableFanAnglesAutoDetect", "RecomputeOutputSpacing"}) {
     if (!a.has(name)) continue;
-    config.ignored_attributes.push_back(name);
+    config->ignored_attributes.push_back(name);
     const std::string v = upper(trim(a.text(name)));
     if (v == "TRUE" || v == "ON" || v == "1")
       warn(path + ": " + a.label(name) + " = " + a.text(name) + " is not supported and is ignored" +
@@ -431,15 +465,45 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
                 ? " (the fan angles are used as given)"
                 : " (OutputSpacing is used as given)"));
   }
+}
 
+/// Attributes PLUS does not define: VolumeReconstruction's first, then those of its hole-filling
+/// elements, in one warning. Runs last: every other stage has marked what it read.
+void collect_unknown_attributes(const Attributes& a, const std::string& path,
+                                PlusReconstructionConfig* config) {
   std::vector<std::string> unknown = a.unseen();
-  unknown.insert(unknown.end(), config.unknown_attributes.begin(), config.unknown_attributes.end());
-  config.unknown_attributes = unknown;
+  unknown.insert(unknown.end(), config->unknown_attributes.begin(),
+                 config->unknown_attributes.end());
+  config->unknown_attributes = unknown;
   if (!unknown.empty()) {
     std::string list;
     for (const std::string& u : unknown) list += (list.empty() ? "" : ", ") + u;
     warn(path + ": unknown VolumeReconstruction attributes ignored (not PLUS settings): " + list);
   }
+}
+
+}  // namespace
+
+PlusReconstructionConfig read_plus_config(const std::string& path) {
+  pugi::xml_document doc;
+  load_document(path, &doc);
+  const pugi::xml_node root = doc.document_element();
+  PlusReconstructionConfig config;
+  config.path = path;
+  read_coordinate_definitions(root, path, &config);
+
+  const pugi::xml_node recon = find_volume_reconstruction(root, path);
+  Attributes a(recon, path, "VolumeReconstruction");
+  read_coordinate_frames(a, &config);
+  read_output_grid(a, &config);
+  read_clip_rectangle(a, &config.clip);
+  read_fan(a, path, &config.clip);
+  read_rejection_and_skip(a, path, &config);
+  read_compounding(a, path, &config.settings);
+  read_hole_filling(recon, a, path, &config);
+  read_optimization(a, path, &config);
+  collect_ignored_attributes(a, path, &config);
+  collect_unknown_attributes(a, path, &config);
   return config;
 }
 

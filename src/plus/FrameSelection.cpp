@@ -1,0 +1,70 @@
+// The selection of a sequence's frames for a reconstruction, as PLUS picks them.
+#include "sonoslice/plus/FrameSelection.h"
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+
+std::string PlusFrameSelection::skipped_reason(const std::string& from,
+                                               const std::string& to) const {
+  std::string why;
+  if (bad_transform)
+    why += std::to_string(bad_transform) + " with an invalid " + from + "To" + to + " transform";
+  if (!unusable.empty())
+    why += (why.empty() ? "" : ", ") + std::to_string(unusable.size()) +
+           " whose transforms cannot place them (frame " + std::to_string(unusable[0].first) +
+           ": " + unusable[0].second + (unusable.size() > 1 ? "; ..." : "") + ")";
+  if (bad_image)
+    why += (why.empty() ? "" : ", ") + std::to_string(bad_image) + " with an image status not OK";
+  return why;
+}
+
+PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
+                                      const TransformRepository& calibration,
+                                      const std::string& from, const std::string& to, int skip,
+                                      const std::string& hint) {
+  if (skip < 1) throw InputError("skip interval " + std::to_string(skip) + ": must be >= 1");
+  PlusFrameSelection sel;
+  // A frame whose own transforms cannot place it (one missing, zero or non-invertible) is left
+  // out and named; a tracker writes such frames when it loses a tool. When no frame has a chain
+  // at all, the calibration is what is missing: that is an error.
+  int considered = 0, without_chain = 0;
+  std::string first_without_chain;
+  for (int k = 0; k < sequence.frame_count; k += skip) {
+    if (!sequence.image_ok(k)) {
+      ++sel.bad_image;
+      continue;
+    }
+    ++considered;
+    TransformRepository repo = calibration;
+    repo.set_frame(sequence, k);
+    std::optional<Mat4> m;
+    try {
+      m = repo.get(from, to);
+    } catch (const InputError& e) {
+      if (without_chain++ == 0)
+        first_without_chain = sequence.path + ": frame " + std::to_string(k) + ": " + e.what();
+      sel.unusable.emplace_back(k, e.what());
+      continue;
+    }
+    if (!m) {
+      ++sel.bad_transform;
+      continue;
+    }
+    const std::string problem = transform_problem(*m);
+    if (!problem.empty()) {
+      sel.unusable.emplace_back(k, "its " + from + "To" + to + " " + problem);
+      continue;
+    }
+    sel.frames.push_back(k);
+    sel.to_reference.push_back(*m);
+  }
+  if (considered > 0 && without_chain == considered) throw InputError(first_without_chain + hint);
+  return sel;
+}
+
+}  // namespace sonoslice
