@@ -2,7 +2,7 @@
 PyTorch (docs/datasets.md §6).
 
     from torch.utils.data import DataLoader
-    from sonoslice.data import ShardDataset
+    from sonoslice.datasets.reader import ShardDataset
 
     data = ShardDataset("out/", shuffle=True, buffer=2000)   # the folder with manifest.json
     for images, poses, meta in DataLoader(data, batch_size=32, num_workers=4):
@@ -23,13 +23,13 @@ from typing import Callable, Dict, Iterator, List, Optional, Sequence, Union
 
 import numpy as np
 
-from . import _ext
+from .. import _sonoslice as _ext
 
 try:
     import torch
     from torch.utils.data import IterableDataset, get_worker_info
 except ImportError as e:  # pragma: no cover - the message is the point
-    raise ImportError("sonoslice.data needs PyTorch (pip install torch)") from e
+    raise ImportError("sonoslice.datasets.reader needs PyTorch (pip install torch)") from e
 
 
 def decode_png(data: bytes) -> np.ndarray:

@@ -35,8 +35,14 @@ from typing import Dict, Iterator, List, Optional, Tuple
 
 import numpy as np
 
-from . import (Mesh, PoseSampler, Probe, Simulator, Slicer, Volume, __version__, _ext, colorize, sample_seeds,
-               set_threads)
+from .. import _sonoslice as _ext
+from .._version import __version__
+from ..devices import set_threads
+from ..sampling import PoseSampler, sample_seeds
+from ..simulation import Simulator
+from ..slicing import Probe, Slicer
+from ..surfaces import Mesh, colorize
+from ..volume import Volume
 
 KINDS = ("intensity", "labels", "colours", "ultrasound")
 INTENSITY_DTYPES = ("float32", "int16", "uint16", "uint8")
@@ -454,7 +460,7 @@ def sample_json(s: SamplerEntry, index: int, pose: np.ndarray, seed: int, frame:
 def encode_png(image: np.ndarray, spacing_mm=(1.0, 1.0)) -> bytes:
     """PNG bytes of an (H, W) uint8/uint16 or (H, W, 3) uint8 image, encoded by libpng (the same
     pixels give the same bytes); ``spacing_mm`` goes into the sCAL chunk, as ITK writes it.
-    :func:`sonoslice.data.decode_png` reads them back."""
+    :func:`sonoslice.datasets.reader.decode_png` reads them back."""
     return _ext.encode_png(np.ascontiguousarray(image), [float(x) for x in spacing_mm])
 
 
