@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from sonoslice.compound import read_plus_sequence, write_plus_sequence
+from sonoslice.plus import read_plus_sequence, write_plus_sequence
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

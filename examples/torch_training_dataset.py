@@ -8,7 +8,7 @@ CPU where there is none) and yields (image batch, target) pairs; the images neve
 Batch k's poses come from the seeds ``sample_seeds(seed, 0, k * batch, batch)``, so any batch can
 be made again. The toy task: regress the probe's position from its image. A few hundred steps
 show the loss falling; swap in your own network, targets and volume. To train on a dataset
-written to disk by ``sonoslice dataset`` instead, see ``sonoslice.data.ShardDataset``
+written to disk by ``sonoslice dataset`` instead, see ``sonoslice.datasets.reader.ShardDataset``
 (docs/datasets.md §6).
 
     python examples/torch_training_dataset.py [--steps 200] [--device cuda:0]

@@ -103,11 +103,20 @@ std::string flag_of(const std::string& parameter) {
       {"max_memory_bytes", "--max-memory"},
       {"hole_filling", "the XML's hole-filling elements"}};
   const auto it = renamed.find(parameter);
-  if (it != renamed.end()) return it->second;
+  return it != renamed.end() ? it->second : flag_named(parameter);
+}
+
+std::string flag_named(const std::string& parameter) {
   std::string flag = "--" + parameter;
   for (char& c : flag)
     if (c == '_') c = '-';
   return flag;
+}
+
+std::string default_text(double value) {
+  std::ostringstream out;
+  out << "(" << value << ")";
+  return out.str();
 }
 
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag) {

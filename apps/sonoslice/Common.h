@@ -36,6 +36,13 @@ struct VolumeFlags {
 /// "--" + the name with '-' for '_'. Commands whose flag differs catch and rename themselves.
 std::string flag_of(const std::string& parameter);
 
+/// A setting whose flag has its name: "--" + the name with '-' for '_' ("search_rot_deg" →
+/// "--search-rot-deg"). A ParameterNames for commands whose flags all follow the rule.
+std::string flag_named(const std::string& parameter);
+
+/// "(10)", "(0.3)": a library default for a flag's help text, so that it is written once.
+std::string default_text(double value);
+
 /// Parses "a,b,c" into exactly `count` finite numbers; InputError naming `flag` otherwise.
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag);
 

@@ -1,6 +1,6 @@
-// sonoslice dataset SPEC --out DIR: hands over to the Python package (sonoslice.dataset), where
-// the shards are written with tarfile and scaled out on Dask (docs/datasets.md). The arguments
-// pass through unchanged; Python's exit status is this command's.
+// sonoslice dataset SPEC --out DIR: hands over to the Python package (sonoslice.datasets.writer),
+// where the shards are written with tarfile and scaled out on Dask (docs/datasets.md). The
+// arguments pass through unchanged; Python's exit status is this command's.
 #include <unistd.h>
 
 #include <cerrno>

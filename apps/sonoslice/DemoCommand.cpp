@@ -87,7 +87,7 @@ std::vector<float> slice_and_write(const Volume& ct, const ProbeGeometry& probe,
 std::vector<uint8_t> simulate_and_write(const Volume& ct, const ProbeGeometry& probe,
                                         const std::vector<Pose>& poses, const std::string& dir) {
   SimulationSettings settings;
-  settings.frequency_mhz = simulation_preset("lus").frequency_mhz;
+  settings.preset = "lus";  // its frequency; the probe is the same W1 fan
   const Simulator sim(ct, SimulationSource::HounsfieldUnits, probe, {}, settings);
   std::vector<uint8_t> images(poses.size() * sim.image_bytes());
   sim.simulate(poses.data(), poses.size(), images.data());

@@ -156,7 +156,9 @@ void add_poses_command(CLI::App& app) {
   cmd->add_option("--label", flags->label, "Reject: the label of --min-label");
   cmd->add_option("--min-label", flags->min_label, "Reject: min fraction of the fan in --label");
   cmd->add_flag("--no-gas", flags->no_gas, "Reject: gas right under the face");
-  cmd->add_option("--max-tries", flags->max_tries, "Candidates per seed before giving up (1000)");
+  cmd->add_option(
+      "--max-tries", flags->max_tries,
+      "Candidates per seed before giving up " + default_text(SamplerSettings().max_tries));
   cmd->add_option("--world", flags->world, "Frame of the written poses: LPS (default) or RAS");
   add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--verbose,-v", flags->verbose, "Print times and rates");

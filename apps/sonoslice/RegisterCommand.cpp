@@ -2,6 +2,7 @@
 // (N, 4, 4) and a JSON report (docs/registration.md).
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <memory>
 
 #include <nlohmann/json.hpp>
@@ -22,13 +23,50 @@ namespace {
 struct RegisterFlags {
   VolumeFlags volume;
   std::string probe, frames, poses, out, report, user_mask, world = "LPS";
-  std::string metric = "ncc", optimizer, mode = "per-frame", pyramid;
-  int downsampling = 1, starts = 1;
-  double search_rot_deg = 10, search_trans_mm = 10, smoothness = 0.3;
-  uint64_t seed = 0;
+  int downsampling = 1;
+  // The registration settings the user gave; the library has the defaults (RegistrationSettings).
+  std::string metric, optimizer, mode, pyramid;
+  std::optional<int> starts;
+  std::optional<double> search_rot_deg, search_trans_mm, smoothness;
+  std::optional<uint64_t> seed;
   std::optional<int> threads;
   bool verbose = false;
 };
+
+/// "8,4,2,1" → block sizes (the settings check their range).
+std::vector<int> parse_pyramid(const std::string& text) {
+  std::vector<int> levels;
+  size_t start = 0;
+  while (start <= text.size()) {
+    const size_t comma = std::min(text.find(',', start), text.size());
+    const std::string item = text.substr(start, comma - start);
+    char* end = nullptr;
+    const long level = std::strtol(item.c_str(), &end, 10);
+    if (item.empty() || *end != '\0' || level < std::numeric_limits<int>::min() ||
+        level > std::numeric_limits<int>::max())
+      throw InputError("--pyramid " + text +
+                       ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
+    levels.push_back(int(level));
+    start = comma + 1;
+  }
+  return levels;
+}
+
+/// The settings the flags give; unset flags keep the library's defaults.
+RegistrationSettings settings_of(const RegisterFlags& f) {
+  RegistrationSettings s;
+  if (!f.metric.empty()) s.metric = parse_registration_metric(f.metric, "--metric");
+  if (!f.optimizer.empty()) s.optimizer = parse_registration_optimizer(f.optimizer, "--optimizer");
+  if (!f.mode.empty()) s.mode = parse_registration_mode(f.mode, "--mode");
+  if (f.starts) s.starts = *f.starts;
+  if (f.search_rot_deg) s.search_rot_deg = *f.search_rot_deg;
+  if (f.search_trans_mm) s.search_trans_mm = *f.search_trans_mm;
+  if (f.seed) s.seed = *f.seed;
+  if (f.smoothness) s.smoothness = *f.smoothness;
+  if (!f.pyramid.empty()) s.pyramid = parse_pyramid(f.pyramid);
+  s.validate(flag_named);  // every setting has the flag of its name
+  return s;
+}
 
 /// The frames as a float32 stack (W, H, N), checked against the probe's image size.
 Volume read_frames(const std::string& path, const ProbeGeometry& probe, size_t* count) {
@@ -52,35 +90,7 @@ void run_register(const RegisterFlags& f) {
                                     {"--out", f.out}})
     if (value.empty()) throw InputError(std::string("register: ") + flag + " is required");
   setup_threads(f.threads);
-  RegistrationSettings settings;
-  settings.metric = parse_registration_metric(f.metric);
-  // Default: LM for the metrics with derivatives (ssd, ncc), BOBYQA for lncc, mi and lc2.
-  const std::string optimizer = !f.optimizer.empty()                      ? f.optimizer
-                                : metric_has_derivatives(settings.metric) ? "lm"
-                                                                          : "bobyqa";
-  settings.optimizer = parse_registration_optimizer(optimizer);
-  settings.mode = parse_registration_mode(f.mode);
-  settings.starts = f.starts;
-  settings.search_rot_deg = f.search_rot_deg;
-  settings.search_trans_mm = f.search_trans_mm;
-  settings.seed = f.seed;
-  settings.smoothness = f.smoothness;
-  if (!f.pyramid.empty()) {
-    settings.pyramid.clear();
-    size_t start = 0;
-    while (start <= f.pyramid.size()) {
-      const size_t comma = std::min(f.pyramid.find(',', start), f.pyramid.size());
-      const std::string item = f.pyramid.substr(start, comma - start);
-      char* end = nullptr;
-      const long level = std::strtol(item.c_str(), &end, 10);
-      if (item.empty() || *end != '\0' || level < 1 || level > 64)
-        throw InputError("--pyramid " + f.pyramid +
-                         ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
-      settings.pyramid.push_back(int(level));
-      start = comma + 1;
-    }
-  }
-  settings.validate();
+  const RegistrationSettings settings = settings_of(f);
   if (file_extension(f.out) != ".npy")
     throw InputError("--out '" + f.out + "': refined poses are written as .npy (N, 4, 4)");
   if (!f.report.empty() && file_extension(f.report) != ".json")
@@ -136,12 +146,14 @@ void run_register(const RegisterFlags& f) {
   }
   write_npy(f.out, PixelType::Float64, {int64_t(refined.size()), 4, 4}, flat.data(), &outputs);
   if (!f.report.empty()) {
+    // The settings as the library resolved them (the optimiser chosen for the metric).
+    const RegistrationSettings& ran = report.settings;
     nlohmann::json j;
-    j["metric"] = f.metric;
-    j["optimizer"] = optimizer;
-    j["mode"] = f.mode;
-    j["starts"] = f.starts;
-    if (settings.mode == RegistrationMode::SmoothSweep) j["smoothness"] = f.smoothness;
+    j["metric"] = to_string(ran.metric);
+    j["optimizer"] = to_string(*ran.optimizer);
+    j["mode"] = to_string(ran.mode);
+    j["starts"] = ran.starts;
+    if (ran.mode == RegistrationMode::SmoothSweep) j["smoothness"] = ran.smoothness;
     j["frames"] = nlohmann::json::array();
     for (const FrameReport& r : report.frames)
       j["frames"].push_back({{"index", r.index},
@@ -159,8 +171,8 @@ void run_register(const RegisterFlags& f) {
     std::fprintf(stderr,
                  "sonoslice: %zu frames, %s, %s; load %.3f s, register %.3f s (%lld pose "
                  "evaluations, %.0f per second, %d threads), total %.3f s\n",
-                 count, f.metric.c_str(), f.mode.c_str(), load_seconds, report.seconds,
-                 static_cast<long long>(report.evaluations),
+                 count, to_string(report.settings.metric), to_string(report.settings.mode),
+                 load_seconds, report.seconds, static_cast<long long>(report.evaluations),
                  double(report.evaluations) / std::max(report.seconds, 1e-9), cpu_threads(),
                  total.seconds());
 }
@@ -178,23 +190,49 @@ void add_register_command(CLI::App& app) {
                   "Frames: .npy (N,H,W), .nii/.mha/.nrrd stack, or a folder of PNGs");
   cmd->add_option("--poses", flags->poses, "Initial poses, one per frame: .npy, .txt/.csv, .json");
   cmd->add_option("--out", flags->out, "Refined poses: .npy (N,4,4)");
-  cmd->add_option("--metric", flags->metric, "ncc (default), ssd, lncc, mi or lc2");
+  const RegistrationSettings defaults;
   cmd->add_option(
-      "--optimizer", flags->optimizer,
-      "lm (default for ssd, ncc), gn, bobyqa (default for lncc, mi, lc2) or nelder-mead");
-  cmd->add_option("--starts", flags->starts, "Optimisations per frame from spread points (1)");
-  cmd->add_option("--search-rot-deg", flags->search_rot_deg,
-                  "Spread of the extra starts' rotations, degrees (10)");
-  cmd->add_option("--search-trans-mm", flags->search_trans_mm,
-                  "Spread of the extra starts' translations, mm (10)");
-  cmd->add_option("--seed", flags->seed, "Seed of the extra starts (0)");
-  cmd->add_option("--pyramid", flags->pyramid,
-                  "Coarse-to-fine pixel block sizes (default 8,4,2,1; docs/registration.md)");
+      "--metric", flags->metric,
+      std::string("ncc, ssd, lncc, mi or lc2 (default ") + to_string(defaults.metric) + ")");
+  // The library's choice per metric: "lm for ssd, ncc; bobyqa for lncc, mi, lc2".
+  std::string chosen;
+  for (RegistrationOptimizer o :
+       {RegistrationOptimizer::LevenbergMarquardt, RegistrationOptimizer::GaussNewton,
+        RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead}) {
+    std::string metrics;
+    for (RegistrationMetric m :
+         {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
+          RegistrationMetric::MI, RegistrationMetric::LC2})
+      if (default_optimizer(m) == o)
+        metrics += (metrics.empty() ? "" : ", ") + std::string(to_string(m));
+    if (!metrics.empty())
+      chosen += (chosen.empty() ? "" : "; ") + std::string(to_string(o)) + " for " + metrics;
+  }
+  cmd->add_option("--optimizer", flags->optimizer,
+                  "lm, gn, bobyqa or nelder-mead (default: " + chosen + ")");
+  cmd->add_option("--starts", flags->starts,
+                  "Optimisations per frame from spread points " + default_text(defaults.starts));
+  cmd->add_option(
+      "--search-rot-deg", flags->search_rot_deg,
+      "Spread of the extra starts' rotations, degrees " + default_text(defaults.search_rot_deg));
+  cmd->add_option(
+      "--search-trans-mm", flags->search_trans_mm,
+      "Spread of the extra starts' translations, mm " + default_text(defaults.search_trans_mm));
+  cmd->add_option("--seed", flags->seed, "Seed of the extra starts " + default_text(defaults.seed));
+  std::string pyramid;
+  for (int level : defaults.pyramid)
+    pyramid += (pyramid.empty() ? "" : ",") + std::to_string(level);
+  cmd->add_option(
+      "--pyramid", flags->pyramid,
+      "Coarse-to-fine pixel block sizes (default " + pyramid + "; docs/registration.md)");
   cmd->add_option("--mode", flags->mode,
-                  "per-frame (default), rigid-sweep (one world correction for all frames) or "
-                  "smooth-sweep (per frame, tied to the neighbours along the sweep)");
+                  std::string("per-frame, rigid-sweep (one world correction for all frames) or "
+                              "smooth-sweep (per frame, tied to the neighbours along the sweep); "
+                              "default ") +
+                      to_string(defaults.mode));
   cmd->add_option("--smoothness", flags->smoothness,
-                  "smooth-sweep: the prior's weight relative to the frames' curvature (0.3)");
+                  "smooth-sweep: the prior's weight relative to the frames' curvature " +
+                      default_text(defaults.smoothness));
   cmd->add_option("--mask", flags->user_mask,
                   "An HxW image: compare only its non-zero pixels (with the fan mask)");
   cmd->add_option("--report", flags->report, "Write a JSON report here");

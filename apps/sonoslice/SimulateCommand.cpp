@@ -24,15 +24,40 @@ struct SimulateFlags {
   std::string labels, tissues;
   std::vector<std::string> meshes;
   double voxel_size = 0.5;
-  std::string probe, poses, out, mask, preset, world = "LPS", device = "cpu";
-  std::string tgc = "auto", output = "bmode";
+  std::string probe, poses, out, mask, world = "LPS";
   int downsampling = 1;
-  std::optional<double> frequency;
-  double dynamic_range = 60;
-  uint64_t seed = 0;
+  // The simulation settings the user gave; the library has the defaults (SimulationSettings).
+  std::string preset, device, tgc, output;
+  std::optional<double> frequency, dynamic_range;
+  std::optional<uint64_t> seed;
   std::optional<int> threads;
   bool quiet = false, verbose = false, list_presets = false, print_tissues = false;
 };
+
+/// The flag of a simulation setting.
+std::string simulate_flag(const std::string& setting) {
+  if (setting == "frequency_mhz") return "--frequency";
+  if (setting == "dynamic_range_db") return "--dynamic-range";
+  if (setting == "tgc_auto") return "--tgc";
+  return flag_named(setting);
+}
+
+/// The settings the flags give, resolved: unset flags keep the library's defaults.
+SimulationSettings settings_of(const SimulateFlags& f) {
+  SimulationSettings s;
+  if (!f.preset.empty()) s.preset = f.preset;
+  s.frequency_mhz = f.frequency;
+  if (f.seed) s.seed = *f.seed;
+  if (f.dynamic_range) s.dynamic_range_db = *f.dynamic_range;
+  if (!f.tgc.empty()) {
+    if (f.tgc != "auto" && f.tgc != "off")
+      throw InputError("--tgc " + f.tgc + ": expected auto or off");
+    s.tgc_auto = f.tgc == "auto";
+  }
+  if (!f.output.empty()) s.output = parse_simulation_output(f.output, "--output");
+  if (!f.device.empty()) s.device = Device::parse(f.device);
+  return s.resolved(simulate_flag);
+}
 
 void run_simulate(const SimulateFlags& f) {
   if (f.list_presets) {
@@ -55,28 +80,12 @@ void run_simulate(const SimulateFlags& f) {
     throw InputError(
         "--meshes: give --tissues, a table for label 0 (outside every mesh) and "
         "label k (inside the k-th mesh)");
-  if (f.device != "cpu")
-    throw InputError("--device " + f.device +
-                     ": simulation runs on the CPU only so far (docs/simulation.md §6)");
   setup_threads(f.threads);
   if (f.poses.empty()) throw InputError("simulate: --poses is required");
   if (f.out.empty()) throw InputError("simulate: --out is required");
   if (f.probe.empty() && f.preset.empty())
     throw InputError("simulate: give --probe or --preset (sonoslice simulate --list-presets)");
-
-  SimulationSettings settings;
-  std::optional<SimulationPreset> preset;
-  if (!f.preset.empty()) preset = simulation_preset(f.preset);
-  settings.frequency_mhz = f.frequency ? *f.frequency : preset ? preset->frequency_mhz : 5.0;
-  settings.seed = f.seed;
-  settings.dynamic_range_db = f.dynamic_range;
-  if (f.tgc != "auto" && f.tgc != "off")
-    throw InputError("--tgc " + f.tgc + ": expected auto or off");
-  settings.tgc_auto = f.tgc == "auto";
-  if (f.output != "bmode" && f.output != "envelope")
-    throw InputError("--output " + f.output + ": expected bmode or envelope");
-  settings.output = f.output == "bmode" ? SimulationOutput::BMode : SimulationOutput::Envelope;
-  settings.validate();
+  const SimulationSettings settings = settings_of(f);
   if (!(f.voxel_size > 0)) throw InputError("--voxel-size must be > 0 mm");
 
   // Everything small and checkable first, so a typo fails before a CT is loaded.
@@ -85,13 +94,11 @@ void run_simulate(const SimulateFlags& f) {
       {"--probe", f.probe},        {"--poses", f.poses},   {"--npy-config", f.volume.npy_config}};
   for (const std::string& mesh : f.meshes) inputs.push_back({"--meshes", mesh});
   check_distinct_outputs({{"--out", f.out}, {"--mask", f.mask}}, inputs);
-  ProbeGeometry probe;
-  if (!f.probe.empty()) {
-    probe = read_probe(f.probe, f.downsampling);
-  } else {
-    if (f.downsampling != 1) throw InputError("--downsampling applies to --probe files");
-    probe = preset->probe;
-  }
+  std::optional<ProbeGeometry> given_probe;  // else the preset's
+  if (!f.probe.empty())
+    given_probe = read_probe(f.probe, f.downsampling);
+  else if (f.downsampling != 1)
+    throw InputError("--downsampling applies to --probe files");
   const WorldFrame frame = parse_world_frame(f.world);
   const std::vector<Pose> poses = read_poses(f.poses, frame);
   const std::vector<Tissue> tissues =
@@ -134,7 +141,8 @@ void run_simulate(const SimulateFlags& f) {
                   std::to_string(f.voxel_size) + " mm";
   }
   const double load_seconds = load.seconds();
-  const Simulator sim(volume, source, probe, tissues, settings);
+  const Simulator sim(volume, source, given_probe, tissues, settings);
+  const ProbeGeometry& probe = sim.probe();
 
   StackSpec spec = probe_stack_spec(
       probe, settings.output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32,
@@ -173,7 +181,7 @@ void run_simulate(const SimulateFlags& f) {
                  "sonoslice: load %.3f s, simulate %.3f s (%.1f images/s, %d threads), write "
                  "%.3f s, total %.3f s\n",
                  description.c_str(), probe.describe().c_str(), sim.beams(), sim.samples_per_beam(),
-                 settings.frequency_mhz, load_seconds, simulate_seconds,
+                 *sim.settings().frequency_mhz, load_seconds, simulate_seconds,
                  double(spec.count) / std::max(simulate_seconds, 1e-9), cpu_threads(),
                  write_seconds, total.seconds());
 }
@@ -198,13 +206,20 @@ void add_simulate_command(CLI::App& app) {
                   "Output: .nii/.nii.gz/.mha/.nrrd stack, .npy (N,H,W), or a directory of PNGs");
   cmd->add_option("--downsampling", flags->downsampling, "Divide the probe image size by K");
   cmd->add_option("--mask", flags->mask, "Also write the HxW fan mask here");
+  const SimulationSettings defaults;
   cmd->add_option("--frequency", flags->frequency,
-                  "Centre frequency in MHz (default: the preset's, else 5)");
-  cmd->add_option("--seed", flags->seed, "Speckle seed (default 0)");
-  cmd->add_option("--dynamic-range", flags->dynamic_range, "Log compression range in dB (60)");
-  cmd->add_option("--tgc", flags->tgc, "Time-gain compensation: auto (default) or off");
+                  "Centre frequency in MHz (default: the preset's, else " +
+                      default_text(SimulationSettings::kDefaultFrequencyMhz).substr(1));
+  cmd->add_option("--seed", flags->seed, "Speckle seed " + default_text(defaults.seed));
+  cmd->add_option("--dynamic-range", flags->dynamic_range,
+                  "Log compression range in dB " + default_text(defaults.dynamic_range_db));
+  cmd->add_option("--tgc", flags->tgc,
+                  std::string("Time-gain compensation: auto or off (default ") +
+                      (defaults.tgc_auto ? "auto" : "off") + ")");
   cmd->add_option("--output", flags->output,
-                  "bmode (uint8, default) or envelope (float32, before TGC and log compression)");
+                  std::string("bmode (uint8) or envelope (float32, before TGC and log "
+                              "compression); default ") +
+                      to_string(defaults.output));
   cmd->add_option("--world", flags->world, "Frame of the poses and meshes: LPS (default) or RAS");
   add_threads_option(*cmd, flags->threads);
   cmd->add_option("--device", flags->device, "cpu (default; CUDA not yet)");

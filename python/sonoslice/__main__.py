@@ -1,4 +1,4 @@
-"""``python -m sonoslice dataset SPEC --out DIR``: the command line of :mod:`sonoslice.dataset`
+"""``python -m sonoslice dataset SPEC --out DIR``: the command line of :mod:`sonoslice.datasets.writer`
 (``sonoslice dataset ...`` runs this with the same arguments). It parses arguments and formats
 results; the work is the library's.
 
@@ -99,7 +99,7 @@ def _on_sigterm(signum, frame):
 
 
 def _dataset_command(args) -> int:
-    from . import dataset as ds
+    from .datasets import writer as ds
     if args.threads is not None and args.threads < 1:
         print(f"sonoslice: error: --threads {args.threads}: must be at least 1", file=sys.stderr)
         return 1

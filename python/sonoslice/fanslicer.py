@@ -34,7 +34,12 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from . import Probe, Slicer, Volume, _numpy, _real_array, cuda_available
+from ._arrays import numpy_of as _numpy
+from ._arrays import real_array as _real_array
+from .devices import cuda_available
+from .slicing import Probe, Slicer
+from .surfaces import Mesh, SurfaceSlicer, colorize, fanslicer_models, voxelize
+from .volume import Volume
 
 __all__ = ["IntensityVolume", "SegmentedVolume"]
 
@@ -173,7 +178,6 @@ class SegmentedVolume:
         _check_counts(image_num, downsampling)
         with open(config_dir) as f:
             self.config = json.load(f)
-        from . import Mesh, SurfaceSlicer, fanslicer_models, voxelize
         self.models = fanslicer_models(config_dir, mesh_dir)
         self.meshes = {m["name"].replace(" ", "_"): Mesh.from_file(m["path"]) for m in self.models}
         self.colors = [m["color"] for m in self.models]
@@ -197,7 +201,6 @@ class SegmentedVolume:
         float64 (the k-th enabled model is k), colour images (H, W, 3, N) float64 in [0, 1]
         (outside a fan: grey 210/255)."""
         p, labels = _simulate(self, poses, image_num)
-        from . import colorize
         mask = self.slicer.mask
         rgb = colorize(labels, mask, self.colors).astype(np.float64) / 255.0
         if self.probe.type == "linear":  # fan-slicer draws the grey outline for fans only

@@ -15,7 +15,10 @@ from typing import Optional, Sequence
 import numpy as np
 import torch as _torch
 
-from . import Probe, Volume, _ext
+from . import _arrays
+from . import _sonoslice as _ext
+from .slicing import Probe
+from .volume import Volume
 
 __all__ = ["slice", "pose_increment"]
 
@@ -75,10 +78,7 @@ def slice(volume, poses, probe: Probe, *, spacing: Sequence[float] = (1.0, 1.0, 
     if not isinstance(poses, _torch.Tensor):
         poses = _torch.as_tensor(np.asarray(poses, dtype=np.float64))
     squeeze = poses.ndim == 2
-    if squeeze:
-        poses = poses[None]
-    if poses.ndim != 3 or tuple(poses.shape[1:]) != (4, 4):
-        raise ValueError(f"poses: expected (N, 4, 4) or (4, 4), got {tuple(poses.shape)}")
+    poses = _arrays.matrix_stack(poses, "poses")  # the tensor itself: autograd follows it
     geometry, tensor = _geometry_volume(volume, spacing, origin, direction)
     # Only the top three rows reach the kernel: the last row does not move a pixel (its gradient
     # is 0) and is not checked, so autograd and gradcheck may perturb it freely.

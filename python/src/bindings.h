@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <initializer_list>
 #include <memory>
 #include <optional>
 #include <string>
@@ -30,9 +31,32 @@ void bind_surfaces(nb::module_& m);        // Mesh, voxelize, SurfaceSlicer, col
 void bind_compounding(nb::module_& m);     // Compounder and its small classes
 void bind_io(nb::module_& m);              // pose and stack files, PLUS sequences and configs
 void bind_reconstruction(nb::module_& m);  // the reconstruction recipe (reconstruct_plus)
-void bind_simulation(nb::module_& m);      // Simulator, tissue tables, presets
-void bind_registration(nb::module_& m);    // register_frame
-void bind_sampling(nb::module_& m);        // PoseSampler, sample_seeds
+void bind_simulation(nb::module_& m);      // Simulator, its settings, tissue tables, presets
+void bind_registration(nb::module_& m);    // register_frames, its settings and report
+void bind_sampling(nb::module_& m);        // PoseSampler, SamplerSettings, sample_seeds
+
+/// A Python value (dicts, lists, tuples, numbers, strings, None, NumPy arrays and scalars,
+/// objects with keys() such as Tissue) as JSON text for the library's parsers (json.cpp), so a
+/// dict of settings is checked by the same code as a JSON or YAML file. InputError naming `where`
+/// and the key path ("sampler.reject.min_body") for a value JSON cannot hold (NaN, an object).
+std::string json_text(nb::handle value, const std::string& where);
+
+// ---- choices
+/// Binds the enum E as `name`, one member per value, named as the library spells the value
+/// (to_string; '-' becomes '_': "nelder-mead" → nelder_mead), and whose str() is that spelling
+/// ("nelder-mead"), so that a member and the string users pass read alike.
+template <typename E>
+nb::enum_<E> bind_enum(nb::module_& m, const char* name, std::initializer_list<E> values,
+                       const char* doc) {
+  nb::enum_<E> e(m, name, doc);
+  for (E v : values) {
+    std::string member = to_string(v);
+    std::replace(member.begin(), member.end(), '-', '_');
+    e.value(member.c_str(), v);
+  }
+  e.def("__str__", [](E v) { return std::string(to_string(v)); });
+  return e;
+}
 
 // ---- volumes that view a caller's array (Volume(array), volumes.cpp)
 /// What a Volume made from a caller's array views. The volume holds the array (and the DLPack

@@ -352,9 +352,10 @@ void bind_compounding(nb::module_& m) {
             sized(g, 1, 1, 1).validate("BeamGeometry");
             new (self) BeamGeometry(g);
           },
-          "r0_mm"_a = beams.r0_mm, "dr_mm"_a = beams.dr_mm, "azimuth0_deg"_a = beams.azimuth0_deg,
-          "dazimuth_deg"_a = beams.dazimuth_deg, "elevation0_deg"_a = beams.elevation0_deg,
-          "delevation_deg"_a = beams.delevation_deg, "apex_offset_mm"_a = beams.apex_offset_mm)
+          nb::kw_only(), "r0_mm"_a = beams.r0_mm, "dr_mm"_a = beams.dr_mm,
+          "azimuth0_deg"_a = beams.azimuth0_deg, "dazimuth_deg"_a = beams.dazimuth_deg,
+          "elevation0_deg"_a = beams.elevation0_deg, "delevation_deg"_a = beams.delevation_deg,
+          "apex_offset_mm"_a = beams.apex_offset_mm)
       .def_rw("r0_mm", &BeamGeometry::r0_mm, "depth of the first sample (mm)")
       .def_rw("dr_mm", &BeamGeometry::dr_mm, "sample spacing along a beam (mm)")
       .def_rw("azimuth0_deg", &BeamGeometry::azimuth0_deg)

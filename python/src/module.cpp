@@ -1,8 +1,11 @@
 // The C++ side of the Python package: thin bindings over the library, one file per area
-// (volumes.cpp, slicing.cpp, surfaces.cpp, compounding.cpp, io.cpp). Arrays cross the border
+// (volumes.cpp, slicing.cpp, surfaces.cpp, compounding.cpp, io.cpp, simulation.cpp, ...), in one
+// style: settings as typed classes built from keywords (checked by the library when made), choices
+// as enums, no more than 6 positional parameters (python/tests/test_bindings_style.py), no JSON
+// text (dicts of settings are read by the library's parsers, json.cpp). Arrays cross the border
 // without copies (NumPy's buffer protocol / DLPack through nanobind's ndarray); the GIL is
 // released while C++ computes; C++ errors become ValueError / OSError / RuntimeError. The
-// Pythonic API (argument handling, torch tensors, tqdm) is python/sonoslice/__init__.py.
+// Pythonic API (argument handling, torch tensors, tqdm) is python/sonoslice/, one module per area.
 #include <nanobind/stl/string.h>
 
 #include <exception>

@@ -1,4 +1,6 @@
-// Registration: FrameRegistration::run on NumPy frames and poses → refined poses and the report.
+// Registration: its settings and choices (RegistrationSettings, the metric, optimiser and mode
+// enums), FrameRegistration::run on NumPy frames and poses → refined poses and a typed report;
+// and the differentiable slice's forward and backward (sonoslice.torch).
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/pair.h>
 #include <nanobind/stl/string.h>
@@ -70,25 +72,106 @@ void bind_registration(nb::module_& m) {
                        PixelType::Float64, grad_volume));
       },
       "volume"_a, "probe"_a, "poses"_a, "grad_images"_a, "volume_gradient"_a);
+  bind_enum(m, "RegistrationMetric",
+            {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
+             RegistrationMetric::MI, RegistrationMetric::LC2},
+            "What registration compares (docs/registration.md §2): ssd, ncc, lncc, mi, lc2.");
+  bind_enum(m, "RegistrationOptimizer",
+            {RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
+             RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead},
+            "gn, lm (analytic derivatives: ssd, ncc), bobyqa, nelder_mead (derivative-free; "
+            "builds with NLopt).");
+  bind_enum(
+      m, "RegistrationMode",
+      {RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep},
+      "per_frame, rigid_sweep (one correction for all frames), smooth_sweep (per frame, "
+      "tied along the sweep).");
+  m.def("default_optimizer", &default_optimizer, "metric"_a,
+        "The optimiser a metric gets when none is asked for: lm for ssd and ncc, bobyqa for the "
+        "others.");
+
+  const RegistrationSettings settings;
+  nb::class_<RegistrationSettings>(
+      m, "RegistrationSettings",
+      "What a registration does (docs/registration.md); the defaults are the library's. Checked "
+      "when made (ValueError naming the setting).")
+      .def(
+          "__init__",
+          [](RegistrationSettings* self, RegistrationMetric metric,
+             std::optional<RegistrationOptimizer> optimizer, RegistrationMode mode, int starts,
+             double search_rot_deg, double search_trans_mm, uint64_t seed, double smoothness,
+             std::vector<int> pyramid, int max_iterations, double tolerance_mm,
+             double tolerance_deg) {
+            RegistrationSettings s;
+            s.metric = metric;
+            s.optimizer = optimizer;
+            s.mode = mode;
+            s.starts = starts;
+            s.search_rot_deg = search_rot_deg;
+            s.search_trans_mm = search_trans_mm;
+            s.seed = seed;
+            s.smoothness = smoothness;
+            s.pyramid = std::move(pyramid);
+            s.max_iterations = max_iterations;
+            s.tolerance_mm = tolerance_mm;
+            s.tolerance_deg = tolerance_deg;
+            s.validate();
+            new (self) RegistrationSettings(std::move(s));
+          },
+          nb::kw_only(), "metric"_a = settings.metric, "optimizer"_a.none() = nb::none(),
+          "mode"_a = settings.mode, "starts"_a = settings.starts,
+          "search_rot_deg"_a = settings.search_rot_deg,
+          "search_trans_mm"_a = settings.search_trans_mm, "seed"_a = settings.seed,
+          "smoothness"_a = settings.smoothness, "pyramid"_a = settings.pyramid,
+          "max_iterations"_a = settings.max_iterations, "tolerance_mm"_a = settings.tolerance_mm,
+          "tolerance_deg"_a = settings.tolerance_deg,
+          "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer).")
+      .def_ro("metric", &RegistrationSettings::metric)
+      .def_ro("optimizer", &RegistrationSettings::optimizer,
+              "None: not chosen yet (resolved() chooses)")
+      .def_ro("mode", &RegistrationSettings::mode)
+      .def_ro("starts", &RegistrationSettings::starts)
+      .def_ro("search_rot_deg", &RegistrationSettings::search_rot_deg)
+      .def_ro("search_trans_mm", &RegistrationSettings::search_trans_mm)
+      .def_ro("seed", &RegistrationSettings::seed)
+      .def_ro("smoothness", &RegistrationSettings::smoothness)
+      .def_ro("pyramid", &RegistrationSettings::pyramid)
+      .def_ro("max_iterations", &RegistrationSettings::max_iterations)
+      .def_ro("tolerance_mm", &RegistrationSettings::tolerance_mm)
+      .def_ro("tolerance_deg", &RegistrationSettings::tolerance_deg)
+      .def("resolved", &RegistrationSettings::resolved,
+           "These settings with the defaults chosen (the optimiser).")
+      .def("__repr__", [](const RegistrationSettings& s) {
+        std::string levels;
+        for (int f : s.pyramid) levels += (levels.empty() ? "" : ", ") + std::to_string(f);
+        return std::string("RegistrationSettings(metric=") +
+               repr(std::string(to_string(s.metric))) + ", optimizer=" +
+               (s.optimizer ? repr(std::string(to_string(*s.optimizer))) : "None") +
+               ", mode=" + repr(std::string(to_string(s.mode))) + ", starts=" + repr(s.starts) +
+               ", search_rot_deg=" + repr(s.search_rot_deg) +
+               ", search_trans_mm=" + repr(s.search_trans_mm) + ", seed=" + repr(s.seed) +
+               ", smoothness=" + repr(s.smoothness) + ", pyramid=[" + levels + "])";
+      });
+
+  nb::class_<FrameReport>(m, "FrameReport", "One frame's outcome (docs/registration.md §4).")
+      .def_ro("index", &FrameReport::index)
+      .def_ro("metric", &FrameReport::metric, "the final cost at full resolution")
+      .def_ro("evaluations", &FrameReport::evaluations)
+      .def_ro("iterations", &FrameReport::iterations)
+      .def_ro("translation_change_mm", &FrameReport::translation_change_mm)
+      .def_ro("rotation_change_deg", &FrameReport::rotation_change_deg);
+  nb::class_<RegistrationReport>(m, "RegistrationReport", "What a registration used and did.")
+      .def_ro("settings", &RegistrationReport::settings, "the settings as resolved")
+      .def_ro("frames", &RegistrationReport::frames)
+      .def_ro("evaluations", &RegistrationReport::evaluations)
+      .def_ro("seconds", &RegistrationReport::seconds);
+
   m.def(
       "register_frames",
       [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Frames frames,
-         Matrices pose_array, std::optional<MaskArray> mask, const std::string& metric,
-         const std::string& optimizer, const std::string& mode, int starts, double search_rot_deg,
-         double search_trans_mm, uint64_t seed, std::vector<int> pyramid, double smoothness) {
+         Matrices pose_array, std::optional<MaskArray> mask, const RegistrationSettings& settings) {
         auto source = volume_source(volume.h);
         if (source) source->check("register");
-        RegistrationSettings s;
-        s.metric = parse_registration_metric(metric);
-        s.optimizer = parse_registration_optimizer(optimizer);
-        s.mode = parse_registration_mode(mode);
-        s.starts = starts;
-        s.search_rot_deg = search_rot_deg;
-        s.search_trans_mm = search_trans_mm;
-        s.seed = seed;
-        s.pyramid = std::move(pyramid);
-        s.smoothness = smoothness;
-        s.validate();
         if (int64_t(frames.shape(1)) != probe.image.height ||
             int64_t(frames.shape(2)) != probe.image.width)
           throw InputError("frames: expected (N, " + std::to_string(probe.image.height) + ", " +
@@ -106,18 +189,13 @@ void bind_registration(nb::module_& m) {
           nb::gil_scoped_release release;
           const FrameRegistration reg(*volume.p, probe, frames.data(), frames.shape(0),
                                       mask ? mask->data() : nullptr);
-          refined = reg.run(initial, s, &report);
+          refined = reg.run(initial, settings, &report);
         }
-        std::vector<std::tuple<size_t, double, int64_t, int64_t, double, double>> rows;
-        for (const FrameReport& r : report.frames)
-          rows.emplace_back(r.index, r.metric, r.evaluations, r.iterations, r.translation_change_mm,
-                            r.rotation_change_deg);
-        return std::make_tuple(matrices_to_numpy(std::move(refined)), rows, report.evaluations,
-                               report.seconds);
+        return std::make_pair(matrices_to_numpy(std::move(refined)), std::move(report));
       },
-      "volume"_a, "probe"_a, "frames"_a, "poses"_a, "mask"_a.none(), "metric"_a, "optimizer"_a,
-      "mode"_a, "starts"_a, "search_rot_deg"_a, "search_trans_mm"_a, "seed"_a, "pyramid"_a,
-      "smoothness"_a);
+      "volume"_a, "probe"_a, "frames"_a, "poses"_a, nb::kw_only(), "mask"_a.none() = nb::none(),
+      "settings"_a = RegistrationSettings(),
+      "(refined (N, 4, 4) poses, RegistrationReport): FrameRegistration::run.");
 }
 
 }  // namespace sonoslice::bindings

@@ -91,7 +91,7 @@ void bind_slicing(nb::module_& m) {
             return probe_grid(p, width, height, spacing_mm, origin_mm, "curvilinear probe");
           },
           "radius_mm"_a, "depth_mm"_a, "sector_deg"_a, "width"_a, "height"_a, "spacing_mm"_a,
-          "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
+          nb::kw_only(), "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
       .def_static(
           "linear",
           [](int width, int height, std::pair<double, double> spacing_mm,
@@ -106,7 +106,7 @@ void bind_slicing(nb::module_& m) {
             p.face_y_mm = face_y_mm;
             return probe_grid(p, width, height, spacing_mm, origin_mm, "linear probe");
           },
-          "width"_a, "height"_a, "spacing_mm"_a, "width_mm"_a = nb::none(),
+          "width"_a, "height"_a, "spacing_mm"_a, nb::kw_only(), "width_mm"_a = nb::none(),
           "depth_mm"_a = nb::none(), "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
       .def_static("from_file", &read_probe, "path"_a, "downsampling"_a = 1)
       .def_static("from_json_text", &parse_probe_json, "text"_a, "source"_a = "<string>",

@@ -163,7 +163,7 @@ def test_python_simulator_bad_input(phantom, poses, tmp_path):
     ct, labels = phantom
     with pytest.raises(ValueError, match="simulation runs on the CPU only"):
         sonoslice.Simulator(ct, "lus", device="cuda")
-    with pytest.raises(ValueError, match="--preset nope: unknown"):
+    with pytest.raises(ValueError, match="^preset nope: unknown"):  # the setting, not the CLI's --preset
         sonoslice.Simulator(ct, "nope")
     with pytest.raises(ValueError, match="holds label 0, which the tissue table does not list"):
         sonoslice.Simulator(labels, "lus", tissues=sonoslice.default_tissues())

@@ -2,6 +2,8 @@
 // sonoslice.PoseSampler, so a key means the same everywhere.
 #include "sonoslice/sampling/SamplerConfig.h"
 
+#include <algorithm>
+#include <iterator>
 #include <map>
 #include <set>
 
@@ -56,10 +58,9 @@ Pose pose(const json& j, const std::string& where) {
   return Mat4::from_row_major(v.data());
 }
 
-const std::map<std::string, SamplerType> kTypes = {{"skin", SamplerType::Skin},
-                                                   {"mesh", SamplerType::Mesh},
-                                                   {"region", SamplerType::Region},
-                                                   {"sweep", SamplerType::Sweep}};
+const SamplerType kTypes[] = {SamplerType::Skin, SamplerType::Mesh, SamplerType::Region,
+                              SamplerType::Sweep};
+const SweepMotion kMotions[] = {SweepMotion::Linear, SweepMotion::Fan, SweepMotion::Rotational};
 
 /// The keys each type takes (besides type, reject and max_tries).
 const std::map<SamplerType, std::set<std::string>> kKeys = {
@@ -109,12 +110,12 @@ SamplerSettings from_json(const json& j, const std::string& where) {
   if (!j.contains("type") || !j["type"].is_string())
     throw InputError(where + ": needs \"type\": skin, mesh, region or sweep");
   const std::string type = j["type"].get<std::string>();
-  const auto t = kTypes.find(type);
-  if (t == kTypes.end())
+  const SamplerType* t = std::find_if(std::begin(kTypes), std::end(kTypes),
+                                      [&](SamplerType k) { return type == to_string(k); });
+  if (t == std::end(kTypes))
     throw InputError(where + ": type '" + type + "': expected skin, mesh, region or sweep");
   SamplerSettings s;
-  s.type = t->second;
-  if (s.type == SamplerType::Region) s.rotation_deg = {0, 360};
+  s.type = *t;
   const std::set<std::string>& keys = kKeys.at(s.type);
   for (const auto& [key, value] : j.items()) {
     const std::string at = where + "." + key;
@@ -161,14 +162,11 @@ SamplerSettings from_json(const json& j, const std::string& where) {
       s.anchor_at_centre = a != "face";
     } else if (key == "motion") {
       const std::string m = value.is_string() ? value.get<std::string>() : "";
-      if (m == "linear")
-        s.motion = SweepMotion::Linear;
-      else if (m == "fan")
-        s.motion = SweepMotion::Fan;
-      else if (m == "rotational")
-        s.motion = SweepMotion::Rotational;
-      else
+      const SweepMotion* motion = std::find_if(std::begin(kMotions), std::end(kMotions),
+                                               [&](SweepMotion k) { return m == to_string(k); });
+      if (motion == std::end(kMotions))
         throw InputError(at + ": expected linear, fan or rotational");
+      s.motion = *motion;
     } else if (key == "step")
       s.step = number(value, at);
     else if (key == "frames")
@@ -187,6 +185,32 @@ SamplerSettings from_json(const json& j, const std::string& where) {
 }
 
 }  // namespace
+
+const char* to_string(SamplerType type) {
+  switch (type) {
+    case SamplerType::Skin:
+      return "skin";
+    case SamplerType::Mesh:
+      return "mesh";
+    case SamplerType::Region:
+      return "region";
+    case SamplerType::Sweep:
+      return "sweep";
+  }
+  return "?";
+}
+
+const char* to_string(SweepMotion motion) {
+  switch (motion) {
+    case SweepMotion::Linear:
+      return "linear";
+    case SweepMotion::Fan:
+      return "fan";
+    case SweepMotion::Rotational:
+      return "rotational";
+  }
+  return "?";
+}
 
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where) {
   json j;

@@ -38,13 +38,13 @@ std::vector<SimulationPreset> simulation_presets() {
   return out;
 }
 
-SimulationPreset simulation_preset(const std::string& name) {
+SimulationPreset simulation_preset(const std::string& name, const std::string& what) {
   std::string names;
   for (const SimulationPreset& p : simulation_presets()) {
     if (p.name == name) return p;
     names += (names.empty() ? "" : ", ") + p.name;
   }
-  throw InputError("--preset " + name + ": unknown (presets: " + names + ")");
+  throw InputError(what + " " + name + ": unknown (presets: " + names + ")");
 }
 
 }  // namespace sonoslice

@@ -193,10 +193,14 @@ using simulate_impl::ImageModel;
 using simulate_impl::Model;
 using simulate_impl::Props;
 
-Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe,
-                     std::vector<Tissue> tissues, SimulationSettings settings)
+Simulator::Simulator(Volume volume, SimulationSource source,
+                     std::optional<ProbeGeometry> given_probe, std::vector<Tissue> tissues,
+                     SimulationSettings requested)
     : model_(std::make_unique<Model>()) {
-  settings.validate();
+  const SimulationSettings settings = requested.resolved();
+  if (!given_probe && !settings.preset) throw InputError("probe: give a probe or a preset");
+  const ProbeGeometry probe =
+      given_probe ? *given_probe : simulation_preset(*settings.preset).probe;
   probe.validate("probe");
   Model& m = *model_;
   m.source = source;
@@ -257,8 +261,9 @@ Simulator::Simulator(Volume volume, SimulationSource source, ProbeGeometry probe
 
   // Wavelength, sampling and the point-spread function (docs/simulation.md §3).
   const ImageGrid& img = probe.image;
-  const double lambda = simulate_impl::kSoundSpeedMmPerUs / settings.frequency_mhz;
-  b.frequency_mhz = float(settings.frequency_mhz);
+  const double frequency_mhz = *settings.frequency_mhz;  // resolved() chose it
+  const double lambda = simulate_impl::kSoundSpeedMmPerUs / frequency_mhz;
+  b.frequency_mhz = float(frequency_mhz);
   b.wavelength_mm = lambda;
   // The axial step: two samples per image row, between λ/4 and λ/2. The complex echo's
   // spectrum (the PSF's, axial FWHM λ) is sampled at λ/2 or finer; a finer step only matters
@@ -411,6 +416,9 @@ const SimulationSettings& Simulator::settings() const {
 }
 const ProbeGeometry& Simulator::probe() const {
   return model_->probe;
+}
+SimulationSource Simulator::source() const {
+  return model_->source;
 }
 const std::vector<uint8_t>& Simulator::mask() const {
   return model_->mask;

@@ -1,7 +1,9 @@
 // The default tissue table and the CT (Hounsfield unit) → acoustic property knots of
-// docs/simulation.md §1.
+// docs/simulation.md §1; the simulation's settings: their spelling, checks and defaults.
 #include <cmath>
 #include <set>
+#include <sstream>
+#include <utility>
 
 #include "sonoslice/core/Error.h"
 #include "sonoslice/simulate/Simulator.h"
@@ -86,14 +88,78 @@ void validate_tissues(const std::vector<Tissue>& tissues, const std::string& wha
   }
 }
 
-void SimulationSettings::validate() const {
-  if (!(frequency_mhz > 0) || !std::isfinite(frequency_mhz) || frequency_mhz > 100)
-    throw InputError("frequency " + std::to_string(frequency_mhz) + " MHz: must be in (0, 100]");
+namespace {
+std::string number(double v) {
+  std::ostringstream out;
+  out << v;
+  return out.str();
+}
+}  // namespace
+
+const char* to_string(SimulationSource source) {
+  switch (source) {
+    case SimulationSource::HounsfieldUnits:
+      return "ct";
+    case SimulationSource::Labels:
+      return "labels";
+  }
+  return "?";
+}
+
+SimulationSource parse_simulation_source(const std::string& name, const std::string& what) {
+  for (SimulationSource s : {SimulationSource::HounsfieldUnits, SimulationSource::Labels})
+    if (name == to_string(s)) return s;
+  throw InputError(what + " " + name + ": expected ct or labels");
+}
+
+SimulationSource default_simulation_source(const Volume& volume, bool tissue_table_given) {
+  return tissue_table_given || volume.pixel_type() == PixelType::UInt8
+             ? SimulationSource::Labels
+             : SimulationSource::HounsfieldUnits;
+}
+
+const char* to_string(SimulationOutput output) {
+  switch (output) {
+    case SimulationOutput::BMode:
+      return "bmode";
+    case SimulationOutput::Envelope:
+      return "envelope";
+  }
+  return "?";
+}
+
+SimulationOutput parse_simulation_output(const std::string& name, const std::string& what) {
+  for (SimulationOutput o : {SimulationOutput::BMode, SimulationOutput::Envelope})
+    if (name == to_string(o)) return o;
+  throw InputError(what + " " + name + ": expected bmode or envelope");
+}
+
+void SimulationSettings::validate(const ParameterNames& names) const {
+  const auto name = [&](const char* setting) { return spelled(names, setting); };
+  if (preset) simulation_preset(*preset, name("preset"));
+  if (frequency_mhz &&
+      (!(*frequency_mhz > 0) || !std::isfinite(*frequency_mhz) || *frequency_mhz > 100))
+    throw InputError(name("frequency_mhz") + ": frequency " + number(*frequency_mhz) +
+                     " MHz must be in (0, 100]");
   if (!(dynamic_range_db > 0) || !std::isfinite(dynamic_range_db))
-    throw InputError("dynamic range " + std::to_string(dynamic_range_db) + " dB: must be > 0");
-  for (double w : {axial_fwhm_mm, lateral_fwhm_mm, elevation_fwhm_mm})
+    throw InputError(name("dynamic_range_db") + ": dynamic range " + number(dynamic_range_db) +
+                     " dB must be > 0");
+  for (const auto& [setting, w] : {std::pair<const char*, double>{"axial_fwhm_mm", axial_fwhm_mm},
+                                   {"lateral_fwhm_mm", lateral_fwhm_mm},
+                                   {"elevation_fwhm_mm", elevation_fwhm_mm}})
     if (!(w >= 0) || !std::isfinite(w))
-      throw InputError("point-spread width " + std::to_string(w) + " mm: must be >= 0");
+      throw InputError(name(setting) + ": point-spread width " + number(w) + " mm must be >= 0");
+  if (device.type != DeviceType::CPU)
+    throw InputError(name("device") + " " + device.to_string() +
+                     ": simulation runs on the CPU only so far (docs/simulation.md §6)");
+}
+
+SimulationSettings SimulationSettings::resolved(const ParameterNames& names) const {
+  validate(names);
+  SimulationSettings s = *this;
+  if (!s.frequency_mhz)
+    s.frequency_mhz = preset ? simulation_preset(*preset).frequency_mhz : kDefaultFrequencyMhz;
+  return s;
 }
 
 }  // namespace sonoslice

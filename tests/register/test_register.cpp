@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "sonoslice/core/Error.h"
@@ -361,6 +362,59 @@ TEST(Register, BadInputIsNamed) {
   EXPECT_FALSE(metric_has_derivatives(parse_registration_metric("mi")));
   EXPECT_THROW(parse_registration_optimizer("adam"), InputError);
   EXPECT_THROW(parse_registration_mode("sweep"), InputError);
+}
+
+TEST(Register, SettingsChooseTheOptimiserAndNameTheSetting) {
+  RegistrationSettings s;
+  EXPECT_FALSE(s.optimizer.has_value());
+  EXPECT_EQ(*s.resolved().optimizer, RegistrationOptimizer::LevenbergMarquardt);
+  s.metric = RegistrationMetric::SSD;
+  EXPECT_EQ(*s.resolved().optimizer, RegistrationOptimizer::LevenbergMarquardt);
+  for (RegistrationMetric m :
+       {RegistrationMetric::LNCC, RegistrationMetric::MI, RegistrationMetric::LC2}) {
+    s.metric = m;
+    EXPECT_EQ(*s.resolved().optimizer, RegistrationOptimizer::Bobyqa);
+  }
+  s.optimizer = RegistrationOptimizer::GaussNewton;  // given: kept
+  EXPECT_EQ(*s.resolved().optimizer, RegistrationOptimizer::GaussNewton);
+  // Errors name the setting as the caller spells it: the library's name, or a CLI's flag.
+  const auto message = [](const RegistrationSettings& bad, const ParameterNames& names) {
+    try {
+      bad.validate(names);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const ParameterNames flags = [](const std::string& p) { return "--" + p; };
+  EXPECT_EQ(message(s, {}), std::string("metric lc2 has no analytic derivatives: use optimizer "
+                                        "bobyqa or nelder-mead"));
+  EXPECT_EQ(message(s, flags), std::string("--metric lc2 has no analytic derivatives: use "
+                                           "--optimizer bobyqa or nelder-mead"));
+  RegistrationSettings t;
+  t.starts = 0;
+  EXPECT_EQ(message(t, {}), "starts 0: must be at least 1");
+  t = RegistrationSettings();
+  t.pyramid = {4, 0};
+  EXPECT_EQ(message(t, flags).rfind("--pyramid 4,0: expected block sizes from 1 to 64", 0), 0u);
+  // One spelling table per choice.
+  for (RegistrationMetric m :
+       {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
+        RegistrationMetric::MI, RegistrationMetric::LC2})
+    EXPECT_EQ(parse_registration_metric(to_string(m)), m);
+  for (RegistrationOptimizer o :
+       {RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
+        RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead})
+    EXPECT_EQ(parse_registration_optimizer(to_string(o)), o);
+  for (RegistrationMode m :
+       {RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep})
+    EXPECT_EQ(parse_registration_mode(to_string(m)), m);
+  try {
+    parse_registration_metric("mutual", "--metric");
+    FAIL() << "parsed";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), "--metric mutual: expected ssd, ncc, lncc, mi or lc2");
+  }
 }
 
 }  // namespace

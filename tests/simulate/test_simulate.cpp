@@ -7,6 +7,8 @@
 #include <cstdio>
 #include <functional>
 #include <numeric>
+#include <optional>
+#include <string>
 #include <vector>
 
 #include "../common/TestUtil.h"
@@ -421,6 +423,45 @@ TEST(Simulate, BadInputIsNamed) {
   std::vector<uint8_t> out(sim.image_bytes(), 42);
   EXPECT_THROW(sim.simulate(&bad, 1, out.data()), InputError);
   EXPECT_EQ(out[0], 42);  // nothing written
+}
+
+TEST(Simulate, SettingsChooseTheFrequencyAndTheProbeAndNameTheSetting) {
+  SimulationSettings s;
+  EXPECT_FALSE(s.frequency_mhz.has_value());
+  EXPECT_EQ(*s.resolved().frequency_mhz, SimulationSettings::kDefaultFrequencyMhz);
+  s.preset = "lus";
+  EXPECT_EQ(*s.resolved().frequency_mhz, simulation_preset("lus").frequency_mhz);
+  s.frequency_mhz = 3.0;
+  EXPECT_EQ(*s.resolved().frequency_mhz, 3.0);
+  // Without a probe, the preset's; without either, an error naming the probe.
+  const Volume v = phantom([](double, double, double) { return 7; });
+  const Simulator sim(v, SimulationSource::Labels, std::nullopt, {tissue(7, 1.6, 0, 0.02)}, s);
+  EXPECT_EQ(sim.width(), simulation_preset("lus").probe.image.width);
+  EXPECT_EQ(*sim.settings().frequency_mhz, 3.0);
+  EXPECT_THROW(Simulator(v, SimulationSource::Labels, std::nullopt, {tissue(7, 1.6, 0, 0.02)}),
+               InputError);
+  // Errors name the setting as the caller spells it: the library's name, or a CLI's flag.
+  const auto message = [](const SimulationSettings& bad, const ParameterNames& names) {
+    try {
+      bad.resolved(names);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  SimulationSettings bad;
+  bad.preset = "nope";
+  EXPECT_EQ(message(bad, {}).rfind("preset nope: unknown (presets: abdominal", 0), 0u);
+  const ParameterNames flags = [](const std::string& p) { return "--" + p; };
+  EXPECT_EQ(message(bad, flags).rfind("--preset nope: unknown", 0), 0u);
+  bad = SimulationSettings();
+  bad.device = Device::parse("cuda");
+  EXPECT_EQ(message(bad, {}).rfind("device cuda:0: simulation runs on the CPU only", 0), 0u);
+  for (SimulationOutput o : {SimulationOutput::BMode, SimulationOutput::Envelope})
+    EXPECT_EQ(parse_simulation_output(to_string(o)), o);
+  for (SimulationSource k : {SimulationSource::HounsfieldUnits, SimulationSource::Labels})
+    EXPECT_EQ(parse_simulation_source(to_string(k)), k);
+  EXPECT_THROW(parse_simulation_output("rf"), InputError);
 }
 
 }  // namespace

@@ -21,6 +21,7 @@
 
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/compound/Compounder.h"
+#include "sonoslice/core/Error.h"  // ParameterNames: the CLI says "--spacing", Python "spacing"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/volume/Volume.h"
@@ -29,10 +30,6 @@ namespace sonoslice {
 
 struct PlusSequence;
 struct PlusReconstructionConfig;
-
-/// How a front end spells a parameter of the recipe in its error messages: the CLI says
-/// "--spacing", Python "spacing". Given the recipe's name (snake_case, as Python's keywords).
-using ParameterNames = std::function<std::string(const std::string& parameter)>;
 
 /// Tracked frames, as views: the memory belongs to the caller and must outlive the
 /// Reconstruction built from it.

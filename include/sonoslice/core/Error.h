@@ -1,6 +1,7 @@
 #pragma once
 /// @file Error types of sonoslice. Every error owns a message that names the offending input
 /// (file, value, index); library code never exits or prints and continues.
+#include <functional>
 #include <stdexcept>
 #include <string>
 
@@ -33,6 +34,16 @@ class ParameterError : public InputError {
  private:
   std::string parameter_, detail_;
 };
+
+/// How a front end spells the library's parameters (settings) in messages: given the library's
+/// name (snake_case, as the settings' fields and Python's keywords: "metric", "frequency_mhz"),
+/// the front end's ("--metric", "--frequency"). Empty: the library's own names.
+using ParameterNames = std::function<std::string(const std::string& parameter)>;
+
+/// `parameter` as `names` spells it; `parameter` itself when `names` is empty.
+inline std::string spelled(const ParameterNames& names, const std::string& parameter) {
+  return names ? names(parameter) : parameter;
+}
 
 /// A file that cannot be read or written: missing, corrupt, truncated, unwritable (Python:
 /// OSError).

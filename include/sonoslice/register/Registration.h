@@ -5,10 +5,12 @@
 /// and a coarse-to-fine schedule. docs/registration.md has the formulas.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "sonoslice/core/Error.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/volume/Volume.h"
@@ -49,18 +51,30 @@ enum class RegistrationMode {
   SmoothSweep
 };
 
-/// "ssd", "ncc", "lncc", "mi", "lc2".
-RegistrationMetric parse_registration_metric(const std::string& name);
+/// The spelling tables (the CLI's flag values, Python's strings): "ssd", "ncc", "lncc", "mi",
+/// "lc2"; "gn", "lm", "bobyqa", "nelder-mead"; "per-frame", "rigid-sweep", "smooth-sweep".
+/// The parsers throw InputError "<what> <name>: expected ..." (`what`: the setting as the caller
+/// spells it).
+RegistrationMetric parse_registration_metric(const std::string& name,
+                                             const std::string& what = "metric");
+RegistrationOptimizer parse_registration_optimizer(const std::string& name,
+                                                   const std::string& what = "optimizer");
+RegistrationMode parse_registration_mode(const std::string& name, const std::string& what = "mode");
+const char* to_string(RegistrationMetric metric);
+const char* to_string(RegistrationOptimizer optimizer);
+const char* to_string(RegistrationMode mode);
 /// True for the metrics with analytic derivatives (SSD, NCC): the ones GN and LM can optimise.
 bool metric_has_derivatives(RegistrationMetric metric);
-/// "gn", "lm", "bobyqa", "nelder-mead" (the last two: InputError in a build without NLopt).
-RegistrationOptimizer parse_registration_optimizer(const std::string& name);
-RegistrationMode parse_registration_mode(const std::string& name);  ///< "per-frame", ...
-const char* to_string(RegistrationMetric metric);
+/// The optimiser a metric gets when none is asked for: Levenberg–Marquardt for the metrics with
+/// derivatives (ssd, ncc), BOBYQA for the others (lncc, mi, lc2).
+RegistrationOptimizer default_optimizer(RegistrationMetric metric);
 
+/// What a registration does. Every default is here, once: `sonoslice register` and Python's
+/// `register` set only what their user gave.
 struct RegistrationSettings {
   RegistrationMetric metric = RegistrationMetric::NCC;
-  RegistrationOptimizer optimizer = RegistrationOptimizer::LevenbergMarquardt;
+  /// Unset: default_optimizer(metric) (resolved()).
+  std::optional<RegistrationOptimizer> optimizer;
   RegistrationMode mode = RegistrationMode::PerFrame;
   /// Optimisations per frame (per sweep in rigid-sweep mode): the initial pose, then starts − 1
   /// points drawn around it (rotation up to search_rot_deg about a random axis through the
@@ -81,10 +95,15 @@ struct RegistrationSettings {
   /// Converged when a step moves the frame's centre less than this (mm) and turns it less than
   /// tolerance_deg.
   double tolerance_mm = 1e-3, tolerance_deg = 1e-3;
-  /// Throws InputError for starts < 1, negative or non-finite spreads, an empty pyramid or a
-  /// level < 1, max_iterations < 1, non-positive tolerances, a metric without derivatives with
-  /// a derivative-based optimiser or in smooth-sweep mode, a negative or non-finite smoothness.
-  void validate() const;
+
+  /// These settings with the defaults chosen: the optimizer set.
+  RegistrationSettings resolved() const;
+  /// Throws InputError naming the setting (as `names` spells it) for starts < 1, negative or
+  /// non-finite spreads, an empty pyramid or a level outside 1..64, max_iterations < 1,
+  /// non-positive tolerances, a metric without derivatives with a derivative-based optimiser or
+  /// in smooth-sweep mode, a negative or non-finite smoothness, and a derivative-free
+  /// optimiser in a build without NLopt.
+  void validate(const ParameterNames& names = {}) const;
 };
 
 /// One frame's outcome (JSON report fields, docs/registration.md §4).
@@ -96,6 +115,7 @@ struct FrameReport {
 };
 
 struct RegistrationReport {
+  RegistrationSettings settings;  ///< what ran: the caller's settings, resolved()
   std::vector<FrameReport> frames;
   int64_t evaluations = 0;
   double seconds = 0;
@@ -148,9 +168,9 @@ class FrameRegistration {
   /// The world point of the centre of frame `frame`'s compared pixels at `pose`.
   Vec3 centre(size_t frame, const Pose& pose) const;
 
-  /// Refines the initial poses (one per frame; InputError naming "pose <i>" for a bad one) and
-  /// reports. Frames are optimised in parallel, each on one thread: the result does not depend
-  /// on the thread count.
+  /// Refines the initial poses (one per frame; InputError naming "pose <i>" for a bad one) with
+  /// settings.resolved() and reports. Frames are optimised in parallel, each on one thread: the
+  /// result does not depend on the thread count.
   std::vector<Pose> run(const std::vector<Pose>& initial, const RegistrationSettings& settings,
                         RegistrationReport* report) const;
 

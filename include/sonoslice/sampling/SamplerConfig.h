@@ -8,6 +8,11 @@
 
 namespace sonoslice {
 
+/// The spelling of the "type" and "motion" keys: "skin", "mesh", "region", "sweep"; "linear",
+/// "fan", "rotational".
+const char* to_string(SamplerType type);
+const char* to_string(SweepMotion motion);
+
 /// Settings from a JSON object's text; `where` names it in messages (e.g. "samplers[0]").
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where);
 

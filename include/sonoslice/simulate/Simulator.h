@@ -5,9 +5,12 @@
 /// The model, its formulas and its constants are in docs/simulation.md.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "sonoslice/backend/Device.h"
+#include "sonoslice/core/Error.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/volume/Volume.h"
@@ -42,14 +45,36 @@ enum class SimulationSource {
   HounsfieldUnits,  ///< a CT: any pixel type, values in HU, trilinear
   Labels            ///< a uint8/uint16 label volume, nearest, properties from the tissue table
 };
+/// "ct", "labels" (Python's kind=).
+const char* to_string(SimulationSource source);
+/// InputError "<what> <name>: expected ct or labels" for another name.
+SimulationSource parse_simulation_source(const std::string& name,
+                                         const std::string& what = "source");
+/// The source a volume is when the caller does not say: labels when a tissue table is given or
+/// the volume is uint8, else a CT in HU.
+SimulationSource default_simulation_source(const Volume& volume, bool tissue_table_given);
 
 enum class SimulationOutput {
   BMode,    ///< uint8 after time-gain compensation and log compression
   Envelope  ///< float32 linear envelope amplitude, before TGC and log compression
 };
+/// "bmode", "envelope".
+const char* to_string(SimulationOutput output);
+/// InputError "<what> <name>: expected bmode or envelope" for another name.
+SimulationOutput parse_simulation_output(const std::string& name,
+                                         const std::string& what = "output");
 
+/// What a simulation does. Every default is here, once: `sonoslice simulate` and Python's
+/// Simulator set only what their user gave.
 struct SimulationSettings {
-  double frequency_mhz = 5.0;    ///< centre frequency f
+  /// The frequency when none is given.
+  static constexpr double kDefaultFrequencyMhz = 5.0;
+
+  /// A preset (simulation_presets()): the probe when the Simulator is given none, and the
+  /// frequency when frequency_mhz is unset.
+  std::optional<std::string> preset;
+  /// Centre frequency f (MHz). Unset: the preset's, else kDefaultFrequencyMhz (resolved()).
+  std::optional<double> frequency_mhz;
   uint64_t seed = 0;             ///< the speckle field's seed (fixed in the volume frame)
   double dynamic_range_db = 60;  ///< log compression: 0 dB (an ideal reflector) → 255, −DR → 0
   bool tgc_auto = true;          ///< compensate the attenuation met along each depth (off: none)
@@ -57,23 +82,29 @@ struct SimulationSettings {
   /// Point-spread function, full width at half maximum in mm; 0: from the frequency (axial: two
   /// cycles of the pulse, λ; lateral: 2λ·F-number 2 → ... see docs/simulation.md §3).
   double axial_fwhm_mm = 0, lateral_fwhm_mm = 0, elevation_fwhm_mm = 0;
-  /// Throws InputError for non-finite or non-positive values (frequency, dynamic range) or
-  /// negative PSF widths.
-  void validate() const;
+  /// The CPU only so far (docs/simulation.md §6).
+  Device device = Device::cpu();
+
+  /// These settings, checked (validate), with the defaults chosen: frequency_mhz set.
+  SimulationSettings resolved(const ParameterNames& names = {}) const;
+  /// Throws InputError naming the setting (as `names` spells it) for an unknown preset,
+  /// non-finite or non-positive values (frequency, dynamic range), negative PSF widths, or a
+  /// device other than the CPU.
+  void validate(const ParameterNames& names = {}) const;
 };
 
 /// A named probe and frequency (docs/simulation.md §7): the probe a simulation uses when none is
 /// given, and the frequency when none is given.
 struct SimulationPreset {
   std::string name, description;
-  double frequency_mhz = 5;
+  double frequency_mhz = 0;
   ProbeGeometry probe;
 };
 /// "abdominal" (3.5 MHz curvilinear), "laparoscopic" (7.5 MHz linear), "lus" (fan-slicer's
 /// laparoscopic ultrasound configuration, W1, 6.5 MHz).
 std::vector<SimulationPreset> simulation_presets();
-/// The preset named `name`; InputError listing the names otherwise.
-SimulationPreset simulation_preset(const std::string& name);
+/// The preset named `name`; InputError "<what> <name>: unknown (presets: ...)" otherwise.
+SimulationPreset simulation_preset(const std::string& name, const std::string& what = "preset");
 
 namespace simulate_impl {
 struct Model;
@@ -82,18 +113,20 @@ struct Model;
 /// Bound to one volume, one probe and one tissue model. The volume is shared, not copied.
 class Simulator {
  public:
-  /// `tissues`: the table for a label volume (ignored for HU). InputError for a label volume
-  /// that is not uint8/uint16, a label the volume holds that the table lacks (named), or bad
-  /// settings.
-  Simulator(Volume volume, SimulationSource source, ProbeGeometry probe,
+  /// `probe`: unset, the preset's (settings.preset). `tissues`: the table for a label volume
+  /// (ignored for HU). InputError for a label volume that is not uint8/uint16, a label the
+  /// volume holds that the table lacks (named), no probe and no preset, or bad settings.
+  /// settings() are the given ones resolved().
+  Simulator(Volume volume, SimulationSource source, std::optional<ProbeGeometry> probe,
             std::vector<Tissue> tissues = default_tissues(), SimulationSettings settings = {});
   ~Simulator();
   Simulator(Simulator&&) noexcept;
 
   int width() const;
   int height() const;
-  const SimulationSettings& settings() const;
-  const ProbeGeometry& probe() const;
+  const SimulationSettings& settings() const;  ///< resolved: the frequency chosen
+  const ProbeGeometry& probe() const;          ///< the given one, else the preset's
+  SimulationSource source() const;
   /// The H×W fan mask (1 inside the probe shape): the same mask as Slicer::mask().
   const std::vector<uint8_t>& mask() const;
   /// Beams per image and samples per beam of the simulation grid before scan conversion.

@@ -1,0 +1,149 @@
+"""The checks and conversions every capability's arguments go through: arrays (NumPy, torch,
+lists), 4×4 matrix stacks (poses, image→reference transforms), paths, whole numbers and choices.
+One place, so that a pose is checked the same way by the slicer, the compounder, registration,
+the samplers and ``sonoslice.torch``.
+"""
+from __future__ import annotations
+
+import os
+from typing import Optional, Tuple
+
+import numpy as np
+
+
+def is_torch(x) -> bool:
+    return type(x).__module__.startswith("torch")
+
+
+def numpy_of(x):
+    """A torch tensor as a NumPy array in host memory; anything else as it is."""
+    return x.detach().cpu().numpy() if is_torch(x) else x
+
+
+def path(value, what: str = "path") -> str:
+    """A file path (str, bytes or os.PathLike) as str; TypeError naming ``what`` for anything else
+    (``str(None)`` would look for a file called 'None')."""
+    if isinstance(value, (str, bytes, os.PathLike)):
+        return os.fsdecode(os.fspath(value))
+    raise TypeError(f"{what}: expected a file path (str or os.PathLike), got {type(value).__name__}")
+
+
+def no_complex(a: np.ndarray, what: str) -> np.ndarray:
+    """``a``, or ValueError naming ``what`` when it is complex (a cast would drop the imaginary part)."""
+    if a.dtype.kind == "c":
+        raise ValueError(f"{what}: dtype {a.dtype.name} is complex; sonoslice takes real numbers and does "
+                         "not drop imaginary parts silently (pass .real if that is what you mean)")
+    return a
+
+
+def native(a, what: str, *, in_place: bool = False):
+    """A NumPy array ``a`` (an input named ``what``) in this machine's byte order: a big-endian one
+    (from some files and instruments) is converted, a copy, or refused naming the dtype where
+    sonoslice works on the array itself (``in_place``: a Volume's voxels, ``out=``). Anything else
+    (torch tensors, lists) unchanged; the library names unsupported dtypes (complex among them)."""
+    if not isinstance(a, np.ndarray):
+        return a
+    if not a.dtype.isnative:
+        if in_place:
+            raise ValueError(f"{what}: dtype {a.dtype.str} is big-endian (not this machine's byte order) and "
+                             "sonoslice uses the array itself, not a copy; convert it first: "
+                             "a.astype(a.dtype.newbyteorder('='))")
+        a = a.astype(a.dtype.newbyteorder("="))
+    return a
+
+
+def real_array(x, what: str) -> np.ndarray:
+    """Numbers (array-like, not torch) as float64; complex refused naming ``what``."""
+    return np.asarray(no_complex(np.asarray(x), what), dtype=np.float64)
+
+
+def floats(x, what: str, count: int) -> Tuple[float, ...]:
+    """Exactly ``count`` real numbers as floats; ValueError naming ``what`` otherwise."""
+    a = real_array(x, what).ravel()
+    if a.size != count:
+        raise ValueError(f"{what}: expected {count} numbers, got {a.size}")
+    return tuple(float(v) for v in a)
+
+
+def whole(value, what: str) -> int:
+    """An integer argument; ValueError naming ``what`` for 2.5 (int() would make it 2), TypeError for
+    what is not a number. The library checks the range."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{what}: expected an integer, got {value!r}")
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)) and float(value).is_integer():
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        raise ValueError(f"{what} {value!r}: expected a whole number")
+    raise TypeError(f"{what}: expected an integer, got {type(value).__name__}")
+
+
+def choice(kind, value, what: str):
+    """A member of the bound enum ``kind``, given as itself or as the library spells it (its str:
+    "ncc", "nelder-mead"; or its member name, nelder_mead); ValueError naming ``what`` and the
+    choices otherwise."""
+    if isinstance(value, kind):
+        return value
+    for member in kind:
+        if isinstance(value, str) and value in (str(member), member.name):
+            return member
+    names = [repr(str(m)) for m in kind]
+    raise ValueError(f"{what} {value!r}: expected {', '.join(names[:-1])} or {names[-1]}")
+
+
+# ---- 4×4 matrices: poses (probe → world) and transforms ------------------------------------------
+def matrix_stack(m, what: str = "poses", count: Optional[int] = None, single: bool = False):
+    """``m`` (a NumPy array or a torch tensor, not converted, so autograd keeps a tensor) as a stack
+    of 4×4 matrices: (N, 4, 4) as it is, (4, 4) as a stack of one. ValueError naming ``what`` for
+    another shape, or for another N than ``count`` (``single``: the count is one frame's)."""
+    shape = tuple(m.shape)
+    if shape == (4, 4):
+        m = m[None]
+    elif len(shape) != 3 or shape[1:] != (4, 4):
+        raise ValueError(f"{what} has shape {shape}; expected (4, 4) or (N, 4, 4) (the expected shape of one "
+                         "4x4 matrix or of a stack)")
+    if count is not None and m.shape[0] != count:
+        frames = "1 frame" if single else f"{count} frames"
+        raise ValueError(f"{what} has shape {shape} for {frames}; expected "
+                         f"{'(4, 4)' if count == 1 else f'({count}, 4, 4)'}")
+    return m
+
+
+def matrices(m, what: str = "poses", count: Optional[int] = None, single: bool = False) -> np.ndarray:
+    """4×4 matrices (NumPy, torch or nested lists of real numbers) as an (N, 4, 4) float64
+    C-contiguous array (checked by :func:`matrix_stack`); complex or non-numbers refused naming
+    ``what``."""
+    m = numpy_of(m)
+    if np.iscomplexobj(m):  # said as such, not as "expected 4x4 matrices of numbers" below
+        no_complex(np.asarray(m), what)
+    try:
+        a = real_array(m, what)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected 4x4 matrices of numbers") from None
+    return np.ascontiguousarray(matrix_stack(a, what, count, single))
+
+
+def pose_array(poses, world: str = "LPS") -> np.ndarray:
+    """Probe→world poses ((N, 4, 4) or (4, 4), NumPy or torch) as (N, 4, 4) float64 C-contiguous
+    matrices in LPS; ``world="RAS"`` converts poses from 3D Slicer or nibabel."""
+    a = matrices(poses, "poses")
+    return np.ascontiguousarray(pose_to_lps(a, world))
+
+
+def pose_to_lps(poses: np.ndarray, world: str) -> np.ndarray:
+    """(N, 4, 4) poses in ``world`` ("LPS" or "RAS") → LPS; the flip is its own inverse, so this
+    also takes LPS poses back to ``world``."""
+    world = str(world).upper()
+    if world == "RAS":
+        return poses * np.array([-1.0, -1.0, 1.0, 1.0])[None, :, None]  # diag(-1, -1, 1, 1) · T
+    if world != "LPS":
+        raise ValueError(f"world frame {world!r}: expected 'LPS' or 'RAS'")
+    return poses
+
+
+def mask_array(mask, what: str) -> Optional[np.ndarray]:
+    """An (H, W) mask as C-contiguous uint8 (None stays None); complex refused."""
+    if mask is None:
+        return None
+    return np.ascontiguousarray(no_complex(np.asarray(numpy_of(mask)), what), dtype=np.uint8)

@@ -1,0 +1,87 @@
+"""Registration (C++: register/; docs/registration.md): refining the poses of ultrasound frames
+against a volume. The settings, their defaults and their rules (the optimiser: lm for ssd and
+ncc, bobyqa for the others) are the library's (:class:`RegistrationSettings`); :func:`register`
+passes on what its caller gave. Differentiable slicing for PyTorch is :mod:`sonoslice.torch`."""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+
+from . import _arrays
+from . import _sonoslice as _ext
+from .slicing import Probe
+from .volume import Volume
+
+__all__ = ["register", "RegistrationSettings", "RegistrationMetric", "RegistrationOptimizer", "RegistrationMode"]
+
+RegistrationSettings = _ext.RegistrationSettings
+RegistrationMetric = _ext.RegistrationMetric
+RegistrationOptimizer = _ext.RegistrationOptimizer
+RegistrationMode = _ext.RegistrationMode
+
+
+def _settings(settings: Optional[RegistrationSettings], given: dict) -> RegistrationSettings:
+    """``settings``, or the settings of the keywords given (None: the library's default)."""
+    given = {k: v for k, v in given.items() if v is not None}
+    if settings is not None:
+        if given:
+            raise TypeError(f"register: give settings= or the keywords {sorted(given)}, not both")
+        if not isinstance(settings, RegistrationSettings):
+            raise TypeError("settings: expected a sonoslice.RegistrationSettings")
+        return settings
+    for key, kind in (("metric", RegistrationMetric), ("optimizer", RegistrationOptimizer),
+                      ("mode", RegistrationMode)):
+        if key in given:
+            given[key] = _arrays.choice(kind, given[key], key)
+    if "pyramid" in given:
+        given["pyramid"] = [_arrays.whole(level, "pyramid") for level in given["pyramid"]]
+    return RegistrationSettings(**given)
+
+
+def _report(report) -> dict:
+    """The typed report as the dict ``sonoslice register --report`` writes."""
+    s = report.settings
+    out = {"metric": str(s.metric), "optimizer": str(s.optimizer), "mode": str(s.mode), "starts": s.starts}
+    if s.mode == RegistrationMode.smooth_sweep:
+        out["smoothness"] = s.smoothness
+    keys = ("index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg")
+    out["frames"] = [{k: getattr(f, k) for k in keys} for f in report.frames]
+    out.update(evaluations=int(report.evaluations), seconds=float(report.seconds))
+    return out
+
+
+def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[str] = None,
+             optimizer: Optional[str] = None, mode: Optional[str] = None, starts: Optional[int] = None,
+             search_rot_deg: Optional[float] = None, search_trans_mm: Optional[float] = None,
+             seed: Optional[int] = None, pyramid: Optional[Sequence[int]] = None, mask=None, world: str = "LPS",
+             smoothness: Optional[float] = None, settings: Optional[RegistrationSettings] = None):
+    """Refines the poses of ``frames`` ((N, H, W) on ``probe``'s grid, any real dtype) against
+    ``volume`` from ``poses`` ((N, 4, 4) probe→world, mm), as ``sonoslice register`` does
+    (docs/registration.md). ``mask``: an (H, W) array, non-zero where pixels are compared (with
+    the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
+    the settings used ("metric", "optimizer", "mode", "starts", and "smoothness" for smooth-sweep),
+    "frames" (one dict per frame: index, metric, evaluations, iterations,
+    translation_change_mm, rotation_change_deg), "evaluations" and "seconds".
+
+    The settings are :class:`RegistrationSettings`' (give one as ``settings``, or its keywords;
+    unset ones take the library's defaults, ``RegistrationSettings()``). ``optimizer``: by default
+    "lm" for "ssd" and "ncc",
+    "bobyqa" for "lncc", "mi" and "lc2". ``mode``: "per-frame", "rigid-sweep" or "smooth-sweep"
+    (``smoothness``: the prior's relative weight)."""
+    s = _settings(settings, dict(metric=metric, optimizer=optimizer, mode=mode, starts=starts,
+                                 search_rot_deg=search_rot_deg, search_trans_mm=search_trans_mm, seed=seed,
+                                 pyramid=pyramid, smoothness=smoothness))
+    if not isinstance(volume, Volume):
+        raise TypeError("volume: expected a sonoslice.Volume")
+    if not isinstance(probe, Probe):
+        raise TypeError("probe: expected a sonoslice.Probe")
+    f = np.ascontiguousarray(_arrays.real_array(frames, "frames"), dtype=np.float32)
+    if f.ndim == 2:
+        f = f[None]
+    if f.ndim != 3:
+        raise ValueError(f"frames: expected (N, H, W), got shape {f.shape}")
+    p = _arrays.pose_array(poses, world)
+    m = None if mask is None else np.ascontiguousarray(_arrays.real_array(mask, "mask") != 0, dtype=np.uint8)
+    refined, report = _ext.register_frames(volume._cpp, probe._cpp, f, p, mask=m, settings=s)
+    return np.ascontiguousarray(_arrays.pose_to_lps(refined, world)), _report(report)

@@ -1,0 +1,126 @@
+"""Settings own their defaults and their choices (the library resolves them, Python passes what its
+caller gave), errors name the setting as Python spells it (never a CLI flag), and dicts of settings
+go through the library's parsers."""
+import math
+
+import numpy as np
+import pytest
+
+import sonoslice
+
+
+# ---- registration --------------------------------------------------------------------------------
+def test_registration_settings_choose_the_optimizer_per_metric():
+    s = sonoslice.RegistrationSettings()
+    assert s.metric == sonoslice.RegistrationMetric.ncc and s.optimizer is None
+    assert s.resolved().optimizer == sonoslice.RegistrationOptimizer.lm
+    for metric, optimizer in (("ssd", "lm"), ("ncc", "lm"), ("lncc", "bobyqa"), ("mi", "bobyqa"), ("lc2", "bobyqa")):
+        m = sonoslice.RegistrationMetric[metric]
+        assert str(sonoslice._ext.default_optimizer(m)) == optimizer
+        try:
+            resolved = sonoslice.RegistrationSettings(metric=m).resolved()
+        except ValueError as e:  # a build without NLopt says so, naming the setting
+            assert "optimizer bobyqa" in str(e) and "built without NLopt" in str(e)
+            continue
+        assert str(resolved.optimizer) == optimizer
+    given = sonoslice.RegistrationSettings(metric=sonoslice.RegistrationMetric.ssd,
+                                           optimizer=sonoslice.RegistrationOptimizer.gn)
+    assert given.resolved().optimizer == sonoslice.RegistrationOptimizer.gn
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(starts=0), "starts 0: must be at least 1"),
+    (dict(search_trans_mm=math.nan), "search_trans_mm nan: must be a finite distance"),
+    (dict(pyramid=[4, 0]), "pyramid 4,0: expected block sizes from 1 to 64"),
+    (dict(smoothness=-1.0), "smoothness -1: must be a finite weight"),
+    (dict(metric=sonoslice.RegistrationMetric.mi, optimizer=sonoslice.RegistrationOptimizer.gn),
+     "metric mi has no analytic derivatives: use optimizer bobyqa or nelder-mead"),
+])
+def test_registration_errors_name_the_setting(kwargs, message):
+    with pytest.raises(ValueError, match="^" + message) as e:
+        sonoslice.RegistrationSettings(**kwargs)
+    assert "--" not in str(e.value)
+
+
+def test_register_passes_only_what_it_is_given(phantom, poses):
+    ct, _ = phantom
+    probe = sonoslice.Probe.linear(24, 20, 1.0)
+    frames = sonoslice.Slicer(ct, probe).slice(poses[:2])
+    refined, report = sonoslice.register(ct, probe, frames, poses[:2], pyramid=(2, 1))
+    # The report says what ran: the library's defaults and its choice of optimiser.
+    assert (report["metric"], report["optimizer"], report["mode"], report["starts"]) == ("ncc", "lm", "per-frame", 1)
+    assert "smoothness" not in report and refined.shape == (2, 4, 4)
+    settings = sonoslice.RegistrationSettings(pyramid=[2, 1], metric=sonoslice.RegistrationMetric.ssd)
+    same, report = sonoslice.register(ct, probe, frames, poses[:2], settings=settings)
+    assert report["metric"] == "ssd" and report["optimizer"] == "lm"
+    with pytest.raises(TypeError, match="not both"):
+        sonoslice.register(ct, probe, frames, poses[:2], settings=settings, starts=2)
+    with pytest.raises(ValueError, match="^mode 'sweep': expected 'per-frame', 'rigid-sweep' or 'smooth-sweep'"):
+        sonoslice.register(ct, probe, frames, poses[:2], mode="sweep")
+
+
+# ---- simulation -----------------------------------------------------------------------------------
+def test_simulation_frequency_is_the_presets_else_5_mhz():
+    assert sonoslice.SimulationSettings().frequency_mhz is None
+    assert sonoslice.SimulationSettings().resolved().frequency_mhz == 5.0
+    assert sonoslice.SimulationSettings(preset="lus").resolved().frequency_mhz == 6.5
+    assert sonoslice.SimulationSettings(preset="lus", frequency_mhz=3.0).resolved().frequency_mhz == 3.0
+
+
+def test_simulator_reports_what_the_library_chose(phantom):
+    ct, labels = phantom
+    sim = sonoslice.Simulator(ct, sonoslice.Probe.workload("W1"))
+    assert sim.frequency == 5.0 and sim.kind == "ct" and sim.seed == 0
+    assert sim.settings.output == sonoslice.SimulationOutput.bmode and sim.settings.dynamic_range_db == 60
+    assert sonoslice.Simulator(labels, "lus", tissues=sonoslice.phantom_tissues()).kind == "labels"
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(preset="nope"), "preset nope: unknown (presets: abdominal"),
+    (dict(frequency_mhz=0.0), "frequency_mhz: frequency 0 MHz must be in (0, 100]"),
+    (dict(dynamic_range_db=-3.0), "dynamic_range_db: dynamic range -3 dB must be > 0"),
+    (dict(device="cuda"), "device cuda:0: simulation runs on the CPU only"),
+])
+def test_simulation_errors_name_the_setting(kwargs, message):
+    with pytest.raises(ValueError) as e:
+        sonoslice.SimulationSettings(**kwargs)
+    assert str(e.value).startswith(message) and "--" not in str(e.value), str(e.value)
+
+
+def test_tissue_tables_are_lists_of_tissues():
+    table = sonoslice.default_tissues()
+    assert all(isinstance(t, sonoslice.Tissue) for t in table) and len(table) == 10
+    liver = next(t for t in table if t.name == "liver")
+    assert dict(liver)["label"] == liver["label"] == liver.label == 4
+    assert list(dict(liver)) == ["name", "label", "impedance_mrayl", "attenuation_db_cm_mhz", "scatter_mean",
+                                 "scatter_density"]
+    assert eval(repr(liver), {"Tissue": sonoslice.Tissue}) == liver
+    assert sonoslice.Tissue(**dict(liver)) == liver
+    with pytest.raises(ValueError, match="impedance_mrayl must be > 0"):
+        sonoslice.Tissue(name="x", label=1, impedance_mrayl=-1.0)
+    # Dicts are read by the table files' parser: the same required keys and checks.
+    with pytest.raises(ValueError, match='missing "scatter_mean"'):
+        sonoslice._ext.tissue_table([dict(name="x", label=1, impedance_mrayl=1.5, attenuation_db_cm_mhz=0.5)])
+    assert sonoslice._ext.tissue_table([dict(t) for t in table]) == table
+    assert sonoslice._ext.tissue_table({"tissues": table}) == table
+
+
+# ---- pose samplers --------------------------------------------------------------------------------
+def test_sampler_settings_from_keywords_and_dicts_are_one_path():
+    d = {"type": "sweep", "motion": "fan", "step": 2.0, "frames": 3, "start": np.eye(4), "jitter_deg": 0.5}
+    a, b = sonoslice.SamplerSettings(**d), sonoslice.SamplerSettings.from_dict(d)
+    assert (a.type, a.motion, a.step, a.frames, a.jitter_deg) == ("sweep", "fan", 2.0, 3, 0.5)
+    assert np.array_equal(a.start, np.eye(4)) and a.base is None and repr(a) == repr(b)
+    probe = sonoslice.Probe.workload("W1")
+    seeds = [1, 2]
+    np.testing.assert_array_equal(sonoslice.PoseSampler(a, probe).sample(seeds),
+                                  sonoslice.PoseSampler(d, probe).sample(seeds))
+    skin = sonoslice.SamplerSettings(type="skin", tilt_deg=(-10, 10), reject={"min_body": 0.5})
+    assert skin.tilt_deg == (-10.0, 10.0) and skin.rotation_deg == (0.0, 360.0) and skin.reject.min_body == 0.5
+    for bad, message in (({"type": "skin", "tilt": 3}, "unknown key 'tilt'"),
+                         ({"type": "skin", "cone_deg": 3}, "does not apply to a skin sampler"),
+                         ({"type": "skin", "threshold_hu": math.nan}, "sampler.threshold_hu: expected a finite"),
+                         ({"type": "skin", "reject": {"min_body": object()}}, "sampler.reject.min_body")):
+        for make in (lambda: sonoslice.SamplerSettings(**bad), lambda: sonoslice.SamplerSettings.from_dict(bad)):
+            with pytest.raises(ValueError, match=message.replace(".", r"\.")):
+                make()
