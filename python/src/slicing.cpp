@@ -21,20 +21,16 @@ using namespace nb::literals;
 constexpr int kCpu = nb::device::cpu::value;
 constexpr int kCuda = nb::device::cuda::value;
 
-ProbeGeometry probe_grid(ProbeGeometry p, int width, int height, std::pair<double, double> spacing,
-                         std::optional<std::pair<double, double>> origin, const char* what) {
-  p.image.width = width;
-  p.image.height = height;
-  p.image.spacing_mm[0] = spacing.first;
-  p.image.spacing_mm[1] = spacing.second;
+/// The image grid of a probe made in Python: W × H pixels of spacing (sx, sy) mm, at `origin`
+/// or the default origin.
+ImageGrid image_grid(int width, int height, std::pair<double, double> spacing,
+                     std::optional<std::pair<double, double>> origin) {
+  ImageGrid g = ImageGrid::centred(width, height, spacing.first, spacing.second);
   if (origin) {
-    p.image.origin_mm[0] = origin->first;
-    p.image.origin_mm[1] = origin->second;
-  } else {
-    p.image.set_default_origin();
+    g.origin_mm[0] = origin->first;
+    g.origin_mm[1] = origin->second;
   }
-  p.validate(what);
-  return p;
+  return g;
 }
 
 /// The bound Slicer: a CPU slicer reads the volume's memory at every call, so it keeps what the
@@ -82,13 +78,11 @@ void bind_slicing(nb::module_& m) {
           [](double radius_mm, double depth_mm, double sector_deg, int width, int height,
              std::pair<double, double> spacing_mm, double face_y_mm,
              std::optional<std::pair<double, double>> origin_mm) {
-            ProbeGeometry p;
-            p.type = ProbeType::Curvilinear;
-            p.radius_mm = radius_mm;
-            p.depth_mm = depth_mm;
-            p.sector_deg = sector_deg;
-            p.face_y_mm = face_y_mm;
-            return probe_grid(p, width, height, spacing_mm, origin_mm, "curvilinear probe");
+            const ProbeGeometry p = ProbeGeometry::curvilinear(
+                radius_mm, depth_mm, sector_deg, image_grid(width, height, spacing_mm, origin_mm),
+                face_y_mm);
+            p.validate("curvilinear probe");
+            return p;
           },
           "radius_mm"_a, "depth_mm"_a, "sector_deg"_a, "width"_a, "height"_a, "spacing_mm"_a,
           nb::kw_only(), "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())
@@ -97,14 +91,10 @@ void bind_slicing(nb::module_& m) {
           [](int width, int height, std::pair<double, double> spacing_mm,
              std::optional<double> width_mm, std::optional<double> depth_mm, double face_y_mm,
              std::optional<std::pair<double, double>> origin_mm) {
-            ProbeGeometry p;
-            p.type = ProbeType::Linear;
-            p.has_width = width_mm.has_value();
-            p.width_mm = width_mm.value_or(0.0);
-            p.has_depth = depth_mm.has_value();
-            p.depth_mm = depth_mm.value_or(0.0);
-            p.face_y_mm = face_y_mm;
-            return probe_grid(p, width, height, spacing_mm, origin_mm, "linear probe");
+            const ProbeGeometry p = ProbeGeometry::linear(
+                image_grid(width, height, spacing_mm, origin_mm), width_mm, depth_mm, face_y_mm);
+            p.validate("linear probe");
+            return p;
           },
           "width"_a, "height"_a, "spacing_mm"_a, nb::kw_only(), "width_mm"_a = nb::none(),
           "depth_mm"_a = nb::none(), "face_y_mm"_a = 0.0, "origin_mm"_a = nb::none())

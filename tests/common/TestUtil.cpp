@@ -70,17 +70,9 @@ Mat3 rotation(Vec3 axis, double degrees) {
 
 ProbeGeometry curvilinear_probe(double radius_mm, double depth_mm, double sector_deg, int width,
                                 int height, double spacing_mm, double face_y_mm) {
-  ProbeGeometry p;
-  p.type = ProbeType::Curvilinear;
-  p.radius_mm = radius_mm;
-  p.depth_mm = depth_mm;
-  p.sector_deg = sector_deg;
-  p.face_y_mm = face_y_mm;
-  p.image.width = width;
-  p.image.height = height;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = spacing_mm;
-  p.image.set_default_origin();
-  return p;
+  return ProbeGeometry::curvilinear(radius_mm, depth_mm, sector_deg,
+                                    ImageGrid::centred(width, height, spacing_mm, spacing_mm),
+                                    face_y_mm);
 }
 
 VolumeGrid oblique_grid(std::array<int64_t, 3> dims) {
