@@ -1,0 +1,262 @@
+// Registration's optimisers (Optimizers.h): Gauss–Newton / Levenberg–Marquardt with a trust
+// region, BOBYQA and Nelder–Mead through NLopt, and multi-start from drawn increments.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <utility>
+#include <vector>
+
+#include "../core/Random.h"
+#include "Optimizers.h"
+
+#ifdef SONOSLICE_HAVE_NLOPT
+#include <nlopt.hpp>
+#endif
+
+namespace sonoslice {
+
+Pose apply_increment(const Pose& pose, const double xi[6], const Vec3& c) {
+  // Rotation by ω about c, then translation by v: w ↦ c + v + R(ω)·(w − c).
+  const Mat3 R = rotation_from_vector({xi[3], xi[4], xi[5]});
+  const Vec3 rc = R * c;
+  const Vec3 shift = {c[0] + xi[0] - rc[0], c[1] + xi[1] - rc[1], c[2] + xi[2] - rc[2]};
+  return Mat4::from_rotation_translation(R, shift) * pose;
+}
+
+namespace register_impl {
+namespace {
+
+/// Solves the 6×6 system A·x = b (Gaussian elimination with partial pivoting); false when it is
+/// singular.
+bool solve6(double A[36], double b[6], double x[6]) {
+  int order[6] = {0, 1, 2, 3, 4, 5};
+  for (int col = 0; col < 6; ++col) {
+    int best = col;
+    for (int r = col + 1; r < 6; ++r)
+      if (std::fabs(A[6 * order[r] + col]) > std::fabs(A[6 * order[best] + col])) best = r;
+    std::swap(order[col], order[best]);
+    const double pivot = A[6 * order[col] + col];
+    if (!(std::fabs(pivot) > 1e-300)) return false;
+    for (int r = col + 1; r < 6; ++r) {
+      const double m = A[6 * order[r] + col] / pivot;
+      for (int k = col; k < 6; ++k) A[6 * order[r] + k] -= m * A[6 * order[col] + k];
+      b[order[r]] -= m * b[order[col]];
+    }
+  }
+  for (int col = 5; col >= 0; --col) {
+    double s = b[order[col]];
+    for (int k = col + 1; k < 6; ++k) s -= A[6 * order[col] + k] * x[k];
+    x[col] = s / A[6 * order[col] + col];
+  }
+  for (int k = 0; k < 6; ++k)
+    if (!std::isfinite(x[k])) return false;
+  return true;
+}
+
+/// Start k's increment: k = 0 none; else a rotation of up to rot_deg about a random axis and a
+/// translation uniform in a ball of trans_mm, drawn from (seed, item, k).
+void start_increment(const RegistrationSettings& s, size_t item, int k, double xi[6]) {
+  for (int i = 0; i < 6; ++i) xi[i] = 0;
+  if (k == 0) return;
+  SplitMix64 rng(s.seed * 0x100000001B3ull + item * 1000003ull + uint64_t(k));
+  double axis[3], t[3], n2;
+  do {
+    for (double& a : axis) a = 2 * rng.uniform() - 1;
+    n2 = axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2];
+  } while (n2 > 1 || n2 < 1e-6);
+  do {
+    for (double& a : t) a = 2 * rng.uniform() - 1;
+  } while (t[0] * t[0] + t[1] * t[1] + t[2] * t[2] > 1);
+  const double angle = rng.uniform() * s.search_rot_deg * kPi / 180;
+  for (int i = 0; i < 3; ++i) {
+    xi[i] = t[i] * s.search_trans_mm;
+    xi[3 + i] = axis[i] / std::sqrt(n2) * angle;
+  }
+}
+
+/// The trust region: at most this far (mm) and this much turn (degrees) per step.
+constexpr double kMaxStepMm = 2, kMaxStepDeg = 2;
+
+/// BOBYQA or Nelder–Mead (NLopt) on the correction X, level by level: the metric alone, as a
+/// function of an increment about the frame's centre; the first level's initial step is
+/// kMaxStepMm and kMaxStepDeg, halved at each finer level. An evaluation is an iteration.
+Outcome optimise_derivative_free(const Problem& p, const RegistrationSettings& s, const Pose& start,
+                                 const Vec3& centre) {
+  Outcome out;
+  Pose X = start;
+#ifdef SONOSLICE_HAVE_NLOPT
+  double step_mm = kMaxStepMm, step_rad = kMaxStepDeg * kPi / 180;
+  for (int f : s.pyramid) {
+    const Pose level_start = X;
+    const Vec3 c = X.transform_point(centre);
+    nlopt::opt opt(
+        s.optimizer == RegistrationOptimizer::Bobyqa ? nlopt::LN_BOBYQA : nlopt::LN_NELDERMEAD, 6);
+    struct Context {
+      const Problem* p;
+      const RegistrationSettings* s;
+      const Pose* base;
+      Vec3 c;
+      int f;
+      Outcome* out;
+    } ctx{&p, &s, &level_start, c, f, &out};
+    opt.set_min_objective(
+        [](unsigned, const double* x, double*, void* data) {
+          const Context& k = *static_cast<Context*>(data);
+          k.out->evaluations += k.p->frames_per_evaluation;
+          ++k.out->iterations;
+          const double cost = k.p->cost(apply_increment(*k.base, x, k.c), k.f);
+          return std::isfinite(cost) ? cost : 1e30;  // NLopt's models need finite values
+        },
+        &ctx);
+    opt.set_initial_step(
+        std::vector<double>{step_mm, step_mm, step_mm, step_rad, step_rad, step_rad});
+    const double tol_rad = s.tolerance_deg * kPi / 180;
+    opt.set_xtol_abs(std::vector<double>{s.tolerance_mm, s.tolerance_mm, s.tolerance_mm, tol_rad,
+                                         tol_rad, tol_rad});
+    opt.set_maxeval(20 * s.max_iterations);
+    std::vector<double> x(6, 0.0);
+    double best = 0;
+    try {
+      opt.optimize(x, best);
+    } catch (const std::exception&) {
+      // NLopt reports a stop it cannot explain (round-off, a forced stop) as an exception; the
+      // best point it found is in x either way.
+    }
+    X = apply_increment(level_start, x.data(), c);
+    step_mm /= 2;
+    step_rad /= 2;
+  }
+#else
+  (void)p;
+  (void)centre;
+  throw InputError("optimizer: this sonoslice was built without NLopt");
+#endif
+  out.correction = X;
+  out.cost = p.cost(X, 1);
+  out.evaluations += p.frames_per_evaluation;
+  return out;
+}
+
+/// Gauss–Newton or Levenberg–Marquardt on the correction X (poses X·T), level by level.
+Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& start,
+                 const Vec3& centre) {
+  if (s.optimizer == RegistrationOptimizer::Bobyqa ||
+      s.optimizer == RegistrationOptimizer::NelderMead)
+    return optimise_derivative_free(p, s, start, centre);
+  Outcome out;
+  Pose X = start;
+  const double tol_rad = s.tolerance_deg * kPi / 180;
+  for (int f : s.pyramid) {
+    double lambda = 1e-3;
+    for (int it = 0; it < s.max_iterations; ++it) {
+      // The centre moves with the correction: turn about where the frame now is.
+      const Vec3 c = X.transform_point(centre);
+      double g[6], H[36];
+      const PoseTerms t = p.terms(X, f, c, true);
+      out.evaluations += p.frames_per_evaluation;
+      const double cost = metric_cost(s.metric, t, g, H);
+      if (!std::isfinite(cost)) break;
+      ++out.iterations;
+      bool moved = false, converged = false;
+      for (int attempt = 0; attempt < 12; ++attempt) {
+        double A[36], b[6], xi[6];
+        const double damping =
+            s.optimizer == RegistrationOptimizer::LevenbergMarquardt ? lambda : 0;
+        for (int k = 0; k < 36; ++k) A[k] = H[k];
+        for (int k = 0; k < 6; ++k) {
+          A[7 * k] += damping * H[7 * k] + 1e-12 * (1 + std::fabs(H[7 * k]));
+          b[k] = -g[k];
+        }
+        if (!solve6(A, b, xi)) {
+          lambda *= 10;
+          continue;
+        }
+        double step_mm, step_rad;
+        limit_step(s, attempt, xi, &step_mm, &step_rad);
+        const Pose candidate = apply_increment(X, xi, c);
+        const double tried = p.cost(candidate, f);
+        out.evaluations += p.frames_per_evaluation;
+        if (tried < cost) {
+          X = candidate;
+          lambda = std::max(lambda / 3, 1e-9);
+          moved = true;
+          converged = step_mm < s.tolerance_mm && step_rad < tol_rad;
+          break;
+        }
+        if (step_mm < s.tolerance_mm && step_rad < tol_rad) {
+          converged = true;  // no better point within the tolerance
+          break;
+        }
+        lambda *= 4;
+      }
+      if (!moved || converged) break;
+    }
+  }
+  out.correction = X;
+  out.cost = p.cost(X, 1);
+  out.evaluations += p.frames_per_evaluation;
+  return out;
+}
+
+/// Candidate starting points screened per start: the metric alone (no derivatives) at the
+/// coarsest level is cheap, so many draws are ranked and the best settings.starts optimised.
+constexpr int kCandidatesPerStart = 64;
+
+}  // namespace
+
+void limit_step(const RegistrationSettings& s, int attempt, double xi[6], double* mm, double* rad) {
+  if (s.optimizer == RegistrationOptimizer::GaussNewton)
+    for (int k = 0; k < 6; ++k) xi[k] *= std::pow(0.5, attempt);
+  const double t_len = std::sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2]);
+  const double r_len = std::sqrt(xi[3] * xi[3] + xi[4] * xi[4] + xi[5] * xi[5]);
+  const double shrink = std::min({1.0, kMaxStepMm / std::max(t_len, 1e-300),
+                                  kMaxStepDeg * kPi / 180 / std::max(r_len, 1e-300)});
+  for (int k = 0; k < 6; ++k) xi[k] *= shrink;
+  *mm = t_len * shrink;
+  *rad = r_len * shrink;
+}
+
+Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,
+                    const Vec3& centre) {
+  int64_t evaluations = 0, iterations = 0;
+  std::vector<std::pair<double, Pose>> candidates;
+  const int draws = s.starts == 1 ? 1 : s.starts * kCandidatesPerStart;
+  for (int k = 0; k < draws; ++k) {
+    double xi[6];
+    start_increment(s, item, k, xi);
+    const Pose X = apply_increment(Pose::identity(), xi, centre);
+    double cost = 0;
+    if (draws > 1) {
+      cost = p.cost(X, s.pyramid.front());
+      evaluations += p.frames_per_evaluation;
+    }
+    candidates.emplace_back(std::isfinite(cost) ? cost : std::numeric_limits<double>::max(), X);
+  }
+  // Stable: equal costs keep their draw order (the initial pose first).
+  std::stable_sort(candidates.begin(), candidates.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  Outcome best;
+  for (int k = 0; k < s.starts && k < int(candidates.size()); ++k) {
+    const Outcome o = optimise(p, s, candidates[size_t(k)].second, centre);
+    evaluations += o.evaluations;
+    iterations += o.iterations;
+    if (k == 0 || o.cost < best.cost) best = o;
+  }
+  best.evaluations = evaluations;
+  best.iterations = iterations;
+  return best;
+}
+
+bool invert6(const double A[36], double out[36]) {
+  for (int c = 0; c < 6; ++c) {
+    double M[36], b[6] = {0, 0, 0, 0, 0, 0}, x[6];
+    std::copy(A, A + 36, M);
+    b[c] = 1;
+    if (!solve6(M, b, x)) return false;
+    for (int r = 0; r < 6; ++r) out[6 * r + c] = x[r];
+  }
+  return true;
+}
+
+}  // namespace register_impl
+}  // namespace sonoslice

@@ -1,0 +1,68 @@
+#pragma once
+// Internal: registration's optimisers. One optimisation moves a correction X (applied to the
+// initial pose or poses, X·T) coarse to fine: Gauss–Newton / Levenberg–Marquardt from the
+// analytic derivatives, or BOBYQA / Nelder–Mead (NLopt) from the metric alone, with multi-start
+// (Optimizers.cpp); smooth-sweep refines every frame's correction jointly with a smoothness prior
+// (SmoothSweep.cpp). The driver (Registration.cpp) says what is optimised.
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <vector>
+
+#include "sonoslice/register/Registration.h"
+
+namespace sonoslice {
+namespace register_impl {
+
+/// What one optimisation of one item (a frame, or the sweep) needs, as functions of the
+/// correction X: its terms (summed over its frames; SSD and NCC) and its cost (any metric).
+struct Problem {
+  std::function<PoseTerms(const Pose& correction, int level, const Vec3& centre, bool gradients)>
+      terms;
+  std::function<double(const Pose& correction, int level)> cost;
+  int64_t frames_per_evaluation = 1;
+};
+
+struct Outcome {
+  Pose correction;  // the increment applied to the initial pose(s), world frame
+  double cost = std::numeric_limits<double>::infinity();
+  int64_t evaluations = 0, iterations = 0;
+};
+
+/// The best of settings.starts optimisations of `p` about `centre` (the frame's or the sweep's
+/// centre); `item` seeds the drawn starts (a frame's index, or 0 for a sweep).
+Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,
+                    const Vec3& centre);
+
+/// Shapes a solved step ξ in place: halved `attempt` times for Gauss–Newton (backtracking), then
+/// shrunk into the trust region (at most 2 mm and 2°, so that one step on a flat stretch of the
+/// metric cannot throw the frame far away). Gives the step's length in mm and rad.
+void limit_step(const RegistrationSettings& s, int attempt, double xi[6], double* mm, double* rad);
+
+/// Inverts a 6×6 matrix (false when singular).
+bool invert6(const double A[36], double out[36]);
+
+/// smooth-sweep: per-frame corrections X_i, refined jointly. The cost is Σ cost_i(X_i) plus the
+/// prior Σ_i (d_{i+1} − d_i)ᵀ·W·(d_{i+1} − d_i), d_i = (X_i·c_i − c_i, rotation vector of X_i)
+/// with c_i frame i's centre. A Gauss–Newton step moves frame i by ξ_i about its current centre,
+/// which changes d_i by (v_i, ≈ ω_i), so the linearised system is block tridiagonal:
+/// (H_i + 2·deg_i·W)·ξ_i − 2W·(ξ_{i−1} + ξ_{i+1}) = −g_i − 2W·Σ_j (d_i − d_j), solved exactly by
+/// block elimination along the sweep. Frames outside the volume (infinite cost) follow their
+/// neighbours. Per level, W = smoothness × the mean of the frames' Gauss–Newton diagonals.
+struct SweepTerms {
+  std::function<PoseTerms(size_t frame, const Pose& correction, int level, const Vec3& centre,
+                          bool gradients)>
+      terms;
+  std::vector<Vec3> centres;  // each frame's centre at its initial pose (world)
+};
+
+struct SweepOutcome {
+  std::vector<Pose> corrections;
+  std::vector<double> costs;                // each frame's own final cost at full resolution
+  int64_t evaluations = 0, iterations = 0;  // per frame
+};
+
+SweepOutcome smooth_sweep(const SweepTerms& p, const RegistrationSettings& s, const Pose& start);
+
+}  // namespace register_impl
+}  // namespace sonoslice

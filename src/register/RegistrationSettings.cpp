@@ -1,0 +1,148 @@
+// Registration's settings: the spelling of its choices, the optimizer each metric gets by
+// default, and the checks that name the setting (include/sonoslice/register/Registration.h).
+#include <cmath>
+#include <sstream>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/register/Registration.h"
+
+namespace sonoslice {
+
+RegistrationMetric parse_registration_metric(const std::string& name, const std::string& what) {
+  for (RegistrationMetric m :
+       {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
+        RegistrationMetric::MI, RegistrationMetric::LC2})
+    if (name == to_string(m)) return m;
+  throw InputError(what + " " + name + ": expected ssd, ncc, lncc, mi or lc2");
+}
+
+bool built_with_nlopt() {
+#ifdef SONOSLICE_HAVE_NLOPT
+  return true;
+#else
+  return false;
+#endif
+}
+
+RegistrationOptimizer parse_registration_optimizer(const std::string& name,
+                                                   const std::string& what) {
+  for (RegistrationOptimizer o :
+       {RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
+        RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead})
+    if (name == to_string(o)) return o;
+  throw InputError(what + " " + name + ": expected gn, lm, bobyqa or nelder-mead");
+}
+
+RegistrationMode parse_registration_mode(const std::string& name, const std::string& what) {
+  for (RegistrationMode m :
+       {RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep})
+    if (name == to_string(m)) return m;
+  throw InputError(what + " " + name + ": expected per-frame, rigid-sweep or smooth-sweep");
+}
+
+const char* to_string(RegistrationMetric metric) {
+  switch (metric) {
+    case RegistrationMetric::SSD:
+      return "ssd";
+    case RegistrationMetric::NCC:
+      return "ncc";
+    case RegistrationMetric::LNCC:
+      return "lncc";
+    case RegistrationMetric::MI:
+      return "mi";
+    case RegistrationMetric::LC2:
+      return "lc2";
+  }
+  return "?";
+}
+
+const char* to_string(RegistrationOptimizer optimizer) {
+  switch (optimizer) {
+    case RegistrationOptimizer::GaussNewton:
+      return "gn";
+    case RegistrationOptimizer::LevenbergMarquardt:
+      return "lm";
+    case RegistrationOptimizer::Bobyqa:
+      return "bobyqa";
+    case RegistrationOptimizer::NelderMead:
+      return "nelder-mead";
+  }
+  return "?";
+}
+
+const char* to_string(RegistrationMode mode) {
+  switch (mode) {
+    case RegistrationMode::PerFrame:
+      return "per-frame";
+    case RegistrationMode::RigidSweep:
+      return "rigid-sweep";
+    case RegistrationMode::SmoothSweep:
+      return "smooth-sweep";
+  }
+  return "?";
+}
+
+bool metric_has_derivatives(RegistrationMetric metric) {
+  return metric == RegistrationMetric::SSD || metric == RegistrationMetric::NCC;
+}
+
+RegistrationOptimizer default_optimizer(RegistrationMetric metric) {
+  return metric_has_derivatives(metric) ? RegistrationOptimizer::LevenbergMarquardt
+                                        : RegistrationOptimizer::Bobyqa;
+}
+
+RegistrationSettings RegistrationSettings::resolved() const {
+  RegistrationSettings s = *this;
+  if (!s.optimizer) s.optimizer = default_optimizer(metric);
+  return s;
+}
+
+void RegistrationSettings::validate(const ParameterNames& names) const {
+  const auto name = [&](const char* setting) { return spelled(names, setting); };
+  const auto number = [](double v) {
+    std::ostringstream out;
+    out << v;
+    return out.str();
+  };
+  if (starts < 1)
+    throw InputError(name("starts") + " " + std::to_string(starts) + ": must be at least 1");
+  if (!(search_rot_deg >= 0 && search_rot_deg <= 180))
+    throw InputError(name("search_rot_deg") + " " + number(search_rot_deg) +
+                     ": must be in [0, 180] degrees");
+  if (!(search_trans_mm >= 0 && std::isfinite(search_trans_mm)))
+    throw InputError(name("search_trans_mm") + " " + number(search_trans_mm) +
+                     ": must be a finite distance >= 0 mm");
+  if (pyramid.empty()) throw InputError(name("pyramid") + ": needs at least one level");
+  for (int f : pyramid)
+    if (f < 1 || f > 64) {
+      std::string levels;
+      for (int g : pyramid) levels += (levels.empty() ? "" : ",") + std::to_string(g);
+      throw InputError(name("pyramid") + " " + levels +
+                       ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
+    }
+  if (max_iterations < 1) throw InputError(name("max_iterations") + ": must be at least 1");
+  if (!(tolerance_mm > 0) || !(tolerance_deg > 0))
+    throw InputError(name("tolerance_mm") + " and " + name("tolerance_deg") + ": must be > 0");
+  const RegistrationOptimizer o = optimizer ? *optimizer : default_optimizer(metric);
+  const bool derivative_based =
+      o == RegistrationOptimizer::GaussNewton || o == RegistrationOptimizer::LevenbergMarquardt;
+  if (!metric_has_derivatives(metric) && derivative_based)
+    throw InputError(name("metric") + " " + to_string(metric) +
+                     " has no analytic derivatives: use " + name("optimizer") +
+                     " bobyqa or nelder-mead");
+  if (!derivative_based && !built_with_nlopt())
+    throw InputError(
+        name("optimizer") + " " + to_string(o) +
+        (optimizer ? "" : " (the default for " + name("metric") + " " + to_string(metric) + ")") +
+        ": this sonoslice was built without NLopt (Debian: libnlopt-cxx-dev)");
+  if (!(smoothness >= 0 && std::isfinite(smoothness)))
+    throw InputError(name("smoothness") + " " + number(smoothness) +
+                     ": must be a finite weight >= 0");
+  if (mode == RegistrationMode::SmoothSweep &&
+      !(metric_has_derivatives(metric) && derivative_based))
+    throw InputError(name("mode") + " smooth-sweep: needs " + name("metric") + " ssd or ncc with " +
+                     name("optimizer") +
+                     " lm or gn (all frames are solved jointly from their analytic derivatives)");
+}
+
+}  // namespace sonoslice

@@ -1,0 +1,54 @@
+#pragma once
+// Internal: what a FrameRegistration holds (the probe, the float volume, the pyramid of frames
+// and volume, each frame's centre, MI's intensity ranges), shared by its stages: the pyramid
+// (Pyramid.cpp), the metrics (Metrics.cpp) and the driver (Registration.cpp).
+#include <array>
+#include <deque>
+#include <string>
+#include <vector>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/register/Registration.h"
+
+namespace sonoslice {
+namespace register_impl {
+
+/// One pyramid level: every frame and the mask averaged over f² pixel blocks, the volume over
+/// g³ voxel blocks, g the largest whole number of voxels within f pixels (at least 1): a volume
+/// already coarser than the blocks is not averaged again.
+struct Level {
+  int f = 1, g = 1;
+  std::vector<float> volume_copy;  // empty: the full-resolution float volume, shared
+  const float* volume = nullptr;
+  int nx = 0, ny = 0, nz = 0;
+  std::vector<float> frames;   // count × w × h
+  std::vector<uint8_t> masks;  // count × w × h (fan ∧ user ∧ finite)
+  int width = 0, height = 0;
+};
+
+}  // namespace register_impl
+
+struct FrameRegistration::State {
+  ProbeGeometry probe;
+  VolumeGrid grid;
+  Mat3 L;  // world → index, linear (the gradients' chain rule)
+  size_t count = 0;
+  Volume volume;                            // float32: the caller's (shared) or a converted copy
+  std::deque<register_impl::Level> levels;  // only added to: references to a level stay valid
+  std::vector<Vec3> mask_centre;  // per frame: the centroid of its compared pixels (probe mm)
+  // MI's intensity ranges: the volume's and each frame's 1st and 99th percentiles.
+  double volume_range[2] = {0, 1};
+  std::vector<std::array<double, 2>> frame_range;
+
+  const register_impl::Level& level(int f) const {
+    for (const register_impl::Level& l : levels)
+      if (l.f == f) return l;
+    throw InputError("pyramid: level " + std::to_string(f) + " was not prepared");
+  }
+  /// Level f, made when first asked for: level 1 from the caller's frames and the H×W mask,
+  /// the others from level 1.
+  const register_impl::Level& make_level(int f, const float* frames = nullptr,
+                                         const uint8_t* mask = nullptr);
+};
+
+}  // namespace sonoslice
