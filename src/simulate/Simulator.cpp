@@ -187,100 +187,90 @@ double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2
   return sum > 0 ? n / sum : 1.0;
 }
 
-}  // namespace simulate_impl
+namespace {
 
-using simulate_impl::ImageModel;
-using simulate_impl::Model;
-using simulate_impl::Props;
-
-Simulator::Simulator(Volume volume, SimulationSource source,
-                     std::optional<ProbeGeometry> given_probe, std::vector<Tissue> tissues,
-                     SimulationSettings requested)
-    : model_(std::make_unique<Model>()) {
-  const SimulationSettings settings = requested.resolved();
-  if (!given_probe && !settings.preset) throw InputError("probe: give a probe or a preset");
-  const ProbeGeometry probe =
-      given_probe ? *given_probe : simulation_preset(*settings.preset).probe;
-  probe.validate("probe");
-  Model& m = *model_;
-  m.source = source;
-  m.probe = probe;
-  m.settings = settings;
-  m.mask = probe.mask();
-  const VolumeGrid grid = volume.grid();
-  ImageModel& b = m.base;
-  b.grid = geometry::VolumeView::of(grid.dims[0], grid.dims[1], grid.dims[2]);
-  const int64_t voxels = grid.voxel_count();
-
-  if (source == SimulationSource::Labels) {
-    if (volume.pixel_type() != PixelType::UInt8 && volume.pixel_type() != PixelType::UInt16)
-      throw InputError("labels: a label volume is uint8 or uint16, this one is " +
-                       to_string(volume.pixel_type()));
-    validate_tissues(tissues, "tissues");
-    // Which labels the volume holds: each must be in the table.
-    std::vector<uint8_t> present(65536, 0);
-    const bool wide = volume.pixel_type() == PixelType::UInt16;
-    for (int64_t i = 0; i < voxels; ++i)
-      present[wide ? volume.data_as<uint16_t>()[i] : volume.data_as<uint8_t>()[i]] = 1;
-    m.label_props.assign(65536, b.outside);
-    std::vector<uint8_t> known(65536, 0);
-    for (const Tissue& t : tissues) {
-      m.label_props[size_t(t.label)] = simulate_impl::props_of(t);
-      known[size_t(t.label)] = 1;
-    }
-    for (int l = 0; l < 65536; ++l)
-      if (present[size_t(l)] && !known[size_t(l)])
-        throw InputError("tissues: the label volume holds label " + std::to_string(l) +
-                         ", which the tissue table does not list");
-    if (!wide) {  // the kernel reads uint16 labels
-      Volume widened = Volume::allocate(PixelType::UInt16, grid);
-      std::copy(volume.data_as<uint8_t>(), volume.data_as<uint8_t>() + voxels,
-                widened.data_as<uint16_t>());
-      volume = std::move(widened);
-    }
-    b.labels = volume.data_as<uint16_t>();
-    b.label_props = m.label_props.data();
-  } else {
-    // The kernel reads a float32 or int16 volume as it is (shared); others are converted to
-    // float once.
-    if (volume.pixel_type() == PixelType::Float32) {
-      b.hu = volume.data_as<float>();
-    } else if (volume.pixel_type() == PixelType::Int16) {
-      b.hu16 = volume.data_as<int16_t>();
-    } else {
-      volume = volume.converted(PixelType::Float32);  // kept in m.volume below
-      b.hu = volume.data_as<float>();
-    }
-    b.hu_min = -1024;
-    b.hu_count = 4096 + 1024;  // -1024 .. 4095 HU
-    for (int k = 0; k < b.hu_count; ++k)
-      m.hu_table.push_back(simulate_impl::props_of(tissue_from_hu(b.hu_min + k)));
-    b.hu_table = m.hu_table.data();
+/// The point-spread function's widths (FWHM, mm) at wavelength λ: the settings' where given,
+/// else from the frequency (docs/simulation.md §3).
+struct Psf {
+  double lambda, axial, lateral, elevation;
+  Psf(const SimulationSettings& settings, double wavelength_mm)
+      : lambda(wavelength_mm),
+        axial(settings.axial_fwhm_mm > 0 ? settings.axial_fwhm_mm : lambda),
+        lateral(settings.lateral_fwhm_mm > 0 ? settings.lateral_fwhm_mm : 2 * lambda),
+        elevation(settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda) {}
+  /// The speckle field is already smooth at the lattice's scale: trilinear interpolation between
+  /// nodes λ apart is a triangle kernel of variance λ²/6 along any direction. The speckle's
+  /// filters add what is missing, so that the speckle's size is the PSF's (validation 2).
+  double speckle_filter_sigma(double fwhm) const {
+    const double s = fwhm * kFwhmToSigma;
+    return std::sqrt(std::max(s * s - lambda * lambda / 6, 0.0));
   }
-  m.volume = std::move(volume);
+  double sigma_elevation() const { return elevation * kFwhmToSigma; }
+};
 
-  // Wavelength, sampling and the point-spread function (docs/simulation.md §3).
-  const ImageGrid& img = probe.image;
-  const double frequency_mhz = *settings.frequency_mhz;  // resolved() chose it
-  const double lambda = simulate_impl::kSoundSpeedMmPerUs / frequency_mhz;
-  b.frequency_mhz = float(frequency_mhz);
-  b.wavelength_mm = lambda;
+/// A label volume: every label it holds must be in the tissue table; the kernel reads uint16
+/// labels (a uint8 volume is widened once) and their properties from a 65536-entry table.
+void set_label_source(Model& m, Volume& volume, const std::vector<Tissue>& tissues) {
+  ImageModel& b = m.base;
+  const VolumeGrid grid = volume.grid();
+  const int64_t voxels = grid.voxel_count();
+  if (volume.pixel_type() != PixelType::UInt8 && volume.pixel_type() != PixelType::UInt16)
+    throw InputError("labels: a label volume is uint8 or uint16, this one is " +
+                     to_string(volume.pixel_type()));
+  validate_tissues(tissues, "tissues");
+  // Which labels the volume holds: each must be in the table.
+  std::vector<uint8_t> present(65536, 0);
+  const bool wide = volume.pixel_type() == PixelType::UInt16;
+  for (int64_t i = 0; i < voxels; ++i)
+    present[wide ? volume.data_as<uint16_t>()[i] : volume.data_as<uint8_t>()[i]] = 1;
+  m.label_props.assign(65536, b.outside);
+  std::vector<uint8_t> known(65536, 0);
+  for (const Tissue& t : tissues) {
+    m.label_props[size_t(t.label)] = simulate_impl::props_of(t);
+    known[size_t(t.label)] = 1;
+  }
+  for (int l = 0; l < 65536; ++l)
+    if (present[size_t(l)] && !known[size_t(l)])
+      throw InputError("tissues: the label volume holds label " + std::to_string(l) +
+                       ", which the tissue table does not list");
+  if (!wide) {  // the kernel reads uint16 labels
+    Volume widened = Volume::allocate(PixelType::UInt16, grid);
+    std::copy(volume.data_as<uint8_t>(), volume.data_as<uint8_t>() + voxels,
+              widened.data_as<uint16_t>());
+    volume = std::move(widened);
+  }
+  b.labels = volume.data_as<uint16_t>();
+  b.label_props = m.label_props.data();
+}
+
+/// A CT in HU: read in place when float32 or int16, else converted to float once; properties
+/// from the HU knots' table at every integer HU.
+void set_ct_source(Model& m, Volume& volume) {
+  ImageModel& b = m.base;
+  // The kernel reads a float32 or int16 volume as it is (shared); others are converted to
+  // float once.
+  if (volume.pixel_type() == PixelType::Float32) {
+    b.hu = volume.data_as<float>();
+  } else if (volume.pixel_type() == PixelType::Int16) {
+    b.hu16 = volume.data_as<int16_t>();
+  } else {
+    volume = volume.converted(PixelType::Float32);  // kept in m.volume below
+    b.hu = volume.data_as<float>();
+  }
+  b.hu_min = -1024;
+  b.hu_count = 4096 + 1024;  // -1024 .. 4095 HU
+  for (int k = 0; k < b.hu_count; ++k)
+    m.hu_table.push_back(simulate_impl::props_of(tissue_from_hu(b.hu_min + k)));
+  b.hu_table = m.hu_table.data();
+}
+
+/// Sampling along the beams and interfaces: the axial step, the impedance-gradient reach and
+/// the reflection threshold at that step.
+void set_sampling(ImageModel& b, const VolumeGrid& grid, const ImageGrid& img, double lambda) {
   // The axial step: two samples per image row, between λ/4 and λ/2. The complex echo's
   // spectrum (the PSF's, axial FWHM λ) is sampled at λ/2 or finer; a finer step only matters
   // when the image's rows are finer.
   b.step_mm = float(std::min(lambda / 2, std::max(lambda / 4, img.spacing_mm[1] / 2)));
-  const double axial = settings.axial_fwhm_mm > 0 ? settings.axial_fwhm_mm : lambda;
-  const double lateral = settings.lateral_fwhm_mm > 0 ? settings.lateral_fwhm_mm : 2 * lambda;
-  const double elevation = settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda;
-  // The speckle field is already smooth at the lattice's scale: trilinear interpolation between
-  // nodes λ apart is a triangle kernel of variance λ²/6 along any direction. The filters add
-  // what is missing, so that the speckle's size is the PSF's (validation 2).
-  const double lattice_var = lambda * lambda / 6;
-  const auto filter_sigma = [&](double fwhm) {
-    const double s = fwhm * simulate_impl::kFwhmToSigma;
-    return std::sqrt(std::max(s * s - lattice_var, 0.0));
-  };
-  b.sigma_lateral_speckle_mm = filter_sigma(lateral);
   // Interface normals from impedance differences over a millimetre-scale neighbourhood: at
   // least two voxels, so that a voxelised oblique surface shows its slope, not its stairs.
   b.gradient_mm =
@@ -288,16 +278,18 @@ Simulator::Simulator(Volume volume, SimulationSource source,
                      2 * std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]})));
   b.gradient_reuse = int(b.gradient_mm / (2 * b.step_mm));
   const double quarter_steps = b.step_mm / (lambda / 4);
-  b.min_reflection = float(simulate_impl::kMinReflection * quarter_steps * quarter_steps);
-  const double sigma_el = elevation * simulate_impl::kFwhmToSigma;
-  // The slice thickness: elevation samples about a lattice step apart over ±1.5σ, Gaussian
-  // weights (a quadrature of the beam's elevation profile, so that a small elevational move
-  // changes the sum smoothly), normalised to unit variance for independent samples.
-  const int half =
-      std::min(simulate_impl::kMaxElevations / 2 - 1, int(std::ceil(1.5 * sigma_el / lambda)));
+  b.min_reflection = float(kMinReflection * quarter_steps * quarter_steps);
+}
+
+/// The slice thickness: elevation samples about a lattice step apart over ±1.5σ, Gaussian
+/// weights (a quadrature of the beam's elevation profile, so that a small elevational move
+/// changes the sum smoothly), normalised to unit variance for independent samples.
+void set_slice_thickness(ImageModel& b, const Psf& psf) {
+  const double sigma_el = psf.sigma_elevation(), lambda = psf.lambda;
+  const int half = std::min(kMaxElevations / 2 - 1, int(std::ceil(1.5 * sigma_el / lambda)));
   b.elevations = 2 * half + 1;
   double wsum = 0;
-  double weights[simulate_impl::kMaxElevations];
+  double weights[kMaxElevations];
   for (int e = 0; e < b.elevations; ++e) {
     const double offset = (e - half) * (1.5 * sigma_el / std::max(half, 1));
     b.elevation_mm[e] = float(offset);
@@ -306,12 +298,17 @@ Simulator::Simulator(Volume volume, SimulationSource source,
   }
   for (int e = 0; e < b.elevations; ++e)
     b.elevation_weight[e] = float(weights[e] / std::sqrt(wsum));
+}
 
-  // The speckle lattice: one node per wavelength in the volume frame, two co-prime tiles.
+/// The speckle lattice: one node per wavelength in the volume frame, two co-prime tiles drawn
+/// from the seed, covering the volume and the slice thickness around it.
+void set_speckle_lattice(Model& m, const VolumeGrid& grid, const Psf& psf, uint64_t seed) {
+  ImageModel& b = m.base;
+  const double lambda = psf.lambda;
   for (int k = 0; k < 3; ++k) b.lattice_per_index[k] = grid.spacing_mm[k] / lambda;
   // Lattice coordinates met: the volume (noise is drawn only inside it) and the slice thickness
   // around it, plus a margin.
-  const double reach = 1.5 * sigma_el / lambda + 4;
+  const double reach = 1.5 * psf.sigma_elevation() / lambda + 4;
   int extent = 0;
   for (int k = 0; k < 3; ++k)
     extent = std::max(extent, int(std::ceil(double(grid.dims[k]) * b.lattice_per_index[k])));
@@ -319,12 +316,15 @@ Simulator::Simulator(Volume volume, SimulationSource source,
   b.lattice_offset = float(offset);
   b.lattice_count = count;
   for (int t = 0; t < 2; ++t) {
-    m.tiles[t] = simulate_impl::noise_tile(simulate_impl::kTileSizes[t],
-                                           settings.seed * 2 + uint64_t(t) + 1);
-    b.tiles[t] = simulate_impl::tile_view(m.tiles[t], simulate_impl::kTileSizes[t], offset);
+    m.tiles[t] = noise_tile(kTileSizes[t], seed * 2 + uint64_t(t) + 1);
+    b.tiles[t] = tile_view(m.tiles[t], kTileSizes[t], offset);
   }
+}
 
-  // Beams: one per image column, over the probe's shape.
+/// Beams: one per image column, over the probe's shape (angles about the apex for a fan,
+/// parallel lines for a linear probe), each long enough for the image's deepest row.
+void set_beams(ImageModel& b, const ProbeGeometry& probe) {
+  const ImageGrid& img = probe.image;
   b.width = img.width;
   b.height = img.height;
   b.beams = img.width;
@@ -347,23 +347,29 @@ Simulator::Simulator(Volume volume, SimulationSource source,
     throw InputError("probe: " + std::to_string(b.beams) + " beams of " +
                      std::to_string(b.samples) + " samples at " + std::to_string(b.step_mm) +
                      " mm is too many for one image");
+}
 
-  // The filters: axial in samples (peak 1: an echo keeps the pulse's amplitude), lateral per
-  // depth in beams (sum 1: a plane reflector across the beams keeps its amplitude).
-  m.axial_speckle = simulate_impl::gauss_taps(filter_sigma(axial) / b.step_mm, false, 48);
-  m.axial_specular =
-      simulate_impl::gauss_taps(axial * simulate_impl::kFwhmToSigma / b.step_mm, false, 48);
+/// The point-spread function as filters: axial in samples (peak 1: an echo keeps the pulse's
+/// amplitude), lateral per depth in beams (sum 1: a plane reflector across the beams keeps its
+/// amplitude); the speckle's filters add only what the lattice's smoothness lacks.
+void set_filters(Model& m, const Psf& psf) {
+  ImageModel& b = m.base;
+  b.sigma_lateral_speckle_mm = psf.speckle_filter_sigma(psf.lateral);
+  m.axial_speckle = gauss_taps(psf.speckle_filter_sigma(psf.axial) / b.step_mm, false, 48);
+  m.axial_specular = gauss_taps(psf.axial * kFwhmToSigma / b.step_mm, false, 48);
   b.axial_speckle = m.axial_speckle.data();
   b.axial_speckle_radius = int(m.axial_speckle.size() / 2);
   b.axial_specular = m.axial_specular.data();
   b.axial_specular_radius = int(m.axial_specular.size() / 2);
-  b.lateral_radius = std::max(
-      simulate_impl::lateral_table(b, b.sigma_lateral_speckle_mm, m.lateral_speckle),
-      simulate_impl::lateral_table(b, lateral * simulate_impl::kFwhmToSigma, m.lateral_specular));
+  b.lateral_radius = std::max(lateral_table(b, b.sigma_lateral_speckle_mm, m.lateral_speckle),
+                              lateral_table(b, psf.lateral * kFwhmToSigma, m.lateral_specular));
   b.lateral_speckle = m.lateral_speckle.data();
   b.lateral_specular = m.lateral_specular.data();
+}
 
-  // Scan conversion: each pixel's place in the (beam, sample) grid, once.
+/// Scan conversion: each pixel's place in the (beam, sample) grid, once.
+void set_scan_conversion(Model& m, const ImageGrid& img) {
+  ImageModel& b = m.base;
   const int64_t pixels = int64_t(img.width) * img.height;
   m.scan_index.assign(size_t(pixels), 0);
   m.scan_steps.assign(size_t(pixels), 0);
@@ -395,8 +401,51 @@ Simulator::Simulator(Volume volume, SimulationSource source,
   b.scan_index = m.scan_index.data();
   b.scan_steps = m.scan_steps.data();
   b.scan_weights = m.scan_weights.data();
+}
 
-  b.speckle_gain = float(simulate_impl::speckle_gain(b, m.tiles));
+}  // namespace
+
+}  // namespace simulate_impl
+
+using simulate_impl::ImageModel;
+using simulate_impl::Model;
+using simulate_impl::Props;
+
+Simulator::Simulator(Volume volume, SimulationSource source,
+                     std::optional<ProbeGeometry> given_probe, std::vector<Tissue> tissues,
+                     SimulationSettings requested)
+    : model_(std::make_unique<Model>()) {
+  using namespace simulate_impl;
+  const SimulationSettings settings = requested.resolved();
+  if (!given_probe && !settings.preset) throw InputError("probe: give a probe or a preset");
+  const ProbeGeometry probe =
+      given_probe ? *given_probe : simulation_preset(*settings.preset).probe;
+  probe.validate("probe");
+  Model& m = *model_;
+  m.source = source;
+  m.probe = probe;
+  m.settings = settings;
+  m.mask = probe.mask();
+  const VolumeGrid grid = volume.grid();
+  ImageModel& b = m.base;
+  b.grid = geometry::VolumeView::of(grid.dims[0], grid.dims[1], grid.dims[2]);
+  if (source == SimulationSource::Labels)
+    set_label_source(m, volume, tissues);
+  else
+    set_ct_source(m, volume);
+  m.volume = std::move(volume);
+
+  const double frequency_mhz = *settings.frequency_mhz;  // resolved() chose it
+  const Psf psf(settings, kSoundSpeedMmPerUs / frequency_mhz);
+  b.frequency_mhz = float(frequency_mhz);
+  b.wavelength_mm = psf.lambda;
+  set_sampling(b, grid, probe.image, psf.lambda);
+  set_slice_thickness(b, psf);
+  set_speckle_lattice(m, grid, psf, settings.seed);
+  set_beams(b, probe);
+  set_filters(m, psf);
+  set_scan_conversion(m, probe.image);
+  b.speckle_gain = float(speckle_gain(b, m.tiles));
   b.tgc_auto = settings.tgc_auto;
   b.bmode = settings.output == SimulationOutput::BMode;
   b.dynamic_range_db = float(settings.dynamic_range_db);
