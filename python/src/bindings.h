@@ -29,7 +29,8 @@ void bind_volumes(nb::module_& m);         // Volume, VolumeGrid, the phantom
 void bind_slicing(nb::module_& m);         // Probe, Slicer, pose checks
 void bind_surfaces(nb::module_& m);        // Mesh, voxelize, SurfaceSlicer, colours
 void bind_compounding(nb::module_& m);     // Compounder and its small classes
-void bind_io(nb::module_& m);              // pose and stack files, PLUS sequences and configs
+void bind_io(nb::module_& m);              // pose and stack files, PNG bytes
+void bind_plus(nb::module_& m);            // PLUS sequences, transform repositories, configs
 void bind_reconstruction(nb::module_& m);  // the reconstruction recipe (reconstruct_plus)
 void bind_simulation(nb::module_& m);      // Simulator, its settings, tissue tables, presets
 void bind_registration(nb::module_& m);    // register_frames, its settings and report

@@ -65,6 +65,7 @@ NB_MODULE(_sonoslice, m) {
   bindings::bind_surfaces(m);
   bindings::bind_compounding(m);
   bindings::bind_io(m);
+  bindings::bind_plus(m);
   bindings::bind_reconstruction(m);
   bindings::bind_simulation(m);
   bindings::bind_registration(m);

@@ -91,10 +91,6 @@ std::vector<Tissue> tissue_table_of(nb::handle table) {
 }
 
 // ---- settings
-std::string optional_repr(const std::optional<double>& v) {
-  return v ? repr(*v) : "None";
-}
-
 std::string settings_repr(const SimulationSettings& s) {
   const SimulationSettings d;
   std::string r = "SimulationSettings(";

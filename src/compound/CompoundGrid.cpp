@@ -95,8 +95,8 @@ void check_fits_in_memory(const VolumeGrid& grid, const CompoundSettings& settin
     throw ResourceError("compounding: the output grid (" + format_dims(grid.dims) + " voxels at " +
                         std::to_string(grid.spacing_mm[0]).substr(0, 5) + " mm) needs " +
                         format_bytes(need) + ", more than the " + format_bytes(limit) +
-                        (max_memory_bytes ? " allowed (--max-memory)" : " available") + "; " +
-                        suggest_spacing(grid, settings, output_type, limit));
+                        (max_memory_bytes ? " allowed (the memory limit given)" : " available") +
+                        "; " + suggest_spacing(grid, settings, output_type, limit));
 }
 
 }  // namespace compound_impl

@@ -28,10 +28,6 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-std::string spell(const ParameterNames& names, const std::string& parameter) {
-  return names ? names(parameter) : parameter;
-}
-
 std::string dims_text(int64_t a, int64_t b) {
   return std::to_string(a) + "x" + std::to_string(b);
 }
@@ -137,7 +133,7 @@ int64_t FrameSource::frames_in_input() const {
 }
 
 LoadedFrames read_frame_files(const FrameFiles& f, const ParameterNames& names) {
-  const auto name = [&](const char* p) { return spell(names, p); };
+  const auto name = [&](const char* p) { return spelled(names, p); };
   const int inputs = !f.sequence.empty() + !f.frames.empty() + !f.beam_frames.empty();
   if (inputs != 1)
     throw InputError("give exactly one of " + name("sequence") + ", " + name("frames") + ", " +
@@ -220,7 +216,7 @@ struct Reconstruction::Impl {
   Compounder::GridFit grid_fit = Compounder::GridFit::Round;  // PLUS's under plus_exact
   std::unique_ptr<Compounder> compounder;
 
-  std::string name(const std::string& parameter) const { return spell(names, parameter); }
+  std::string name(const std::string& parameter) const { return spelled(names, parameter); }
   void resolve_settings(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
   void resolve_plus_exact(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
   void select_frames(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
@@ -327,7 +323,7 @@ void Reconstruction::Impl::resolve_plus_exact(const PlusReconstructionConfig* co
 
 FrameSelection select_frames(const FrameSource& source, const PlusReconstructionConfig* config,
                              const ReconstructionOptions& o) {
-  const auto name = [&](const char* p) { return spell(o.names, p); };
+  const auto name = [&](const char* p) { return spelled(o.names, p); };
   FrameSelection out;
   ReconstructionReport& report = out.report;
   const int skip = o.skip ? *o.skip : config ? config->skip_interval : 1;
