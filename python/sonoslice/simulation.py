@@ -60,26 +60,40 @@ class Simulator:
     path to a JSON table, a list of :class:`Tissue` (or dicts) as :func:`default_tissues`
     returns, or None for the default table. ``probe``: a :class:`Probe` or a preset name
     ("abdominal", "laparoscopic", "lus"; its frequency is used unless ``frequency`` is given).
-    ``tgc``: "auto" or "off". Unset settings take :class:`SimulationSettings`' defaults. CPU only
-    so far (``device="cpu"``).
+    ``tgc``: "auto" or "off". Unset settings take :class:`SimulationSettings`' defaults; or give
+    them all as ``settings=`` (a :class:`SimulationSettings`; not with the keywords). CPU only so
+    far (``device="cpu"``).
     """
 
     def __init__(self, volume_or_labels: Volume, probe, tissues=None, frequency: Optional[float] = None,
                  seed: Optional[int] = None, device: Optional[str] = None, *, kind: Optional[str] = None,
-                 dynamic_range: Optional[float] = None, tgc: Optional[str] = None):
+                 dynamic_range: Optional[float] = None, tgc: Optional[str] = None,
+                 settings: Optional[SimulationSettings] = None):
         if not isinstance(volume_or_labels, Volume):
             raise TypeError("volume_or_labels: expected a sonoslice.Volume")
         given = dict(frequency_mhz=frequency, seed=seed, dynamic_range_db=dynamic_range,
                      device=None if device is None else str(device))
-        if isinstance(probe, str):
-            given["preset"], probe = probe, None
-        elif not isinstance(probe, Probe):
-            raise TypeError("probe: expected a sonoslice.Probe or a preset name")
         if tgc is not None:
             if tgc not in ("auto", "off"):
                 raise ValueError(f'tgc {tgc!r}: expected "auto" or "off"')
             given["tgc_auto"] = tgc == "auto"
-        self._given = {k: v for k, v in given.items() if v is not None}  # the library has the defaults
+        given = {k: v for k, v in given.items() if v is not None}  # the library has the defaults
+        self._default_output = SimulationSettings().output
+        if settings is not None:  # the same rule as register(): settings= or keywords
+            if given:
+                raise TypeError(f"Simulator: give settings= or the keywords {sorted(given)}, not both")
+            if not isinstance(settings, SimulationSettings):
+                raise TypeError("settings: expected a sonoslice.SimulationSettings")
+            given = {k: getattr(settings, k) for k in ("frequency_mhz", "seed", "dynamic_range_db", "tgc_auto",
+                                                       "axial_fwhm_mm", "lateral_fwhm_mm", "elevation_fwhm_mm",
+                                                       "device", "preset")}
+            given = {k: v for k, v in given.items() if v is not None}
+            self._default_output = settings.output
+        if isinstance(probe, str):
+            given["preset"], probe = probe, None
+        elif not isinstance(probe, Probe):
+            raise TypeError("probe: expected a sonoslice.Probe or a preset name")
+        self._given = given
         self._inputs = dict(source=None if kind is None else _arrays.choice(SimulationSource, kind, "kind"),
                             tissues=None if tissues is None else _tissue_table(tissues))
         self.volume, self._probe, self._cpp = volume_or_labels, probe, {}  # probe None: the preset's
@@ -88,9 +102,9 @@ class Simulator:
         self.kind = str(engine.source)
 
     def _engine(self, output=None):
-        """The C++ simulator making ``output`` images (default: the settings' default output), one
+        """The C++ simulator making ``output`` images (default: the settings' output), one
         per output, made when first asked for."""
-        output = SimulationSettings().output if output is None else _arrays.choice(SimulationOutput, output, "output")
+        output = self._default_output if output is None else _arrays.choice(SimulationOutput, output, "output")
         if output not in self._cpp:
             settings = SimulationSettings(**self._given, output=output)
             probe = None if self._probe is None else self._probe._cpp

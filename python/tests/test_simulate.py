@@ -1,4 +1,4 @@
-"""sonoslice simulate (issue 13): the CLI contract, outputs and bad input.
+"""sonoslice simulate: the CLI contract, outputs and bad input.
 
 The model's own checks (speckle statistics, attenuation, shadows, ...) are the C++ tests
 tests/simulate/test_simulate.cpp; these run the command as users do.
@@ -207,3 +207,22 @@ def test_simulate_meshes(cli, shared, tmp_path):
     assert r.returncode == 0, r.stderr
     img = np.load(tmp_path / "m.npy")
     assert img.shape == (1, 272, 334) and img.std() > 5
+
+
+def test_python_simulator_takes_settings_or_keywords(phantom, poses):
+    """settings= (a SimulationSettings) is the same simulation as its keywords, its output is the
+    default output, and giving both is refused (as register() does)."""
+    import sonoslice
+    ct, _ = phantom
+    p = poses[:2]
+    settings = sonoslice.SimulationSettings(seed=3, dynamic_range_db=50)
+    a = sonoslice.Simulator(ct, "lus", settings=settings).simulate(p)
+    b = sonoslice.Simulator(ct, "lus", seed=3, dynamic_range=50).simulate(p)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, sonoslice.Simulator(ct, "lus", seed=4, dynamic_range=50).simulate(p))
+    envelope = sonoslice.SimulationSettings(output=sonoslice.SimulationOutput.envelope)
+    assert sonoslice.Simulator(ct, "lus", settings=envelope).simulate(p).dtype == np.float32
+    with pytest.raises(TypeError, match="not both"):
+        sonoslice.Simulator(ct, "lus", seed=1, settings=settings)
+    with pytest.raises(TypeError, match="SimulationSettings"):
+        sonoslice.Simulator(ct, "lus", settings={"seed": 1})
