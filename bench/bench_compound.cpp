@@ -1,4 +1,4 @@
-// Compounding throughput (issue 6), CPU threads and CUDA:
+// Compounding throughput, CPU threads and CUDA:
 //   Jauer:   814 beam-space frames of 185×84×22 samples into 300×1000×600 voxels of 0.5 mm
 //            (Jauer et al. 2015: 17.4 s on a GTX 980).
 //   Sweep2D: 1000 frames of 820×616 pixels into the grid around them at 0.5 mm.
@@ -115,7 +115,7 @@ struct RealSweep {
   std::string error;
 };
 
-// BoneLong (issue 12's 500-frame workload, as bench/splat_speed.py builds it for the CLI): the
+// BoneLong (the 500-frame workload, as bench/splat_speed.py builds it for the CLI): the
 // 21 Bone frames cycled to 500 along a 60 mm sweep in the recorded sweep's direction, each pose
 // jittered by up to ±1 mm and ±2° about a random axis through the image origin (seeded).
 void lengthen(RealSweep& r) {

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How sonoslice shares a machine: K copies of one job at once, each one's time against the same
-job alone (issue 12: live reconstruction beside a tracker, a viewer or another job is the normal
+job alone (live reconstruction beside a tracker, a viewer or another job is the normal
 case). On a machine of C cores, K jobs of T threads each should each take about K·T/C times as
 long as alone (the fair share); much more means the jobs get in each other's way (threads
 spinning at barriers, a slab per thread waiting for the slowest).

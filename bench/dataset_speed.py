@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Dataset speed (issue 15's target): W1 images (fan-slicer's LUS probe at --downsampling 2,
+"""Dataset speed: W1 images (fan-slicer's LUS probe at --downsampling 2,
 334x272, float32) of the full phantom CT from the skin sampler, written by `sonoslice dataset` as
 .npy shards, against `sonoslice slice` on the same poses (read back from the shards), in the same
 run; then the same dataset on Dask `--scheduler local:2`, checked byte for byte.

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """sonoslice against the tools people slice volumes with today, on the same workloads, in one run.
 
-Workloads (issue 2):
+Workloads:
   W1  fan-slicer's LUS fan (models_intensity_LUS_config.json, --downsampling 2): 334x272 px at
       0.247 mm, 36 deg sector, on the full phantom (512x512x400, 0.8x0.8x1 mm).
   W2  fan-slicer's linear probe (linear_config.json): 400x500 px at 0.1235 mm.

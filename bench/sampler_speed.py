@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Pose sampler throughput (issue 15): candidate poses per second before rejection (target
+"""Pose sampler throughput: candidate poses per second before rejection (target
 >= 1 million/s on 2 cores), accepted poses per second with the rejection rules on, and the
 one-off setup (the skin surface of the CT), for each sampler type on the phantom CT.
 

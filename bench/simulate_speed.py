@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Simulation speed against slicing on the same poses (issue 13's target): W1 (fan-slicer's LUS
+"""Simulation speed against slicing on the same poses: W1 (fan-slicer's LUS
 fan at --downsampling 2, the `lus` preset's probe, 334x272) on the full phantom CT, through the
 CLI, written to .npy. Each figure is the compute time that `--verbose` reports ("simulate X s",
 "slice X s": no loading or writing) and the command's wall time, for the same poses, in runs that
@@ -78,7 +78,7 @@ def main():
         medians[name] = statistics.median(compute)
         print(f"| {name} | {n / medians[name]:.1f}; {n / min(compute):.1f} | {n / statistics.median(wall):.1f} |")
     print(f"\nsimulate costs {medians['simulate'] / medians['slice']:.1f}x slice (medians of the same run); "
-          f"issue 13's targets: >= 1000 images/s and <= ~4x slice")
+          f"targets: >= 1000 images/s and <= ~4x slice")
     if args.baseline:
         print(f"this build against the baseline: {medians['simulate (baseline)'] / medians['simulate']:.2f}x")
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Splatting speed on a long real-frame sweep (issue 12 item 4): 500 frames of 820x616 pixels,
+"""Splatting speed on a long real-frame sweep: 500 frames of 820x616 pixels,
 splatting time only, as `sonoslice compound --verbose` reports it, in frame pixels per second.
 
 The workload: the 21 real frames of PLUS's BoneUltrasound_L14 sweep (data/plus) cycled to 500,

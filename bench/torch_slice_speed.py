@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Differentiable slicing (issue 14, item 2): `sonoslice.torch.slice` forward and backward (to the
+"""Differentiable slicing: `sonoslice.torch.slice` forward and backward (to the
 poses) against the same loss through torch.nn.functional.grid_sample with autograd, on W1 poses
 of the full phantom CT, CPU, in one run; each in its own process so that its peak memory (max
 RSS above the process after loading the CT) is its own.

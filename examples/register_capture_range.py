@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Capture range of `sonoslice register` (issue 14's worked example): CT fans of the phantom at
+"""Capture range of `sonoslice register` (a worked example): CT fans of the phantom at
 known poses, with Gaussian noise, registered back from initial poses perturbed by a growing
 error; the success rate (within 1 mm and 1 degree at the fan's centre) against the initial error.
 

@@ -6,7 +6,7 @@
 // input. Anything else escaping the library is a finding and aborts: a crash or sanitizer report
 // of course, but also a foreign exception (a JSON library's, std::out_of_range from a stoi,
 // std::length_error from an absurd size): those reach users as a message that does not name the
-// file (issue 10).
+// file.
 #include <fcntl.h>
 #include <unistd.h>
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The CUDA path on a machine with an NVIDIA GPU (issue 11): the lent H100/H200 machine has the CUDA
+# The CUDA path on a machine with an NVIDIA GPU: the lent H100/H200 machine has the CUDA
 # toolkit, CMake, ninja and a Python with torch, numpy and nanobind, but none of Debian's packages
 # and no network. What the build needs beyond that travels in .carry/ (scripts/gpu-carry.sh fills
 # it on a Debian machine): GoogleTest's sources and the wheels of pytest and its dependencies.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The C++ test suites under AddressSanitizer + UndefinedBehaviorSanitizer (CI stage; issue 10).
+# The C++ test suites under AddressSanitizer + UndefinedBehaviorSanitizer (CI stage).
 # Configures ./build-asan (CPU only, no benchmarks, no Python; SONOSLICE_SANITIZE=ON instruments
 # sonoslice's own targets, not the prebuilt ITK/VTK), builds it and runs ctest with leak
 # detection on. Any sanitizer report stops the process with exit status 23, which fails its test

@@ -29,7 +29,7 @@ struct BenchFlags {
   bool json = false, compound = false;
 };
 
-// Compounding (issue 6): the Jauer beam-space workload and a 1000-frame 2D sweep, nearest and
+// Compounding: the Jauer beam-space workload and a 1000-frame 2D sweep, nearest and
 // linear splats into float accumulators (Workloads.h), splatting plus volume() (no hole filling).
 void run_compound_bench(const BenchFlags& f, const Device& device) {
   struct Case {

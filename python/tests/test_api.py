@@ -217,7 +217,7 @@ def test_require_cuda_turns_cuda_skips_into_failures(tmp_path):
 def test_cuda_work_goes_on_the_current_stream_of_the_arrays_library(monkeypatch):
     """slice(out=...) on CUDA queues on torch's or CuPy's current stream (0: the legacy default
     stream, which orders with every blocking stream), so that the library's next operation sees
-    the images and its allocator never reuses out= memory still being written (issue 11)."""
+    the images and its allocator never reuses out= memory still being written."""
     import sys
     import types
     from sonoslice import _current_stream

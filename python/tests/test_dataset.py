@@ -1,4 +1,4 @@
-"""sonoslice dataset (issue 15): SPEC → WebDataset shards + manifest, and sonoslice.data.
+"""sonoslice dataset: SPEC → WebDataset shards + manifest, and sonoslice.data.
 
 The contract checked here: every shard is a pure function of (SPEC, shard index), so runs, worker
 counts (one process or Dask local:2) and write orders give the same bytes; an interrupted run

@@ -1,4 +1,4 @@
-"""Issue 10 (hardening), the Python side and the CLI's exit codes: no crash when an array a Volume
+"""Bad input (docs/failures.md), the Python side and the CLI's exit codes: no crash when an array a Volume
 views changes under it, clear errors for arrays nanobind would turn away with "incompatible
 function arguments", nothing complex cast to real in silence, thread counts and --skip checked,
 one exit code per kind of CLI failure."""

@@ -1,4 +1,4 @@
-"""sonoslice poses and sonoslice.PoseSampler (issue 15): the command and the binding give the same
+"""sonoslice poses and sonoslice.PoseSampler: the command and the binding give the same
 poses, seeds make poses reproducible, bad settings are one line. Geometry (surface distance,
 normals, tilt ranges, uniform rotations) is checked in C++ (tests/sampling/)."""
 import json

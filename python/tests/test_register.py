@@ -1,4 +1,4 @@
-"""sonoslice register (issue 14): the CLI contract, outputs and bad input.
+"""sonoslice register: the CLI contract, outputs and bad input.
 
 Gradients and recovery are checked in C++ (tests/register/test_register.cpp); these run the
 command as users do: frames written by `sonoslice slice`, poses perturbed here.

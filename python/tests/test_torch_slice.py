@@ -1,4 +1,4 @@
-"""sonoslice.torch (issue 14, item 2): differentiable slicing checked by torch.autograd.gradcheck
+"""sonoslice.torch: differentiable slicing checked by torch.autograd.gradcheck
 (float64, small cases), against the CPU slicer, and the se(3) increment helper."""
 import numpy as np
 import pytest

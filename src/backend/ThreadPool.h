@@ -6,7 +6,7 @@
 /// regions per batch. When another process wants the cores (a tracker, a viewer, a second job:
 /// the normal case beside a live reconstruction) those spinning threads take its time and wait
 /// for their own siblings, and two 2-thread compounding jobs on 2 cores each ran 6× slower than
-/// alone instead of 2× (bench/concurrency.py, issue 12). Here an idle worker spins for at most
+/// alone instead of 2× (bench/concurrency.py). Here an idle worker spins for at most
 /// kSpinMicroseconds, then sleeps on a condition variable; the caller never waits for a worker
 /// that has not started (late workers find the job closed). The settings are not an environment
 /// variable the user must know about (OMP_WAIT_POLICY), and the pool survives fork().

@@ -115,7 +115,7 @@ std::string read_whole_file(const std::string& path) {
 //
 // Legacy .vtk files are parsed here rather than by vtkPolyDataReader, which trusts the counts in
 // the file: a truncated binary file or a polygon naming point 99999 of 3 crashed it or read
-// beyond its arrays (issue 10). sonoslice needs only the points and the polygons and triangle
+// beyond its arrays. sonoslice needs only the points and the polygons and triangle
 // strips; they are checked against the file's size, the point count and for finite coordinates
 // while they are read, and reach VTK's triangulation and point merging as a vtkPolyData. The
 // grammar is VTK's (IO/Legacy/vtkDataReader.cxx, vtkPolyDataReader.cxx): keywords in any case,

@@ -1,7 +1,7 @@
 #pragma once
 // Internal: PNG images written with libpng directly, so that every write error (a full disk, a
 // file-size limit) comes back as a FileError rather than a crash inside a library that does not
-// check its writes (ITK's 2-D writer crashed on a full disk, issue 10).
+// check its writes (ITK's 2-D writer crashed on a full disk).
 #include <cstdint>
 #include <string>
 #include <vector>

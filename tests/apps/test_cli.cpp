@@ -394,7 +394,7 @@ TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
   EXPECT_GT(reached, 500);
 }
 
-// Issue 10: one frame with an all-zero ProbeToTracker (a tracker that lost the probe) turned the
+// One frame with an all-zero ProbeToTracker (a tracker that lost the probe) turned the
 // Nwire grid of 101x105x74 voxels into 519x689x4084 without a word; one frame without its
 // ProbeToTracker failed the sweep without naming the frame. Both frames are now left out, named.
 TEST_F(Cli, CompoundSkipsAndNamesFramesItsTransformsCannotPlace) {
@@ -441,8 +441,8 @@ void write_text(const std::string& path, const std::string& text) {
   std::ofstream(path) << text;
 }
 
-// Issue 10's broken inputs for the readers: meshes, volume headers, JSON, PLUS transforms.
-void write_issue10_reader_inputs(const test::TempDir& dir) {
+// Broken inputs for the readers: meshes, volume headers, JSON, PLUS transforms.
+void write_broken_reader_inputs(const test::TempDir& dir) {
   const std::string liver = test::data_dir() + "/fanslicer/liver.vtk";
   if (fs::exists(liver))  // `head -c 308216 liver.vtk`: crashed VTK's reader
     write_text(dir.file("in_cut.vtk"), test::read_file_bytes(liver).substr(0, 308216));
@@ -564,7 +564,7 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
              R"({"r0_mm": 1, "dr_mm": 0.5, "azimuth0_deg": -5, "dazimuth_deg": 2.5,
                  "elevation0_deg": -4, "delevation_deg": 4})");
   write_text(dir.file("in_two.txt"), eye + eye);
-  write_issue10_reader_inputs(dir);
+  write_broken_reader_inputs(dir);
 }
 
 TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
@@ -648,7 +648,7 @@ std::vector<BadCase> bad_cases() {
        "slice --volume {CT} --probe {FAN} --poses {POSES} --out {DIR}/in_dir.npy",
        "is an existing directory"},
       {"UnknownDtype", std::string(kSlice) + "--dtype float16", "--dtype float16"},
-      // Issue 10, readers: refused before a library crashes, prints or guesses.
+      // Readers: refused before a library crashes, prints or guesses.
       {"VoxelizeTruncatedBinaryVtk", "voxelize {DIR}/in_cut.vtk --spacing 1 --out {OUT}",
        "in_cut.vtk': truncated or corrupt file: POLYGONS announces 88000 values"},
       {"SliceTruncatedBinaryVtk",
@@ -790,7 +790,7 @@ std::vector<BadCase> bad_cases() {
        "compound --beam-frames {DIR}/in_beams.npy --beam-geometry {DIR}/in_geom_ok.json "
        "--poses {DIR}/in_nan.txt --spacing 1 --out {OUT}",
        "in_nan.txt"},
-      // Outputs that cannot lie (issue 10): two outputs never share a file, an output is never an
+      // Outputs that cannot lie: two outputs never share a file, an output is never an
       // input, a PNG folder never holds anything but sonoslice's images.
       {"MaskOnTheOutput", std::string(kSlice) + "--mask {OUT}", "would write the same file"},
       {"OutputIsTheInput",
@@ -819,7 +819,7 @@ std::vector<BadCase> bad_cases() {
 INSTANTIATE_TEST_SUITE_P(Cases, CliBadInput, ::testing::ValuesIn(bad_cases()),
                          [](const auto& info) { return info.param.name; });
 
-// --- outputs that cannot lie (issue 10) ---------------------------------------------------------
+// --- outputs that cannot lie ---------------------------------------------------------
 
 // Runs the CLI like run(), in a child process: with a file-size limit and SIGXFSZ ignored (a write
 // past the limit then fails with EFBIG, as under `ulimit -f`), after `prepare` (which runs in the
@@ -882,7 +882,7 @@ void expect_failed_write_changed_nothing(const CliRun& r, const std::string& pat
 
 const char* kOutputs[] = {"o.nii", "o.nii.gz", "o.mha", "o.mhd", "o.nrrd", "o.npy", "pngs"};
 
-// Before issue 10: .nii, .nii.gz and .mha exited 0 with the old output replaced by a truncated
+// Once, .nii, .nii.gz and .mha exited 0 with the old output replaced by a truncated
 // one; the PNG folder was written with ITK's unchecked 2-D writer.
 TEST_F(Cli, FileSizeLimitKeepsEveryPreviousOutput) {
   test::TempDir out;
@@ -904,7 +904,8 @@ TEST_F(Cli, FileSizeLimitKeepsEveryPreviousOutput) {
   }
 }
 
-// A real full disk: a 2 MiB tmpfs, as in issue 10 (crash 1: SIGSEGV in ITK's PNG writer).
+// A real full disk: a 2 MiB tmpfs, as a bad-input probe found (it crashed with SIGSEGV in ITK's PNG
+// writer).
 TEST_F(Cli, FullDiskKeepsEveryPreviousOutput) {
   test::TempDir out;
   const std::string small = out.file("small");

@@ -129,7 +129,7 @@ double process_cpu_seconds() {
 }
 
 TEST(ThreadPool, IdleWorkersSleep) {
-  // The point of the pool (issue 12): between loops its workers give their cores back, so a job
+  // The point of the pool: between loops its workers give their cores back, so a job
   // sharing the machine with others does not burn their time. OpenMP's default spin-wait kept
   // each idle worker at 100% of a core for milliseconds after every loop.
   Threads t(4);

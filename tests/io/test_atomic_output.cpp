@@ -1,4 +1,4 @@
-// Writers that cannot lie (issue 10, docs/conventions.md §6): exclusive, unpredictable
+// Writers that cannot lie (docs/conventions.md §6): exclusive, unpredictable
 // temporaries; a failed write (file-size limit) leaves the old output byte for byte and no
 // temporary; signals remove temporaries; folders are replaced only when they hold sonoslice's own
 // images; two outputs, or an output and an input, never share a file.
@@ -160,7 +160,7 @@ TEST(AtomicOutput, NpyShapesThatOverflowAreRefusedBeforeAnythingIsWritten) {
 class FailedWrite : public ::testing::TestWithParam<std::string> {};
 
 // A file-size limit stops every format mid-write: FileError naming the output, the old output
-// byte for byte, no temporary. Before issue 10, .nii, .nii.gz and .mha reported success and
+// byte for byte, no temporary. Once, .nii, .nii.gz and .mha reported success and
 // replaced the old file with a truncated one.
 TEST_P(FailedWrite, KeepsTheOldOutputAndNoTemporary) {
   test::TempDir dir;

@@ -92,7 +92,7 @@ TEST(MeshFile, BadFilesNameTheFile) {
   EXPECT_NE(error_of(dir.file("m.xyz")).find("unknown format"), std::string::npos);
 }
 
-// ---- broken mesh files (issue 10): an error naming the file, never a crash --------------------
+// ---- broken mesh files: an error naming the file, never a crash --------------------
 
 std::string mesh_error(const std::string& path) {
   try {
@@ -143,7 +143,7 @@ std::string binary_legacy_tet(bool version5, const std::vector<int>& ids) {
 
 const std::vector<int> kTetIds = {0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3};
 
-// What issue 10 found: `head -c 308216 liver.vtk` crashed VTK's reader (SIGSEGV).
+// A bad-input probe found this: `head -c 308216 liver.vtk` crashed VTK's reader (SIGSEGV).
 TEST(MeshFile, TruncatedBinaryLegacyVtkIsAnError) {
   SONOSLICE_REQUIRE_DATA();
   test::TempDir dir;
@@ -162,8 +162,8 @@ TEST(MeshFile, TruncatedBinaryLegacyVtkIsAnError) {
   }
 }
 
-// What issue 10 found: a polygon naming point 99999 of 3 crashed VTK's clean-up; point 100 read
-// outside VTK's arrays (valgrind), with results that changed from run to run.
+// A bad-input probe found this: a polygon naming point 99999 of 3 crashed VTK's clean-up; point 100
+// read outside VTK's arrays (valgrind), with results that changed from run to run.
 TEST(MeshFile, LegacyVtkIndexOutOfRangeIsAnError) {
   test::TempDir dir;
   for (const char* index : {"99999", "100", "3", "-1"}) {
@@ -229,8 +229,8 @@ TEST(MeshFile, LegacyVtkCountsAndCoordinatesAreChecked) {
   EXPECT_NE(mesh_error(dir.file("v5.vtk")).find("offsets must run from 0 to"), std::string::npos);
 }
 
-// What issue 10 found: a binary STL whose header claims 4.29e9 triangles was read as far as it
-// went, without a word.
+// A bad-input probe found this: a binary STL whose header claims 4.29e9 triangles was read as far
+// as it went, without a word.
 TEST(MeshFile, BinaryStlTriangleCountMustFitTheFile) {
   test::TempDir dir;
   write_mesh(dir.file("tet.stl"), tetrahedron());
@@ -253,8 +253,8 @@ TEST(MeshFile, BinaryStlTriangleCountMustFitTheFile) {
   EXPECT_THROW(read_mesh(dir.file("cut.stl")), FileError);
 }
 
-// What issue 10 found: garbage named .obj became "no triangles", faces naming vertices that do
-// not exist were dropped and "nan" coordinates were read.
+// A bad-input probe found this: garbage named .obj became "no triangles", faces naming vertices
+// that do not exist were dropped and "nan" coordinates were read.
 TEST(MeshFile, ObjGarbageAndBadIndicesAreRefused) {
   test::TempDir dir;
   auto error_for = [&](const std::string& text) {
@@ -301,7 +301,7 @@ TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
   EXPECT_THROW(read_fanslicer_models(d + "/models_binary_LUS_config.json", dir.path().string()),
                FileError);
   EXPECT_THROW(read_fanslicer_models(d + "/models_intensity_LUS_config.json", d), InputError);
-  // What issue 10 found: a colour that is not a number escaped as the JSON library's own
+  // A bad-input probe found this: a colour that is not a number escaped as the JSON library's own
   // exception ("[json.exception.type_error.302] type must be number"), without the file.
   std::ifstream in(d + "/models_binary_LUS_config.json");
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

@@ -146,8 +146,8 @@ TEST(PoseFile, Errors) {
   EXPECT_NE(error_of(dir.file("flat.txt")).find(dir.file("flat.txt")), std::string::npos);
 }
 
-// What issue 10 found: "--image-to-probe" with 7 numbers was taken for a file name and reported
-// as "poses '1,0,...': unknown extension".
+// A bad-input probe found this: "--image-to-probe" with 7 numbers was taken for a file name and
+// reported as "poses '1,0,...': unknown extension".
 TEST(PoseFile, ReadMatrixCountsNumbersAndNamesTheFlag) {
   test::TempDir dir;
   auto error_for = [](const std::string& text) {

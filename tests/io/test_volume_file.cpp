@@ -177,8 +177,9 @@ TEST(DicomSeries, WrittenWithItkThenReadBack) {
   EXPECT_NE(error_of(dir.path().string(), o).find("no series '1.2.3'"), std::string::npos);
 }
 
-// What issue 10 found: a slice cut short was read with zeros, slices at one position were both
-// used, and a missing slice stretched the spacing; each is now an error naming the series' files.
+// A bad-input probe found this: a slice cut short was read with zeros, slices at one position were
+// both used, and a missing slice stretched the spacing; each is now an error naming the series'
+// files.
 TEST(DicomSeries, BrokenSeriesAreRefused) {
   VolumeGrid grid;
   grid.dims = {16, 12, 6};
@@ -268,9 +269,9 @@ std::string quiet_error_of(const std::string& path) {
   return e;
 }
 
-// What issue 10 found: NIfTI pixdim 0 or NaN became 1 mm; a NaN scl_slope with an intercept was
-// applied as a slope of 1; a NaN in the sform aborted the process in ITK's matrix code; a bad
-// dimension printed a line from the NIfTI C library before the error.
+// A bad-input probe found this: NIfTI pixdim 0 or NaN became 1 mm; a NaN scl_slope with an
+// intercept was applied as a slope of 1; a NaN in the sform aborted the process in ITK's matrix
+// code; a bad dimension printed a line from the NIfTI C library before the error.
 TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
   test::TempDir dir;
   VolumeGrid grid;
@@ -396,8 +397,8 @@ TEST(VolumeFile, NiftiHeaderIsCheckedBeforeItk) {
   EXPECT_EQ(read_volume(dir.file("z.nii.gz")).grid().spacing_mm, grid.spacing_mm);
 }
 
-// What issue 10 found: a MetaImage "ElementSpacing = nan 1 1" printed MetaIO's complaints, then
-// "No such file or directory" for a file that exists; negative and huge sizes reached ITK's
+// A bad-input probe found this: a MetaImage "ElementSpacing = nan 1 1" printed MetaIO's complaints,
+// then "No such file or directory" for a file that exists; negative and huge sizes reached ITK's
 // allocator; a NaN NRRD spacing became 1 mm.
 TEST(VolumeFile, MetaImageAndNrrdHeadersNameTheField) {
   test::TempDir dir;
@@ -445,8 +446,8 @@ TEST(VolumeFile, MetaImageAndNrrdHeadersNameTheField) {
   EXPECT_THROW(read_volume(dir.file("huge.nrrd")), InputError);
 }
 
-// What issue 10 found: a .npy of shape (2^32, 2^32, 1) overflowed its byte count, mapped 0 bytes
-// and was read as a volume ("info" said 0 MiB); Fortran-ordered, it crashed.
+// A bad-input probe found this: a .npy of shape (2^32, 2^32, 1) overflowed its byte count, mapped 0
+// bytes and was read as a volume ("info" said 0 MiB); Fortran-ordered, it crashed.
 TEST(VolumeFile, NpyShapeOverflowIsAnInputError) {
   test::TempDir dir;
   auto npy = [&](const std::string& name, const std::string& dict) {

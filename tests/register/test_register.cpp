@@ -1,4 +1,4 @@
-// Registration (issue 14): analytic pose gradients against finite differences, recovery of
+// Registration: analytic pose gradients against finite differences, recovery of
 // perturbed poses from CT fans of the phantom, the rigid-sweep mode and bad input.
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// Pose samplers (issue 15): geometry against analytic shapes (a ball "body" with a gas cavity,
+// Pose samplers: geometry against analytic shapes (a ball "body" with a gas cavity,
 // a sphere mesh), tilt ranges, uniform rotations (Kolmogorov–Smirnov), sweeps, rejection,
 // determinism, and bad settings.
 #include <gtest/gtest.h>

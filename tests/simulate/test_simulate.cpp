@@ -1,4 +1,4 @@
-// Ultrasound simulation (issue 13): the analytic checks of the model, docs/simulation.md §5.
+// Ultrasound simulation: the analytic checks of the model, docs/simulation.md §5.
 // Phantoms are label volumes built here; the probe is a linear probe looking down world +y.
 #include <gtest/gtest.h>
 

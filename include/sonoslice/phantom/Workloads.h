@@ -5,7 +5,7 @@
 ///        (36° sector, R = 46.93 mm, depth 64.96 mm);
 ///   W2 = linear_config.json: a 400×500 linear image at 0.1235 mm.
 ///
-/// And the compounding workloads (issue 6):
+/// And the compounding workloads:
 ///   Jauer = Jauer et al. 2015's 3-D reconstruction: 814 beam-space frames of 185 samples
 ///           (0.3 mm) × 84 azimuth (0.45°) × 22 elevation (0.88°) beams, a slow sweep along the
 ///           grid's long axis, into 300×1000×600 voxels of 0.5 mm;

@@ -1,5 +1,5 @@
 #pragma once
-/// @file Differentiable slicing (issue 14, item 2): the images `slice --interpolation linear`
+/// @file Differentiable slicing: the images `slice --interpolation linear`
 /// makes, in float64, and, given dL/d(image), dL/d(pose) and dL/d(volume), computed in the
 /// kernel from the trilinear interpolant's exact derivatives: no per-pixel grid is stored, so
 /// memory is O(batch) beyond the images themselves. sonoslice.torch wraps these as a

@@ -1,5 +1,5 @@
 #pragma once
-/// @file Registration of ultrasound frames to a volume (issue 14, first part): analytic pose
+/// @file Registration of ultrasound frames to a volume: analytic pose
 /// gradients of slice-to-frame similarity metrics, fused in one pass over the pixels (no image
 /// is materialised), and Gauss–Newton / Levenberg–Marquardt pose optimisation with multi-start
 /// and a coarse-to-fine schedule. docs/registration.md has the formulas.

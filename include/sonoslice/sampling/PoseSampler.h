@@ -1,5 +1,5 @@
 #pragma once
-/// @file Pose samplers for datasets (issue 15, docs/datasets.md): probes placed on the skin or on a
+/// @file Pose samplers for datasets (docs/datasets.md): probes placed on the skin or on a
 /// mesh, looking along the inward normal; sweeps; positions inside a label or intensity range;
 /// and rejection on the fan's content. Every pose is a pure function of its seed, so a dataset
 /// sample is reproducible from the seed it records, on any machine and thread count.

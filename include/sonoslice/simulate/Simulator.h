@@ -1,5 +1,5 @@
 #pragma once
-/// @file Ultrasound simulation (issue 13, first part): B-mode-like images from a CT in Hounsfield
+/// @file Ultrasound simulation: B-mode-like images from a CT in Hounsfield
 /// units or from a label volume with a tissue table, batched over probe poses, on the CPU.
 /// Deterministic: the same seed and pose give the same bytes on any number of threads.
 /// The model, its formulas and its constants are in docs/simulation.md.
