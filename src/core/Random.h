@@ -9,6 +9,10 @@
 
 namespace sonoslice {
 
+/// splitmix64's increment (2^64 / φ, odd): successive states, or counters scaled by it, are
+/// well spread before mixing.
+constexpr uint64_t kGoldenGamma = 0x9E3779B97F4A7C15ull;
+
 /// splitmix64's finaliser: a bijection of 64-bit values with good avalanche.
 constexpr uint64_t mix64(uint64_t z) {
   z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
@@ -21,7 +25,7 @@ class SplitMix64 {
  public:
   explicit SplitMix64(uint64_t seed) : state_(seed) {}
 
-  uint64_t next() { return mix64(state_ += 0x9E3779B97F4A7C15ull); }
+  uint64_t next() { return mix64(state_ += kGoldenGamma); }
   /// Uniform in [0, 1).
   double uniform() { return double(next() >> 11) * 0x1p-53; }
   /// Uniform in (0, 1]: safe under a logarithm.

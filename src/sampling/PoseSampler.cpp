@@ -219,7 +219,7 @@ void SamplerSettings::validate(const std::string& where) const {
 std::vector<uint64_t> sample_seeds(uint64_t base, uint64_t stream, uint64_t first, size_t count) {
   std::vector<uint64_t> seeds(count);
   const uint64_t key = mix64(mix64(base) ^ (stream * 0xD1B54A32D192ED03ull + 1));
-  for (size_t i = 0; i < count; ++i) seeds[i] = mix64(key + (first + i) * 0x9E3779B97F4A7C15ull);
+  for (size_t i = 0; i < count; ++i) seeds[i] = mix64(key + (first + i) * kGoldenGamma);
   return seeds;
 }
 
@@ -273,7 +273,7 @@ struct PoseSampler::State {
   std::vector<Vec3> fan_points, gas_points;
   std::unique_ptr<PoseSampler> base;  // sweep: the sampler of its start poses
 
-  double trilinear(const Vec3& p, bool* inside) const;
+  double ct_value(const Vec3& p, bool* inside) const;
   void build_skin();
   void build_mesh(const TriangleMesh& mesh);
   void build_region();
@@ -286,7 +286,7 @@ struct PoseSampler::State {
   bool sample_one(uint64_t seed, Pose* out) const;
 };
 
-double PoseSampler::State::trilinear(const Vec3& p, bool* inside) const {
+double PoseSampler::State::ct_value(const Vec3& p, bool* inside) const {
   // Registration's edge rule (conventions.md §5): the skin search needs the CT to vary across
   // every sample it bisects, which the clamped half-voxel rim does not.
   using geometry::EdgeRule;
@@ -368,17 +368,17 @@ void PoseSampler::State::build_skin() {
       constexpr int steps = 16;
       double prev_t = -2 * h, prev_v = 0;
       bool prev_in = false;
-      prev_v = trilinear(p0 + prev_t * nrm, &prev_in);
+      prev_v = ct_value(p0 + prev_t * nrm, &prev_in);
       for (int j = 1; j <= steps; ++j) {
         const double t = -2 * h + 4 * h * j / steps;
         bool in = false;
-        const double v = trilinear(p0 + t * nrm, &in);
+        const double v = ct_value(p0 + t * nrm, &in);
         if (in && prev_in && prev_v > s.threshold_hu && v <= s.threshold_hu) {
           double lo = prev_t, hi = t;     // bisection on the sign change
           for (int b = 0; b < 12; ++b) {  // to 0.4 µm on 1.5 mm voxels
             const double mid = 0.5 * (lo + hi);
             bool mid_in = false;
-            (trilinear(p0 + mid * nrm, &mid_in) > s.threshold_hu ? lo : hi) = mid;
+            (ct_value(p0 + mid * nrm, &mid_in) > s.threshold_hu ? lo : hi) = mid;
           }
           const double c = 0.5 * (lo + hi);
           if (std::fabs(c) < best) {
