@@ -46,9 +46,8 @@ std::string json_text(nb::handle value, const std::string& where);
 /// Binds the enum E as `name`, one member per value, named as the library spells the value
 /// (to_string; '-' becomes '_': "nelder-mead" → nelder_mead), and whose str() is that spelling
 /// ("nelder-mead"), so that a member and the string users pass read alike.
-template <typename E>
-nb::enum_<E> bind_enum(nb::module_& m, const char* name, std::initializer_list<E> values,
-                       const char* doc) {
+template <typename E, size_t N>
+nb::enum_<E> bind_enum(nb::module_& m, const char* name, const E (&values)[N], const char* doc) {
   nb::enum_<E> e(m, name, doc);
   for (E v : values) {
     std::string member = to_string(v);

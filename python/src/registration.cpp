@@ -72,20 +72,14 @@ void bind_registration(nb::module_& m) {
                        PixelType::Float64, grad_volume));
       },
       "volume"_a, "probe"_a, "poses"_a, "grad_images"_a, "volume_gradient"_a);
-  bind_enum(m, "RegistrationMetric",
-            {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
-             RegistrationMetric::MI, RegistrationMetric::LC2},
+  bind_enum(m, "RegistrationMetric", kRegistrationMetrics,
             "What registration compares (docs/registration.md §2): ssd, ncc, lncc, mi, lc2.");
-  bind_enum(m, "RegistrationOptimizer",
-            {RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
-             RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead},
+  bind_enum(m, "RegistrationOptimizer", kRegistrationOptimizers,
             "gn, lm (analytic derivatives: ssd, ncc), bobyqa, nelder_mead (derivative-free; "
             "builds with NLopt).");
-  bind_enum(
-      m, "RegistrationMode",
-      {RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep},
-      "per_frame, rigid_sweep (one correction for all frames), smooth_sweep (per frame, "
-      "tied along the sweep).");
+  bind_enum(m, "RegistrationMode", kRegistrationModes,
+            "per_frame, rigid_sweep (one correction for all frames), smooth_sweep (per frame, "
+            "tied along the sweep).");
   m.def("default_optimizer", &default_optimizer, "metric"_a,
         "The optimiser a metric gets when none is asked for: lm for ssd and ncc, bobyqa for the "
         "others.");

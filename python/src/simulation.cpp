@@ -114,10 +114,10 @@ std::string settings_repr(const SimulationSettings& s) {
 }  // namespace
 
 void bind_simulation(nb::module_& m) {
-  bind_enum(m, "SimulationSource", {SimulationSource::HounsfieldUnits, SimulationSource::Labels},
+  bind_enum(m, "SimulationSource", kSimulationSources,
             "What a volume holds: ct (Hounsfield units, trilinear) or labels (uint8/uint16 with a "
             "tissue table, nearest).");
-  bind_enum(m, "SimulationOutput", {SimulationOutput::BMode, SimulationOutput::Envelope},
+  bind_enum(m, "SimulationOutput", kSimulationOutputs,
             "bmode (uint8 after TGC and log compression) or envelope (float32, before them).");
 
   const Tissue tissue;

@@ -3,17 +3,15 @@
 #include <cmath>
 #include <sstream>
 
+#include "../core/Text.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/register/Registration.h"
 
 namespace sonoslice {
 
 RegistrationMetric parse_registration_metric(const std::string& name, const std::string& what) {
-  for (RegistrationMetric m :
-       {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
-        RegistrationMetric::MI, RegistrationMetric::LC2})
-    if (name == to_string(m)) return m;
-  throw InputError(what + " " + name + ": expected ssd, ncc, lncc, mi or lc2");
+  if (const auto* m = text::find_named(kRegistrationMetrics, name)) return *m;
+  throw InputError(what + " " + name + ": expected " + text::spellings(kRegistrationMetrics));
 }
 
 bool built_with_nlopt() {
@@ -26,18 +24,13 @@ bool built_with_nlopt() {
 
 RegistrationOptimizer parse_registration_optimizer(const std::string& name,
                                                    const std::string& what) {
-  for (RegistrationOptimizer o :
-       {RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
-        RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead})
-    if (name == to_string(o)) return o;
-  throw InputError(what + " " + name + ": expected gn, lm, bobyqa or nelder-mead");
+  if (const auto* o = text::find_named(kRegistrationOptimizers, name)) return *o;
+  throw InputError(what + " " + name + ": expected " + text::spellings(kRegistrationOptimizers));
 }
 
 RegistrationMode parse_registration_mode(const std::string& name, const std::string& what) {
-  for (RegistrationMode m :
-       {RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep})
-    if (name == to_string(m)) return m;
-  throw InputError(what + " " + name + ": expected per-frame, rigid-sweep or smooth-sweep");
+  if (const auto* m = text::find_named(kRegistrationModes, name)) return *m;
+  throw InputError(what + " " + name + ": expected " + text::spellings(kRegistrationModes));
 }
 
 const char* to_string(RegistrationMetric metric) {

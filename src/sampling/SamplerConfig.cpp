@@ -3,12 +3,12 @@
 #include "sonoslice/sampling/SamplerConfig.h"
 
 #include <algorithm>
-#include <iterator>
 #include <map>
 #include <set>
 
 #include <nlohmann/json.hpp>
 
+#include "../core/Text.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -110,10 +110,8 @@ SamplerSettings from_json(const json& j, const std::string& where) {
   if (!j.contains("type") || !j["type"].is_string())
     throw InputError(where + ": needs \"type\": skin, mesh, region or sweep");
   const std::string type = j["type"].get<std::string>();
-  const SamplerType* t = std::find_if(std::begin(kTypes), std::end(kTypes),
-                                      [&](SamplerType k) { return type == to_string(k); });
-  if (t == std::end(kTypes))
-    throw InputError(where + ": type '" + type + "': expected skin, mesh, region or sweep");
+  const SamplerType* t = text::find_named(kTypes, type);
+  if (!t) throw InputError(where + ": type '" + type + "': expected " + text::spellings(kTypes));
   SamplerSettings s;
   s.type = *t;
   const std::set<std::string>& keys = kKeys.at(s.type);
@@ -162,10 +160,8 @@ SamplerSettings from_json(const json& j, const std::string& where) {
       s.anchor_at_centre = a != "face";
     } else if (key == "motion") {
       const std::string m = value.is_string() ? value.get<std::string>() : "";
-      const SweepMotion* motion = std::find_if(std::begin(kMotions), std::end(kMotions),
-                                               [&](SweepMotion k) { return m == to_string(k); });
-      if (motion == std::end(kMotions))
-        throw InputError(at + ": expected linear, fan or rotational");
+      const SweepMotion* motion = text::find_named(kMotions, m);
+      if (!motion) throw InputError(at + ": expected " + text::spellings(kMotions));
       s.motion = *motion;
     } else if (key == "step")
       s.step = number(value, at);

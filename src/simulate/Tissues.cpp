@@ -5,6 +5,7 @@
 #include <sstream>
 #include <utility>
 
+#include "../core/Text.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/simulate/Simulator.h"
 
@@ -107,9 +108,8 @@ const char* to_string(SimulationSource source) {
 }
 
 SimulationSource parse_simulation_source(const std::string& name, const std::string& what) {
-  for (SimulationSource s : {SimulationSource::HounsfieldUnits, SimulationSource::Labels})
-    if (name == to_string(s)) return s;
-  throw InputError(what + " " + name + ": expected ct or labels");
+  if (const auto* s = text::find_named(kSimulationSources, name)) return *s;
+  throw InputError(what + " " + name + ": expected " + text::spellings(kSimulationSources));
 }
 
 SimulationSource default_simulation_source(const Volume& volume, bool tissue_table_given) {
@@ -129,9 +129,8 @@ const char* to_string(SimulationOutput output) {
 }
 
 SimulationOutput parse_simulation_output(const std::string& name, const std::string& what) {
-  for (SimulationOutput o : {SimulationOutput::BMode, SimulationOutput::Envelope})
-    if (name == to_string(o)) return o;
-  throw InputError(what + " " + name + ": expected bmode or envelope");
+  if (const auto* o = text::find_named(kSimulationOutputs, name)) return *o;
+  throw InputError(what + " " + name + ": expected " + text::spellings(kSimulationOutputs));
 }
 
 void SimulationSettings::validate(const ParameterNames& names) const {

@@ -51,6 +51,17 @@ enum class RegistrationMode {
   SmoothSweep
 };
 
+/// Every value of each choice, in the order of its spelling table (the parsers and the Python
+/// enums take them from here).
+inline constexpr RegistrationMetric kRegistrationMetrics[] = {
+    RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
+    RegistrationMetric::MI, RegistrationMetric::LC2};
+inline constexpr RegistrationOptimizer kRegistrationOptimizers[] = {
+    RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
+    RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead};
+inline constexpr RegistrationMode kRegistrationModes[] = {
+    RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep};
+
 /// The spelling tables (the CLI's flag values, Python's strings): "ssd", "ncc", "lncc", "mi",
 /// "lc2"; "gn", "lm", "bobyqa", "nelder-mead"; "per-frame", "rigid-sweep", "smooth-sweep".
 /// The parsers throw InputError "<what> <name>: expected ..." (`what`: the setting as the caller

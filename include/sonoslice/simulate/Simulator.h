@@ -45,6 +45,9 @@ enum class SimulationSource {
   HounsfieldUnits,  ///< a CT: any pixel type, values in HU, trilinear
   Labels            ///< a uint8/uint16 label volume, nearest, properties from the tissue table
 };
+/// Every source, in the order of its spelling table.
+inline constexpr SimulationSource kSimulationSources[] = {SimulationSource::HounsfieldUnits,
+                                                          SimulationSource::Labels};
 /// "ct", "labels" (Python's kind=).
 const char* to_string(SimulationSource source);
 /// InputError "<what> <name>: expected ct or labels" for another name.
@@ -58,6 +61,9 @@ enum class SimulationOutput {
   BMode,    ///< uint8 after time-gain compensation and log compression
   Envelope  ///< float32 linear envelope amplitude, before TGC and log compression
 };
+/// Every output, in the order of its spelling table.
+inline constexpr SimulationOutput kSimulationOutputs[] = {SimulationOutput::BMode,
+                                                          SimulationOutput::Envelope};
 /// "bmode", "envelope".
 const char* to_string(SimulationOutput output);
 /// InputError "<what> <name>: expected bmode or envelope" for another name.
