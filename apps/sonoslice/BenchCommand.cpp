@@ -1,6 +1,7 @@
 // sonoslice bench: images per second of the slicing kernel on the benchmark workloads
 // (W1: fan on the full phantom, W2: linear probe), or on a volume/probe/poses of your own;
-// with --compound, frames per second of compounding (Jauer's workload and a 2D sweep).
+// with --compound, frames per second of compounding (Jauer's workload and a 2D sweep); with
+// --simulate, images per second of ultrasound simulation (W1 from the phantom CT).
 // bench/peers.py runs the same workloads through torch, VTK and SciPy and calls this with
 // --json to put sonoslice's figure in the same run.
 #include <algorithm>
@@ -16,6 +17,7 @@
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
 #include "sonoslice/phantom/Phantom.h"
+#include "sonoslice/simulate/Simulator.h"
 
 namespace sonoslice {
 namespace cli {
@@ -26,7 +28,7 @@ struct BenchFlags {
   std::string probe, poses, as = "", interp = "linear", size = "full", device = "cpu";
   int downsampling = 1, count = 1000, repeat = 3;
   std::optional<int> threads;  // unset: all hardware threads
-  bool json = false, compound = false;
+  bool json = false, compound = false, simulate = false;
 };
 
 // Compounding: the Jauer beam-space workload and a 1000-frame 2D sweep, nearest and
@@ -92,6 +94,46 @@ void run_compound_bench(const BenchFlags& f, const Device& device) {
   if (f.json) std::printf("%s\n", j.dump(2).c_str());
 }
 
+// Simulation: W1 (the `lus` preset: fan-slicer's LUS fan at downsampling 2, 334×272, 6.5 MHz)
+// from the phantom CT (int16, read in place) at random poses, B-mode into host memory.
+void run_simulate_bench(const BenchFlags& f, const Device& device) {
+  const Volume ct = f.volume.path.empty() ? make_phantom(parse_phantom_size(f.size)).ct
+                                          : read_volume(f.volume.path, f.volume.options());
+  const std::vector<Pose> poses =
+      f.poses.empty() ? phantom_random_poses(size_t(f.count)) : read_poses(f.poses);
+  SimulationSettings s;
+  s.preset = "lus";
+  s.device = device;
+  const Simulator sim(ct, SimulationSource::HounsfieldUnits, std::nullopt, {}, s);
+  std::vector<uint8_t> out(poses.size() * sim.image_bytes());
+  sim.simulate(poses.data(), std::min<size_t>(poses.size(), 32), out.data());  // warm-up
+  double best = 1e300;
+  for (int r = 0; r < f.repeat; ++r) {
+    Stopwatch clock;
+    sim.simulate(poses.data(), poses.size(), out.data());
+    best = std::min(best, clock.seconds());
+  }
+  const double ips = double(poses.size()) / best;
+  if (f.json) {
+    const nlohmann::json j = {{"workload", "W1 simulation 334x272"},
+                              {"volume_type", to_string(ct.pixel_type())},
+                              {"images", poses.size()},
+                              {"device", device.to_string()},
+                              {"threads", cpu_threads()},
+                              {"best_seconds", best},
+                              {"images_per_second", ips}};
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  std::printf(
+      "sonoslice bench --simulate: %zu poses, %s, best of %d\n%-26s %-8s %12s\n", poses.size(),
+      device.type == DeviceType::CUDA ? device.to_string().c_str()
+                                      : (std::to_string(cpu_threads()) + " threads").c_str(),
+      f.repeat, "workload", "volume", "images/s");
+  std::printf("%-26s %-8s %12.0f\n", "W1 simulation 334x272", to_string(ct.pixel_type()).c_str(),
+              ips);
+}
+
 struct Workload {
   std::string name;
   ProbeGeometry probe;
@@ -138,10 +180,12 @@ void run_bench(const BenchFlags& f) {
   setup_threads(f.threads);
   if (f.count < 1 || f.repeat < 1) throw InputError("--count and --repeat must be >= 1");
   const Device device = Device::parse(f.device);
+  if (f.compound && f.simulate) throw InputError("--compound and --simulate: give one");
   if (f.compound) {
     require_device(device);
     return run_compound_bench(f, device);
   }
+  if (f.simulate) return run_simulate_bench(f, device);
   const Interpolation interp = parse_interpolation(f.interp);
 
   std::vector<Workload> workloads;
@@ -225,6 +269,8 @@ void add_bench_command(CLI::App& app) {
   cmd->add_flag("--json", flags->json, "Machine-readable output");
   cmd->add_flag("--compound", flags->compound,
                 "Measure compounding instead: the Jauer beam-space workload and a 2D sweep");
+  cmd->add_flag("--simulate", flags->simulate,
+                "Measure simulation instead: W1 B-mode images from the phantom CT");
   cmd->callback([flags] { run_bench(*flags); });
 }
 

@@ -222,7 +222,7 @@ void add_simulate_command(CLI::App& app) {
                       to_string(defaults.output));
   cmd->add_option("--world", flags->world, "Frame of the poses and meshes: LPS (default) or RAS");
   add_threads_option(*cmd, flags->threads);
-  cmd->add_option("--device", flags->device, "cpu (default; CUDA not yet)");
+  cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");
   cmd->add_flag("--list-presets", flags->list_presets, "Print the presets and exit");
   cmd->add_flag("--print-tissues", flags->print_tissues,
                 "Write the default tissue table to stdout as JSON and exit");

@@ -61,8 +61,9 @@ class Simulator:
     returns, or None for the default table. ``probe``: a :class:`Probe` or a preset name
     ("abdominal", "laparoscopic", "lus"; its frequency is used unless ``frequency`` is given).
     ``tgc``: "auto" or "off". Unset settings take :class:`SimulationSettings`' defaults; or give
-    them all as ``settings=`` (a :class:`SimulationSettings`; not with the keywords). CPU only so
-    far (``device="cpu"``).
+    them all as ``settings=`` (a :class:`SimulationSettings`; not with the keywords). ``device``:
+    "cpu" (default) or "cuda[:K]" (the volume and tables are uploaded once; images come back as
+    NumPy arrays).
     """
 
     def __init__(self, volume_or_labels: Volume, probe, tissues=None, frequency: Optional[float] = None,

@@ -90,6 +90,24 @@ def test_same_seed_same_bytes_any_threads(cli, ph):
     assert not np.array_equal(outs[0], outs[2])
 
 
+def test_simulate_cli_on_the_gpu(cli, tmp_path, cuda):
+    """--device cuda: the CPU's images within docs/simulation.md §4's tolerance. (.npy files: the
+    GPU machine's build has no ITK.)"""
+    r = run(cli, "phantom", str(tmp_path / "ph"), "--format", "npy", "--poses", "3", "-q")
+    assert r.returncode == 0, r.stderr
+    outs = []
+    for device in ("cpu", cuda):
+        out = tmp_path / f"{device.replace(':', '')}.npy"
+        r = run(cli, "simulate", "--volume", str(tmp_path / "ph" / "ct.npy"), "--preset", "lus",
+                "--poses", str(tmp_path / "ph" / "poses.npy"), "--out", str(out), "--device", device,
+                "--mask", str(tmp_path / "mask.npy"), "-q")
+        assert r.returncode == 0, r.stderr
+        outs.append(np.load(out))
+    mask = np.load(tmp_path / "mask.npy") == 1
+    diff = np.abs(outs[0].astype(int) - outs[1].astype(int))[:, mask]
+    assert (diff > 1).mean() <= 0.005 and diff.mean() < 0.05, ((diff > 1).mean(), diff.mean())
+
+
 def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
     ct = str(ph / "ph" / "ct.nii.gz")
     labels = str(ph / "ph" / "labels.nii.gz")
@@ -113,7 +131,7 @@ def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
     ] + [(["--preset", "lus", *args], needle) for args, needle in [
         (["--volume", ct, "--poses", poses, "--tgc", "on"], "--tgc on: expected auto or off"),
         (["--volume", ct, "--poses", poses, "--output", "rf"], "--output rf: expected bmode or envelope"),
-        (["--volume", ct, "--poses", poses, "--device", "cuda"], "simulation runs on the CPU only"),
+        (["--volume", ct, "--poses", poses, "--device", "tpu"], "--device tpu"),
         (["--volume", ct, "--poses", poses, "--frequency", "0"], "frequency 0"),
         (["--volume", ct, "--poses", poses, "--dynamic-range", "-3"], "dynamic range -3"),
         (["--volume", ct, "--labels", labels, "--poses", poses], "exactly one of --volume, --labels"),
@@ -158,11 +176,24 @@ def test_python_simulator_ct_labels_and_out(phantom, poses):
     assert li.shape == images.shape and li[:, lab.mask == 1].std() > 5
 
 
+def test_python_simulator_on_the_gpu(phantom, poses, cuda):
+    import sonoslice
+    ct, _ = phantom
+    cpu = sonoslice.Simulator(ct, "lus", seed=4).simulate(poses[:4])
+    sim = sonoslice.Simulator(ct, "lus", seed=4, device=cuda)
+    assert sim.settings.device == "cuda:0"
+    gpu = sim.simulate(poses[:4])
+    assert gpu.shape == cpu.shape and gpu.dtype == np.uint8
+    diff = np.abs(cpu.astype(int) - gpu.astype(int))[:, sim.mask == 1]
+    assert (diff > 1).mean() <= 0.005 and diff.mean() < 0.05, ((diff > 1).mean(), diff.mean())
+    assert np.array_equal(sim.simulate(poses[:4]), gpu)  # the same bytes every run
+
+
 def test_python_simulator_bad_input(phantom, poses, tmp_path):
     import sonoslice
     ct, labels = phantom
-    with pytest.raises(ValueError, match="simulation runs on the CPU only"):
-        sonoslice.Simulator(ct, "lus", device="cuda")
+    with pytest.raises(ValueError, match="tpu"):
+        sonoslice.Simulator(ct, "lus", device="tpu")
     with pytest.raises(ValueError, match="^preset nope: unknown"):  # the setting, not the CLI's --preset
         sonoslice.Simulator(ct, "nope")
     with pytest.raises(ValueError, match="holds label 0, which the tissue table does not list"):

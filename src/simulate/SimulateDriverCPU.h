@@ -3,7 +3,6 @@
 /// stages run in a fixed order on one thread with that thread's buffers, so the bytes do not
 /// depend on the number of threads. Included by SimulateCPU.cpp (generic x86-64) and
 /// SimulateCPUAvx2.cpp (AVX2 + FMA); Simulator.cpp picks one at run time.
-#include <algorithm>
 #include <vector>
 
 #include "../backend/ParallelFor.h"
@@ -15,7 +14,8 @@ inline namespace SONOSLICE_KERNEL_ISA {
 
 /// One thread's buffers for one image at a time (beam-major, sample s of beam b at b·S + s).
 struct Scratch {
-  std::vector<float> echo, echo_filtered, specular, specular_filtered, loss, tmp, level, across;
+  std::vector<float> echo, echo_filtered, specular, specular_filtered, loss, tmp, level, across,
+      knots;
 };
 
 /// One image: trace every beam, the PSF (axial along each beam, then lateral across the beams
@@ -29,7 +29,7 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   w.specular_filtered.resize(n);
   w.loss.resize(n);
   w.tmp.resize(2 * size_t(S));
-  w.level.assign(size_t(S), 0.f);
+  w.level.resize(size_t(S));
   w.across.resize(size_t(B));
   for (int b = 0; b < B; ++b) {
     trace_beam(m, b, w.echo.data(), w.specular.data(), w.loss.data());
@@ -47,28 +47,15 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
     filter_lateral(w.specular.data(), w.specular_filtered.data(), B, S, 1, m.lateral_specular,
                    m.lateral_radius, b);
   }
-  for (size_t i = 0; i < n; ++i) w.echo_filtered[2 * i] += w.specular_filtered[i];
-  // TGC: the median round-trip attenuation across the beams at each depth (auto), or none. The
-  // median, not the mean: a few beams through gas or bone lose far more, and compensating them
-  // would flood the others. Taken every kTgcStride samples and linear between: the attenuation
-  // met grows by hundredths of a dB per sample, and each median reads a sample of every beam.
+  for (size_t i = 0; i < n; ++i)
+    add_specular(w.echo_filtered.data(), w.specular_filtered.data(), int64_t(i));
   if (m.tgc_auto) {
-    constexpr int kTgcStride = 8;
-    const auto median_at = [&](int s) {
-      for (int b = 0; b < B; ++b) w.across[size_t(b)] = w.loss[size_t(b) * S + size_t(s)];
-      std::nth_element(w.across.begin(), w.across.begin() + B / 2, w.across.end());
-      return w.across[size_t(B / 2)];
-    };
-    float before = median_at(0);
-    w.level[0] = before;
-    for (int s0 = 0; s0 < S - 1; s0 += kTgcStride) {
-      const int s1 = std::min(s0 + kTgcStride, S - 1);
-      const float after = median_at(s1);
-      for (int s = s0 + 1; s <= s1; ++s)
-        w.level[size_t(s)] = before + (after - before) * float(s - s0) / float(s1 - s0);
-      before = after;
-    }
+    const int knots = tgc_knot_count(S);
+    w.knots.resize(size_t(knots));
+    for (int k = 0; k < knots; ++k)
+      w.knots[size_t(k)] = tgc_knot(m, w.loss.data(), k, w.across.data());
   }
+  for (int s = 0; s < S; ++s) w.level[size_t(s)] = tgc_level(m, w.knots.data(), s);
   const int64_t pixels = int64_t(m.width) * m.height;
   for (int64_t i = 0; i < pixels; ++i)
     scan_pixel(m, w.echo_filtered.data(), w.level.data(), i, out);

@@ -4,10 +4,12 @@
 ///   1. trace_beam(b):        properties, interfaces, attenuation and the speckle along beam b;
 ///   2. filter_axial(b):      the axial point-spread function along beam b;
 ///      filter_lateral(s):    the lateral point-spread function across the beams at depth s;
-///   3. (the driver)          time-gain compensation levels;
+///   3. tgc_knot(k):          time-gain compensation: the median loss across the beams at
+///      tgc_level(s):         every kTgcStride-th sample, and the level of each sample;
 ///   4. scan_pixel(i):        scan conversion, envelope and log compression of pixel i.
-/// Plain structs and pointers, no allocation; the CPU driver (Simulator.cpp) runs the stages of
-/// one image on one thread, in a fixed order, so the bytes do not depend on the thread count.
+/// Plain structs and pointers, no allocation. The CPU driver (SimulateDriverCPU.h) runs the
+/// stages of one image on one thread, in a fixed order, so the bytes do not depend on the thread
+/// count; the CUDA driver (SimulateDriverCUDA.cuh) launches each stage over (image, item).
 /// Single precision throughout: the speckle is noise with a fixed seed, and float halves the
 /// memory traffic of the tiles and the beam buffers.
 #include <cmath>
@@ -380,55 +382,70 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_of_lane(const ImageModel& m,
 /// the cell and its weights (the same lattice), only the nodes differ. The cells, weights and
 /// node offsets of kSpeckleLanes samples are computed together, then the node loads follow
 /// sample by sample (speckle_of_lane).
-SONOSLICE_HOST_DEVICE inline void add_speckle(const ImageModel& m, int b, float* echo) {
+/// Beam b's line in lattice coordinates: the sample at depth t lies at q0 + t·dq (before the
+/// elevation offsets).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_line(const ImageModel& m, int b, float* q0,
+                                                         float* dq) {
   float o[2], d[2];
   beam_line(m, b, o, d);
-  echo += 2 * int64_t(b) * m.samples;
-  float q0[3], dq[3];  // the lattice coordinate at depth t along the beam: q0 + t·dq
   for (int k = 0; k < 3; ++k) {
     q0[k] = m.Q[3 * k] * o[0] + m.Q[3 * k + 1] * o[1] + m.q[k];
     dq[k] = m.Q[3 * k] * d[0] + m.Q[3 * k + 1] * d[1];
   }
+}
+
+/// add_speckle() for the kSpeckleLanes samples from `first` of one beam (its line q0, dq from
+/// speckle_line; `echo`: that beam's buffer): the unit of work of the CUDA driver.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void add_speckle_group(const ImageModel& m, const float* q0,
+                                                              const float* dq, int first,
+                                                              float* echo) {
   const float hi = float(m.lattice_count - 2);
   constexpr int L = kSpeckleLanes;
+  const int n = m.samples - first < L ? m.samples - first : L;
+  bool any = false;
+  for (int l = 0; l < n; ++l) any = any || echo[2 * (first + l)] != 0;
+  if (!any) return;  // water, gas, outside the volume: no speckle
   SpeckleCells c;
-  for (int first = 0; first < m.samples; first += L) {
-    const int n = m.samples - first < L ? m.samples - first : L;
-    bool any = false;
-    for (int l = 0; l < n; ++l) any = any || echo[2 * (first + l)] != 0;
-    if (!any) continue;  // water, gas, outside the volume: no speckle
-    for (int e = 0; e < m.elevations; ++e)
-      for (int l = 0; l < L; ++l) {
-        const float depth = (float(first + l) + 0.5f) * m.step_mm;
-        const float x = lane_clamp(q0[0] + depth * dq[0] + m.elevation_q[e][0], hi);
-        const float y = lane_clamp(q0[1] + depth * dq[1] + m.elevation_q[e][1], hi);
-        const float z = lane_clamp(q0[2] + depth * dq[2] + m.elevation_q[e][2], hi);
-        const int ix = int(x), iy = int(y), iz = int(z);
-        const float fx = x - float(ix), fy = y - float(iy), fz = z - float(iz);
-        const float gx = 1 - fx, gy = 1 - fy, gz = 1 - fz;
-        const float norm = m.elevation_weight[e] * inverse_root_of_weights(fx * gx) *
-                           inverse_root_of_weights(fy * gy) * inverse_root_of_weights(fz * gz);
-        c.xw0[e][l] = gx * norm;
-        c.xw1[e][l] = fx * norm;
-        c.w00[e][l] = gy * gz;
-        c.w10[e][l] = fy * gz;
-        c.w01[e][l] = gy * fz;
-        c.w11[e][l] = fy * fz;
-        c.off0[e][l] = node_offset(m.tiles[0], ix, iy, iz);
-        c.off1[e][l] = node_offset(m.tiles[1], ix, iy, iz);
-      }
-    for (int l = 0; l < n; ++l) {
-      const float weight = echo[2 * (first + l)];
-      if (weight == 0) {
-        echo[2 * (first + l) + 1] = 0;
-        continue;
-      }
-      float re, im;
-      speckle_of_lane(m, c, l, re, im);
-      echo[2 * (first + l)] = weight * re;
-      echo[2 * (first + l) + 1] = weight * im;
+  for (int e = 0; e < m.elevations; ++e)
+    for (int l = 0; l < L; ++l) {
+      const float depth = (float(first + l) + 0.5f) * m.step_mm;
+      const float x = lane_clamp(q0[0] + depth * dq[0] + m.elevation_q[e][0], hi);
+      const float y = lane_clamp(q0[1] + depth * dq[1] + m.elevation_q[e][1], hi);
+      const float z = lane_clamp(q0[2] + depth * dq[2] + m.elevation_q[e][2], hi);
+      const int ix = int(x), iy = int(y), iz = int(z);
+      const float fx = x - float(ix), fy = y - float(iy), fz = z - float(iz);
+      const float gx = 1 - fx, gy = 1 - fy, gz = 1 - fz;
+      const float norm = m.elevation_weight[e] * inverse_root_of_weights(fx * gx) *
+                         inverse_root_of_weights(fy * gy) * inverse_root_of_weights(fz * gz);
+      c.xw0[e][l] = gx * norm;
+      c.xw1[e][l] = fx * norm;
+      c.w00[e][l] = gy * gz;
+      c.w10[e][l] = fy * gz;
+      c.w01[e][l] = gy * fz;
+      c.w11[e][l] = fy * fz;
+      c.off0[e][l] = node_offset(m.tiles[0], ix, iy, iz);
+      c.off1[e][l] = node_offset(m.tiles[1], ix, iy, iz);
     }
+  for (int l = 0; l < n; ++l) {
+    const float weight = echo[2 * (first + l)];
+    if (weight == 0) {
+      echo[2 * (first + l) + 1] = 0;
+      continue;
+    }
+    float re, im;
+    speckle_of_lane(m, c, l, re, im);
+    echo[2 * (first + l)] = weight * re;
+    echo[2 * (first + l) + 1] = weight * im;
   }
+}
+
+/// Stage 1b, beam b: add_speckle_group() over the beam's samples.
+SONOSLICE_HOST_DEVICE inline void add_speckle(const ImageModel& m, int b, float* echo) {
+  float q0[3], dq[3];
+  speckle_line(m, b, q0, dq);
+  echo += 2 * int64_t(b) * m.samples;
+  for (int first = 0; first < m.samples; first += kSpeckleLanes)
+    add_speckle_group(m, q0, dq, first, echo);
 }
 
 /// Stage 2, along one beam: `data` (n values, `channels` interleaved: 2 for the complex echo, 1
@@ -471,6 +488,76 @@ SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* out, in
     else
       for (int s = 0; s < samples; ++s) o[s] += w[s] * src[s];
   }
+}
+
+/// Stage 2 → 4: sample i's specular echo added to its complex echo's real part (both
+/// filtered), so that scan conversion interpolates one signal.
+SONOSLICE_HOST_DEVICE inline void add_specular(float* echo, const float* specular, int64_t i) {
+  echo[2 * i] += specular[i];
+}
+
+/// Stage 3: time-gain compensation. The median round-trip attenuation across the beams at each
+/// depth (auto), or none. The median, not the mean: a few beams through gas or bone lose far
+/// more, and compensating them would flood the others. Taken every kTgcStride samples (the
+/// knots: samples 0, kTgcStride, 2·kTgcStride, ... and the last) and linear between: the
+/// attenuation met grows by hundredths of a dB per sample, and each median reads a sample of
+/// every beam.
+constexpr int kTgcStride = 8;
+
+/// Knots of `samples` samples: 0, kTgcStride, ... and samples − 1.
+SONOSLICE_HOST_DEVICE inline int tgc_knot_count(int samples) {
+  return samples <= 1 ? 1 : (samples - 2) / kTgcStride + 2;
+}
+SONOSLICE_HOST_DEVICE inline int tgc_knot_sample(int samples, int k) {
+  return k * kTgcStride < samples - 1 ? k * kTgcStride : samples - 1;
+}
+
+/// The k-th smallest of v[0..n) (v is reordered): Hoare's selection with the middle element as
+/// pivot, deterministic and without recursion, so that CPU and GPU pick the same value.
+SONOSLICE_HOST_DEVICE inline float kth_smallest(float* v, int n, int k) {
+  int lo = 0, hi = n - 1;
+  while (lo < hi) {
+    const float pivot = v[lo + (hi - lo) / 2];
+    int i = lo, j = hi;
+    while (i <= j) {
+      while (v[i] < pivot) ++i;
+      while (pivot < v[j]) --j;
+      if (i <= j) {
+        const float t = v[i];
+        v[i] = v[j];
+        v[j] = t;
+        ++i;
+        --j;
+      }
+    }
+    if (k <= j)
+      hi = j;
+    else if (k >= i)
+      lo = i;
+    else
+      return v[k];
+  }
+  return v[k];
+}
+
+/// Knot k's level: the median across the beams of the round-trip loss (`loss`, beam-major) at
+/// its sample. `scratch`: `beams` floats.
+SONOSLICE_HOST_DEVICE inline float tgc_knot(const ImageModel& m, const float* loss, int k,
+                                            float* scratch) {
+  const int s = tgc_knot_sample(m.samples, k);
+  for (int b = 0; b < m.beams; ++b) scratch[b] = loss[int64_t(b) * m.samples + s];
+  return kth_smallest(scratch, m.beams, m.beams / 2);
+}
+
+/// Sample s's TGC level (dB), linear between the knots (`knots`: tgc_knot_count of them); 0
+/// without auto TGC.
+SONOSLICE_HOST_DEVICE inline float tgc_level(const ImageModel& m, const float* knots, int s) {
+  if (!m.tgc_auto) return 0;
+  if (s == 0) return knots[0];
+  const int k = (s - 1) / kTgcStride;
+  const int s0 = k * kTgcStride, s1 = tgc_knot_sample(m.samples, k + 1);
+  const float before = knots[k], after = knots[k + 1];
+  return before + (after - before) * float(s - s0) / float(s1 - s0);
 }
 
 /// Stage 4, pixel i: the complex echo (speckle + specular, summed into `echo`) bilinear in

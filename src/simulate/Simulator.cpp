@@ -8,6 +8,7 @@
 
 #include "../core/Random.h"
 #include "SimulateBackends.h"
+#include "SimulateModel.h"
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
@@ -17,22 +18,6 @@ namespace simulate_impl {
 
 constexpr double kSoundSpeedMmPerUs = 1.54;           // 1540 m/s: λ (mm) = 1.54 / f (MHz)
 constexpr double kFwhmToSigma = 0.42466090014400953;  // 1 / (2·sqrt(2·ln 2))
-
-struct Model {
-  Volume volume;
-  SimulationSource source;
-  ProbeGeometry probe;
-  SimulationSettings settings;
-  std::vector<uint8_t> mask;
-  std::vector<Props> label_props;  // label source: 65536 entries
-  std::vector<Props> hu_table;
-  std::vector<float> tiles[2];  // padded (n+1)³ complex
-  std::vector<float> axial_speckle, axial_specular, lateral_speckle, lateral_specular;
-  std::vector<int32_t> scan_index;
-  std::vector<uint8_t> scan_steps;
-  std::vector<float> scan_weights;
-  ImageModel base;  // everything but the pose
-};
 
 namespace {
 
@@ -449,6 +434,12 @@ Simulator::Simulator(Volume volume, SimulationSource source,
   b.tgc_auto = settings.tgc_auto;
   b.bmode = settings.output == SimulationOutput::BMode;
   b.dynamic_range_db = float(settings.dynamic_range_db);
+  if (settings.device.type == DeviceType::CUDA) {
+    require_device(settings.device);  // names the device, or says the build has no CUDA
+#ifdef SONOSLICE_HAVE_CUDA
+    m.cuda = cuda_prepare(m, settings.device.index);
+#endif
+  }
 }
 
 Simulator::~Simulator() = default;
@@ -489,6 +480,11 @@ void Simulator::simulate(const Pose* poses, size_t count, void* out, size_t firs
   const Model& m = *model_;
   std::vector<IndexMap> maps(count);
   for (size_t n = 0; n < count; ++n) maps[n] = m.volume.grid().index_map(poses[n]);
+#ifdef SONOSLICE_HAVE_CUDA
+  if (m.cuda)
+    return simulate_impl::cuda_simulate(*m.cuda, maps.data(), count, static_cast<uint8_t*>(out),
+                                        image_bytes());
+#endif
   simulate_impl::simulate_cpu(cpu_kernel_isa(), m.base, maps.data(), count,
                               static_cast<uint8_t*>(out), image_bytes());
 }

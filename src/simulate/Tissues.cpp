@@ -148,9 +148,6 @@ void SimulationSettings::validate(const ParameterNames& names) const {
                                    {"elevation_fwhm_mm", elevation_fwhm_mm}})
     if (!(w >= 0) || !std::isfinite(w))
       throw InputError(name(setting) + ": point-spread width " + number(w) + " mm must be >= 0");
-  if (device.type != DeviceType::CPU)
-    throw InputError(name("device") + " " + device.to_string() +
-                     ": simulation runs on the CPU only so far (docs/simulation.md §6)");
 }
 
 SimulationSettings SimulationSettings::resolved(const ParameterNames& names) const {

@@ -37,6 +37,20 @@ bool cuda_required() {
   return v && std::string(v) != "" && std::string(v) != "0";
 }
 
+bool gpu_available(std::string* why) {
+  if (!built_with_cuda()) {
+    *why = "cuda: not available (built without CUDA)";
+    return false;
+  }
+  try {
+    require_device(Device{DeviceType::CUDA, 0});
+    return true;
+  } catch (const std::exception& e) {
+    *why = e.what();
+    return false;
+  }
+}
+
 std::string read_file_bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

@@ -56,6 +56,20 @@ bool cuda_required();
     GTEST_SKIP() << (why);                                                            \
   } while (0)
 
+/// Whether cuda:0 can run here; `why` says why not ("built without CUDA", "cuda:0: not
+/// available (...)").
+bool gpu_available(std::string* why);
+
+/// A test fixture for GPU tests: skipped where gpu_available() is false (failed under
+/// SONOSLICE_REQUIRE_CUDA=1).
+class GpuTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string why;
+    if (!gpu_available(&why)) SONOSLICE_SKIP_WITHOUT_CUDA(why);
+  }
+};
+
 /// A file's whole content, byte for byte ("" when it cannot be read).
 std::string read_file_bytes(const std::string& path);
 

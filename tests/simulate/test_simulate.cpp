@@ -454,9 +454,6 @@ TEST(Simulate, SettingsChooseTheFrequencyAndTheProbeAndNameTheSetting) {
   EXPECT_EQ(message(bad, {}).rfind("preset nope: unknown (presets: abdominal", 0), 0u);
   const ParameterNames flags = [](const std::string& p) { return "--" + p; };
   EXPECT_EQ(message(bad, flags).rfind("--preset nope: unknown", 0), 0u);
-  bad = SimulationSettings();
-  bad.device = Device::parse("cuda");
-  EXPECT_EQ(message(bad, {}).rfind("device cuda:0: simulation runs on the CPU only", 0), 0u);
   for (SimulationOutput o : {SimulationOutput::BMode, SimulationOutput::Envelope})
     EXPECT_EQ(parse_simulation_output(to_string(o)), o);
   for (SimulationSource k : {SimulationSource::HounsfieldUnits, SimulationSource::Labels})

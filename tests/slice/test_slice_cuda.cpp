@@ -21,27 +21,8 @@ namespace {
 
 const Device kCuda{DeviceType::CUDA, 0};
 
-bool gpu_available(std::string* why) {
-  if (!built_with_cuda()) {
-    *why = "cuda: not available (built without CUDA)";
-    return false;
-  }
-  try {
-    require_device(kCuda);
-    return true;
-  } catch (const std::exception& e) {
-    *why = e.what();
-    return false;
-  }
-}
-
-class Cuda : public ::testing::Test {
- protected:
-  void SetUp() override {
-    std::string why;
-    if (!gpu_available(&why)) SONOSLICE_SKIP_WITHOUT_CUDA(why);
-  }
-};
+using Cuda = test::GpuTest;
+using test::gpu_available;
 
 // The small phantom turned to an oblique, off-centre grid, so direction cosines matter.
 Volume oblique(const Volume& v) {

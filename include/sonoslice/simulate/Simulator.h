@@ -88,14 +88,14 @@ struct SimulationSettings {
   /// Point-spread function, full width at half maximum in mm; 0: from the frequency (axial: two
   /// cycles of the pulse, λ; lateral: 2λ·F-number 2 → ... see docs/simulation.md §3).
   double axial_fwhm_mm = 0, lateral_fwhm_mm = 0, elevation_fwhm_mm = 0;
-  /// The CPU only so far (docs/simulation.md §6).
+  /// Where the images are computed: the CPU, or a GPU (the volume and tables are uploaded once
+  /// per Simulator; images come back to host memory). docs/simulation.md §4.
   Device device = Device::cpu();
 
   /// These settings, checked (validate), with the defaults chosen: frequency_mhz set.
   SimulationSettings resolved(const ParameterNames& names = {}) const;
   /// Throws InputError naming the setting (as `names` spells it) for an unknown preset,
-  /// non-finite or non-positive values (frequency, dynamic range), negative PSF widths, or a
-  /// device other than the CPU.
+  /// non-finite or non-positive values (frequency, dynamic range) or negative PSF widths.
   void validate(const ParameterNames& names = {}) const;
 };
 

@@ -1,0 +1,34 @@
+#pragma once
+/// @file What a Simulator holds (Simulator.cpp builds it): the volume and the tables the kernel
+/// reads (ImageModel points into them), and, on a GPU, their device copies (SimulatorCUDA.cpp).
+#include <memory>
+#include <vector>
+
+#include "SimulateImpl.h"
+#include "sonoslice/simulate/Simulator.h"
+#include "sonoslice/volume/Volume.h"
+
+namespace sonoslice {
+namespace simulate_impl {
+
+struct CudaSimulateState;
+
+struct Model {
+  Volume volume;
+  SimulationSource source;
+  ProbeGeometry probe;
+  SimulationSettings settings;
+  std::vector<uint8_t> mask;
+  std::vector<Props> label_props;  // label source: 65536 entries
+  std::vector<Props> hu_table;
+  std::vector<float> tiles[2];  // padded (n+1)³ complex
+  std::vector<float> axial_speckle, axial_specular, lateral_speckle, lateral_specular;
+  std::vector<int32_t> scan_index;
+  std::vector<uint8_t> scan_steps;
+  std::vector<float> scan_weights;
+  ImageModel base;                          // everything but the pose
+  std::shared_ptr<CudaSimulateState> cuda;  // settings.device is a GPU: the tables there
+};
+
+}  // namespace simulate_impl
+}  // namespace sonoslice
