@@ -5,7 +5,8 @@ Same workloads and poses as peers.py (W1 fan, W2 linear, 1000 random poses insid
 phantom). Two figures for each tool:
   on-GPU    images/s with the images left in GPU memory (what a training loop consumes);
             grid_sample's coordinates are built on the GPU too
-  to host   images/s end to end into host memory
+  to host   images/s end to end into host memory, also as GB/s against this machine's
+            device-to-host copy bandwidth (pinned memory, measured here with torch)
 Needs a CUDA build of sonoslice and a Python with torch on CUDA (the GPU machine's python3):
   python3 bench/peers_cuda.py [--count 1000] [--repeat 5]
 """
@@ -46,6 +47,24 @@ def grid_sample_cuda(vol, p, poses, origin, spacing, batch, repeat):
     return best[False], best[True], first
 
 
+def pcie_bandwidth(device, gib=2, repeat=5):
+    """Device -> host copy bandwidth (GB/s) into pinned memory: the ceiling of any to-host figure."""
+    import torch
+    n = gib << 30
+    src = torch.empty(n, dtype=torch.uint8, device=device)
+    dst = torch.empty(n, dtype=torch.uint8, pin_memory=True)
+    dst.copy_(src)
+    torch.cuda.synchronize()
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        dst.copy_(src, non_blocking=True)
+        torch.cuda.synchronize()
+        best = min(best, time.perf_counter() - t0)
+    del src, dst
+    return n / best / 1e9
+
+
 def main():
     ap = argument_parser(__doc__)
     ap.add_argument("--count", type=int, default=1000)
@@ -58,6 +77,10 @@ def main():
     _, ct, vol, origin, spacing, poses_file, poses = prepare_phantom(args.sonoslice, args.workdir, args.count,
                                                                      "sonoslice-peers-cuda-")
     results = []
+    import torch
+    print(f"GPU: {torch.cuda.get_device_name(args.device)}")
+    pcie = pcie_bandwidth(args.device)
+    print(f"device -> host copy into pinned memory: {pcie:.1f} GB/s")
     print(f"images/s on {args.device}, {len(poses)} poses, best of {args.repeat}")
     print(f"{'workload':8} {'tool':26} {'on-GPU':>10} {'to host':>10}")
     for name, cfg, ds in workloads(args.data):
@@ -73,7 +96,12 @@ def main():
             print(f"{name:8} {tool:26} {d:10.0f} {h:10.0f}")
         print(f"{name:8} ratio (sonoslice float32 / grid_sample): on-GPU {ours['float32'][0] / gs_dev:.2f}, "
               f"to host {ours['float32'][1] / gs_host:.2f}")
-        results.append({"workload": name, "sonoslice": ours, "grid_sample": {"device": gs_dev, "host": gs_host}})
+        # The bench slices into float32 images whatever the volume's type.
+        to_host_gbs = ours["float32"][1] * p["W"] * p["H"] * 4 / 1e9
+        print(f"{name:8} sonoslice to host: {to_host_gbs:.1f} GB/s = {100 * to_host_gbs / pcie:.0f} % of the "
+              f"device -> host bandwidth")
+        results.append({"workload": name, "sonoslice": ours, "grid_sample": {"device": gs_dev, "host": gs_host},
+                        "to_host_gb_per_s": to_host_gbs, "pcie_gb_per_s": pcie})
     if args.json:
         json.dump(results, open(args.json, "w"), indent=2)
 

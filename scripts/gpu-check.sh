@@ -4,19 +4,21 @@
 # and no network. What the build needs beyond that travels in .carry/ (scripts/gpu-carry.sh fills
 # it on a Debian machine): GoogleTest's sources and the wheels of pytest and its dependencies.
 #
-#   scripts/gpu-check.sh test       build (C++ core, CLI, tests, the Python extension), check that a
-#                                   GPU is used, every test with SONOSLICE_REQUIRE_CUDA=1 (a CUDA
-#                                   skip is a failure), compute-sanitizer on the CUDA tests
-#   scripts/gpu-check.sh measure    the benchmarks (slicing, compounding, torch grid_sample on the
-#                                   same GPU), compute-sanitizer on a short benchmark run and on
-#                                   bench/peers_cuda.py, an ncu Speed-of-Light pass on the slicing
-#                                   kernel
+#   scripts/gpu-check.sh test       build (CLI, the C++ tests, the Python extension), check that a
+#                                   GPU is used, every CUDA test (C++ and pytest) with
+#                                   SONOSLICE_REQUIRE_CUDA=1 (a CUDA skip is a failure),
+#                                   compute-sanitizer memcheck, initcheck and racecheck on the C++
+#                                   CUDA tests
+#   scripts/gpu-check.sh measure    the benchmarks (slicing, compounding, simulation; torch
+#                                   grid_sample and the PCIe bandwidth on the same GPU),
+#                                   compute-sanitizer on a short benchmark run, an ncu
+#                                   Speed-of-Light pass on the slicing kernel
 #   scripts/gpu-check.sh all        both (default); each step alone fits a 10-minute command
 #   DRY_RUN=1 scripts/gpu-check.sh  print the commands instead of running them (any machine)
 #
 # Everything goes to $OUT (default build-gpu/results): one log per step, summary.txt last. The
-# script stops at the first failing step of `test`; `measure` records a failing profiler (ncu
-# needs GPU performance-counter permission) in the summary and goes on.
+# script stops when the build fails or no GPU is seen; other failing steps are recorded in the
+# summary and the rest go on (exit status 1 at the end).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$PWD
@@ -73,19 +75,34 @@ export PYTHONPATH=$pkg:$build/python-deps${PYTHONPATH:+:$PYTHONPATH}
 sanitizer=${COMPUTE_SANITIZER:-$(command -v compute-sanitizer || echo "$(dirname "$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)")/compute-sanitizer")}
 ncu=${NCU:-$(command -v ncu || echo "$(dirname "$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)")/ncu")}
 
+# A step that fails is recorded and the rest go on (GPU time is short: one call should show
+# everything); the script's exit status is then 1.
+failed=0
+check() { run "$@" || failed=1; }
+# The CUDA tests of the C++ suite (every CUDA test is in test_core; the CPU suite runs in CI).
+cuda_tests='Cuda*:*Cuda*:*cuda*'
+
 if [[ $step == test || $step == all ]]; then
   note "$(date -u +%FT%TZ) test on $(hostname)"
   generator=()
   command -v ninja >/dev/null && generator=(-G Ninja)
+  # The extension needs the Python's headers; without them the C++ checks still run.
+  with_python=ON targets=(sonoslice test_core _sonoslice)
+  if [[ $dry != 1 ]] && ! "$python" -c 'import os, sysconfig, sys
+sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))'; then
+    note "FAILED: no Python.h for $python: the Python extension and pytest are left out"
+    failed=1 with_python=OFF targets=(sonoslice test_core)
+  fi
   run configure cmake -S . -B "$build" "${generator[@]}" -DCMAKE_BUILD_TYPE=Release \
     -DSONOSLICE_WITH_ITK=OFF -DSONOSLICE_WITH_VTK=OFF -DSONOSLICE_WITH_CUDA=ON \
     -DCMAKE_CUDA_ARCHITECTURES="${CUDA_ARCHS:-90}" -DSONOSLICE_GTEST_SOURCE_DIR="$gtest" \
-    -DSONOSLICE_BUILD_PYTHON=ON -DPython_EXECUTABLE="$python"
-  run build cmake --build "$build" -j "$(nproc)"
+    -DSONOSLICE_BUILD_PYTHON=$with_python -DPython_EXECUTABLE="$python"
+  # What the GPU checks use: the CLI, the C++ test binary with the CUDA tests, the extension.
+  run build cmake --build "$build" -j "$(nproc)" --target "${targets[@]}"
   # The Python package from the build tree: python/sonoslice/*.py plus the extension module.
-  run python-package bash -c "rm -rf '$pkg' && mkdir -p '$pkg' && cp -r python/sonoslice '$pkg/' &&
+  [[ $with_python == ON ]] && run python-package bash -c "rm -rf '$pkg' && mkdir -p '$pkg' && cp -r python/sonoslice '$pkg/' &&
     cp '$build'/python/_sonoslice*.so '$pkg/sonoslice/'"
-  if [[ $dry != 1 ]] && ! "$python" -c "import pytest" 2>/dev/null; then
+  if [[ $with_python == ON && $dry != 1 ]] && ! "$python" -c "import pytest" 2>/dev/null; then
     run python-deps "$python" -m pip install --no-index --find-links "$wheels" \
       --target "$build/python-deps" pytest
   fi
@@ -95,38 +112,47 @@ if [[ $step == test || $step == all ]]; then
     note "FAILED: no GPU seen (sonoslice info --devices above)"
     exit 1
   fi
-  run ctest ctest --test-dir "$build" --output-on-failure -j 4
-  run pytest env SONOSLICE_CLI="$build/bin/sonoslice" "$python" -m pytest -q -rs -p no:cacheprovider \
-    python/tests
-  # The CUDA tests under compute-sanitizer: out-of-bounds and misaligned accesses, then reads of
-  # uninitialised device memory.
-  run sanitizer-memcheck "$sanitizer" --tool memcheck --error-exitcode 1 \
-    "$build/bin/test_core" --gtest_filter='Cuda*:*cuda*:*Cuda*'
-  run sanitizer-initcheck "$sanitizer" --tool initcheck --error-exitcode 1 \
-    "$build/bin/test_core" --gtest_filter='Cuda*:*cuda*:*Cuda*'
+  check gtest-cuda "$build/bin/test_core" --gtest_filter="$cuda_tests"
+  [[ $with_python == ON ]] && check pytest-cuda env SONOSLICE_CLI="$build/bin/sonoslice" "$python" -m pytest -q -rs \
+    -p no:cacheprovider python/tests -k "cuda or gpu"
+  # The CUDA tests under compute-sanitizer: out-of-bounds and misaligned accesses, reads of
+  # uninitialised device memory, shared-memory races.
+  for tool in memcheck initcheck racecheck; do
+    check "sanitizer-$tool" timeout 150 "$sanitizer" --tool "$tool" --error-exitcode 1 \
+      "$build/bin/test_core" --gtest_filter="$cuda_tests"
+  done
 fi
 
 if [[ $step == measure || $step == all ]]; then
   note "$(date -u +%FT%TZ) measure on $(hostname)"
   [[ $dry == 1 || -x $build/bin/sonoslice ]] || { note "FAILED: run the test step first"; exit 1; }
-  run bench-slice "$build/bin/sonoslice" bench --device cuda --repeat 5
-  run bench-slice-json "$build/bin/sonoslice" bench --device cuda --repeat 5 --json
+  run gpu nvidia-smi --query-gpu=name,memory.total,clocks.max.sm,pcie.link.gen.max,pcie.link.width.max \
+    --format=csv || true
+  # Slicing: W1 and W2, float32 and int16, into GPU memory and to host memory. 10,000 poses, so
+  # that one batch runs well past launch overhead (W1 float32: 3.6 GB of images).
+  check bench-slice timeout 120 "$build/bin/sonoslice" bench --device cuda --count 10000 --repeat 5
   # Compounding: Jauer's workload end to end (target: under 0.2 s) and the 1000-frame 2D sweep.
-  run bench-compound "$build/bin/sonoslice" bench --compound --device cuda --repeat 3
-  run peers-cuda "$python" bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" \
-    --json "$out/peers_cuda.json"
-  run sanitizer-bench "$sanitizer" --tool memcheck --error-exitcode 1 \
+  check bench-compound timeout 120 "$build/bin/sonoslice" bench --compound --device cuda --repeat 3
+  # Simulation: W1 B-mode images from the phantom CT, on the GPU and on the machine's CPU cores.
+  check bench-simulate timeout 120 "$build/bin/sonoslice" bench --simulate --device cuda \
+    --count 4096 --repeat 3
+  check bench-simulate-cpu timeout 120 "$build/bin/sonoslice" bench --simulate --count 256 --repeat 1
+  # torch grid_sample on the same GPU, the same poses; the PCIe bandwidth of this machine.
+  check peers-cuda timeout 240 "$python" bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" \
+    --count 10000 --repeat 5 --json "$out/peers_cuda.json"
+  check sanitizer-bench timeout 60 "$sanitizer" --tool memcheck --error-exitcode 1 \
     "$build/bin/sonoslice" bench --device cuda --count 50 --repeat 1
-  run sanitizer-bench-compound "$sanitizer" --tool memcheck --error-exitcode 1 \
-    "$build/bin/sonoslice" bench --compound --device cuda --repeat 1
-  run sanitizer-peers "$sanitizer" --tool memcheck --error-exitcode 1 \
-    "$python" bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" --count 50 --repeat 1
   # Speed of Light of the slicing kernel (rows_kernel: SliceImpl.h through parallel_for_rows),
   # W1 float32, one launch after warm-up; the report file opens in Nsight Compute.
-  run ncu-slice "$ncu" --section SpeedOfLight --section MemoryWorkloadAnalysis \
-    --section Occupancy --kernel-name regex:rows_kernel --launch-skip 2 --launch-count 1 \
-    --export "$out/slice-kernel" --force-overwrite \
-    "$build/bin/sonoslice" bench --device cuda --count 1000 --repeat 1 ||
+  run ncu-slice timeout 120 "$ncu" --clock-control none --section SpeedOfLight \
+    --section MemoryWorkloadAnalysis --section Occupancy --kernel-name regex:rows_kernel \
+    --launch-skip 2 --launch-count 1 --export "$out/slice-kernel" --force-overwrite \
+    "$build/bin/sonoslice" bench --device cuda --count 1000 --repeat 1 &&
+    run ncu-slice-details "$ncu" --import "$out/slice-kernel.ncu-rep" --page details ||
     note "ncu failed (no permission for GPU performance counters?): see ncu-slice.txt"
+fi
+if [[ $failed == 1 ]]; then
+  note "done, with failures (above)"
+  exit 1
 fi
 note "done"

@@ -51,7 +51,8 @@ struct has_pixels<F, S, decltype(std::declval<const F&>().pixels(std::declval<co
 /// and, optionally, a CPU fast path for a run of elements (SIMD):
 ///   void pixels(const State&, int begin, int end) const;
 /// On the CPU a thread takes whole rows, so per-row work (pose lookup, row base coordinates) is
-/// paid once per row and stays in registers; on CUDA each thread computes row() for its pixel.
+/// paid once per row and stays in registers; on CUDA a warp takes a row, each lane computing
+/// row() once for its pixels of that row.
 template <typename F>
 void parallel_for_rows(int64_t rows, int width, const F& f, void* /*stream*/ = nullptr) {
   struct Context {

@@ -35,15 +35,17 @@ __global__ void for_kernel(int64_t n, F f) {
     f(i);
 }
 
-// Threads of a warp take 32 consecutive pixels of one row (coalesced stores, neighbouring voxels);
-// the y dimension strides over rows, so any batch size fits the grid.
+// One warp per row: its lanes take columns lane, lane + 32, ... (coalesced stores, neighbouring
+// voxels), so row() (the pose, the row's start) is computed once per warp-row rather than once per
+// pixel; warps stride over the rows, so any batch size fits the grid.
 template <typename F>
 __global__ void rows_kernel(int64_t rows, int width, F f) {
-  const int u = int(blockIdx.x) * int(blockDim.x) + int(threadIdx.x);
-  if (u >= width) return;
-  for (int64_t r = int64_t(blockIdx.y) * blockDim.y + threadIdx.y; r < rows;
-       r += int64_t(gridDim.y) * blockDim.y)
-    f.pixel(f.row(r), u);
+  const int lane = int(threadIdx.x);
+  for (int64_t r = int64_t(blockIdx.x) * blockDim.y + threadIdx.y; r < rows;
+       r += int64_t(gridDim.x) * blockDim.y) {
+    const auto state = f.row(r);
+    for (int u = lane; u < width; u += 32) f.pixel(state, u);
+  }
 }
 }  // namespace detail
 
@@ -58,13 +60,14 @@ void parallel_for(int64_t n, const F& f, void* stream = nullptr) {
   detail::check_launch("parallel_for", stream);
 }
 
-/// The rows × width index space of ParallelFor.h, one thread per element.
+/// The rows × width index space of ParallelFor.h: one warp per row, eight rows per block.
 template <typename F>
 void parallel_for_rows(int64_t rows, int width, const F& f, void* stream = nullptr) {
   if (rows <= 0 || width <= 0) return;
   const dim3 block(32, 8);
   const int64_t row_blocks = (rows + block.y - 1) / block.y;
-  const dim3 grid(unsigned((width + 31) / 32), unsigned(row_blocks < 65535 ? row_blocks : 65535));
+  constexpr int64_t kMaxBlocks = int64_t(1) << 20;  // then warps take several rows each
+  const dim3 grid(unsigned(row_blocks < kMaxBlocks ? row_blocks : kMaxBlocks));
   detail::rows_kernel<<<grid, block, 0, static_cast<cudaStream_t>(stream)>>>(rows, width, f);
   detail::check_launch("parallel_for_rows", stream);
 }

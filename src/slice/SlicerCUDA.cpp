@@ -6,6 +6,7 @@
 
 #include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
+#include "../backend/ParallelFor.h"
 #include "SliceBackends.h"
 
 namespace sonoslice {
@@ -139,11 +140,17 @@ void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<Pix
   struct Pending {
     size_t first = 0, n = 0;
   } pending[2];
+  // From the pinned staging buffer into the caller's memory on every CPU thread: one thread's
+  // memcpy moves about 10 GB/s, a third of what the device → host copy delivers.
   auto drain = [&](int s) {
     if (!pending[s].n) return;
     st.streams[s]->synchronize(st.name + ": slicing");
-    std::memcpy(static_cast<char*>(host_out) + pending[s].first * ib, st.staging[s].data(),
-                pending[s].n * ib);
+    char* to = static_cast<char*>(host_out) + pending[s].first * ib;
+    const char* from = static_cast<const char*>(st.staging[s].data());
+    backend::parallel_for_chunks(int64_t(pending[s].n * ib), int64_t(4) << 20,
+                                 [&](int64_t, int64_t begin, int64_t end) {
+                                   std::memcpy(to + begin, from + begin, size_t(end - begin));
+                                 });
     pending[s].n = 0;
   };
   // Two streams alternate: while one chunk's images travel to the host (and are copied into the
