@@ -131,7 +131,7 @@ def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
     ] + [(["--preset", "lus", *args], needle) for args, needle in [
         (["--volume", ct, "--poses", poses, "--tgc", "on"], "--tgc on: expected auto or off"),
         (["--volume", ct, "--poses", poses, "--output", "rf"], "--output rf: expected bmode or envelope"),
-        (["--volume", ct, "--poses", poses, "--device", "tpu"], "--device tpu"),
+        (["--volume", ct, "--poses", poses, "--device", "tpu"], "device 'tpu': expected cpu, cuda or cuda:K"),
         (["--volume", ct, "--poses", poses, "--frequency", "0"], "frequency 0"),
         (["--volume", ct, "--poses", poses, "--dynamic-range", "-3"], "dynamic range -3"),
         (["--volume", ct, "--labels", labels, "--poses", poses], "exactly one of --volume, --labels"),
