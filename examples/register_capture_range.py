@@ -4,12 +4,15 @@ known poses, with Gaussian noise, registered back from initial poses perturbed b
 error; the success rate (within 1 mm and 1 degree at the fan's centre) against the initial error.
 
   build/venv/bin/python examples/register_capture_range.py [--phantom DIR] [--poses 40]
-      [--noise 20] [--errors 2 4 6 8 10] [--starts 1 8] [--metric ncc] [--plot capture.svg]
+      [--noise 20] [--errors 2 4 6 8 10] [--starts auto 1 8] [--metric ncc] [--plot capture.svg]
 
 Each perturbation moves the fan's centre by E mm in a random direction and turns the probe by
 E degrees about a random axis through that centre (seeded). The registration runs through the
 CLI exactly as a user would call it (W1: fan-slicer's LUS config at --downsampling 2). The table
-goes to stdout (markdown); --plot writes the curves as an SVG.
+goes to stdout (markdown); --plot writes the curves as an SVG. `--starts auto` leaves the
+choice to the command (its default: starts until two agree). The table also says how many frames
+the report calls converged, and how many of the frames that missed were called converged anyway
+(the silent failures the convergence check is there to prevent).
 """
 import argparse
 import json
@@ -92,7 +95,8 @@ def main():
     ap.add_argument("--poses", type=int, default=40)
     ap.add_argument("--noise", type=float, default=20, help="Gaussian noise on the fans, HU (20)")
     ap.add_argument("--errors", type=float, nargs="+", default=[2, 4, 6, 8, 10])
-    ap.add_argument("--starts", type=int, nargs="+", default=[1, 8])
+    ap.add_argument("--starts", nargs="+", default=["auto", "1", "8"],
+                    help="starts per frame: numbers, or auto (the command's default)")
     ap.add_argument("--metric", default="ncc")
     ap.add_argument("--simulated", action="store_true",
                     help="frames from `sonoslice simulate --preset lus` (B-mode) instead of CT fans with noise")
@@ -138,27 +142,32 @@ def main():
                 np.save(init_path, init)
                 cmd = [CLI, "register", "--volume", ct_path, "--probe", W1, "--downsampling", "2", "--frames",
                        frames_path, "--poses", init_path, "--out", out_path, "--metric", args.metric,
-                       "--starts", str(starts), "--search-rot-deg", str(e), "--search-trans-mm", str(e),
+                       "--search-rot-deg", str(e), "--search-trans-mm", str(e),
                        "--threads", str(args.threads), "--report", report_path]
+                if starts != "auto":
+                    cmd += ["--starts", starts]
                 run = subprocess.run(cmd, capture_output=True, text=True)
                 if run.returncode != 0:
                     sys.exit(run.stderr)
                 mm, deg = errors(np.load(out_path), truth, centre)
                 report = json.load(open(report_path))
                 ok = (mm < 1) & (deg < 1)
+                converged = np.array([f["converged"] for f in report["frames"]])
                 rates.append(100 * ok.mean())
-                rows.append((starts, e, 100 * ok.mean(), np.median(mm), np.median(deg), report["evaluations"],
+                rows.append((starts, e, 100 * ok.mean(), np.median(mm), np.median(deg), 100 * converged.mean(),
+                             int((converged & ~ok).sum()), int((~ok).sum()), report["evaluations"],
                              report["seconds"]))
                 print(f"starts {starts}, error {e:g}: {100 * ok.mean():.0f} % within 1 mm and 1 deg", file=sys.stderr)
-            curves[f"{args.metric}, {starts} start{'s' if starts > 1 else ''}"] = rates
+            curves[f"{args.metric}, {starts} start{'' if starts == '1' else 's'}"] = rates
     kind = "simulated B-mode frames (lus preset)" if args.simulated else f"CT fans with {args.noise:g} HU noise"
     print(f"\n{args.poses} W1 {kind} of the full phantom, metric {args.metric}, default optimizer, "
           f"pyramid 8-4-2-1, {args.threads} threads\n")
-    print("| starts | initial error (mm and deg) | within 1 mm and 1 deg | median error after | pose evaluations "
-          "| seconds |")
-    print("|---|---|---|---|---|---|")
-    for s, e, rate, mm, deg, ev, sec in rows:
-        print(f"| {s} | {e:g} | {rate:.0f} % | {mm:.3f} mm, {deg:.3f} deg | {ev} | {sec:.1f} |")
+    print("| starts | initial error (mm and deg) | within 1 mm and 1 deg | median error after | called converged "
+          "| missed but called converged | pose evaluations | seconds |")
+    print("|---|---|---|---|---|---|---|---|")
+    for s, e, rate, mm, deg, conv, silent, missed, ev, sec in rows:
+        print(f"| {s} | {e:g} | {rate:.0f} % | {mm:.3f} mm, {deg:.3f} deg | {conv:.0f} % | {silent} of {missed} "
+              f"| {ev} | {sec:.1f} |")
     if args.plot:
         svg_plot(args.plot, args.errors, curves, f"sonoslice register: capture range ({args.metric}, W1 CT fans)")
 

@@ -152,7 +152,7 @@ void run_register(const RegisterFlags& f) {
     j["metric"] = to_string(ran.metric);
     j["optimizer"] = to_string(*ran.optimizer);
     j["mode"] = to_string(ran.mode);
-    j["starts"] = ran.starts;
+    j["starts"] = ran.starts ? nlohmann::json(*ran.starts) : nlohmann::json("auto");
     if (ran.mode == RegistrationMode::SmoothSweep) j["smoothness"] = ran.smoothness;
     j["frames"] = nlohmann::json::array();
     for (const FrameReport& r : report.frames)
@@ -161,7 +161,14 @@ void run_register(const RegisterFlags& f) {
                              {"evaluations", r.evaluations},
                              {"iterations", r.iterations},
                              {"translation_change_mm", r.translation_change_mm},
-                             {"rotation_change_deg", r.rotation_change_deg}});
+                             {"rotation_change_deg", r.rotation_change_deg},
+                             {"starts", r.starts},
+                             {"agreeing_starts", r.agreeing_starts},
+                             {"confidence", r.confidence()},
+                             {"converged", r.converged}});
+    size_t converged = 0;
+    for (const FrameReport& r : report.frames) converged += r.converged;
+    j["converged_frames"] = converged;
     j["evaluations"] = report.evaluations;
     j["seconds"] = report.seconds;
     write_text_file(f.report, j.dump(2) + "\n", &outputs);
@@ -211,7 +218,9 @@ void add_register_command(CLI::App& app) {
   cmd->add_option("--optimizer", flags->optimizer,
                   "lm, gn, bobyqa or nelder-mead (default: " + chosen + ")");
   cmd->add_option("--starts", flags->starts,
-                  "Optimisations per frame from spread points " + default_text(defaults.starts));
+                  "Optimisations per frame (per sweep) from spread points (default: automatic, "
+                  "until two reach the same pose, at most " +
+                      std::to_string(kAutoMaxStarts) + ")");
   cmd->add_option(
       "--search-rot-deg", flags->search_rot_deg,
       "Spread of the extra starts' rotations, degrees " + default_text(defaults.search_rot_deg));

@@ -42,11 +42,14 @@ def _settings(settings: Optional[RegistrationSettings], given: dict) -> Registra
 def _report(report) -> dict:
     """The typed report as the dict ``sonoslice register --report`` writes."""
     s = report.settings
-    out = {"metric": str(s.metric), "optimizer": str(s.optimizer), "mode": str(s.mode), "starts": s.starts}
+    out = {"metric": str(s.metric), "optimizer": str(s.optimizer), "mode": str(s.mode),
+           "starts": "auto" if s.starts is None else s.starts}
     if s.mode == RegistrationMode.smooth_sweep:
         out["smoothness"] = s.smoothness
-    keys = ("index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg")
+    keys = ("index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg",
+            "starts", "agreeing_starts", "confidence", "converged")
     out["frames"] = [{k: getattr(f, k) for k in keys} for f in report.frames]
+    out["converged_frames"] = sum(f.converged for f in report.frames)
     out.update(evaluations=int(report.evaluations), seconds=float(report.seconds))
     return out
 
@@ -62,7 +65,11 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
     the settings used ("metric", "optimizer", "mode", "starts", and "smoothness" for smooth-sweep),
     "frames" (one dict per frame: index, metric, evaluations, iterations,
-    translation_change_mm, rotation_change_deg), "evaluations" and "seconds".
+    translation_change_mm, rotation_change_deg, starts, agreeing_starts, confidence, converged),
+    "converged_frames", "evaluations" and "seconds". A frame is converged when its best pose was
+    reached from at least two starts; a registration with frames that are not warns
+    (``UserWarning``, one message). ``starts``: None (default) runs starts until two agree, at
+    most 8.
 
     The settings are :class:`RegistrationSettings`' (give one as ``settings``, or its keywords;
     unset ones take the library's defaults, ``RegistrationSettings()``). ``optimizer``: by default

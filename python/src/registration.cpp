@@ -92,10 +92,10 @@ void bind_registration(nb::module_& m) {
       .def(
           "__init__",
           [](RegistrationSettings* self, RegistrationMetric metric,
-             std::optional<RegistrationOptimizer> optimizer, RegistrationMode mode, int starts,
-             double search_rot_deg, double search_trans_mm, uint64_t seed, double smoothness,
-             std::vector<int> pyramid, int max_iterations, double tolerance_mm,
-             double tolerance_deg) {
+             std::optional<RegistrationOptimizer> optimizer, RegistrationMode mode,
+             std::optional<int> starts, double search_rot_deg, double search_trans_mm,
+             uint64_t seed, double smoothness, std::vector<int> pyramid, int max_iterations,
+             double tolerance_mm, double tolerance_deg) {
             RegistrationSettings s;
             s.metric = metric;
             s.optimizer = optimizer;
@@ -113,18 +113,20 @@ void bind_registration(nb::module_& m) {
             new (self) RegistrationSettings(std::move(s));
           },
           nb::kw_only(), "metric"_a = settings.metric, "optimizer"_a.none() = nb::none(),
-          "mode"_a = settings.mode, "starts"_a = settings.starts,
+          "mode"_a = settings.mode, "starts"_a.none() = nb::none(),
           "search_rot_deg"_a = settings.search_rot_deg,
           "search_trans_mm"_a = settings.search_trans_mm, "seed"_a = settings.seed,
           "smoothness"_a = settings.smoothness, "pyramid"_a = settings.pyramid,
           "max_iterations"_a = settings.max_iterations, "tolerance_mm"_a = settings.tolerance_mm,
           "tolerance_deg"_a = settings.tolerance_deg,
-          "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer).")
+          "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer). "
+          "starts: None (default) runs starts until two reach the same pose, at most "
+          "kAutoMaxStarts.")
       .def_ro("metric", &RegistrationSettings::metric)
       .def_ro("optimizer", &RegistrationSettings::optimizer,
               "None: not chosen yet (resolved() chooses)")
       .def_ro("mode", &RegistrationSettings::mode)
-      .def_ro("starts", &RegistrationSettings::starts)
+      .def_ro("starts", &RegistrationSettings::starts, "None: automatic")
       .def_ro("search_rot_deg", &RegistrationSettings::search_rot_deg)
       .def_ro("search_trans_mm", &RegistrationSettings::search_trans_mm)
       .def_ro("seed", &RegistrationSettings::seed)
@@ -141,7 +143,8 @@ void bind_registration(nb::module_& m) {
         return std::string("RegistrationSettings(metric=") +
                repr(std::string(to_string(s.metric))) + ", optimizer=" +
                (s.optimizer ? repr(std::string(to_string(*s.optimizer))) : "None") +
-               ", mode=" + repr(std::string(to_string(s.mode))) + ", starts=" + repr(s.starts) +
+               ", mode=" + repr(std::string(to_string(s.mode))) +
+               ", starts=" + (s.starts ? repr(*s.starts) : std::string("None")) +
                ", search_rot_deg=" + repr(s.search_rot_deg) +
                ", search_trans_mm=" + repr(s.search_trans_mm) + ", seed=" + repr(s.seed) +
                ", smoothness=" + repr(s.smoothness) + ", pyramid=[" + levels + "])";
@@ -153,7 +156,15 @@ void bind_registration(nb::module_& m) {
       .def_ro("evaluations", &FrameReport::evaluations)
       .def_ro("iterations", &FrameReport::iterations)
       .def_ro("translation_change_mm", &FrameReport::translation_change_mm)
-      .def_ro("rotation_change_deg", &FrameReport::rotation_change_deg);
+      .def_ro("rotation_change_deg", &FrameReport::rotation_change_deg)
+      .def_ro("starts", &FrameReport::starts, "optimisations run")
+      .def_ro("agreeing_starts", &FrameReport::agreeing_starts,
+              "of them, those that ended at the best pose")
+      .def_prop_ro("confidence", &FrameReport::confidence,
+                   "(agreeing_starts - 1) / (starts - 1): the share of the other starts that "
+                   "confirmed the best pose; 0 with one start")
+      .def_ro("converged", &FrameReport::converged,
+              "the best pose was reached from at least two starts");
   nb::class_<RegistrationReport>(m, "RegistrationReport", "What a registration used and did.")
       .def_ro("settings", &RegistrationReport::settings, "the settings as resolved")
       .def_ro("frames", &RegistrationReport::frames)

@@ -12,7 +12,8 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
-REPORT_KEYS = {"index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg"}
+REPORT_KEYS = {"index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg",
+               "starts", "agreeing_starts", "confidence", "converged"}
 
 
 def run(cli, *args):
@@ -88,6 +89,21 @@ def test_per_frame_refines_poses_and_reports(cli, case):
     assert report["seconds"] > 0
     for f, a, b in zip(report["frames"], mm0, deg0):
         assert f["translation_change_mm"] > 0 and f["rotation_change_deg"] > 0
+    # Four starts each, the best pose reached from at least two: converged, and nothing to warn.
+    assert all(f["starts"] == 4 and f["converged"] and f["agreeing_starts"] >= 2 for f in report["frames"])
+    assert report["converged_frames"] == 4 and "warning" not in r.stderr
+
+
+def test_a_single_start_is_never_called_converged(cli, case):
+    """One optimisation cannot tell its optimum from a local minimum: the report says so and the
+    command warns in one line (exit status 0: the poses are written)."""
+    r = run(cli, *base_args(case, "one.npy"), "--report", str(case / "one.json"), "--starts", "1")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith("sonoslice: warning: registration: 4 of 4 frames not converged"), r.stderr
+    report = json.load(open(case / "one.json"))
+    assert report["starts"] == 1 and report["converged_frames"] == 0
+    assert all(not f["converged"] and f["starts"] == 1 and f["confidence"] == 0 for f in report["frames"])
 
 
 def test_rigid_sweep_applies_one_correction(cli, case):

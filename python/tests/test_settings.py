@@ -48,7 +48,7 @@ def test_register_passes_only_what_it_is_given(phantom, poses):
     frames = sonoslice.Slicer(ct, probe).slice(poses[:2])
     refined, report = sonoslice.register(ct, probe, frames, poses[:2], pyramid=(2, 1))
     # The report says what ran: the library's defaults and its choice of optimiser.
-    assert (report["metric"], report["optimizer"], report["mode"], report["starts"]) == ("ncc", "lm", "per-frame", 1)
+    assert (report["metric"], report["optimizer"], report["mode"], report["starts"]) == ("ncc", "lm", "per-frame", "auto")
     assert "smoothness" not in report and refined.shape == (2, 4, 4)
     settings = sonoslice.RegistrationSettings(pyramid=[2, 1], metric=sonoslice.RegistrationMetric.ssd)
     same, report = sonoslice.register(ct, probe, frames, poses[:2], settings=settings)

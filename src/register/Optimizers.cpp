@@ -216,11 +216,20 @@ void limit_step(const RegistrationSettings& s, int attempt, double xi[6], double
   *rad = r_len * shrink;
 }
 
+double rotation_angle_deg(const Mat3& a, const Mat3& b) {
+  double trace = 0;
+  for (int i = 0; i < 3; ++i)
+    for (int k = 0; k < 3; ++k) trace += a.m[i][k] * b.m[i][k];
+  return std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2))) * 180 / kPi;
+}
+
 Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,
                     const Vec3& centre) {
+  const bool automatic = !s.starts;
+  const int most = automatic ? kAutoMaxStarts : *s.starts;
   int64_t evaluations = 0, iterations = 0;
   std::vector<std::pair<double, Pose>> candidates;
-  const int draws = s.starts == 1 ? 1 : s.starts * kCandidatesPerStart;
+  const int draws = most == 1 ? 1 : most * kCandidatesPerStart;
   for (int k = 0; k < draws; ++k) {
     double xi[6];
     start_increment(s, item, k, xi);
@@ -235,15 +244,34 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   // Stable: equal costs keep their draw order (the initial pose first).
   std::stable_sort(candidates.begin(), candidates.end(),
                    [](const auto& a, const auto& b) { return a.first < b.first; });
+  // How many ends reached the best one: its centre moved by at most kAgreementMm from theirs,
+  // its rotation at most kAgreementDeg from theirs.
+  std::vector<Pose> ends;
   Outcome best;
-  for (int k = 0; k < s.starts && k < int(candidates.size()); ++k) {
+  const auto agreeing = [&] {
+    const Vec3 at = best.correction.transform_point(centre);
+    int n = 0;
+    for (const Pose& e : ends) {
+      const Vec3 other = e.transform_point(centre);
+      double d = 0;
+      for (int i = 0; i < 3; ++i) d += (at[i] - other[i]) * (at[i] - other[i]);
+      n += std::sqrt(d) <= kAgreementMm &&
+           rotation_angle_deg(best.correction.linear(), e.linear()) <= kAgreementDeg;
+    }
+    return n;
+  };
+  for (int k = 0; k < most && k < int(candidates.size()); ++k) {
     const Outcome o = optimise(p, s, candidates[size_t(k)].second, centre);
     evaluations += o.evaluations;
     iterations += o.iterations;
+    ends.push_back(o.correction);
     if (k == 0 || o.cost < best.cost) best = o;
+    if (automatic && std::isfinite(best.cost) && agreeing() >= 2) break;
   }
   best.evaluations = evaluations;
   best.iterations = iterations;
+  best.starts = int(ends.size());
+  best.agreeing_starts = agreeing();
   return best;
 }
 

@@ -27,10 +27,15 @@ struct Outcome {
   Pose correction;  // the increment applied to the initial pose(s), world frame
   double cost = std::numeric_limits<double>::infinity();
   int64_t evaluations = 0, iterations = 0;
+  int starts = 1, agreeing_starts = 1;  // multi_start: optimisations run, and ending at the best
 };
 
-/// The best of settings.starts optimisations of `p` about `centre` (the frame's or the sweep's
-/// centre); `item` seeds the drawn starts (a frame's index, or 0 for a sweep).
+/// The angle (degrees) of the rotation a·bᵀ.
+double rotation_angle_deg(const Mat3& a, const Mat3& b);
+
+/// The best of the optimisations of `p` about `centre` (the frame's or the sweep's centre):
+/// settings.starts of them, or, unset, until two agree (at most kAutoMaxStarts); `item` seeds the
+/// drawn starts (a frame's index, or 0 for a sweep).
 Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,
                     const Vec3& centre);
 

@@ -21,19 +21,9 @@ namespace sonoslice {
 
 using register_impl::Outcome;
 using register_impl::Problem;
+using register_impl::rotation_angle_deg;
 using register_impl::SweepOutcome;
 using register_impl::SweepTerms;
-
-namespace {
-
-double rotation_angle_deg(const Mat3& a, const Mat3& b) {  // angle of a·bᵀ
-  double trace = 0;
-  for (int i = 0; i < 3; ++i)
-    for (int k = 0; k < 3; ++k) trace += a.m[i][k] * b.m[i][k];
-  return std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2))) * 180 / kPi;
-}
-
-}  // namespace
 
 std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
                                          const RegistrationSettings& requested,
@@ -63,6 +53,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     for (int i = 0; i < 3; ++i) d += std::pow(refined[k].m[i][3] - initial[k].m[i][3], 2);
     r.translation_change_mm = std::sqrt(d);
     r.rotation_change_deg = rotation_angle_deg(refined[k].linear(), initial[k].linear());
+    r.starts = o.starts;
+    r.agreeing_starts = o.agreeing_starts;
+    r.converged = o.agreeing_starts >= 2 && std::isfinite(r.metric);
   };
   if (settings.mode == RegistrationMode::PerFrame) {
     backend::parallel_for(int64_t(s.count), [&](int64_t k) {
@@ -130,13 +123,20 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       for (size_t k = 0; k < s.count; ++k) sweep.centres.push_back(centre(k, initial[k]));
       const SweepOutcome smooth = smooth_sweep(sweep, settings, o.correction);
       for (size_t k = 0; k < s.count; ++k) {
-        Outcome frame;
+        Outcome frame = o;  // the starts and their agreement are the rigid stage's
         frame.correction = smooth.corrections[k];
         frame.iterations = o.iterations + smooth.iterations;
         describe(k, frame, o.evaluations / int64_t(s.count) + smooth.evaluations, smooth.costs[k]);
       }
     }
   }
+  size_t unconverged = 0;
+  for (const FrameReport& r : frames) unconverged += !r.converged;
+  if (unconverged > 0)
+    warn("registration: " + std::to_string(unconverged) + " of " + std::to_string(frames.size()) +
+         " frames not converged (their best pose was reached from fewer than two of the starts; "
+         "the report's converged and agreeing_starts say which): more starts, a wider search, or "
+         "a better initial pose may help");
   if (report) {
     report->settings = settings;
     report->frames = frames;

@@ -97,8 +97,8 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
     out << v;
     return out.str();
   };
-  if (starts < 1)
-    throw InputError(name("starts") + " " + std::to_string(starts) + ": must be at least 1");
+  if (starts && *starts < 1)
+    throw InputError(name("starts") + " " + std::to_string(*starts) + ": must be at least 1");
   if (!(search_rot_deg >= 0 && search_rot_deg <= 180))
     throw InputError(name("search_rot_deg") + " " + number(search_rot_deg) +
                      ": must be in [0, 180] degrees");

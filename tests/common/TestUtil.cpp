@@ -1,5 +1,7 @@
 #include "TestUtil.h"
 
+#include "sonoslice/core/Error.h"
+
 #include <unistd.h>
 
 #include <algorithm>
@@ -35,6 +37,27 @@ ScopedCpuSettings::~ScopedCpuSettings() {
 bool cuda_required() {
   const char* v = std::getenv("SONOSLICE_REQUIRE_CUDA");
   return v && std::string(v) != "" && std::string(v) != "0";
+}
+
+namespace {
+std::vector<std::string> g_captured_warnings;
+void capture_warning(const std::string& message) {
+  g_captured_warnings.push_back(message);
+}
+}  // namespace
+
+CapturedWarnings::CapturedWarnings() {
+  g_captured_warnings.clear();
+  set_warning_handler(&capture_warning);
+}
+CapturedWarnings::~CapturedWarnings() {
+  set_warning_handler(nullptr);
+}
+const std::vector<std::string>& CapturedWarnings::messages() const {
+  return g_captured_warnings;
+}
+void CapturedWarnings::clear() {
+  g_captured_warnings.clear();
 }
 
 bool gpu_available(std::string* why) {

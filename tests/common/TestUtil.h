@@ -70,6 +70,17 @@ class GpuTest : public ::testing::Test {
   }
 };
 
+/// The library's warnings (warn()) while it lives, instead of stderr; one at a time.
+class CapturedWarnings {
+ public:
+  CapturedWarnings();
+  ~CapturedWarnings();
+  CapturedWarnings(const CapturedWarnings&) = delete;
+  CapturedWarnings& operator=(const CapturedWarnings&) = delete;
+  const std::vector<std::string>& messages() const;
+  void clear();
+};
+
 /// A file's whole content, byte for byte ("" when it cannot be read).
 std::string read_file_bytes(const std::string& path);
 

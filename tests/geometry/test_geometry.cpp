@@ -155,27 +155,18 @@ TEST(Poses, ValidationNamesTheIndex) {
   expect_error("parallel");
 }
 
-std::vector<std::string> g_warnings;
-void capture(const std::string& m) {
-  g_warnings.push_back(m);
-}
-
 TEST(Poses, OneWarningPerFileForNonOrthonormal) {
-  g_warnings.clear();
-  set_warning_handler(&capture);
+  const test::CapturedWarnings warnings;
   std::vector<Pose> poses(10, Pose::identity());
   for (auto& p : poses) p.m[0][0] = 1.01;  // 1% stretch: accepted, used as given, warned once
   validate_poses(poses, "poses 'a.txt'");
-  set_warning_handler(nullptr);
-  ASSERT_EQ(g_warnings.size(), 1u);
-  EXPECT_NE(g_warnings[0].find("poses 'a.txt'"), std::string::npos);
-  g_warnings.clear();
-  set_warning_handler(&capture);
+  ASSERT_EQ(warnings.messages().size(), 1u);
+  EXPECT_NE(warnings.messages()[0].find("poses 'a.txt'"), std::string::npos);
   std::vector<Pose> good(3, Pose::identity());
   good[1] = test::make_pose(test::rotation({1, 1, 0}, 33), {1, 2, 3});
+  const size_t before = warnings.messages().size();
   validate_poses(good, "b");
-  set_warning_handler(nullptr);
-  EXPECT_TRUE(g_warnings.empty());
+  EXPECT_EQ(warnings.messages().size(), before);
 }
 
 TEST(Poses, RasNegatesWorldXAndY) {

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/phantom/Phantom.h"
 #include "sonoslice/phantom/Workloads.h"
@@ -136,6 +137,10 @@ TEST(Register, RecoversPerturbedPosesFromNoisyCtFans) {
   }
   EXPECT_EQ(within, int(truth.size()));
   EXPECT_EQ(report.frames.size(), truth.size());
+  for (const FrameReport& r : report.frames) {
+    EXPECT_EQ(r.starts, 4);
+    EXPECT_TRUE(r.converged) << "frame " << r.index << ": " << r.agreeing_starts << " agreeing";
+  }
   EXPECT_GT(report.evaluations, 0);
 }
 
@@ -167,6 +172,91 @@ TEST(Register, RigidSweepRecoversOneSharedCorrection) {
   // One correction: every frame's change is the same rotation.
   for (size_t k = 1; k < truth.size(); ++k)
     EXPECT_NEAR(report.frames[k].rotation_change_deg, report.frames[0].rotation_change_deg, 1e-6);
+}
+
+/// A linear probe at a quarter of W2's pixels (100 × 125 at 0.494 mm).
+ProbeGeometry linear_probe() {
+  ProbeGeometry p = workload_w2_linear_probe();
+  p.image.width /= 4;
+  p.image.height /= 4;
+  p.image.spacing_mm[0] *= 4;
+  p.image.spacing_mm[1] *= 4;
+  p.image.set_default_origin();
+  return p;
+}
+
+// As a new user tries it: a straight 30-frame sweep of a linear probe, 1 mm apart, every frame
+// off by one shared 5 mm / 5° error (the turn about the sweep line). At the defaults (automatic
+// starts) the sweep is recovered and says it converged; a single start is never called converged.
+TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
+  const Pose base = phantom_random_poses(4, 3)[2];
+  const ProbeGeometry probe = linear_probe();
+  std::vector<Pose> truth;
+  for (int k = 0; k < 30; ++k) {
+    Pose p = base;
+    for (int i = 0; i < 3; ++i) p.m[i][3] += 1.0 * (k - 14.5) * base.m[i][2];
+    truth.push_back(p);
+  }
+  const std::vector<float> frames = Slicer(phantom().ct, probe).slice<float>(truth);
+  const FrameRegistration reg(phantom().ct, probe, frames.data(), truth.size());
+  const Vec3 centre_probe = {0, probe.face_y_mm + probe.depth_mm / 2, 0};
+  const Vec3 c = base.transform_point(centre_probe);
+  const double deg = 5 * kPi / 180;
+  double xi[6] = {3, -4, 0, deg * base.m[0][2], deg * base.m[1][2], deg * base.m[2][2]};
+  std::vector<Pose> initial;
+  for (const Pose& t : truth) initial.push_back(apply_increment(t, xi, c));
+  RegistrationSettings settings;
+  settings.mode = RegistrationMode::RigidSweep;
+  RegistrationReport report;
+  const std::vector<Pose> refined = reg.run(initial, settings, &report);
+  double worst_mm = 0, worst_deg = 0;
+  for (size_t k = 0; k < truth.size(); ++k) {
+    const auto e = pose_error(refined[k], truth[k], centre_probe);
+    worst_mm = std::max(worst_mm, e.first);
+    worst_deg = std::max(worst_deg, e.second);
+  }
+  std::printf(
+      "[ rigid sweep, defaults ] worst frame %.3f mm %.3f deg; %d starts, %d agreeing, "
+      "%.1f s\n",
+      worst_mm, worst_deg, report.frames[0].starts, report.frames[0].agreeing_starts,
+      report.seconds);
+  EXPECT_LT(worst_mm, 0.5);
+  EXPECT_LT(worst_deg, 0.5);
+  for (const FrameReport& r : report.frames) EXPECT_TRUE(r.converged);
+  EXPECT_GE(report.frames[0].agreeing_starts, 2);
+
+  // One start: whatever it finds, it cannot confirm it.
+  settings.starts = 1;
+  const test::CapturedWarnings warnings;
+  reg.run(initial, settings, &report);
+  for (const FrameReport& r : report.frames) {
+    EXPECT_FALSE(r.converged);
+    EXPECT_EQ(r.starts, 1);
+  }
+  ASSERT_EQ(warnings.messages().size(), 1u);
+  EXPECT_EQ(warnings.messages()[0].rfind("registration: 30 of 30 frames not converged", 0), 0u)
+      << warnings.messages()[0];
+}
+
+// Frames that match nothing in the volume (noise): the starts end in different places, and the
+// frames are reported not converged, with one warning.
+TEST(Register, NoiseFramesAreNotConverged) {
+  const std::vector<Pose> truth = phantom_random_poses(2, 21);
+  std::vector<float> frames(truth.size() * size_t(probe().image.pixel_count()));
+  std::mt19937 rng(3);
+  std::normal_distribution<float> noise(0.f, 100.f);
+  for (float& v : frames) v = noise(rng);
+  const FrameRegistration reg(phantom().ct, probe(), frames.data(), truth.size());
+  const test::CapturedWarnings warnings;
+  RegistrationReport report;
+  reg.run(truth, {}, &report);
+  for (const FrameReport& r : report.frames) {
+    std::printf("[ noise ] frame %zu: %d starts, %d agreeing\n", r.index, r.starts,
+                r.agreeing_starts);
+    EXPECT_FALSE(r.converged);
+    EXPECT_EQ(r.starts, kAutoMaxStarts);
+  }
+  EXPECT_EQ(warnings.messages().size(), 1u);
 }
 
 TEST(Register, SmoothSweepTiesNeighbouringFramesTogether) {

@@ -87,10 +87,13 @@ struct RegistrationSettings {
   /// Unset: default_optimizer(metric) (resolved()).
   std::optional<RegistrationOptimizer> optimizer;
   RegistrationMode mode = RegistrationMode::PerFrame;
-  /// Optimisations per frame (per sweep in rigid-sweep mode): the initial pose, then starts − 1
-  /// points drawn around it (rotation up to search_rot_deg about a random axis through the
-  /// frame's centre, translation uniform in a ball of search_trans_mm); the best end wins.
-  int starts = 1;
+  /// Optimisations per frame (per sweep in the sweep modes), each from one of the best-ranked
+  /// of many points drawn around the initial pose (the initial pose among them; rotation up to
+  /// search_rot_deg about a random axis through the frame's centre, translation uniform in a
+  /// ball of search_trans_mm); the best end wins. Unset (the default): automatic, one start after
+  /// another until the best end has been reached from two starts (kAgreementMm and
+  /// kAgreementDeg apart at most), at most kAutoMaxStarts. A number: exactly that many.
+  std::optional<int> starts;
   double search_rot_deg = 10, search_trans_mm = 10;
   uint64_t seed = 0;  ///< the multi-start draws
   /// smooth-sweep: the prior's weight W relative to the frames' own curvature. At each pyramid
@@ -117,12 +120,29 @@ struct RegistrationSettings {
   void validate(const ParameterNames& names = {}) const;
 };
 
-/// One frame's outcome (JSON report fields, docs/registration.md §4).
+/// Automatic starts (RegistrationSettings::starts unset): at most this many.
+constexpr int kAutoMaxStarts = 8;
+/// Two optimisations reached the same end when their results move the frame's (or the sweep's)
+/// centre at most this far apart and turn at most this much apart.
+constexpr double kAgreementMm = 1, kAgreementDeg = 1;
+
+/// One frame's outcome (JSON report fields, docs/registration.md §4). In the sweep modes the
+/// starts, agreement and convergence are the sweep's.
 struct FrameReport {
   size_t index = 0;
   double metric = 0;  ///< the final cost at full resolution (SSD, or 1 − NCC)
   int64_t evaluations = 0, iterations = 0;
   double translation_change_mm = 0, rotation_change_deg = 0;  ///< refined against initial
+  int starts = 0;                                             ///< optimisations run
+  int agreeing_starts = 0;  ///< of them, those that ended at the best end (itself included)
+  /// The best end was reached from at least two starts and its cost is finite. One optimisation
+  /// alone cannot tell its optimum from a local minimum, so a single start is never converged.
+  bool converged = false;
+  /// The share of the other starts that confirmed the best end: (agreeing_starts − 1) /
+  /// (starts − 1), 0 with a single start (0 to 1).
+  double confidence() const {
+    return starts > 1 ? double(agreeing_starts - 1) / double(starts - 1) : 0.0;
+  }
 };
 
 struct RegistrationReport {
@@ -181,7 +201,8 @@ class FrameRegistration {
 
   /// Refines the initial poses (one per frame; InputError naming "pose <i>" for a bad one) with
   /// settings.resolved() and reports. Frames are optimised in parallel, each on one thread: the
-  /// result does not depend on the thread count.
+  /// result does not depend on the thread count. Warns (warn(), one line) when any frame is not
+  /// converged.
   std::vector<Pose> run(const std::vector<Pose>& initial, const RegistrationSettings& settings,
                         RegistrationReport* report) const;
 
