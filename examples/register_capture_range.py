@@ -158,6 +158,19 @@ def main():
                              int((converged & ~ok).sum()), int((~ok).sum()), report["evaluations"],
                              report["seconds"]))
                 print(f"starts {starts}, error {e:g}: {100 * ok.mean():.0f} % within 1 mm and 1 deg", file=sys.stderr)
+                u_mm = np.array([np.nan if f["uncertainty_mm"] is None else f["uncertainty_mm"]
+                                 for f in report["frames"]], float)
+                u_deg = np.array([np.nan if f["uncertainty_deg"] is None else f["uncertainty_deg"]
+                                  for f in report["frames"]], float)
+                if ok.any():
+                    print(f"  uncertainty of the frames within 1 mm and 1 deg: up to {np.nanmax(u_mm[ok]):.3g} mm, "
+                          f"{np.nanmax(u_deg[ok]):.3g} deg", file=sys.stderr)
+                for k in np.nonzero(converged & ~ok)[0]:
+                    f = report["frames"][k]
+                    print(f"  frame {k}: {mm[k]:.2f} mm {deg[k]:.2f} deg off, called converged "
+                          f"({f['agreeing_starts']} of {f['starts']} starts agree, cost {f['metric']:.4f}, "
+                          f"uncertainty {u_mm[k]:.3g} mm {u_deg[k]:.3g} deg)",
+                          file=sys.stderr)
             curves[f"{args.metric}, {starts} start{'' if starts == '1' else 's'}"] = rates
     kind = "simulated B-mode frames (lus preset)" if args.simulated else f"CT fans with {args.noise:g} HU noise"
     print(f"\n{args.poses} W1 {kind} of the full phantom, metric {args.metric}, default optimizer, "

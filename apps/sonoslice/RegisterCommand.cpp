@@ -14,6 +14,9 @@
 #include "sonoslice/io/Npy.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
+#include "sonoslice/plus/PlusConfig.h"
+#include "sonoslice/plus/PlusSequence.h"
+#include "sonoslice/plus/TrackedFrames.h"
 #include "sonoslice/register/Registration.h"
 
 namespace sonoslice {
@@ -23,6 +26,7 @@ namespace {
 struct RegisterFlags {
   VolumeFlags volume;
   std::string probe, frames, poses, out, report, user_mask, world = "LPS";
+  std::string sequence, config;  // a PLUS sequence with its tracked poses, instead of the three
   int downsampling = 1;
   // The registration settings the user gave; the library has the defaults (RegistrationSettings).
   std::string metric, optimizer, mode, pyramid;
@@ -68,27 +72,108 @@ RegistrationSettings settings_of(const RegisterFlags& f) {
   return s;
 }
 
-/// The frames as a float32 stack (W, H, N), checked against the probe's image size.
-Volume read_frames(const std::string& path, const ProbeGeometry& probe, size_t* count) {
-  const Volume stack = read_image_stack(path, "--frames");
+/// What is registered: the probe, the frames (count × H × W floats), their initial poses and
+/// the pixels compared; from --probe/--frames/--poses/--mask or from a PLUS sequence.
+struct Inputs {
+  ProbeGeometry probe;
+  std::vector<Pose> initial;
+  const float* frames = nullptr;
+  size_t count = 0;
+  std::vector<uint8_t> user_mask;
+  Volume stack;                           // --frames
+  std::optional<PlusTrackedFrames> plus;  // --sequence
+  std::optional<Mat4> image_to_probe;     // --config's calibration, when it has one
+};
+
+Inputs read_frame_inputs(const RegisterFlags& f, WorldFrame world) {
+  Inputs in;
+  in.probe = read_probe(f.probe, f.downsampling);
+  in.initial = read_poses(f.poses, world);
+  const Volume stack = read_image_stack(f.frames, "--frames");
   const VolumeGrid& g = stack.grid();
-  if (g.dims[0] != probe.image.width || g.dims[1] != probe.image.height)
-    throw InputError("--frames '" + path + "': frames of " + std::to_string(g.dims[0]) + "x" +
+  if (g.dims[0] != in.probe.image.width || g.dims[1] != in.probe.image.height)
+    throw InputError("--frames '" + f.frames + "': frames of " + std::to_string(g.dims[0]) + "x" +
                      std::to_string(g.dims[1]) + " pixels, but the probe's image is " +
-                     std::to_string(probe.image.width) + "x" + std::to_string(probe.image.height) +
+                     std::to_string(in.probe.image.width) + "x" +
+                     std::to_string(in.probe.image.height) +
                      " (W x H; check --probe and --downsampling)");
-  *count = size_t(g.dims[2]);
-  return stack.pixel_type() == PixelType::Float32 ? stack : stack.converted(PixelType::Float32);
+  in.count = size_t(g.dims[2]);
+  in.stack = stack.pixel_type() == PixelType::Float32 ? stack : stack.converted(PixelType::Float32);
+  in.frames = in.stack.data_as<float>();
+  if (in.initial.size() != in.count)
+    throw InputError("--poses '" + f.poses + "': " + std::to_string(in.initial.size()) +
+                     " poses for " + std::to_string(in.count) + " frames in '" + f.frames + "'");
+  if (!f.user_mask.empty()) {
+    const Volume m = read_image_stack(f.user_mask, "--mask");
+    if (m.grid().dims[0] != in.probe.image.width || m.grid().dims[1] != in.probe.image.height ||
+        m.grid().dims[2] != 1)
+      throw InputError("--mask '" + f.user_mask + "': expected one " +
+                       std::to_string(in.probe.image.width) + "x" +
+                       std::to_string(in.probe.image.height) + " image");
+    in.user_mask.resize(size_t(in.probe.image.pixel_count()));
+    visit_pixel_type(m.pixel_type(), [&](auto zero) {
+      using T = decltype(zero);
+      for (size_t i = 0; i < in.user_mask.size(); ++i)
+        in.user_mask[i] = m.data_as<T>()[i] != T(0) ? 1 : 0;
+    });
+  }
+  return in;
+}
+
+// A PLUS sequence: the frames compound would use, their ImageToReference split into rigid poses
+// on the frames' pixel grid, the configuration's clip as the mask.
+Inputs read_sequence_inputs(const RegisterFlags& f) {
+  Inputs in;
+  PlusReconstructionConfig config;
+  if (!f.config.empty()) config = read_plus_config(f.config);
+  const PlusSequence sequence = read_plus_sequence(f.sequence);
+  in.plus = plus_tracked_frames(sequence, config);
+  in.probe = in.plus->probe;
+  in.initial = in.plus->poses;
+  in.frames = in.plus->pixels.data();
+  in.count = in.plus->frames.size();
+  in.user_mask = in.plus->mask;
+  try {
+    in.image_to_probe = config.coordinate_definitions.get(config.image_frame, "Probe");
+  } catch (const InputError&) {  // no Image → Probe calibration in the configuration
+  }
+  return in;
+}
+
+nlohmann::json matrix_json(const Mat4& m) {
+  nlohmann::json rows = nlohmann::json::array();
+  for (int r = 0; r < 4; ++r) rows.push_back({m.m[r][0], m.m[r][1], m.m[r][2], m.m[r][3]});
+  return rows;
 }
 
 void run_register(const RegisterFlags& f) {
   Stopwatch total;
   if (f.volume.path.empty()) throw InputError("register: --volume is required");
-  for (const auto& [flag, value] : {std::pair<const char*, const std::string&>{"--probe", f.probe},
-                                    {"--frames", f.frames},
-                                    {"--poses", f.poses},
-                                    {"--out", f.out}})
-    if (value.empty()) throw InputError(std::string("register: ") + flag + " is required");
+  const bool from_sequence = !f.sequence.empty();
+  if (from_sequence) {
+    for (const auto& [flag, value] :
+         {std::pair<const char*, const std::string&>{"--probe", f.probe},
+          {"--frames", f.frames},
+          {"--poses", f.poses},
+          {"--mask", f.user_mask}})
+      if (!value.empty())
+        throw InputError(std::string("register: ") + flag +
+                         " is for frames given as files; --sequence brings its frames, their "
+                         "tracked poses and (with --config) the clip");
+    if (f.world != "LPS")
+      throw InputError("--world " + f.world +
+                       ": a PLUS sequence's poses are in its reference frame, which is the "
+                       "volume's physical space");
+  } else {
+    if (!f.config.empty()) throw InputError("register: --config goes with --sequence");
+    for (const auto& [flag, value] :
+         {std::pair<const char*, const std::string&>{"--probe", f.probe},
+          {"--frames", f.frames},
+          {"--poses", f.poses}})
+      if (value.empty())
+        throw InputError(std::string("register: ") + flag + " is required (or --sequence)");
+  }
+  if (f.out.empty()) throw InputError("register: --out is required");
   setup_threads(f.threads);
   const RegistrationSettings settings = settings_of(f);
   if (file_extension(f.out) != ".npy")
@@ -101,47 +186,34 @@ void run_register(const RegisterFlags& f) {
                           {"--probe", f.probe},
                           {"--frames", f.frames},
                           {"--poses", f.poses, false},
-                          {"--mask", f.user_mask}});
+                          {"--mask", f.user_mask},
+                          {"--sequence", f.sequence},
+                          {"--config", f.config}});
   check_output_path(f.out);
   if (!f.report.empty()) check_output_path(f.report);
 
   // Small inputs first, so that a typo fails before the volume is read.
-  const ProbeGeometry probe = read_probe(f.probe, f.downsampling);
   const WorldFrame world = parse_world_frame(f.world);
-  const std::vector<Pose> initial = read_poses(f.poses, world);
-  size_t count = 0;
-  const Volume frames = read_frames(f.frames, probe, &count);
-  if (initial.size() != count)
-    throw InputError("--poses '" + f.poses + "': " + std::to_string(initial.size()) +
-                     " poses for " + std::to_string(count) + " frames in '" + f.frames + "'");
-  std::vector<uint8_t> user_mask;
-  if (!f.user_mask.empty()) {
-    const Volume m = read_image_stack(f.user_mask, "--mask");
-    if (m.grid().dims[0] != probe.image.width || m.grid().dims[1] != probe.image.height ||
-        m.grid().dims[2] != 1)
-      throw InputError("--mask '" + f.user_mask + "': expected one " +
-                       std::to_string(probe.image.width) + "x" +
-                       std::to_string(probe.image.height) + " image");
-    user_mask.resize(size_t(probe.image.pixel_count()));
-    visit_pixel_type(m.pixel_type(), [&](auto zero) {
-      using T = decltype(zero);
-      for (size_t i = 0; i < user_mask.size(); ++i)
-        user_mask[i] = m.data_as<T>()[i] != T(0) ? 1 : 0;
-    });
-  }
+  const Inputs in = from_sequence ? read_sequence_inputs(f) : read_frame_inputs(f, world);
+  const size_t count = in.count;
   Stopwatch load;
   const Volume volume = read_volume(f.volume.path, f.volume.options());
   const double load_seconds = load.seconds();
 
-  const FrameRegistration reg(volume, probe, frames.data_as<float>(), count,
-                              user_mask.empty() ? nullptr : user_mask.data());
+  const FrameRegistration reg(volume, in.probe, in.frames, count,
+                              in.user_mask.empty() ? nullptr : in.user_mask.data());
   RegistrationReport report;
-  const std::vector<Pose> refined = reg.run(initial, settings, &report);
+  const std::vector<Pose> refined = reg.run(in.initial, settings, &report);
 
   OutputSet outputs;  // both or neither
   std::vector<double> flat;
-  for (const Pose& lps : refined) {
-    const Pose p = pose_to_lps(lps, world);  // back to the input's frame (its own inverse)
+  for (size_t k = 0; k < refined.size(); ++k) {
+    // A sequence's refined ImageToReference: the frame's own matrix (with its calibration's
+    // scale and shear) moved by the correction found, refined · initial⁻¹. Else the pose in the
+    // input's frame (pose_to_lps is its own inverse).
+    const Mat4 p = from_sequence
+                       ? refined[k] * *invert(in.initial[k]) * in.plus->image_to_reference[k]
+                       : pose_to_lps(refined[k], world);
     for (int i = 0; i < 16; ++i) flat.push_back(p.m[i / 4][i % 4]);
   }
   write_npy(f.out, PixelType::Float64, {int64_t(refined.size()), 4, 4}, flat.data(), &outputs);
@@ -165,10 +237,27 @@ void run_register(const RegisterFlags& f) {
                              {"starts", r.starts},
                              {"agreeing_starts", r.agreeing_starts},
                              {"confidence", r.confidence()},
-                             {"converged", r.converged}});
+                             {"converged", r.converged},
+                             {"uncertainty_mm", r.uncertainty_mm},
+                             {"uncertainty_deg", r.uncertainty_deg}});
     size_t converged = 0;
     for (const FrameReport& r : report.frames) converged += r.converged;
     j["converged_frames"] = converged;
+    if (report.correction) j["correction"] = matrix_json(*report.correction);
+    if (in.plus) {
+      j["sequence"] = f.sequence;
+      j["sequence_frames"] = in.plus->frames;
+      if (!in.plus->skipped.empty()) j["skipped"] = in.plus->skipped;
+      // The calibration corrected. Frame i's refined ImageToReference is C_i·M_i (C_i = refined_i ·
+      // initial_i⁻¹, M_i = ProbeToReference_i · ImageToProbe); in calibration mode C_i·M_i =
+      // ProbeToReference_i · ImageToProbe' for every i, with ImageToProbe' = ImageToProbe ·
+      // M_0⁻¹ · C_0 · M_0.
+      if (ran.mode == RegistrationMode::Calibration && in.image_to_probe && count > 0) {
+        const Mat4& M0 = in.plus->image_to_reference[0];
+        const Mat4 C0 = refined[0] * *invert(in.initial[0]);
+        j["image_to_probe"] = matrix_json(*in.image_to_probe * *invert(M0) * C0 * M0);
+      }
+    }
     j["evaluations"] = report.evaluations;
     j["seconds"] = report.seconds;
     write_text_file(f.report, j.dump(2) + "\n", &outputs);
@@ -196,7 +285,14 @@ void add_register_command(CLI::App& app) {
   cmd->add_option("--frames", flags->frames,
                   "Frames: .npy (N,H,W), .nii/.mha/.nrrd stack, or a folder of PNGs");
   cmd->add_option("--poses", flags->poses, "Initial poses, one per frame: .npy, .txt/.csv, .json");
-  cmd->add_option("--out", flags->out, "Refined poses: .npy (N,4,4)");
+  cmd->add_option("--out", flags->out,
+                  "Refined poses: .npy (N,4,4); with --sequence, the refined ImageToReference "
+                  "(pixels to reference mm) of each frame used");
+  cmd->add_option("--sequence", flags->sequence,
+                  "A PLUS sequence (.igs.mha/.nrrd): its frames and tracked poses, instead of "
+                  "--probe, --frames and --poses");
+  cmd->add_option("--config", flags->config,
+                  "With --sequence: the PLUS configuration XML (calibration, frames, clip)");
   const RegistrationSettings defaults;
   cmd->add_option(
       "--metric", flags->metric,
@@ -235,9 +331,9 @@ void add_register_command(CLI::App& app) {
       "--pyramid", flags->pyramid,
       "Coarse-to-fine pixel block sizes (default " + pyramid + "; docs/registration.md)");
   cmd->add_option("--mode", flags->mode,
-                  std::string("per-frame, rigid-sweep (one world correction for all frames) or "
-                              "smooth-sweep (per frame, tied to the neighbours along the sweep); "
-                              "default ") +
+                  std::string("per-frame, rigid-sweep (one world correction for all frames), "
+                              "smooth-sweep (per frame, tied to the neighbours along the sweep) "
+                              "or calibration (one probe-side correction); default ") +
                       to_string(defaults.mode));
   cmd->add_option("--smoothness", flags->smoothness,
                   "smooth-sweep: the prior's weight relative to the frames' curvature " +

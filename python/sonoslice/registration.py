@@ -47,9 +47,11 @@ def _report(report) -> dict:
     if s.mode == RegistrationMode.smooth_sweep:
         out["smoothness"] = s.smoothness
     keys = ("index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg",
-            "starts", "agreeing_starts", "confidence", "converged")
+            "starts", "agreeing_starts", "confidence", "converged", "uncertainty_mm", "uncertainty_deg")
     out["frames"] = [{k: getattr(f, k) for k in keys} for f in report.frames]
     out["converged_frames"] = sum(f.converged for f in report.frames)
+    if report.correction is not None:  # rigid-sweep and smooth-sweep: world side; calibration: probe side
+        out["correction"] = report.correction[0].tolist()
     out.update(evaluations=int(report.evaluations), seconds=float(report.seconds))
     return out
 
@@ -65,8 +67,10 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     the fan). Returns ``(refined, report)``: (N, 4, 4) float64 poses in ``world`` and a dict with
     the settings used ("metric", "optimizer", "mode", "starts", and "smoothness" for smooth-sweep),
     "frames" (one dict per frame: index, metric, evaluations, iterations,
-    translation_change_mm, rotation_change_deg, starts, agreeing_starts, confidence, converged),
-    "converged_frames", "evaluations" and "seconds". A frame is converged when its best pose was
+    translation_change_mm, rotation_change_deg, starts, agreeing_starts, confidence, converged,
+    uncertainty_mm, uncertainty_deg),
+    "converged_frames", "correction" (the sweep modes' and calibration's shared 4×4 correction),
+    "evaluations" and "seconds". A frame is converged when its best pose was
     reached from at least two starts; a registration with frames that are not warns
     (``UserWarning``, one message). ``starts``: None (default) runs starts until two agree, at
     most 8.

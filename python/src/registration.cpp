@@ -163,13 +163,24 @@ void bind_registration(nb::module_& m) {
       .def_prop_ro("confidence", &FrameReport::confidence,
                    "(agreeing_starts - 1) / (starts - 1): the share of the other starts that "
                    "confirmed the best pose; 0 with one start")
+      .def_ro("uncertainty_mm", &FrameReport::uncertainty_mm,
+              "standard deviation of the centre, mm (ssd, ncc; NaN otherwise)")
+      .def_ro("uncertainty_deg", &FrameReport::uncertainty_deg,
+              "standard deviation of the rotation, degrees (ssd, ncc; NaN otherwise)")
       .def_ro("converged", &FrameReport::converged,
               "the best pose was reached from at least two starts");
   nb::class_<RegistrationReport>(m, "RegistrationReport", "What a registration used and did.")
       .def_ro("settings", &RegistrationReport::settings, "the settings as resolved")
       .def_ro("frames", &RegistrationReport::frames)
       .def_ro("evaluations", &RegistrationReport::evaluations)
-      .def_ro("seconds", &RegistrationReport::seconds);
+      .def_ro("seconds", &RegistrationReport::seconds)
+      .def_prop_ro(
+          "correction",
+          [](const RegistrationReport& r) -> nb::object {
+            if (!r.correction) return nb::none();
+            return nb::cast(matrices_to_numpy({*r.correction}));
+          },
+          "the sweep modes' and calibration's shared correction, (1, 4, 4); None per frame");
 
   m.def(
       "register_frames",

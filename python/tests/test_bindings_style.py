@@ -93,7 +93,7 @@ def test_no_bound_callable_takes_more_than_six_positional_parameters():
 @pytest.mark.parametrize("kind, spellings", [
     (sonoslice.RegistrationMetric, ["ssd", "ncc", "lncc", "mi", "lc2"]),
     (sonoslice.RegistrationOptimizer, ["gn", "lm", "bobyqa", "nelder-mead"]),
-    (sonoslice.RegistrationMode, ["per-frame", "rigid-sweep", "smooth-sweep"]),
+    (sonoslice.RegistrationMode, ["per-frame", "rigid-sweep", "smooth-sweep", "calibration"]),
     (sonoslice.SimulationSource, ["ct", "labels"]),
     (sonoslice.SimulationOutput, ["bmode", "envelope"]),
 ])

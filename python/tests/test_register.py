@@ -13,7 +13,7 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
 REPORT_KEYS = {"index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg",
-               "starts", "agreeing_starts", "confidence", "converged"}
+               "starts", "agreeing_starts", "confidence", "converged", "uncertainty_mm", "uncertainty_deg"}
 
 
 def run(cli, *args):
@@ -245,3 +245,83 @@ def test_python_register_matches_the_command(cli, case):
         sonoslice.register(ct, probe, frames[:, :-1], init)
     with pytest.raises(ValueError, match="metric"):
         sonoslice.register(ct, probe, frames, init, metric="mutual")
+
+
+# ---- PLUS sequences: frames and tracked poses as they come ------------------------------------
+PLUS = os.path.join(ROOT, "data", "plus")
+NWIRE = os.path.join(PLUS, "NwirePhantomFreehand.igs.mha")
+NWIRE_XML = os.path.join(PLUS, "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml")
+NWIRE_VOLUME = os.path.join(PLUS, "NwirePhantomFreehandReconstructed.mha")  # PLUS's own reconstruction
+
+
+def nwire_config(path, image_to_probe=None, skip=4):
+    """The NWire configuration with every `skip`-th frame and, if given, another ImageToProbe."""
+    import re
+    text = open(NWIRE_XML).read()
+    text = text.replace('Optimization="NONE"', f'Optimization="NONE" SkipInterval="{skip}"')
+    if image_to_probe is not None:
+        matrix = " ".join(f"{v:.9g}" for v in np.asarray(image_to_probe).ravel())
+        text = re.sub(r'(<Transform From="Image" To="Probe"\s+Matrix=")[^"]*"', rf'\g<1>{matrix}"', text)
+    open(path, "w").write(text)
+    return str(path)
+
+
+def nwire_image_to_probe():
+    import re
+    m = re.search(r'<Transform From="Image" To="Probe"\s+Matrix="([^"]*)"', open(NWIRE_XML).read())
+    return np.array(m.group(1).split(), float).reshape(4, 4)
+
+
+def clip_corners_mm(image_to_probe):
+    """The NWire clip rectangle's corners and centre (pixels) in probe mm."""
+    (x0, y0), (w, h) = (167, 62), (495, 488)
+    pixels = np.array([[x0, y0, 0, 1], [x0 + w, y0, 0, 1], [x0, y0 + h, 0, 1], [x0 + w, y0 + h, 0, 1],
+                       [x0 + w / 2, y0 + h / 2, 0, 1]]).T
+    return (np.asarray(image_to_probe) @ pixels)[:3].T
+
+
+def test_calibration_of_a_plus_sweep_recovers_a_perturbed_image_to_probe(cli, tmp_path):
+    """The real NWire sweep against PLUS's own reconstruction of it: `register --sequence
+    --config --mode calibration` from the configuration's calibration, and from that calibration
+    moved by 2 mm and 2 degrees, finds the same corrected ImageToProbe."""
+    truth = nwire_image_to_probe()
+    error = np.eye(4)
+    error[:3, :3] = rotation([1, -2, 0.5], np.deg2rad(2))
+    error[:3, 3] = [1.2, -1.0, 1.2]  # 2 mm
+    found = {}
+    for name, image_to_probe in (("as-given", None), ("perturbed", error @ truth)):
+        config = nwire_config(tmp_path / f"{name}.xml", image_to_probe)
+        out, report_path = tmp_path / f"{name}.npy", tmp_path / f"{name}.json"
+        r = run(cli, "register", "--sequence", NWIRE, "--config", config, "--volume", NWIRE_VOLUME,
+                "--mode", "calibration", "--pyramid", "8,4,2", "--out", str(out), "--report", str(report_path))
+        assert r.returncode == 0, r.stderr
+        # The calibration's pixel axes are 0.9 degrees from perpendicular: said once, not refused.
+        assert "degrees from perpendicular" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+        report = json.load(open(report_path))
+        assert report["mode"] == "calibration" and report["sequence_frames"] == list(range(0, 97, 4))
+        assert report["converged_frames"] == 25 and np.load(out).shape == (25, 4, 4)
+        found[name] = np.array(report["image_to_probe"])
+    start = np.linalg.norm(clip_corners_mm(error @ truth) - clip_corners_mm(truth), axis=1).max()
+    apart = np.linalg.norm(clip_corners_mm(found["perturbed"]) - clip_corners_mm(found["as-given"]), axis=1)
+    moved = np.linalg.norm(clip_corners_mm(found["as-given"]) - clip_corners_mm(truth), axis=1)
+    print(f"clip corners: perturbed by up to {start:.2f} mm; the two results {apart.max():.3f} mm apart; "
+          f"the configuration's calibration moved by up to {moved.max():.3f} mm")
+    assert start > 2 and apart.max() < 0.3
+
+
+def test_sequence_input_bad_input_is_one_line(cli, tmp_path):
+    skewed = nwire_image_to_probe()
+    skewed[:3, 1] = skewed[:3, 1] + 0.3 * np.linalg.norm(skewed[:3, 1]) * skewed[:3, 0] / np.linalg.norm(skewed[:3, 0])
+    cases = [
+        (["--sequence", NWIRE, "--config", nwire_config(tmp_path / "skew.xml", skewed)],
+         "frame 0's ImageToReference shears the image"),
+        (["--sequence", NWIRE, "--config", NWIRE_XML, "--probe", W1], "--probe is for frames given as files"),
+        (["--sequence", str(tmp_path / "missing.igs.mha")], "missing.igs.mha"),
+        (["--frames", NWIRE, "--config", NWIRE_XML], "--config goes with --sequence"),
+    ]
+    for args, needle in cases:
+        r = run(cli, "register", "--volume", NWIRE_VOLUME, "--out", str(tmp_path / "x.npy"), *args)
+        assert r.returncode == 1, (args, r.stderr)
+        assert r.stderr.startswith("sonoslice: error: ") and r.stderr.count("\n") == 1, r.stderr
+        assert needle in r.stderr, r.stderr
+        assert not (tmp_path / "x.npy").exists()

@@ -49,13 +49,13 @@ def test_register_passes_only_what_it_is_given(phantom, poses):
     refined, report = sonoslice.register(ct, probe, frames, poses[:2], pyramid=(2, 1))
     # The report says what ran: the library's defaults and its choice of optimiser.
     assert (report["metric"], report["optimizer"], report["mode"], report["starts"]) == ("ncc", "lm", "per-frame", "auto")
-    assert "smoothness" not in report and refined.shape == (2, 4, 4)
+    assert "smoothness" not in report and "correction" not in report and refined.shape == (2, 4, 4)
     settings = sonoslice.RegistrationSettings(pyramid=[2, 1], metric=sonoslice.RegistrationMetric.ssd)
     same, report = sonoslice.register(ct, probe, frames, poses[:2], settings=settings)
     assert report["metric"] == "ssd" and report["optimizer"] == "lm"
     with pytest.raises(TypeError, match="not both"):
         sonoslice.register(ct, probe, frames, poses[:2], settings=settings, starts=2)
-    with pytest.raises(ValueError, match="^mode 'sweep': expected 'per-frame', 'rigid-sweep' or 'smooth-sweep'"):
+    with pytest.raises(ValueError, match="^mode 'sweep': expected 'per-frame', 'rigid-sweep', 'smooth-sweep' or 'calibration'"):
         sonoslice.register(ct, probe, frames, poses[:2], mode="sweep")
 
 
@@ -123,3 +123,17 @@ def test_sampler_settings_from_keywords_and_dicts_are_one_path():
         for make in (lambda: sonoslice.SamplerSettings(**bad), lambda: sonoslice.SamplerSettings.from_dict(bad)):
             with pytest.raises(ValueError, match=message.replace(".", r"\.")):
                 make()
+
+
+def test_calibration_mode_reports_its_probe_side_correction(phantom, poses):
+    ct, _ = phantom
+    probe = sonoslice.Probe.linear(40, 30, 0.5)
+    truth = np.asarray(poses[:6], float)
+    frames = sonoslice.Slicer(ct, probe).slice(truth)
+    X0 = np.eye(4)
+    X0[:3, 3] = [0.8, -0.6, 0.5]
+    initial = truth @ np.linalg.inv(X0)  # every pose off by the same probe-side X0
+    refined, report = sonoslice.register(ct, probe, frames, initial, mode="calibration", pyramid=(2, 1))
+    assert report["mode"] == "calibration" and np.asarray(report["correction"]).shape == (4, 4)
+    np.testing.assert_allclose(np.asarray(report["correction"])[:3, 3], X0[:3, 3], atol=0.1)
+    np.testing.assert_allclose(refined[:, :3, 3], truth[:, :3, 3], atol=0.1)

@@ -216,6 +216,50 @@ void limit_step(const RegistrationSettings& s, int attempt, double xi[6], double
   *rad = r_len * shrink;
 }
 
+PoseTerms turned_into(const PoseTerms& t, const Mat3& R) {
+  // M = diag(R, R): (Mᵀ·x)_i = Σ_j M_ji x_j.
+  double M[6][6] = {};
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) M[i][j] = M[3 + i][3 + j] = R.m[i][j];
+  const auto turn = [&](const double* x, double* out) {
+    for (int i = 0; i < 6; ++i) {
+      out[i] = 0;
+      for (int j = 0; j < 6; ++j) out[i] += M[j][i] * x[j];
+    }
+  };
+  PoseTerms out = t;
+  turn(t.sj, out.sj);
+  turn(t.sij, out.sij);
+  turn(t.sfj, out.sfj);
+  double S[6][6];  // the full symmetric Σ J·Jᵀ from its upper triangle
+  for (int i = 0, k = 0; i < 6; ++i)
+    for (int j = i; j < 6; ++j, ++k) S[i][j] = S[j][i] = t.sjj[k];
+  for (int i = 0, k = 0; i < 6; ++i)
+    for (int j = i; j < 6; ++j, ++k) {
+      double v = 0;
+      for (int a = 0; a < 6; ++a)
+        for (int b = 0; b < 6; ++b) v += M[a][i] * S[a][b] * M[b][j];
+      out.sjj[k] = v;
+    }
+  return out;
+}
+
+std::pair<double, double> pose_uncertainty(RegistrationMetric metric, const PoseTerms& t) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (!metric_has_derivatives(metric)) return {nan, nan};
+  double g[6], H[36], inverse[36];
+  const double cost = metric_cost(metric, t, g, H);
+  if (!std::isfinite(cost) || !invert6(H, inverse)) return {nan, nan};
+  const double scale = 2 * std::max(cost, 0.0) / t.n;
+  double translation = 0, rotation = 0;
+  for (int k = 0; k < 3; ++k) {
+    translation += scale * inverse[7 * k];
+    rotation += scale * inverse[7 * (k + 3)];
+  }
+  if (!(translation >= 0) || !(rotation >= 0)) return {nan, nan};
+  return {std::sqrt(translation), std::sqrt(rotation) * 180 / kPi};
+}
+
 double rotation_angle_deg(const Mat3& a, const Mat3& b) {
   double trace = 0;
   for (int i = 0; i < 3; ++i)
@@ -246,26 +290,41 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
                    [](const auto& a, const auto& b) { return a.first < b.first; });
   // How many ends reached the best one: its centre moved by at most kAgreementMm from theirs,
   // its rotation at most kAgreementDeg from theirs.
-  std::vector<Pose> ends;
+  const auto apart = [&](const Pose& a, const Pose& b, double mm, double deg) {
+    const Vec3 pa = a.transform_point(centre), pb = b.transform_point(centre);
+    double d = 0;
+    for (int i = 0; i < 3; ++i) d += (pa[i] - pb[i]) * (pa[i] - pb[i]);
+    return std::sqrt(d) > mm || rotation_angle_deg(a.linear(), b.linear()) > deg;
+  };
+  std::vector<Pose> ends, begun;
   Outcome best;
   const auto agreeing = [&] {
-    const Vec3 at = best.correction.transform_point(centre);
     int n = 0;
-    for (const Pose& e : ends) {
-      const Vec3 other = e.transform_point(centre);
-      double d = 0;
-      for (int i = 0; i < 3; ++i) d += (at[i] - other[i]) * (at[i] - other[i]);
-      n += std::sqrt(d) <= kAgreementMm &&
-           rotation_angle_deg(best.correction.linear(), e.linear()) <= kAgreementDeg;
-    }
+    for (const Pose& e : ends) n += !apart(best.correction, e, kAgreementMm, kAgreementDeg);
     return n;
   };
-  for (int k = 0; k < most && k < int(candidates.size()); ++k) {
-    const Outcome o = optimise(p, s, candidates[size_t(k)].second, centre);
+  // Automatic starts: the initial pose first, then the best-ranked points at least half the
+  // search spread from every point already started from, so that two starts that agree came
+  // from different places (neighbouring points of one basin would agree on its minimum, right
+  // or wrong).
+  if (automatic)
+    std::stable_partition(candidates.begin(), candidates.end(), [&](const auto& c) {
+      return !apart(c.second, Pose::identity(), 1e-9, 1e-9);
+    });
+  for (size_t k = 0; k < candidates.size() && int(ends.size()) < most; ++k) {
+    const Pose& from = candidates[k].second;
+    if (automatic) {
+      bool far = true;
+      for (const Pose& b : begun)
+        far = far && apart(from, b, s.search_trans_mm / 2, s.search_rot_deg / 2);
+      if (!far) continue;
+    }
+    begun.push_back(from);
+    const Outcome o = optimise(p, s, from, centre);
     evaluations += o.evaluations;
     iterations += o.iterations;
     ends.push_back(o.correction);
-    if (k == 0 || o.cost < best.cost) best = o;
+    if (ends.size() == 1 || o.cost < best.cost) best = o;
     if (automatic && std::isfinite(best.cost) && agreeing() >= 2) break;
   }
   best.evaluations = evaluations;

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <utility>
 #include <vector>
 
 #include "sonoslice/register/Registration.h"
@@ -29,6 +30,14 @@ struct Outcome {
   int64_t evaluations = 0, iterations = 0;
   int starts = 1, agreeing_starts = 1;  // multi_start: optimisations run, and ending at the best
 };
+
+/// Terms whose derivatives are with respect to a world-frame increment ξ_w = (R·v, R·ω), turned
+/// into derivatives with respect to (v, ω): J ↦ Mᵀ·J, J·Jᵀ ↦ Mᵀ·(J·Jᵀ)·M, M = diag(R, R).
+PoseTerms turned_into(const PoseTerms& t, const Mat3& R);
+
+/// The result's standard deviation from its terms (FrameReport::uncertainty_mm/_deg): {mm, deg},
+/// NaN for metrics without derivatives or a singular Gauss–Newton matrix.
+std::pair<double, double> pose_uncertainty(RegistrationMetric metric, const PoseTerms& t);
 
 /// The angle (degrees) of the rotation a·bᵀ.
 double rotation_angle_deg(const Mat3& a, const Mat3& b);

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -40,12 +41,14 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
 
   std::vector<Pose> refined(s.count);
   std::vector<FrameReport> frames(s.count);
+  std::optional<Pose> correction;  // the sweep modes' shared one
   // `metric`: the frame's own final cost (per frame: the optimisation's; a sweep's is shared).
+  // `pose`: the refined pose, when not the world-side correction's o.correction · initial.
   const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations,
-                            std::optional<double> metric) {
+                            std::optional<double> metric, std::optional<Pose> pose = {}) {
     FrameReport& r = frames[k];
     r.index = k;
-    refined[k] = o.correction * initial[k];
+    refined[k] = pose ? *pose : o.correction * initial[k];
     r.metric = metric ? *metric : cost(k, refined[k], 1, settings.metric);
     r.evaluations = evaluations;
     r.iterations = o.iterations;
@@ -55,6 +58,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     r.rotation_change_deg = rotation_angle_deg(refined[k].linear(), initial[k].linear());
     r.starts = o.starts;
     r.agreeing_starts = o.agreeing_starts;
+    if (settings.mode == RegistrationMode::PerFrame)
+      std::tie(r.uncertainty_mm, r.uncertainty_deg) = register_impl::pose_uncertainty(
+          settings.metric, terms(k, refined[k], 1, centre(k, refined[k]), true));
     r.converged = o.agreeing_starts >= 2 && std::isfinite(r.metric);
   };
   if (settings.mode == RegistrationMode::PerFrame) {
@@ -70,12 +76,19 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       describe(size_t(k), o, o.evaluations, o.cost);
     });
   } else {
-    // rigid-sweep, and smooth-sweep's first stage. One correction for the sweep: each evaluation
-    // sums every frame's terms (in parallel, then in frame order), turning about the mean of the
-    // frames' centres.
+    // One correction X for the sweep. rigid-sweep and smooth-sweep's first stage: world side,
+    // poses X·T_k, turning about the mean of the frames' centres. calibration: probe side, poses
+    // T_k·X, turning about the mean of the frames' centres in probe mm; an increment ξ of X there
+    // is frame k's world increment R_k·ξ about T_k·c (R_k: T_k's rotation), so each frame's
+    // derivatives are turned into the probe frame before they are summed. Each evaluation sums
+    // every frame's terms (in parallel, then in frame order).
+    const bool probe_side = settings.mode == RegistrationMode::Calibration;
+    const auto pose_of = [&](const Pose& X, size_t k) {
+      return probe_side ? initial[k] * X : X * initial[k];
+    };
     Vec3 mean = {0, 0, 0};
     for (size_t k = 0; k < s.count; ++k) {
-      const Vec3 c = centre(k, initial[k]);
+      const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, initial[k]);
       for (int i = 0; i < 3; ++i) mean[i] += c[i] / double(s.count);
     }
     Problem p;
@@ -83,7 +96,13 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     p.terms = [&](const Pose& X, int f, const Vec3& c, bool g) {
       std::vector<PoseTerms> each(s.count);
       backend::parallel_for(int64_t(s.count), [&](int64_t k) {
-        each[size_t(k)] = terms(size_t(k), X * initial[size_t(k)], f, c, g);
+        const Pose& T = initial[size_t(k)];
+        if (!probe_side) {
+          each[size_t(k)] = terms(size_t(k), X * T, f, c, g);
+          return;
+        }
+        each[size_t(k)] = terms(size_t(k), T * X, f, T.transform_point(c), g);
+        if (g) each[size_t(k)] = register_impl::turned_into(each[size_t(k)], T.linear());
       });
       PoseTerms sum;
       for (const PoseTerms& t : each) sum.add(t);
@@ -96,7 +115,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
         return metric_cost(settings.metric, p.terms(X, f, mean, false));
       std::vector<std::pair<double, double>> each(s.count);
       backend::parallel_for(int64_t(s.count), [&](int64_t k) {
-        const Pose pose = X * initial[size_t(k)];
+        const Pose pose = pose_of(X, size_t(k));
         if (settings.metric == RegistrationMetric::MI)
           each[size_t(k)] = {cost(size_t(k), pose, f, settings.metric), 1.0};
         else
@@ -111,9 +130,21 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       return settings.metric == RegistrationMetric::MI ? weighted / weight : 1 - weighted / weight;
     };
     const Outcome o = multi_start(p, settings, 0, mean);
-    if (settings.mode == RegistrationMode::RigidSweep) {
-      for (size_t k = 0; k < s.count; ++k)
-        describe(k, o, o.evaluations / int64_t(s.count), std::nullopt);
+    correction = o.correction;
+    // The shared correction's uncertainty, from the sweep's summed terms.
+    const auto [sweep_mm, sweep_deg] =
+        metric_has_derivatives(settings.metric)
+            ? register_impl::pose_uncertainty(
+                  settings.metric,
+                  p.terms(o.correction, 1, o.correction.transform_point(mean), true))
+            : std::pair<double, double>{std::numeric_limits<double>::quiet_NaN(),
+                                        std::numeric_limits<double>::quiet_NaN()};
+    if (settings.mode != RegistrationMode::SmoothSweep) {
+      for (size_t k = 0; k < s.count; ++k) {
+        describe(k, o, o.evaluations / int64_t(s.count), std::nullopt, pose_of(o.correction, k));
+        frames[k].uncertainty_mm = sweep_mm;
+        frames[k].uncertainty_deg = sweep_deg;
+      }
     } else {
       // smooth-sweep: from the shared correction, each frame its own, tied to its neighbours.
       SweepTerms sweep;
@@ -140,6 +171,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
   if (report) {
     report->settings = settings;
     report->frames = frames;
+    report->correction = correction;
     report->evaluations = 0;
     for (const FrameReport& r : frames) report->evaluations += r.evaluations;
     report->seconds =

@@ -71,6 +71,8 @@ const char* to_string(RegistrationMode mode) {
       return "rigid-sweep";
     case RegistrationMode::SmoothSweep:
       return "smooth-sweep";
+    case RegistrationMode::Calibration:
+      return "calibration";
   }
   return "?";
 }

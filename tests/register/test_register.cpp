@@ -238,6 +238,38 @@ TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
       << warnings.messages()[0];
 }
 
+// A probe calibration error: every frame's pose is off by the same probe-side X0 (T_i·X0⁻¹ given
+// for T_i), frames at unrelated orientations, so no world-side correction explains it.
+// Calibration mode (Levenberg–Marquardt on the derivatives turned into the probe frame) finds X0.
+TEST(Register, CalibrationModeFindsOneProbeSideError) {
+  const std::vector<Pose> truth = phantom_random_poses(8, 13);
+  const std::vector<float> frames = noisy_fans(truth, 20);
+  const FrameRegistration reg(phantom().ct, probe(), frames.data(), truth.size());
+  double xi[6] = {1.5, -1.0, 1.2, 0.02, -0.025, 0.015};  // mm, rad (about 2 degrees)
+  const Pose X0 = apply_increment(Pose::identity(), xi, fan_centre());
+  const Pose X0_inverse = *invert(X0);
+  std::vector<Pose> initial;
+  for (const Pose& t : truth) initial.push_back(t * X0_inverse);
+  RegistrationSettings settings;
+  settings.mode = RegistrationMode::Calibration;
+  RegistrationReport report;
+  const std::vector<Pose> refined = reg.run(initial, settings, &report);
+  for (size_t k = 0; k < truth.size(); ++k) {
+    const auto before = pose_error(initial[k], truth[k], fan_centre());
+    const auto e = pose_error(refined[k], truth[k], fan_centre());
+    std::printf("[ calibration ] frame %zu: %.2f mm %.2f deg -> %.3f mm %.3f deg\n", k,
+                before.first, before.second, e.first, e.second);
+    EXPECT_LT(e.first, 0.3);
+    EXPECT_LT(e.second, 0.3);
+    EXPECT_TRUE(report.frames[k].converged);
+  }
+  ASSERT_TRUE(report.correction.has_value());
+  const auto x_error = pose_error(*report.correction, X0, fan_centre());
+  std::printf("[ calibration ] X against X0: %.3f mm %.3f deg\n", x_error.first, x_error.second);
+  EXPECT_LT(x_error.first, 0.3);
+  EXPECT_LT(x_error.second, 0.3);
+}
+
 // Frames that match nothing in the volume (noise): the starts end in different places, and the
 // frames are reported not converged, with one warning.
 TEST(Register, NoiseFramesAreNotConverged) {

@@ -4,6 +4,7 @@
 /// is materialised), and Gauss–Newton / Levenberg–Marquardt pose optimisation with multi-start
 /// and a coarse-to-fine schedule. docs/registration.md has the formulas.
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -48,7 +49,10 @@ enum class RegistrationMode {
   /// the rigid-sweep correction first, then Gauss–Newton / LM on all frames jointly, the cost
   /// Σ cost_i + Σ_i (d_{i+1} − d_i)ᵀ·W·(d_{i+1} − d_i), d_i the correction of frame i's centre
   /// (mm) and its rotation vector. SSD and NCC only. docs/registration.md §5.
-  SmoothSweep
+  SmoothSweep,
+  /// One probe-side correction X shared by all frames: refined poses T_i · X, the error of the
+  /// probe calibration (PLUS's ImageToProbe) rather than of the tracker-to-volume registration.
+  Calibration
 };
 
 /// Every value of each choice, in the order of its spelling table (the parsers and the Python
@@ -60,10 +64,12 @@ inline constexpr RegistrationOptimizer kRegistrationOptimizers[] = {
     RegistrationOptimizer::GaussNewton, RegistrationOptimizer::LevenbergMarquardt,
     RegistrationOptimizer::Bobyqa, RegistrationOptimizer::NelderMead};
 inline constexpr RegistrationMode kRegistrationModes[] = {
-    RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep};
+    RegistrationMode::PerFrame, RegistrationMode::RigidSweep, RegistrationMode::SmoothSweep,
+    RegistrationMode::Calibration};
 
 /// The spelling tables (the CLI's flag values, Python's strings): "ssd", "ncc", "lncc", "mi",
-/// "lc2"; "gn", "lm", "bobyqa", "nelder-mead"; "per-frame", "rigid-sweep", "smooth-sweep".
+/// "lc2"; "gn", "lm", "bobyqa", "nelder-mead"; "per-frame", "rigid-sweep", "smooth-sweep",
+/// "calibration".
 /// The parsers throw InputError "<what> <name>: expected ..." (`what`: the setting as the caller
 /// spells it).
 RegistrationMetric parse_registration_metric(const std::string& name,
@@ -138,6 +144,14 @@ struct FrameReport {
   /// The best end was reached from at least two starts and its cost is finite. One optimisation
   /// alone cannot tell its optimum from a local minimum, so a single start is never converged.
   bool converged = false;
+  /// The result's standard deviation (ssd and ncc; NaN for the other metrics): of the frame's
+  /// (the sweep's) centre, mm, and of its rotation, degrees, each the root of the trace of its
+  /// block of the covariance (2·cost/n)·H⁻¹ (H the Gauss–Newton matrix at the result, n the
+  /// pixels compared): what independent pixel noise of the residual's size would leave. A
+  /// direction the frame does not constrain (a homogeneous organ, a symmetric structure) shows
+  /// as a large value. Correlated noise (speckle) makes the true spread larger.
+  double uncertainty_mm = std::numeric_limits<double>::quiet_NaN();
+  double uncertainty_deg = std::numeric_limits<double>::quiet_NaN();
   /// The share of the other starts that confirmed the best end: (agreeing_starts − 1) /
   /// (starts − 1), 0 with a single start (0 to 1).
   double confidence() const {
@@ -148,6 +162,9 @@ struct FrameReport {
 struct RegistrationReport {
   RegistrationSettings settings;  ///< what ran: the caller's settings, resolved()
   std::vector<FrameReport> frames;
+  /// The shared correction: rigid-sweep's and smooth-sweep's first stage X (world side, refined
+  /// poses X · T_i), calibration's X (probe side, T_i · X); unset per frame.
+  std::optional<Pose> correction;
   int64_t evaluations = 0;
   double seconds = 0;
 };
