@@ -25,15 +25,19 @@ const Phantom& phantom() {
   return p;
 }
 
-/// W1's fan at half its pixels (167 × 136 at 0.494 mm): the small phantom's voxels are coarse.
-ProbeGeometry probe() {
-  ProbeGeometry p = workload_w1_fan_probe();
-  p.image.width /= 2;
-  p.image.height /= 2;
-  p.image.spacing_mm[0] *= 2;
-  p.image.spacing_mm[1] *= 2;
+/// `p` with 1/k of its pixels along each axis, k times as large.
+ProbeGeometry coarser(ProbeGeometry p, int k) {
+  p.image.width /= k;
+  p.image.height /= k;
+  p.image.spacing_mm[0] *= k;
+  p.image.spacing_mm[1] *= k;
   p.image.set_default_origin();
   return p;
+}
+
+/// W1's fan at half its pixels (167 × 136 at 0.494 mm): the small phantom's voxels are coarse.
+ProbeGeometry probe() {
+  return coarser(workload_w1_fan_probe(), 2);
 }
 
 std::vector<float> fans(const std::vector<Pose>& poses) {
@@ -176,13 +180,7 @@ TEST(Register, RigidSweepRecoversOneSharedCorrection) {
 
 /// A linear probe at a quarter of W2's pixels (100 × 125 at 0.494 mm).
 ProbeGeometry linear_probe() {
-  ProbeGeometry p = workload_w2_linear_probe();
-  p.image.width /= 4;
-  p.image.height /= 4;
-  p.image.spacing_mm[0] *= 4;
-  p.image.spacing_mm[1] *= 4;
-  p.image.set_default_origin();
-  return p;
+  return coarser(workload_w2_linear_probe(), 4);
 }
 
 // As a new user tries it: a straight 30-frame sweep of a linear probe, 1 mm apart, every frame
