@@ -90,6 +90,16 @@ void use_device(int index) {
   check(cudaSetDevice(index), "cuda:" + std::to_string(index) + ": selecting the device");
 }
 
+Owner::Owner(int index)
+    : device(index), name("cuda:" + std::to_string(index)), process(current_process()) {
+  use_device(index);
+}
+
+void Owner::enter(const std::string& what) const {
+  check_not_forked(process, name + " " + what);
+  use_device(device);
+}
+
 void memory_info(size_t* free_bytes, size_t* total_bytes) {
   check(cudaMemGetInfo(free_bytes, total_bytes), "cuda: querying device memory");
 }

@@ -17,6 +17,20 @@ std::string describe_devices();
 
 /// Makes `index` the calling thread's device; Error naming cuda:index when it cannot.
 void use_device(int index);
+/// What every holder of GPU state records about itself: its device, its name in messages
+/// ("cuda:K") and the process that made it (CUDA state does not survive fork()).
+struct Owner {
+  int device = 0;
+  std::string name;
+  long process = 0;
+  Owner() = default;
+  /// For cuda:`device`, made by this process; makes the device current.
+  explicit Owner(int device);
+  /// At every entry point: Error in a forked child (`what` names the object, e.g. "slicer"),
+  /// then the device made current.
+  void enter(const std::string& what) const;
+};
+
 /// Throws for a failed runtime call: ResourceError for out-of-memory, Error otherwise; `what`
 /// says which operation (e.g. "cuda:0: uploading the volume (200 MiB)").
 void check(int error, const std::string& what);

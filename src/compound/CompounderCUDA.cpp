@@ -15,10 +15,8 @@
 namespace sonoslice {
 namespace compound_impl {
 
-struct CudaCompounding::State {
-  int device = 0;
-  std::string name;
-  long process = 0;      // the process that made it: CUDA state does not survive fork()
+struct CudaCompounding::State : cuda::Owner {
+  explicit State(int device) : cuda::Owner(device) {}
   AccumulatorView grid;  // device pointers
   Mode mode = Mode::Mean;
   cuda::DeviceBuffer cells, stamp;
@@ -37,12 +35,8 @@ struct CudaCompounding::State {
 };
 
 CudaCompounding::CudaCompounding(int device, int nx, int ny, int nz, Mode mode)
-    : state_(std::make_unique<State>()) {
+    : state_(std::make_unique<State>(device)) {
   State& st = *state_;
-  cuda::use_device(device);
-  st.device = device;
-  st.name = "cuda:" + std::to_string(device);
-  st.process = cuda::current_process();
   st.mode = mode;
   st.stream = std::make_unique<cuda::Stream>();
   st.copies = std::make_unique<cuda::Stream>();
@@ -65,8 +59,7 @@ CudaCompounding::~CudaCompounding() = default;
 
 void CudaCompounding::add(const FrameBatch& host, bool linear) {
   State& st = *state_;
-  cuda::check_not_forked(st.process, st.name + " compounder");
-  cuda::use_device(st.device);
+  st.enter("compounder");
   void* s = st.stream->get();
   const size_t sample_bytes = size_t(host.frames) * host.rows * host.width * pixel_size(host.type);
   const size_t line_bytes = size_t(host.frames) * host.rows * sizeof(RowLine);
@@ -104,8 +97,7 @@ void CudaCompounding::add(const FrameBatch& host, bool linear) {
 
 void CudaCompounding::download(Accumulator* cells, int32_t* stamp) {
   State& st = *state_;
-  cuda::check_not_forked(st.process, st.name + " compounder");
-  cuda::use_device(st.device);
+  st.enter("compounder");
   const size_t voxels = size_t(st.grid.nx) * st.grid.ny * st.grid.nz;
   cuda::copy_to_host(cells, st.cells.data(), voxels * sizeof(Accumulator), st.stream->get(),
                      st.name + ": downloading the accumulators");
@@ -118,8 +110,7 @@ void CudaCompounding::download(Accumulator* cells, int32_t* stamp) {
 void CudaCompounding::finish(const std::vector<HoleFillingKernel>& kernels, PixelType type,
                              void* host_out) {
   State& st = *state_;
-  cuda::check_not_forked(st.process, st.name + " compounder");
-  cuda::use_device(st.device);
+  st.enter("compounder");
   void* s = st.stream->get();
   // The elements and their kernels (PLUS's float weights, set up on the host) on the GPU.
   FillSetup setup = setup_fill_elements(kernels);

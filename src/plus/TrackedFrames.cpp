@@ -32,15 +32,6 @@ Vec3 unit(const Vec3& v) {
 
 }  // namespace
 
-Mat4 image_to_reference_of(const Pose& pose, const ProbeGeometry& probe) {
-  Mat4 s;
-  s.m[0][0] = probe.image.spacing_mm[0];
-  s.m[1][1] = probe.image.spacing_mm[1];
-  s.m[0][3] = probe.image.origin_mm[0];
-  s.m[1][3] = probe.image.origin_mm[1];
-  return pose * s;
-}
-
 PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
                                       const PlusReconstructionConfig& config) {
   const PlusFrameSelection sel =

@@ -7,7 +7,6 @@
 #include <string>
 #include <vector>
 
-#include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
 #include "SimulateBackends.h"
 #include "SimulateModel.h"
@@ -16,22 +15,16 @@
 namespace sonoslice {
 namespace simulate_impl {
 
-struct CudaSimulateState {
-  int device = 0;
-  std::string name;  // "cuda:K", for messages
-  long process = 0;  // the process that made it: CUDA state does not survive fork()
-  ImageModel base;   // the model with device pointers
+struct CudaSimulateState : cuda::Owner {
+  explicit CudaSimulateState(int device) : cuda::Owner(device) {}
+  ImageModel base;  // the model with device pointers
   cuda::DeviceBuffer volume, label_props, hu_table, tiles[2], axial_speckle, axial_specular,
       lateral_speckle, lateral_specular, mask, scan_index, scan_steps, scan_weights;
   cuda::DeviceBuffer models, work, out;  // one batch's poses, stage buffers and images
   cuda::PinnedBuffer staging;            // the batch's images on their way to the caller
   std::unique_ptr<cuda::Stream> stream;
   std::mutex batch;  // simulate() is const: callers on several threads take turns
-
-  void enter() const {
-    cuda::check_not_forked(process, name + " simulator");
-    cuda::use_device(device);
-  }
+  void enter() const { cuda::Owner::enter("simulator"); }
 };
 
 namespace {
@@ -61,11 +54,7 @@ int64_t work_floats(int beams, int samples) {
 }  // namespace
 
 std::shared_ptr<CudaSimulateState> cuda_prepare(const Model& m, int device) {
-  cuda::use_device(device);
-  auto st = std::make_shared<CudaSimulateState>();
-  st->device = device;
-  st->name = "cuda:" + std::to_string(device);
-  st->process = cuda::current_process();
+  auto st = std::make_shared<CudaSimulateState>(device);
   st->stream = std::make_unique<cuda::Stream>();
   ImageModel& b = st->base;
   b = m.base;

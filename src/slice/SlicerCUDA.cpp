@@ -12,22 +12,15 @@
 namespace sonoslice {
 namespace slice_impl {
 
-struct CudaSliceState {
-  int device = 0;
-  std::string name;  // "cuda:K", for messages
-  long process = 0;  // the process that made it: CUDA state does not survive fork()
+struct CudaSliceState : cuda::Owner {
+  explicit CudaSliceState(int device) : cuda::Owner(device) {}
   cuda::DeviceBuffer volume, mask;
   cuda::DeviceBuffer out[2];      // chunks on their way to host memory (grow with the batch)
   cuda::PinnedBuffer staging[2];  // page-locked landing zones for device → host copies
   std::unique_ptr<cuda::Stream> streams[2];
   // Orders the slicer's stream after the caller's and back (CudaStream::own_then_join).
   std::unique_ptr<cuda::Event> caller_done, slicing_done;
-
-  // Every entry point: the right process, the right device.
-  void enter() const {
-    cuda::check_not_forked(process, name + " slicer");
-    cuda::use_device(device);
-  }
+  void enter() const { cuda::Owner::enter("slicer"); }
 };
 
 namespace {
@@ -58,11 +51,7 @@ void queue_slice(const CudaSliceState& st, SliceLaunch l, const PixelToIndex* af
 
 std::shared_ptr<CudaSliceState> cuda_prepare(const Volume& volume, const std::vector<uint8_t>& mask,
                                              int device) {
-  cuda::use_device(device);
-  auto st = std::make_shared<CudaSliceState>();
-  st->device = device;
-  st->name = "cuda:" + std::to_string(device);
-  st->process = cuda::current_process();
+  auto st = std::make_shared<CudaSliceState>(device);
   for (auto& s : st->streams) s = std::make_unique<cuda::Stream>();
   st->caller_done = std::make_unique<cuda::Event>();
   st->slicing_done = std::make_unique<cuda::Event>();

@@ -74,6 +74,18 @@ bool gpu_available(std::string* why) {
   }
 }
 
+void expect_cuda_unavailable(const std::function<void()>& make) {
+  try {
+    make();
+    ADD_FAILURE() << "expected an error";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_TRUE(m.find("cuda:0: not available") != std::string::npos ||
+                m.find("built without CUDA") != std::string::npos)
+        << m;
+  }
+}
+
 std::string read_file_bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

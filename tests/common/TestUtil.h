@@ -60,6 +60,10 @@ bool cuda_required();
 /// available (...)").
 bool gpu_available(std::string* why);
 
+/// Expects `make` (making a slicer, simulator, ... on cuda:0) to throw Error saying cuda:0 is not
+/// available or the build has no CUDA.
+void expect_cuda_unavailable(const std::function<void()>& make);
+
 /// A test fixture for GPU tests: skipped where gpu_available() is false (failed under
 /// SONOSLICE_REQUIRE_CUDA=1).
 class GpuTest : public ::testing::Test {

@@ -84,6 +84,24 @@ std::pair<double, double> pose_error(const Pose& a, const Pose& b, const Vec3& c
   return {std::sqrt(d), std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2))) * 180 / kPi};
 }
 
+/// `count` poses of `base` moved `step_mm` apart along its elevation axis, centred on it.
+std::vector<Pose> straight_sweep(const Pose& base, int count, double step_mm) {
+  std::vector<Pose> sweep;
+  for (int k = 0; k < count; ++k) {
+    Pose p = base;
+    for (int i = 0; i < 3; ++i) p.m[i][3] += step_mm * (k - (count - 1) / 2.0) * base.m[i][2];
+    sweep.push_back(p);
+  }
+  return sweep;
+}
+
+/// Every pose moved by the same world increment ξ about `c`.
+std::vector<Pose> moved(const std::vector<Pose>& poses, const double xi[6], const Vec3& c) {
+  std::vector<Pose> out;
+  for (const Pose& p : poses) out.push_back(apply_increment(p, xi, c));
+  return out;
+}
+
 Vec3 fan_centre() {
   const ProbeGeometry p = probe();
   return {0, p.face_y_mm + p.depth_mm / 2, 0};
@@ -151,18 +169,12 @@ TEST(Register, RecoversPerturbedPosesFromNoisyCtFans) {
 TEST(Register, RigidSweepRecoversOneSharedCorrection) {
   // A sweep of 6 frames 3 mm apart; the initial poses all carry the same world error X.
   const Pose base = phantom_random_poses(4, 3)[2];
-  std::vector<Pose> truth;
-  for (int k = 0; k < 6; ++k) {
-    Pose p = base;
-    for (int i = 0; i < 3; ++i) p.m[i][3] += 3.0 * (k - 2.5) * base.m[i][2];
-    truth.push_back(p);
-  }
+  const std::vector<Pose> truth = straight_sweep(base, 6, 3.0);
   const std::vector<float> frames = noisy_fans(truth, 20);
   const FrameRegistration reg(phantom().ct, probe(), frames.data(), truth.size());
   const Vec3 c = truth[0].transform_point(fan_centre());
-  double xi[6] = {2.0, -1.5, 2.5, 0.03, -0.04, 0.02};  // mm, rad (about 3 degrees)
-  std::vector<Pose> initial;
-  for (const Pose& t : truth) initial.push_back(apply_increment(t, xi, c));
+  const double xi[6] = {2.0, -1.5, 2.5, 0.03, -0.04, 0.02};  // mm, rad (about 3 degrees)
+  const std::vector<Pose> initial = moved(truth, xi, c);
   RegistrationSettings settings;
   settings.mode = RegistrationMode::RigidSweep;
   RegistrationReport report;
@@ -189,20 +201,14 @@ ProbeGeometry linear_probe() {
 TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
   const Pose base = phantom_random_poses(4, 3)[2];
   const ProbeGeometry probe = linear_probe();
-  std::vector<Pose> truth;
-  for (int k = 0; k < 30; ++k) {
-    Pose p = base;
-    for (int i = 0; i < 3; ++i) p.m[i][3] += 1.0 * (k - 14.5) * base.m[i][2];
-    truth.push_back(p);
-  }
+  const std::vector<Pose> truth = straight_sweep(base, 30, 1.0);
   const std::vector<float> frames = Slicer(phantom().ct, probe).slice<float>(truth);
   const FrameRegistration reg(phantom().ct, probe, frames.data(), truth.size());
   const Vec3 centre_probe = {0, probe.face_y_mm + probe.depth_mm / 2, 0};
   const Vec3 c = base.transform_point(centre_probe);
   const double deg = 5 * kPi / 180;
-  double xi[6] = {3, -4, 0, deg * base.m[0][2], deg * base.m[1][2], deg * base.m[2][2]};
-  std::vector<Pose> initial;
-  for (const Pose& t : truth) initial.push_back(apply_increment(t, xi, c));
+  const double xi[6] = {3, -4, 0, deg * base.m[0][2], deg * base.m[1][2], deg * base.m[2][2]};
+  const std::vector<Pose> initial = moved(truth, xi, c);
   RegistrationSettings settings;
   settings.mode = RegistrationMode::RigidSweep;
   RegistrationReport report;

@@ -39,8 +39,4 @@ struct PlusTrackedFrames {
 PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
                                       const PlusReconstructionConfig& config);
 
-/// A rigid pose on `probe`'s grid as a pixels → reference transform: pose · S, S mapping a pixel
-/// (i, j) to probe mm (origin + (i·sx, j·sy)).
-Mat4 image_to_reference_of(const Pose& pose, const ProbeGeometry& probe);
-
 }  // namespace sonoslice
