@@ -6,7 +6,9 @@ phantom). Two figures for each tool:
   on-GPU    images/s with the images left in GPU memory (what a training loop consumes);
             grid_sample's coordinates are built on the GPU too
   to host   images/s end to end into host memory, also as GB/s against this machine's
-            device-to-host copy bandwidth (pinned memory, measured here with torch)
+            device-to-host copy bandwidth (pinned memory, measured here with torch): into
+            pageable memory (a NumPy array, `sonoslice bench`) and, through the Python API,
+            into a pinned torch tensor (`pin_memory=True`), which the GPU's copies fill directly
 Needs a CUDA build of sonoslice and a Python with torch on CUDA (the GPU machine's python3):
   python3 bench/peers_cuda.py [--count 1000] [--repeat 5]
 """
@@ -14,6 +16,8 @@ import json
 import os
 import sys
 import time
+
+import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from peers import (  # noqa: E402
@@ -45,6 +49,28 @@ def grid_sample_cuda(vol, p, poses, origin, spacing, batch, repeat):
         best[to_host] = len(poses) / min(times)
     first = run(False)[0][:5].cpu().numpy()
     return best[False], best[True], first
+
+
+def sonoslice_python_to_host(ct, cfg, ds, poses, repeat, device):
+    """images/s of a float32 CUDA slicer (Python API) into a pageable NumPy array and into a pinned
+    torch tensor of the whole batch, best of ``repeat``."""
+    import torch
+
+    import sonoslice
+    volume = sonoslice.Volume.from_file(ct).astype("float32")
+    slicer = sonoslice.Slicer(volume, sonoslice.Probe.from_fanslicer(cfg, ds), device=device)
+    shape = (len(poses), slicer.height, slicer.width)
+    rates = {}
+    for name, out in (("pageable", np.empty(shape, np.float32)),
+                      ("pinned", torch.empty(shape, dtype=torch.float32, pin_memory=True))):
+        slicer.slice(poses, out=out)  # warm-up: touches every page once
+        best = float("inf")
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            slicer.slice(poses, out=out)
+            best = min(best, time.perf_counter() - t0)
+        rates[name] = len(poses) / best
+    return rates
 
 
 def pcie_bandwidth(device, gib=2, repeat=5):
@@ -97,11 +123,17 @@ def main():
         print(f"{name:8} ratio (sonoslice float32 / grid_sample): on-GPU {ours['float32'][0] / gs_dev:.2f}, "
               f"to host {ours['float32'][1] / gs_host:.2f}")
         # The bench slices into float32 images whatever the volume's type.
-        to_host_gbs = ours["float32"][1] * p["W"] * p["H"] * 4 / 1e9
+        image_gb = p["W"] * p["H"] * 4 / 1e9
+        to_host_gbs = ours["float32"][1] * image_gb
         print(f"{name:8} sonoslice to host: {to_host_gbs:.1f} GB/s = {100 * to_host_gbs / pcie:.0f} % of the "
               f"device -> host bandwidth")
+        py = sonoslice_python_to_host(ct, cfg, ds, poses, args.repeat, args.device)
+        for kind, rate in py.items():
+            print(f"{name:8} sonoslice float32 (Python) into {kind} host memory: {rate:.0f} images/s = "
+                  f"{rate * image_gb:.1f} GB/s = {100 * rate * image_gb / pcie:.0f} % of the device -> host bandwidth")
         results.append({"workload": name, "sonoslice": ours, "grid_sample": {"device": gs_dev, "host": gs_host},
-                        "to_host_gb_per_s": to_host_gbs, "pcie_gb_per_s": pcie})
+                        "to_host_gb_per_s": to_host_gbs, "pcie_gb_per_s": pcie,
+                        "python_to_host_images_per_s": py})
     if args.json:
         json.dump(results, open(args.json, "w"), indent=2)
 

@@ -131,8 +131,16 @@ if [[ $step == measure || $step == all ]]; then
   # Slicing: W1 and W2, float32 and int16, into GPU memory and to host memory. 10,000 poses, so
   # that one batch runs well past launch overhead (W1 float32: 3.6 GB of images).
   check bench-slice timeout 120 "$build/bin/sonoslice" bench --device cuda --count 10000 --repeat 5
+  # The row kernels' tile (rows per warp; default 4): slicing and compounding with each shape, so
+  # that the default stays the fastest on the card at hand.
+  for tile in 1 2 8; do
+    check "bench-slice-tile$tile" env SONOSLICE_CUDA_ROW_TILE=$tile timeout 120 \
+      "$build/bin/sonoslice" bench --device cuda --count 10000 --repeat 3
+  done
   # Compounding: Jauer's workload end to end (target: under 0.2 s) and the 1000-frame 2D sweep.
   check bench-compound timeout 120 "$build/bin/sonoslice" bench --compound --device cuda --repeat 3
+  check bench-compound-tile1 env SONOSLICE_CUDA_ROW_TILE=1 timeout 120 "$build/bin/sonoslice" \
+    bench --compound --device cuda --repeat 3
   # Simulation: W1 B-mode images from the phantom CT, on the GPU and on the machine's CPU cores.
   check bench-simulate timeout 120 "$build/bin/sonoslice" bench --simulate --device cuda \
     --count 4096 --repeat 3
@@ -145,7 +153,7 @@ if [[ $step == measure || $step == all ]]; then
   # Speed of Light of the slicing kernel (rows_kernel: SliceImpl.h through parallel_for_rows),
   # W1 float32, one launch after warm-up; the report file opens in Nsight Compute.
   run ncu-slice timeout 120 "$ncu" --clock-control none --section SpeedOfLight \
-    --section MemoryWorkloadAnalysis --section Occupancy --kernel-name regex:rows_kernel \
+    --section MemoryWorkloadAnalysis --section Occupancy --section LaunchStats --kernel-name regex:rows_kernel \
     --launch-skip 2 --launch-count 1 --export "$out/slice-kernel" --force-overwrite \
     "$build/bin/sonoslice" bench --device cuda --count 1000 --repeat 1 &&
     run ncu-slice-details "$ncu" --import "$out/slice-kernel.ncu-rep" --page details ||

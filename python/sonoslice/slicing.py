@@ -207,8 +207,11 @@ class Slicer(_ImageSlicer):
         CUDA work is queued on ``stream`` (a raw cudaStream_t; 0 is the legacy default stream), by
         default the current stream of the array's library (torch, CuPy; else 0), so that the
         library's later operations see the images without a synchronisation and its caching
-        allocator never hands out ``out`` memory still being written. ``out`` must sit on the
-        slicer's GPU (checked: host or another GPU's memory is refused).
+        allocator never hands out ``out`` memory still being written. A CUDA ``out`` must sit on
+        the slicer's GPU (another GPU's memory is refused). A host ``out`` is filled before
+        ``slice`` returns; page-locked memory (a tensor made with ``pin_memory=True``) receives
+        the images straight from the GPU, at the full speed of the bus, pageable memory through
+        the slicer's own pinned buffers.
         ``progress``: True for a tqdm bar, or a callable ``(done, total)``.
         """
         p = _arrays.pose_array(poses, world)

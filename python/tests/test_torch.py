@@ -45,3 +45,16 @@ def test_cuda_tensors_without_host_copies(phantom, poses, cuda):
     s.slice(poses, out=out)
     assert out.data_ptr() == address
     assert torch.equal(out, images)
+
+
+def test_cuda_slicing_into_pinned_and_pageable_host_memory(phantom, poses, cuda):
+    # Host output of a CUDA slicer: a pinned tensor is copied into directly (no staging), a
+    # pageable one through the slicer's pinned buffers; both hold the same images.
+    ct, _ = phantom
+    s = sonoslice.Slicer(ct, small_probe(), device=cuda)
+    pinned = torch.full((12, 80, 96), float("nan")).pin_memory()
+    assert pinned.is_pinned()
+    assert s.slice(poses, out=pinned) is pinned
+    pageable = s.slice(poses, out=np.full((12, 80, 96), np.nan, dtype=np.float32))
+    assert np.array_equal(pinned.numpy(), pageable)
+    assert np.abs(pageable - sonoslice.Slicer(ct, small_probe()).slice(poses)).max() <= 0.05

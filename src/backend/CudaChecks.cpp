@@ -50,5 +50,17 @@ bool debug_sync_enabled() {
   return on;
 }
 
+int row_tile_shift() {
+  static const int shift = [] {
+    const char* v = std::getenv("SONOSLICE_CUDA_ROW_TILE");
+    if (!v || !*v) return 2;
+    for (int shift = 0; shift <= 5; ++shift)
+      if (std::string(v) == std::to_string(1 << shift)) return shift;
+    throw InputError(std::string("SONOSLICE_CUDA_ROW_TILE '") + v +
+                     "': expected the rows per warp, 1, 2, 4, 8, 16 or 32");
+  }();
+  return shift;
+}
+
 }  // namespace cuda
 }  // namespace sonoslice

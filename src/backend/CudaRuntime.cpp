@@ -2,10 +2,13 @@
 
 #include <cuda_runtime.h>
 
+#include <algorithm>
+#include <cstring>
 #include <mutex>
 #include <sstream>
 
 #include "CudaChecks.h"
+#include "ParallelFor.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -179,21 +182,35 @@ void Event::synchronize(const std::string& what) const {
   check(cudaEventSynchronize(static_cast<cudaEvent_t>(event_)), what);
 }
 
-void check_device_pointer(const void* p, int device, const std::string& what) {
+namespace {
+PointerKind pointer_kind(const void* p, int* device) {
   cudaPointerAttributes a{};
   const cudaError_t err = cudaPointerGetAttributes(&a, p);
-  PointerKind kind = PointerKind::Unregistered;
+  *device = a.device;
   if (err != cudaSuccess) {
     cudaGetLastError();  // an unknown pointer is not a sticky error
-  } else if (a.type == cudaMemoryTypeDevice) {
-    kind = PointerKind::Device;
-  } else if (a.type == cudaMemoryTypeManaged) {
-    kind = PointerKind::Managed;
-  } else if (a.type == cudaMemoryTypeHost) {
-    kind = PointerKind::Host;
+    return PointerKind::Unregistered;
   }
-  const std::string problem = pointer_problem(kind, a.device, device, what);
+  if (a.type == cudaMemoryTypeDevice) return PointerKind::Device;
+  if (a.type == cudaMemoryTypeManaged) return PointerKind::Managed;
+  if (a.type == cudaMemoryTypeHost) return PointerKind::Host;
+  return PointerKind::Unregistered;
+}
+}  // namespace
+
+void check_device_pointer(const void* p, int device, const std::string& what) {
+  int pointer_device = -1;
+  const PointerKind kind = pointer_kind(p, &pointer_device);
+  const std::string problem = pointer_problem(kind, pointer_device, device, what);
   if (!problem.empty()) throw InputError(problem);
+}
+
+bool is_page_locked(const void* p, size_t bytes) {
+  if (!p || !bytes) return false;
+  int device = -1;
+  const char* last = static_cast<const char*>(p) + (bytes - 1);
+  return pointer_kind(p, &device) == PointerKind::Host &&
+         pointer_kind(last, &device) == PointerKind::Host;
 }
 
 void* malloc_async(size_t bytes, void* stream, const std::string& what) {
@@ -215,6 +232,46 @@ void copy_to_device(void* dst, const void* src, size_t bytes, void* stream,
 void copy_to_host(void* dst, const void* src, size_t bytes, void* stream, const std::string& what) {
   check(cudaMemcpyAsync(dst, src, bytes, cudaMemcpyDeviceToHost, static_cast<cudaStream_t>(stream)),
         what);
+}
+
+void download(void* dst, const void* src, size_t bytes, void* stream, PinnedBuffer staging[2],
+              const std::string& what) {
+  if (is_page_locked(dst, bytes)) {
+    copy_to_host(dst, src, bytes, stream, what);
+    synchronize(stream, what);
+    return;
+  }
+  // Pageable memory: the driver would stage it on one thread (and fault in fresh pages there).
+  // Chunks go to our pinned buffers instead, and every CPU thread copies one chunk onwards while
+  // the next one travels.
+  const size_t chunk = std::min<size_t>(bytes, size_t(32) << 20);
+  if (!chunk) return;
+  Event travelled[2];
+  struct Pending {
+    size_t first = 0, n = 0;
+  } pending[2];
+  auto land = [&](int k) {
+    if (!pending[k].n) return;
+    travelled[k].synchronize(what);
+    char* to = static_cast<char*>(dst) + pending[k].first;
+    const char* from = static_cast<const char*>(staging[k].data());
+    backend::parallel_for_chunks(int64_t(pending[k].n), int64_t(4) << 20,
+                                 [&](int64_t, int64_t begin, int64_t end) {
+                                   std::memcpy(to + begin, from + begin, size_t(end - begin));
+                                 });
+    pending[k].n = 0;
+  };
+  for (int k = 0; k < 2; ++k) staging[k].reserve(chunk, what + ": pinned staging buffer");
+  int k = 0;
+  for (size_t first = 0; first < bytes; first += chunk, k ^= 1) {
+    land(k);
+    const size_t n = std::min(chunk, bytes - first);
+    copy_to_host(staging[k].data(), static_cast<const char*>(src) + first, n, stream, what);
+    travelled[k].record(stream, what);
+    pending[k] = {first, n};
+  }
+  land(k);
+  land(k ^ 1);
 }
 
 }  // namespace cuda

@@ -103,6 +103,11 @@ class Event {
 /// `bytes` at `p`: GPU memory of that device, or managed memory. `what` names the pointer.
 void check_device_pointer(const void* p, int device, const std::string& what);
 
+/// Whether the `bytes` at host address `p` are page-locked memory that CUDA knows (cudaHostAlloc,
+/// cudaHostRegister, a torch tensor with pin_memory=True): device → host copies can land there
+/// directly, at the full bandwidth of the bus.
+bool is_page_locked(const void* p, size_t bytes);
+
 /// Stream-ordered scratch memory (cudaMallocAsync / cudaFreeAsync): safe to free right after
 /// queuing the kernels that use it, whatever the caller's stream.
 void* malloc_async(size_t bytes, void* stream, const std::string& what);
@@ -115,6 +120,12 @@ void synchronize(void* stream, const std::string& what);
 void copy_to_device(void* dst, const void* src, size_t bytes, void* stream,
                     const std::string& what);
 void copy_to_host(void* dst, const void* src, size_t bytes, void* stream, const std::string& what);
+
+/// Copies `bytes` of device memory into host memory after the work queued on `stream`, and waits:
+/// straight into page-locked memory, else through the two pinned `staging` buffers (grown as
+/// needed, kept for the next call), each chunk copied on into `dst` by every CPU thread.
+void download(void* dst, const void* src, size_t bytes, void* stream, PinnedBuffer staging[2],
+              const std::string& what);
 
 }  // namespace cuda
 }  // namespace sonoslice

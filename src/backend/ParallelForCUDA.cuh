@@ -35,16 +35,23 @@ __global__ void for_kernel(int64_t n, F f) {
     f(i);
 }
 
-// One warp per row: its lanes take columns lane, lane + 32, ... (coalesced stores, neighbouring
-// voxels), so row() (the pose, the row's start) is computed once per warp-row rather than once per
-// pixel; warps stride over the rows, so any batch size fits the grid.
+// A warp takes 2^shift rows at once as a tile: 32 >> shift lanes per row, each lane taking
+// columns col, col + (32 >> shift), ... of its row, so that every lane computes its row's start
+// (row()) once and a warp's loads touch a compact patch of the image (neighbouring voxels) rather
+// than a long line through the volume, while its stores stay whole 32-byte sectors. Warps stride
+// over the row groups, so any batch size fits the grid.
 template <typename F>
-__global__ void rows_kernel(int64_t rows, int width, F f) {
+__global__ void rows_kernel(int64_t rows, int width, int shift, F f) {
   const int lane = int(threadIdx.x);
-  for (int64_t r = int64_t(blockIdx.x) * blockDim.y + threadIdx.y; r < rows;
-       r += int64_t(gridDim.x) * blockDim.y) {
+  const int step = 32 >> shift;
+  const int col = lane & (step - 1);
+  const int sub = lane >> (5 - shift);
+  for (int64_t group = int64_t(blockIdx.x) * blockDim.y + threadIdx.y; (group << shift) < rows;
+       group += int64_t(gridDim.x) * blockDim.y) {
+    const int64_t r = (group << shift) + sub;
+    if (r >= rows) continue;
     const auto state = f.row(r);
-    for (int u = lane; u < width; u += 32) f.pixel(state, u);
+    for (int u = col; u < width; u += step) f.pixel(state, u);
   }
 }
 }  // namespace detail
@@ -60,15 +67,18 @@ void parallel_for(int64_t n, const F& f, void* stream = nullptr) {
   detail::check_launch("parallel_for", stream);
 }
 
-/// The rows × width index space of ParallelFor.h: one warp per row, eight rows per block.
+/// The rows × width index space of ParallelFor.h: eight warps per block, each taking a tile of
+/// 2^shift rows (::sonoslice::cuda::row_tile_shift(): measured on an H200 in docs/cuda.md).
 template <typename F>
 void parallel_for_rows(int64_t rows, int width, const F& f, void* stream = nullptr) {
   if (rows <= 0 || width <= 0) return;
+  const int shift = ::sonoslice::cuda::row_tile_shift();
   const dim3 block(32, 8);
-  const int64_t row_blocks = (rows + block.y - 1) / block.y;
-  constexpr int64_t kMaxBlocks = int64_t(1) << 20;  // then warps take several rows each
+  const int64_t groups = (rows + (int64_t(1) << shift) - 1) >> shift;
+  const int64_t row_blocks = (groups + block.y - 1) / block.y;
+  constexpr int64_t kMaxBlocks = int64_t(1) << 20;  // then warps take several tiles each
   const dim3 grid(unsigned(row_blocks < kMaxBlocks ? row_blocks : kMaxBlocks));
-  detail::rows_kernel<<<grid, block, 0, static_cast<cudaStream_t>(stream)>>>(rows, width, f);
+  detail::rows_kernel<<<grid, block, 0, static_cast<cudaStream_t>(stream)>>>(rows, width, shift, f);
   detail::check_launch("parallel_for_rows", stream);
 }
 

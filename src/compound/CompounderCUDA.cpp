@@ -9,6 +9,7 @@
 
 #include "../backend/CudaChecks.h"
 #include "../backend/CudaRuntime.h"
+#include "../backend/ParallelFor.h"
 #include "CompoundBackends.h"
 #include "Finish.h"
 
@@ -32,6 +33,7 @@ struct CudaCompounding::State : cuda::Owner {
   std::unique_ptr<cuda::Stream> stream;  // the kernels, in batch order (latest mode needs it)
   std::unique_ptr<cuda::Stream> copies;  // the uploads
   std::unique_ptr<cuda::Event> uploaded;
+  cuda::PinnedBuffer download_staging[2];  // volumes and accumulators on their way to the host
 };
 
 CudaCompounding::CudaCompounding(int device, int nx, int ny, int nz, Mode mode)
@@ -74,7 +76,13 @@ void CudaCompounding::add(const FrameBatch& host, bool linear) {
   slot.spans.reserve(span_bytes, st.name + ": clip spans");
   slot.staging.reserve(sample_bytes + line_bytes + span_bytes, st.name + ": pinned frame buffer");
   auto* staged = static_cast<char*>(slot.staging.data());
-  std::memcpy(staged, host.samples, sample_bytes);
+  // The frames into page-locked memory on every CPU thread: one thread's memcpy moves about
+  // 10 GB/s, a fifth of what the upload takes.
+  const char* samples = static_cast<const char*>(host.samples);
+  backend::parallel_for_chunks(int64_t(sample_bytes), int64_t(4) << 20,
+                               [&](int64_t, int64_t begin, int64_t end) {
+                                 std::memcpy(staged + begin, samples + begin, size_t(end - begin));
+                               });
   std::memcpy(staged + sample_bytes, host.lines, line_bytes);
   std::memcpy(staged + sample_bytes + line_bytes, host.spans, span_bytes);
   void* c = st.copies->get();
@@ -99,12 +107,11 @@ void CudaCompounding::download(Accumulator* cells, int32_t* stamp) {
   State& st = *state_;
   st.enter("compounder");
   const size_t voxels = size_t(st.grid.nx) * st.grid.ny * st.grid.nz;
-  cuda::copy_to_host(cells, st.cells.data(), voxels * sizeof(Accumulator), st.stream->get(),
-                     st.name + ": downloading the accumulators");
+  cuda::download(cells, st.cells.data(), voxels * sizeof(Accumulator), st.stream->get(),
+                 st.download_staging, st.name + ": downloading the accumulators");
   if (stamp && st.grid.stamp)
-    cuda::copy_to_host(stamp, st.stamp.data(), voxels * sizeof(int32_t), st.stream->get(),
-                       st.name + ": downloading the stamps");
-  st.stream->synchronize(st.name + ": downloading the accumulators");
+    cuda::download(stamp, st.stamp.data(), voxels * sizeof(int32_t), st.stream->get(),
+                   st.download_staging, st.name + ": downloading the stamps");
 }
 
 void CudaCompounding::finish(const std::vector<HoleFillingKernel>& kernels, PixelType type,
@@ -141,9 +148,10 @@ void CudaCompounding::finish(const std::vector<HoleFillingKernel>& kernels, Pixe
   in.elements = static_cast<const FillElement*>(elements.data());
   in.element_count = int(setup.elements.size());
   compound_cuda_finish(in, type, out.data(), s);
-  cuda::copy_to_host(host_out, out.data(), bytes, s, st.name + ": downloading the volume");
-  // The uploads above read host memory that goes when this returns, and the buffers go too.
-  st.stream->synchronize(st.name + ": finishing the volume");
+  // download() waits: the uploads above read host memory that goes when this returns, and the
+  // buffers go too.
+  cuda::download(host_out, out.data(), bytes, s, st.download_staging,
+                 st.name + ": downloading the volume");
 }
 
 }  // namespace compound_impl

@@ -41,9 +41,12 @@ enum class EdgeRule {
 
 /// A trilinear cell: the row offsets of its four (y, z) corners, its two x indices and the
 /// fractions of c within it. Which voxels these are depends on the edge rule (linear_cell).
-template <typename Acc>
+/// `Index` is the type of the flat voxel offsets: int64_t for any volume, int32_t where a kernel
+/// knows the volume has fewer than 2^31 voxels (on a GPU, 64-bit offset arithmetic costs several
+/// instructions per corner).
+template <typename Acc, typename Index = int64_t>
 struct LinearCell {
-  int64_t r00, r10, r01, r11;  ///< rows (y0, z0), (y1, z0), (y0, z1), (y1, z1)
+  Index r00, r10, r01, r11;  ///< rows (y0, z0), (y1, z0), (y0, z1), (y1, z1)
   int x0, x1;
   Acc fx, fy, fz;
 };
@@ -77,11 +80,11 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F trilinear(F fx, F fy, F fz, F v000, F v
 }
 
 /// The cell and fractions of c, which must be inside<Rule>.
-template <EdgeRule Rule = EdgeRule::Clamped, typename Acc>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE LinearCell<Acc> linear_cell(const VolumeView& g, Acc cx,
-                                                                   Acc cy, Acc cz) {
+template <EdgeRule Rule = EdgeRule::Clamped, typename Index = int64_t, typename Acc>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE LinearCell<Acc, Index> linear_cell(const VolumeView& g,
+                                                                          Acc cx, Acc cy, Acc cz) {
   int x0, x1, y0, y1, z0, z1;
-  LinearCell<Acc> k;
+  LinearCell<Acc, Index> k;
   if constexpr (Rule == EdgeRule::Clamped) {
     // Inside, c >= -0.5, so truncating c + 1 is floor(c) + 1 without a call to floor (which
     // baseline x86-64 cannot inline). When c + 1 rounds up to an integer, f comes out as -ulp
@@ -111,18 +114,23 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE LinearCell<Acc> linear_cell(const VolumeV
   }
   k.x0 = x0;
   k.x1 = x1;
-  k.r00 = z0 * g.stride_z + y0 * g.stride_y;
-  k.r10 = z0 * g.stride_z + y1 * g.stride_y;
-  k.r01 = z1 * g.stride_z + y0 * g.stride_y;
-  k.r11 = z1 * g.stride_z + y1 * g.stride_y;
+  const Index sy = Index(g.stride_y), sz = Index(g.stride_z);
+  k.r00 = Index(z0) * sz + Index(y0) * sy;
+  k.r10 = k.r00 + Index(y1 - y0) * sy;
+  k.r01 = k.r00 + Index(z1 - z0) * sz;
+  k.r11 = k.r01 + Index(y1 - y0) * sy;
   return k;
 }
 
 /// Voxel i of a volume: `voxels` is a pointer to its values, or (host code reading a volume of
 /// any pixel type) a callable voxels(i).
-template <typename T>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T voxel_at(const T* voxels, int64_t i) {
+template <typename T, typename Index>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T voxel_at(const T* voxels, Index i) {
+#if defined(__CUDA_ARCH__)
+  return __ldg(voxels + i);  // through the read-only data path: volumes never change in a kernel
+#else
   return voxels[i];
+#endif
 }
 template <typename Read>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE auto voxel_at(const Read& voxels, int64_t i)
@@ -131,8 +139,9 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE auto voxel_at(const Read& voxels, int64_t
 }
 
 /// The trilinear value of the voxels over cell k.
-template <typename Acc, typename Voxels>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc linear_value(const Voxels& v, const LinearCell<Acc>& k) {
+template <typename Acc, typename Voxels, typename Index>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc linear_value(const Voxels& v,
+                                                        const LinearCell<Acc, Index>& k) {
   return trilinear(k.fx, k.fy, k.fz, Acc(voxel_at(v, k.r00 + k.x0)), Acc(voxel_at(v, k.r00 + k.x1)),
                    Acc(voxel_at(v, k.r10 + k.x0)), Acc(voxel_at(v, k.r10 + k.x1)),
                    Acc(voxel_at(v, k.r01 + k.x0)), Acc(voxel_at(v, k.r01 + k.x1)),
@@ -174,31 +183,31 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void linear_corners(const LinearCell<Acc>
 }
 
 /// docs/conventions.md §5 `linear` at c, which must be inside (EdgeRule::Clamped).
-template <typename Acc, typename Voxels>
+template <typename Acc, typename Index = int64_t, typename Voxels>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Acc sample_linear(const Voxels& volume, const VolumeView& g,
                                                          Acc cx, Acc cy, Acc cz) {
-  return linear_value<Acc>(volume, linear_cell<EdgeRule::Clamped>(g, cx, cy, cz));
+  return linear_value<Acc>(volume, linear_cell<EdgeRule::Clamped, Index>(g, cx, cy, cz));
 }
 
 /// docs/conventions.md §5 `nearest`: the flat offset of voxel floor(c + 0.5), clamped (c inside).
-template <typename Acc>
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int64_t nearest_offset(const VolumeView& g, Acc cx, Acc cy,
-                                                              Acc cz) {
+template <typename Index = int64_t, typename Acc>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE Index nearest_offset(const VolumeView& g, Acc cx, Acc cy,
+                                                            Acc cz) {
   // c + 0.5 >= 0 inside the buffer: truncation is floor. Inside, floor(c + 0.5) <= n - 1 in
   // exact arithmetic; the clamp keeps float rounding (axes beyond 2^23 voxels) in the volume.
   int ix = int(cx + Acc(0.5)), iy = int(cy + Acc(0.5)), iz = int(cz + Acc(0.5));
   ix = ix < 0 ? 0 : (ix >= g.nx ? g.nx - 1 : ix);
   iy = iy < 0 ? 0 : (iy >= g.ny ? g.ny - 1 : iy);
   iz = iz < 0 ? 0 : (iz >= g.nz ? g.nz - 1 : iz);
-  return iz * g.stride_z + iy * g.stride_y + ix;
+  return Index(iz) * Index(g.stride_z) + Index(iy) * Index(g.stride_y) + Index(ix);
 }
 
 /// docs/conventions.md §5 `nearest`: the voxel at floor(c + 0.5), clamped (c inside).
-template <typename T, typename Acc>
+template <typename Index = int64_t, typename T, typename Acc>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T sample_nearest(const T* __restrict__ volume,
                                                         const VolumeView& g, Acc cx, Acc cy,
                                                         Acc cz) {
-  return volume[nearest_offset(g, cx, cy, cz)];
+  return voxel_at(volume, nearest_offset<Index>(g, cx, cy, cz));
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

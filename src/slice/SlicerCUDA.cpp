@@ -116,6 +116,9 @@ void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<Pix
                         void* host_out) {
   st.enter();
   const size_t ib = image_bytes(l), count = affines.size();
+  // Page-locked output (a pinned torch tensor, cudaHostAlloc): each chunk's copy lands in the
+  // caller's memory directly. Pageable output goes through our pinned staging buffers.
+  const bool direct = cuda::is_page_locked(host_out, count * ib);
   // Chunks small enough for any batch size to stream through (GPU memory is never asked for the
   // whole output) and large enough to keep the GPU busy.
   size_t free_bytes = 0, total = 0;
@@ -124,7 +127,7 @@ void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<Pix
   const size_t chunk = std::max<size_t>(1, std::min(count, budget / std::max<size_t>(ib, 1)));
   for (int s = 0; s < 2; ++s) {
     st.out[s].reserve(chunk * ib, st.name + ": output chunk");
-    st.staging[s].reserve(chunk * ib, st.name + ": pinned staging buffer");
+    if (!direct) st.staging[s].reserve(chunk * ib, st.name + ": pinned staging buffer");
   }
   struct Pending {
     size_t first = 0, n = 0;
@@ -134,23 +137,27 @@ void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<Pix
   auto drain = [&](int s) {
     if (!pending[s].n) return;
     st.streams[s]->synchronize(st.name + ": slicing");
-    char* to = static_cast<char*>(host_out) + pending[s].first * ib;
-    const char* from = static_cast<const char*>(st.staging[s].data());
-    backend::parallel_for_chunks(int64_t(pending[s].n * ib), int64_t(4) << 20,
-                                 [&](int64_t, int64_t begin, int64_t end) {
-                                   std::memcpy(to + begin, from + begin, size_t(end - begin));
-                                 });
+    if (!direct) {
+      char* to = static_cast<char*>(host_out) + pending[s].first * ib;
+      const char* from = static_cast<const char*>(st.staging[s].data());
+      backend::parallel_for_chunks(int64_t(pending[s].n * ib), int64_t(4) << 20,
+                                   [&](int64_t, int64_t begin, int64_t end) {
+                                     std::memcpy(to + begin, from + begin, size_t(end - begin));
+                                   });
+    }
     pending[s].n = 0;
   };
   // Two streams alternate: while one chunk's images travel to the host (and are copied into the
-  // caller's memory), the other chunk's kernel runs.
+  // caller's memory), the other chunk's kernel runs. Direct copies need no host wait until the
+  // end: each stream orders its next kernel after its last copy out of the same chunk buffer.
   int s = 0;
   for (size_t first = 0; first < count; first += chunk, s ^= 1) {
-    drain(s);
+    if (!direct) drain(s);
     const size_t n = std::min(chunk, count - first);
     void* stream = st.streams[s]->get();
     queue_slice(st, l, affines.data() + first, n, st.out[s].data(), stream);
-    cuda::copy_to_host(st.staging[s].data(), st.out[s].data(), n * ib, stream,
+    void* to = direct ? static_cast<char*>(host_out) + first * ib : st.staging[s].data();
+    cuda::copy_to_host(to, st.out[s].data(), n * ib, stream,
                        st.name + ": copying images to the host");
     pending[s] = {first, n};
   }
