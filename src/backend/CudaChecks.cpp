@@ -50,15 +50,19 @@ bool debug_sync_enabled() {
   return on;
 }
 
-int row_tile_shift() {
-  static const int shift = [] {
+int row_tile_shift(int rows_per_warp) {
+  // -1: no override.
+  static const int forced = [] {
     const char* v = std::getenv("SONOSLICE_CUDA_ROW_TILE");
-    if (!v || !*v) return 2;
+    if (!v || !*v) return -1;
     for (int shift = 0; shift <= 5; ++shift)
       if (std::string(v) == std::to_string(1 << shift)) return shift;
     throw InputError(std::string("SONOSLICE_CUDA_ROW_TILE '") + v +
                      "': expected the rows per warp, 1, 2, 4, 8, 16 or 32");
   }();
+  if (forced >= 0) return forced;
+  int shift = 0;
+  while (shift < 5 && (2 << shift) <= rows_per_warp) ++shift;
   return shift;
 }
 

@@ -27,10 +27,10 @@ void check_not_forked(long creator, const std::string& what);
 /// faulting kernel is reported at its own launch (slow; for debugging).
 bool debug_sync_enabled();
 
-/// log2 of the rows a warp takes at once in row kernels (slicing, compounding): 2 (tiles of 4 rows
-/// × 8 columns), the fastest of 1–8 rows measured on an H200 (docs/cuda.md). For tuning on other
-/// cards, SONOSLICE_CUDA_ROW_TILE=1, 2, 4, 8, 16 or 32 sets the rows per warp.
-int row_tile_shift();
+/// log2 of the rows a warp takes at once in a row kernel: log2(`rows_per_warp`), the kernel's own
+/// measured choice, unless SONOSLICE_CUDA_ROW_TILE (1, 2, 4, 8, 16 or 32 rows) overrides it, for
+/// tuning on other cards.
+int row_tile_shift(int rows_per_warp);
 
 }  // namespace cuda
 }  // namespace sonoslice

@@ -67,12 +67,25 @@ void parallel_for(int64_t n, const F& f, void* stream = nullptr) {
   detail::check_launch("parallel_for", stream);
 }
 
+namespace detail {
+// F::kCudaRowsPerWarp, or 1 where F does not say.
+template <typename F, typename = void>
+struct rows_per_warp {
+  static constexpr int value = 1;
+};
+template <typename F>
+struct rows_per_warp<F, decltype(void(F::kCudaRowsPerWarp))> {
+  static constexpr int value = F::kCudaRowsPerWarp;
+};
+}  // namespace detail
+
 /// The rows × width index space of ParallelFor.h: eight warps per block, each taking a tile of
-/// 2^shift rows (::sonoslice::cuda::row_tile_shift(): measured on an H200 in docs/cuda.md).
+/// rows at once: F::kCudaRowsPerWarp of them where the functor says (the shape measured fastest
+/// for it), else one; SONOSLICE_CUDA_ROW_TILE overrides both (CudaChecks.h).
 template <typename F>
 void parallel_for_rows(int64_t rows, int width, const F& f, void* stream = nullptr) {
   if (rows <= 0 || width <= 0) return;
-  const int shift = ::sonoslice::cuda::row_tile_shift();
+  const int shift = ::sonoslice::cuda::row_tile_shift(detail::rows_per_warp<F>::value);
   const dim3 block(32, 8);
   const int64_t groups = (rows + (int64_t(1) << shift) - 1) >> shift;
   const int64_t row_blocks = (groups + block.y - 1) / block.y;
