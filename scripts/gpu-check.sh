@@ -16,9 +16,11 @@
 #   scripts/gpu-check.sh all        both (default); each step alone fits a 10-minute command
 #   DRY_RUN=1 scripts/gpu-check.sh  print the commands instead of running them (any machine)
 #
-# Everything goes to $OUT (default build-gpu/results): one log per step, summary.txt last. The
-# script stops when the build fails or no GPU is seen; other failing steps are recorded in the
-# summary and the rest go on (exit status 1 at the end).
+# Everything goes to $OUT (default build-gpu/results) in a few files, since the device tool brings
+# back only a handful: summary.txt (each step's exit status and time), logs.txt (every step's
+# output, one after another), peers_cuda.json and the ncu report. The script stops when the build
+# fails or no GPU is seen; other failing steps are recorded in the summary and the rest go on
+# (exit status 1 at the end).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$PWD
@@ -36,9 +38,18 @@ python=${PYTHON:-$(command -v python3 || true)}
 dry=${DRY_RUN:-0}
 mkdir -p "$out"
 summary=$out/summary.txt
-[[ $step == measure ]] || : >"$summary"
+logs=$build/gpu-logs  # one file per step; gathered into $out/logs.txt on exit
+mkdir -p "$logs"
+[[ $step == measure ]] || { : >"$summary" && rm -f "$logs"/*.txt; }
+gather() {
+  local f
+  for f in "$logs"/*.txt; do
+    [[ -f $f ]] && printf '\n===== %s\n' "$(basename "$f" .txt)" && cat "$f"
+  done >"$out/logs.txt"
+}
+trap gather EXIT
 note() { echo "gpu-check: $*" | tee -a "$summary"; }
-# run <log name> <command...>: the command's output to the terminal and $out/<log name>.txt.
+# run <log name> <command...>: the command's output to the terminal and $logs/<log name>.txt.
 run() {
   local name=$1
   shift
@@ -49,7 +60,7 @@ run() {
     return 0
   fi
   local t0=$SECONDS rc=0
-  "$@" 2>&1 | tee "$out/$name.txt" || rc=${PIPESTATUS[0]}
+  "$@" 2>&1 | tee "$logs/$name.txt" || rc=${PIPESTATUS[0]}
   note "$name: exit $rc, $((SECONDS - t0)) s"
   return "$rc"
 }
@@ -108,7 +119,7 @@ sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Pyth
   fi
   # A GPU must actually be there and used: the CUDA line of `info --devices` names it.
   run devices "$build/bin/sonoslice" info --devices
-  if [[ $dry != 1 ]] && ! grep -q '^cuda:0: ' "$out/devices.txt"; then
+  if [[ $dry != 1 ]] && ! grep -q '^cuda:0: ' "$logs/devices.txt"; then
     note "FAILED: no GPU seen (sonoslice info --devices above)"
     exit 1
   fi
@@ -146,8 +157,11 @@ if [[ $step == measure || $step == all ]]; then
     --count 4096 --repeat 3
   check bench-simulate-cpu timeout 120 "$build/bin/sonoslice" bench --simulate --count 256 --repeat 1
   # torch grid_sample on the same GPU, the same poses; the PCIe bandwidth of this machine.
-  check peers-cuda timeout 240 "$python" -X faulthandler bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" \
+  check peers-cuda timeout 240 "$python" bench/peers_cuda.py --sonoslice "$build/bin/sonoslice" \
     --count 10000 --repeat 5 --json "$out/peers_cuda.json"
+  # The Python API into pageable and into pinned host memory (a torch tensor, pin_memory=True).
+  check peers-cuda-python timeout 120 "$python" -X faulthandler bench/peers_cuda.py \
+    --sonoslice "$build/bin/sonoslice" --count 10000 --repeat 5 --python-to-host
   check sanitizer-bench timeout 60 "$sanitizer" --tool memcheck --error-exitcode 1 \
     "$build/bin/sonoslice" bench --device cuda --count 50 --repeat 1
   # Speed of Light of the slicing kernel (rows_kernel: SliceImpl.h through parallel_for_rows),

@@ -49,12 +49,15 @@ def test_cuda_tensors_without_host_copies(phantom, poses, cuda):
 
 def test_cuda_slicing_into_pinned_and_pageable_host_memory(phantom, poses, cuda):
     # Host output of a CUDA slicer: a pinned tensor is copied into directly (no staging), a
-    # pageable one through the slicer's pinned buffers; both hold the same images.
+    # pageable one through the slicer's pinned buffers; both hold the same images. 400 images of
+    # 400 × 500 (320 MB) take several chunks on both of the slicer's streams.
     ct, _ = phantom
-    s = sonoslice.Slicer(ct, small_probe(), device=cuda)
-    pinned = torch.full((12, 80, 96), float("nan")).pin_memory()
+    probe = sonoslice.Probe.linear(400, 500, (0.1, 0.1))
+    many = np.tile(poses, (34, 1, 1))[:400]
+    s = sonoslice.Slicer(ct, probe, device=cuda)
+    pinned = torch.full((400, 500, 400), float("nan")).pin_memory()
     assert pinned.is_pinned()
-    assert s.slice(poses, out=pinned) is pinned
-    pageable = s.slice(poses, out=np.full((12, 80, 96), np.nan, dtype=np.float32))
+    assert s.slice(many, out=pinned) is pinned
+    pageable = s.slice(many, out=np.full((400, 500, 400), np.nan, dtype=np.float32))
     assert np.array_equal(pinned.numpy(), pageable)
-    assert np.abs(pageable - sonoslice.Slicer(ct, small_probe()).slice(poses)).max() <= 0.05
+    assert np.abs(pageable[:12] - sonoslice.Slicer(ct, probe).slice(poses)).max() <= 0.05

@@ -10,6 +10,9 @@
 #include <cstring>
 
 #include "../../src/backend/CudaChecks.h"
+#ifdef SONOSLICE_HAVE_CUDA
+#include "../../src/backend/CudaRuntime.h"
+#endif
 #include "../../src/backend/ParallelFor.h"
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
@@ -286,6 +289,27 @@ TEST_F(Cuda, VolumeOverTwoBillionVoxelsUsesWideOffsets) {
       EXPECT_LE(d.max_abs, 1e-4 * 255);
   }
 }
+
+#ifdef SONOSLICE_HAVE_CUDA
+// Page-locked output (cudaHostAlloc, a pinned torch tensor) is copied into straight from the GPU,
+// chunk after chunk on both streams; the images are those of pageable output.
+TEST_F(Cuda, PinnedHostOutputIsFilledDirectly) {
+  const Phantom ph = make_phantom(PhantomSize::Small);
+  const auto poses = phantom_random_poses(3000, 13);
+  const ProbeGeometry probe = workload_w2_linear_probe();  // 3000 × 800 kB: several chunks
+  const Slicer gpu(ph.ct, probe, {}, kCuda);
+  const size_t count = poses.size() * size_t(probe.image.pixel_count());
+  std::vector<float> pageable(count);
+  EXPECT_FALSE(cuda::is_page_locked(pageable.data(), count * sizeof(float)));
+  gpu.slice(poses.data(), poses.size(), pageable.data());
+  cuda::PinnedBuffer pinned;
+  pinned.reserve(count * sizeof(float), "test output");
+  ASSERT_TRUE(cuda::is_page_locked(pinned.data(), count * sizeof(float)));
+  std::memset(pinned.data(), 0xff, count * sizeof(float));  // NaN everywhere
+  gpu.slice(poses.data(), poses.size(), static_cast<float*>(pinned.data()));
+  EXPECT_EQ(std::memcmp(pinned.data(), pageable.data(), count * sizeof(float)), 0);
+}
+#endif
 
 // A CUDA build on a machine without a GPU: says so, and slices on the CPU as ever.
 TEST(CudaAvailability, CpuOnlyMachineSaysNotAvailable) {
