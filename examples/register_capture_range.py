@@ -98,6 +98,7 @@ def main():
     ap.add_argument("--starts", nargs="+", default=["auto", "1", "8"],
                     help="starts per frame: numbers, or auto (the command's default)")
     ap.add_argument("--metric", default="ncc")
+    ap.add_argument("--pyramid", help="the command's --pyramid (default: the metric's default)")
     ap.add_argument("--simulated", action="store_true",
                     help="frames from `sonoslice simulate --preset lus` (B-mode) instead of CT fans with noise")
     ap.add_argument("--threads", type=int, default=2)
@@ -146,6 +147,8 @@ def main():
                        "--threads", str(args.threads), "--report", report_path]
                 if starts != "auto":
                     cmd += ["--starts", starts]
+                if args.pyramid:
+                    cmd += ["--pyramid", args.pyramid]
                 run = subprocess.run(cmd, capture_output=True, text=True)
                 if run.returncode != 0:
                     sys.exit(run.stderr)

@@ -1,5 +1,6 @@
 // sonoslice register: ultrasound frames, their initial poses and a volume → refined poses
 // (N, 4, 4) and a JSON report (docs/registration.md).
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
@@ -324,12 +325,27 @@ void add_register_command(CLI::App& app) {
       "--search-trans-mm", flags->search_trans_mm,
       "Spread of the extra starts' translations, mm " + default_text(defaults.search_trans_mm));
   cmd->add_option("--seed", flags->seed, "Seed of the extra starts " + default_text(defaults.seed));
+  // The library's pyramid per metric: "8,4,2,1 for ssd, ncc, lncc, mi; 2,1 for lc2".
+  std::vector<std::pair<std::string, std::string>> pyramids;  // levels, metrics
+  for (RegistrationMetric m :
+       {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
+        RegistrationMetric::MI, RegistrationMetric::LC2}) {
+    std::string levels;
+    for (int level : default_pyramid(m))
+      levels += (levels.empty() ? "" : ",") + std::to_string(level);
+    auto same = std::find_if(pyramids.begin(), pyramids.end(),
+                             [&](const auto& p) { return p.first == levels; });
+    if (same == pyramids.end())
+      pyramids.push_back({levels, to_string(m)});
+    else
+      same->second += std::string(", ") + to_string(m);
+  }
   std::string pyramid;
-  for (int level : defaults.pyramid)
-    pyramid += (pyramid.empty() ? "" : ",") + std::to_string(level);
+  for (const auto& [levels, metrics] : pyramids)
+    pyramid += (pyramid.empty() ? "" : "; ") + levels + " for " + metrics;
   cmd->add_option(
       "--pyramid", flags->pyramid,
-      "Coarse-to-fine pixel block sizes (default " + pyramid + "; docs/registration.md)");
+      "Coarse-to-fine pixel block sizes (default: " + pyramid + "; docs/registration.md)");
   cmd->add_option("--mode", flags->mode,
                   std::string("per-frame, rigid-sweep (one world correction for all frames), "
                               "smooth-sweep (per frame, tied to the neighbours along the sweep) "

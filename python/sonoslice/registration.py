@@ -96,3 +96,24 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     m = None if mask is None else np.ascontiguousarray(_arrays.real_array(mask, "mask") != 0, dtype=np.uint8)
     refined, report = _ext.register_frames(volume._cpp, probe._cpp, f, p, mask=m, settings=s)
     return np.ascontiguousarray(_arrays.pose_to_lps(refined, world)), _report(report)
+
+
+def registration_cost(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc", level: int = 1,
+                      world: str = "LPS") -> np.ndarray:
+    """The cost ``register`` minimises for each frame at its pose: frame i of ``frames`` ((N, H, W)
+    on ``probe``'s grid) at pose i of ``poses`` ((N, 4, 4) probe→world, mm), with ``metric`` at
+    pyramid ``level`` (a block size: 1 is full resolution). SSD, 1 − NCC, 1 − LNCC, −MI or
+    1 − LC2 (docs/registration.md §2); +inf where too few pixels overlap the volume. For looking
+    at a metric's landscape: give one frame repeated along a path of poses."""
+    if not isinstance(volume, Volume):
+        raise TypeError("volume: expected a sonoslice.Volume")
+    if not isinstance(probe, Probe):
+        raise TypeError("probe: expected a sonoslice.Probe")
+    f = np.ascontiguousarray(_arrays.real_array(frames, "frames"), dtype=np.float32)
+    if f.ndim == 2:
+        f = f[None]
+    if f.ndim != 3:
+        raise ValueError(f"frames: expected (N, H, W), got shape {f.shape}")
+    p = _arrays.pose_array(poses, world)
+    s = _settings(None, dict(metric=metric))
+    return np.asarray(_ext.registration_costs(volume._cpp, probe._cpp, f, p, s.metric, int(level)))

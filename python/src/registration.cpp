@@ -18,6 +18,15 @@ namespace {
 
 using namespace nb::literals;
 using Frames = nb::ndarray<const float, nb::shape<-1, -1, -1>, nb::c_contig, nb::device::cpu>;
+
+void check_frames(const Frames& frames, const ProbeGeometry& probe) {
+  if (int64_t(frames.shape(1)) != probe.image.height ||
+      int64_t(frames.shape(2)) != probe.image.width)
+    throw InputError("frames: expected (N, " + std::to_string(probe.image.height) + ", " +
+                     std::to_string(probe.image.width) + ") for this probe, got (" +
+                     std::to_string(frames.shape(0)) + ", " + std::to_string(frames.shape(1)) +
+                     ", " + std::to_string(frames.shape(2)) + ")");
+}
 using MaskArray = nb::ndarray<const uint8_t, nb::shape<-1, -1>, nb::c_contig, nb::device::cpu>;
 using Images = nb::ndarray<const double, nb::shape<-1, -1, -1>, nb::c_contig, nb::device::cpu>;
 
@@ -83,6 +92,8 @@ void bind_registration(nb::module_& m) {
   m.def("default_optimizer", &default_optimizer, "metric"_a,
         "The optimiser a metric gets when none is asked for: lm for ssd and ncc, bobyqa for the "
         "others.");
+  m.def("default_pyramid", &default_pyramid, "metric"_a,
+        "The pyramid a metric gets when none is asked for: [8, 4, 2, 1], or [2, 1] for lc2.");
 
   const RegistrationSettings settings;
   nb::class_<RegistrationSettings>(
@@ -94,8 +105,8 @@ void bind_registration(nb::module_& m) {
           [](RegistrationSettings* self, RegistrationMetric metric,
              std::optional<RegistrationOptimizer> optimizer, RegistrationMode mode,
              std::optional<int> starts, double search_rot_deg, double search_trans_mm,
-             uint64_t seed, double smoothness, std::vector<int> pyramid, int max_iterations,
-             double tolerance_mm, double tolerance_deg) {
+             uint64_t seed, double smoothness, std::optional<std::vector<int>> pyramid,
+             int max_iterations, double tolerance_mm, double tolerance_deg) {
             RegistrationSettings s;
             s.metric = metric;
             s.optimizer = optimizer;
@@ -116,12 +127,12 @@ void bind_registration(nb::module_& m) {
           "mode"_a = settings.mode, "starts"_a.none() = nb::none(),
           "search_rot_deg"_a = settings.search_rot_deg,
           "search_trans_mm"_a = settings.search_trans_mm, "seed"_a = settings.seed,
-          "smoothness"_a = settings.smoothness, "pyramid"_a = settings.pyramid,
+          "smoothness"_a = settings.smoothness, "pyramid"_a.none() = nb::none(),
           "max_iterations"_a = settings.max_iterations, "tolerance_mm"_a = settings.tolerance_mm,
           "tolerance_deg"_a = settings.tolerance_deg,
           "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer). "
           "starts: None (default) runs starts until two reach the same pose, at most "
-          "kAutoMaxStarts.")
+          "kAutoMaxStarts. pyramid: None (default) is the metric's (default_pyramid).")
       .def_ro("metric", &RegistrationSettings::metric)
       .def_ro("optimizer", &RegistrationSettings::optimizer,
               "None: not chosen yet (resolved() chooses)")
@@ -131,15 +142,20 @@ void bind_registration(nb::module_& m) {
       .def_ro("search_trans_mm", &RegistrationSettings::search_trans_mm)
       .def_ro("seed", &RegistrationSettings::seed)
       .def_ro("smoothness", &RegistrationSettings::smoothness)
-      .def_ro("pyramid", &RegistrationSettings::pyramid)
+      .def_ro("pyramid", &RegistrationSettings::pyramid,
+              "None: not chosen yet (resolved() chooses)")
       .def_ro("max_iterations", &RegistrationSettings::max_iterations)
       .def_ro("tolerance_mm", &RegistrationSettings::tolerance_mm)
       .def_ro("tolerance_deg", &RegistrationSettings::tolerance_deg)
       .def("resolved", &RegistrationSettings::resolved,
-           "These settings with the defaults chosen (the optimiser).")
+           "These settings with the defaults chosen (the optimiser and the pyramid).")
       .def("__repr__", [](const RegistrationSettings& s) {
-        std::string levels;
-        for (int f : s.pyramid) levels += (levels.empty() ? "" : ", ") + std::to_string(f);
+        std::string levels = "None";
+        if (s.pyramid) {
+          levels = "[";
+          for (int f : *s.pyramid) levels += (levels.size() > 1 ? ", " : "") + std::to_string(f);
+          levels += "]";
+        }
         return std::string("RegistrationSettings(metric=") +
                repr(std::string(to_string(s.metric))) + ", optimizer=" +
                (s.optimizer ? repr(std::string(to_string(*s.optimizer))) : "None") +
@@ -147,7 +163,7 @@ void bind_registration(nb::module_& m) {
                ", starts=" + (s.starts ? repr(*s.starts) : std::string("None")) +
                ", search_rot_deg=" + repr(s.search_rot_deg) +
                ", search_trans_mm=" + repr(s.search_trans_mm) + ", seed=" + repr(s.seed) +
-               ", smoothness=" + repr(s.smoothness) + ", pyramid=[" + levels + "])";
+               ", smoothness=" + repr(s.smoothness) + ", pyramid=" + levels + ")";
       });
 
   nb::class_<FrameReport>(m, "FrameReport", "One frame's outcome (docs/registration.md §4).")
@@ -183,18 +199,35 @@ void bind_registration(nb::module_& m) {
           "the sweep modes' and calibration's shared correction, (1, 4, 4); None per frame");
 
   m.def(
+      "registration_costs",
+      [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Frames frames,
+         Matrices pose_array, RegistrationMetric metric, int level) {
+        auto source = volume_source(volume.h);
+        if (source) source->check("registration_cost");
+        check_frames(frames, probe);
+        const std::vector<Pose> poses = matrices_from(pose_array);
+        if (poses.size() != frames.shape(0))
+          throw InputError("poses: expected one per frame (" + std::to_string(frames.shape(0)) +
+                           "), got " + std::to_string(poses.size()));
+        std::vector<double> costs(poses.size());
+        {
+          nb::gil_scoped_release release;
+          const FrameRegistration reg(*volume.p, probe, frames.data(), frames.shape(0));
+          reg.prepare_level(level);
+          for (size_t i = 0; i < poses.size(); ++i) costs[i] = reg.cost(i, poses[i], level, metric);
+        }
+        return costs;
+      },
+      "volume"_a, "probe"_a, "frames"_a, "poses"_a, "metric"_a, "level"_a,
+      "FrameRegistration::cost of frame i at pose i, at pyramid level `level`.");
+
+  m.def(
       "register_frames",
       [](nb::pointer_and_handle<Volume> volume, const ProbeGeometry& probe, Frames frames,
          Matrices pose_array, std::optional<MaskArray> mask, const RegistrationSettings& settings) {
         auto source = volume_source(volume.h);
         if (source) source->check("register");
-        if (int64_t(frames.shape(1)) != probe.image.height ||
-            int64_t(frames.shape(2)) != probe.image.width)
-          throw InputError("frames: expected (N, " + std::to_string(probe.image.height) + ", " +
-                           std::to_string(probe.image.width) + ") for this probe, got (" +
-                           std::to_string(frames.shape(0)) + ", " +
-                           std::to_string(frames.shape(1)) + ", " +
-                           std::to_string(frames.shape(2)) + ")");
+        check_frames(frames, probe);
         if (mask && (int64_t(mask->shape(0)) != probe.image.height ||
                      int64_t(mask->shape(1)) != probe.image.width))
           throw InputError("mask: expected the probe's (H, W)");

@@ -28,6 +28,38 @@ def test_registration_settings_choose_the_optimizer_per_metric():
     assert given.resolved().optimizer == sonoslice.RegistrationOptimizer.gn
 
 
+def test_registration_settings_choose_the_pyramid_per_metric():
+    s = sonoslice.RegistrationSettings()
+    assert s.pyramid is None and "pyramid=None" in repr(s)
+    for metric, levels in (("ssd", [8, 4, 2, 1]), ("ncc", [8, 4, 2, 1]), ("lncc", [8, 4, 2, 1]),
+                           ("mi", [8, 4, 2, 1]), ("lc2", [2, 1])):
+        m = sonoslice.RegistrationMetric[metric]
+        assert sonoslice._ext.default_pyramid(m) == levels
+        assert sonoslice.RegistrationSettings(metric=m, optimizer=sonoslice.RegistrationOptimizer.nelder_mead
+                                              if metric in ("lncc", "mi", "lc2") else None).pyramid is None
+    given = sonoslice.RegistrationSettings(pyramid=[4, 1])
+    assert given.pyramid == [4, 1] and given.resolved().pyramid == [4, 1] and "pyramid=[4, 1]" in repr(given)
+    assert sonoslice.RegistrationSettings().resolved().pyramid == [8, 4, 2, 1]
+
+
+def test_registration_cost_is_lowest_where_the_frame_was_made(phantom, poses):
+    ct, _ = phantom
+    probe = sonoslice.Probe.linear(40, 32, 0.5)
+    frames = sonoslice.Slicer(ct, probe).slice(poses[:3])
+    moved = poses[:3].copy()
+    moved[:, :3, 3] += 2.0
+    for metric in ("ssd", "ncc"):
+        at_truth = sonoslice.registration_cost(ct, probe, frames, poses[:3], metric=metric)
+        off = sonoslice.registration_cost(ct, probe, frames, moved, metric=metric, level=2)
+        assert at_truth.shape == (3,) and np.all(at_truth < 1e-6) and np.all(off > at_truth)
+    with pytest.raises(ValueError, match="^poses: expected one per frame"):
+        sonoslice.registration_cost(ct, probe, frames, poses[:2])
+    with pytest.raises(ValueError, match="^pyramid: level 0 is outside 1..64"):
+        sonoslice.registration_cost(ct, probe, frames, poses[:3], level=0)
+    with pytest.raises(ValueError, match="^frames: expected"):
+        sonoslice.registration_cost(ct, probe, frames[:, :5], poses[:3])
+
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(starts=0), "starts 0: must be at least 1"),
     (dict(search_trans_mm=math.nan), "search_trans_mm nan: must be a finite distance"),

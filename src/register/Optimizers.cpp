@@ -86,7 +86,7 @@ Outcome optimise_derivative_free(const Problem& p, const RegistrationSettings& s
   Pose X = start;
 #ifdef SONOSLICE_HAVE_NLOPT
   double step_mm = kMaxStepMm, step_rad = kMaxStepDeg * kPi / 180;
-  for (int f : s.pyramid) {
+  for (int f : *s.pyramid) {
     const Pose level_start = X;
     const Vec3 c = X.transform_point(centre);
     nlopt::opt opt(
@@ -146,7 +146,7 @@ Outcome optimise(const Problem& p, const RegistrationSettings& s, const Pose& st
   Outcome out;
   Pose X = start;
   const double tol_rad = s.tolerance_deg * kPi / 180;
-  for (int f : s.pyramid) {
+  for (int f : *s.pyramid) {
     double lambda = 1e-3;
     for (int it = 0; it < s.max_iterations; ++it) {
       // The centre moves with the correction: turn about where the frame now is.
@@ -280,7 +280,7 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
     const Pose X = apply_increment(Pose::identity(), xi, centre);
     double cost = 0;
     if (draws > 1) {
-      cost = p.cost(X, s.pyramid.front());
+      cost = p.cost(X, s.pyramid->front());
       evaluations += p.frames_per_evaluation;
     }
     candidates.emplace_back(std::isfinite(cost) ? cost : std::numeric_limits<double>::max(), X);

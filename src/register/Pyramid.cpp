@@ -80,6 +80,12 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
   return l;
 }
 
+void FrameRegistration::prepare_level(int level) const {
+  if (level < 1 || level > 64)
+    throw InputError("pyramid: level " + std::to_string(level) + " is outside 1..64");
+  state_->make_level(level);
+}
+
 FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& probe,
                                      const float* frames, size_t frame_count,
                                      const uint8_t* user_mask)

@@ -37,7 +37,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     throw InputError("poses: " + std::to_string(initial.size()) + " poses for " +
                      std::to_string(s.count) + " frames");
   validate_poses(initial.data(), initial.size(), "poses");
-  for (int f : settings.pyramid) s.make_level(f);
+  for (int f : *settings.pyramid) prepare_level(f);
 
   std::vector<Pose> refined(s.count);
   std::vector<FrameReport> frames(s.count);

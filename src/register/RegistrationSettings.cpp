@@ -86,9 +86,15 @@ RegistrationOptimizer default_optimizer(RegistrationMetric metric) {
                                         : RegistrationOptimizer::Bobyqa;
 }
 
+std::vector<int> default_pyramid(RegistrationMetric metric) {
+  if (metric == RegistrationMetric::LC2) return {2, 1};
+  return {8, 4, 2, 1};
+}
+
 RegistrationSettings RegistrationSettings::resolved() const {
   RegistrationSettings s = *this;
   if (!s.optimizer) s.optimizer = default_optimizer(metric);
+  if (!s.pyramid) s.pyramid = default_pyramid(metric);
   return s;
 }
 
@@ -107,14 +113,15 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
   if (!(search_trans_mm >= 0 && std::isfinite(search_trans_mm)))
     throw InputError(name("search_trans_mm") + " " + number(search_trans_mm) +
                      ": must be a finite distance >= 0 mm");
-  if (pyramid.empty()) throw InputError(name("pyramid") + ": needs at least one level");
-  for (int f : pyramid)
-    if (f < 1 || f > 64) {
-      std::string levels;
-      for (int g : pyramid) levels += (levels.empty() ? "" : ",") + std::to_string(g);
-      throw InputError(name("pyramid") + " " + levels +
-                       ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
-    }
+  if (pyramid && pyramid->empty()) throw InputError(name("pyramid") + ": needs at least one level");
+  if (pyramid)
+    for (int f : *pyramid)
+      if (f < 1 || f > 64) {
+        std::string levels;
+        for (int g : *pyramid) levels += (levels.empty() ? "" : ",") + std::to_string(g);
+        throw InputError(name("pyramid") + " " + levels +
+                         ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
+      }
   if (max_iterations < 1) throw InputError(name("max_iterations") + ": must be at least 1");
   if (!(tolerance_mm > 0) || !(tolerance_deg > 0))
     throw InputError(name("tolerance_mm") + " and " + name("tolerance_deg") + ": must be > 0");

@@ -60,7 +60,7 @@ SweepOutcome smooth_sweep(const SweepTerms& p, const RegistrationSettings& s, co
     return t;
   };
 
-  for (int f : s.pyramid) {
+  for (int f : *s.pyramid) {
     double lambda = 1e-3, w[6] = {0, 0, 0, 0, 0, 0};
     for (int it = 0; it < s.max_iterations; ++it) {
       // Every frame's gradient and Gauss–Newton matrix, about its current centre.

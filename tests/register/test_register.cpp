@@ -521,7 +521,7 @@ TEST(Register, SettingsChooseTheOptimiserAndNameTheSetting) {
   t.starts = 0;
   EXPECT_EQ(message(t, {}), "starts 0: must be at least 1");
   t = RegistrationSettings();
-  t.pyramid = {4, 0};
+  t.pyramid = std::vector<int>{4, 0};
   EXPECT_EQ(message(t, flags).rfind("--pyramid 4,0: expected block sizes from 1 to 64", 0), 0u);
   // One spelling table per choice.
   for (RegistrationMetric m :

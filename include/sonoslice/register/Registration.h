@@ -85,6 +85,10 @@ bool metric_has_derivatives(RegistrationMetric metric);
 /// The optimiser a metric gets when none is asked for: Levenberg–Marquardt for the metrics with
 /// derivatives (ssd, ncc), BOBYQA for the others (lncc, mi, lc2).
 RegistrationOptimizer default_optimizer(RegistrationMetric metric);
+/// The pyramid a metric gets when none is asked for: 8, 4, 2, 1 for ssd, ncc, lncc and mi; 2, 1
+/// for lc2, whose coarser levels pull B-mode frames away from their optimum (measured in
+/// docs/registration.md §5).
+std::vector<int> default_pyramid(RegistrationMetric metric);
 
 /// What a registration does. Every default is here, once: `sonoslice register` and Python's
 /// `register` set only what their user gave.
@@ -110,13 +114,14 @@ struct RegistrationSettings {
   double smoothness = 0.3;
   /// Coarse to fine: at level k the volume is averaged over blocks of pyramid[k]³ voxels and
   /// the frame over blocks of pyramid[k]² pixels, of which one pixel per block is compared.
-  std::vector<int> pyramid = {8, 4, 2, 1};
+  /// Unset: default_pyramid(metric) (resolved()).
+  std::optional<std::vector<int>> pyramid;
   int max_iterations = 50;  ///< per level
   /// Converged when a step moves the frame's centre less than this (mm) and turns it less than
   /// tolerance_deg.
   double tolerance_mm = 1e-3, tolerance_deg = 1e-3;
 
-  /// These settings with the defaults chosen: the optimizer set.
+  /// These settings with the defaults chosen: the optimizer and the pyramid set.
   RegistrationSettings resolved() const;
   /// Throws InputError naming the setting (as `names` spells it) for starts < 1, negative or
   /// non-finite spreads, an empty pyramid or a level outside 1..64, max_iterations < 1,
@@ -196,6 +201,12 @@ class FrameRegistration {
   FrameRegistration(const Volume& volume, const ProbeGeometry& probe, const float* frames,
                     size_t frame_count, const uint8_t* user_mask = nullptr);
   ~FrameRegistration();
+
+  /// Makes pyramid level `level` (a block size, 1..64) unless it exists: terms(), patch_score(),
+  /// mutual_information() and cost() read prepared levels only (InputError otherwise); level 1
+  /// is made by the constructor, run() makes its settings' pyramid. Not to be called while
+  /// another thread evaluates.
+  void prepare_level(int level) const;
 
   /// The terms of frame `frame` at `pose` at pyramid level `level` (a block size of the
   /// settings' pyramid; 1: every pixel of the full-resolution volume), with their derivatives
