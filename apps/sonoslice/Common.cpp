@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <map>
 #include <sstream>
@@ -141,6 +142,27 @@ void add_threads_option(CLI::App& cmd, std::optional<int>& threads) {
   cmd.add_option_function<int>(
       "--threads", [&threads](const int& n) { threads = n; },
       "CPU threads, at least 1 (default: all hardware threads)");
+}
+
+void add_seed_option(CLI::App& cmd, std::function<void(uint64_t)> set,
+                     const std::string& description) {
+  cmd.add_option_function<std::string>(
+      "--seed",
+      [set](const std::string& text) {
+        const char* p = text.c_str();
+        uint64_t value = 0;
+        bool ok = *p != '\0';
+        for (; *p && ok; ++p) {
+          const unsigned digit = unsigned(*p - '0');
+          ok = digit <= 9 && value <= (UINT64_MAX - digit) / 10;
+          value = value * 10 + digit;
+        }
+        if (!ok)
+          throw InputError("--seed " + text +
+                           ": expected a whole number from 0 to 18446744073709551615");
+        set(value);
+      },
+      description);
 }
 
 void setup_threads(const std::optional<int>& threads) {

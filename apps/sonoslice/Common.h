@@ -3,7 +3,9 @@
 // the built-in probes and the chunked slice-and-write loop.
 #include <chrono>
 #include <cstdio>
+#include <functional>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -19,6 +21,12 @@
 
 namespace sonoslice {
 namespace cli {
+
+/// A command called without what it needs (a required flag, one of several inputs): exit status
+/// 2 with a pointer to the command's --help, as CLI11's own usage errors.
+struct UsageError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
 
 /// Flags every command that reads a volume accepts.
 struct VolumeFlags {
@@ -49,6 +57,12 @@ std::vector<double> parse_numbers(const std::string& text, size_t count, const s
 /// Adds --threads N to a command: unset means all hardware threads; an explicit N must be at
 /// least 1 (set_cpu_threads refuses 0 and negative counts: "--threads 0: must be at least 1").
 void add_threads_option(CLI::App& cmd, std::optional<int>& threads);
+
+/// Adds --seed S to a command: a whole number from 0 to 2^64 − 1, written in decimal; anything
+/// else (-1, 2^64, 1.5) is refused with an InputError naming the flag rather than wrapped or
+/// clamped.
+void add_seed_option(CLI::App& cmd, std::function<void(uint64_t)> set,
+                     const std::string& description);
 
 /// Sets the CPU thread count from --threads (unset: all hardware threads).
 void setup_threads(const std::optional<int>& threads);

@@ -84,7 +84,7 @@ void run_poses(const PosesFlags& f) {
        {std::pair<const char*, const std::string&>{"--sampler", f.sampler},
         {"--probe", f.probe},
         {"--out", f.out}})
-    if (value.empty()) throw InputError(std::string("poses: ") + flag + " is required");
+    if (value.empty()) throw UsageError(std::string("poses: ") + flag + " is required");
   if (f.count < 1 || f.count > 100000000)
     throw InputError("--count " + std::to_string(f.count) + ": must be from 1 to 100000000");
   const std::string ext = file_extension(f.out);
@@ -144,7 +144,8 @@ void add_poses_command(CLI::App& app) {
   cmd->add_option("--labels", flags->labels, "Label volume (region by label, --min-label)");
   cmd->add_option("--mesh", flags->mesh, "Mesh for the mesh sampler (.vtk/.vtp/.stl/.obj/.ply)");
   cmd->add_option("--count", flags->count, "Seeds to draw (sweeps: each gives its frames)");
-  cmd->add_option("--seed", flags->seed, "Base seed (0)");
+  add_seed_option(
+      *cmd, [flags](uint64_t s) { flags->seed = s; }, "Base seed (0)");
   cmd->add_option("--out", flags->out, "Poses: .npy (N, 4, 4), .txt or .csv");
   cmd->add_option("--tilt-deg", flags->tilt, "Fanning tilt range about the probe's x, lo,hi");
   cmd->add_option("--heel-toe-deg", flags->heel_toe, "Heel-toe range about the probe's z, lo,hi");

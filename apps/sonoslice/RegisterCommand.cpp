@@ -89,7 +89,8 @@ struct Inputs {
 Inputs read_frame_inputs(const RegisterFlags& f, WorldFrame world) {
   Inputs in;
   in.probe = read_probe(f.probe, f.downsampling);
-  in.initial = read_poses(f.poses, world);
+  // FrameRegistration::run checks the poses again and warns once about non-orthonormal ones.
+  in.initial = read_poses(f.poses, world, /*warn_non_orthonormal=*/false);
   const Volume stack = read_image_stack(f.frames, "--frames");
   const VolumeGrid& g = stack.grid();
   if (g.dims[0] != in.probe.image.width || g.dims[1] != in.probe.image.height)
@@ -149,7 +150,7 @@ nlohmann::json matrix_json(const Mat4& m) {
 
 void run_register(const RegisterFlags& f) {
   Stopwatch total;
-  if (f.volume.path.empty()) throw InputError("register: --volume is required");
+  if (f.volume.path.empty()) throw UsageError("register: --volume is required");
   const bool from_sequence = !f.sequence.empty();
   if (from_sequence) {
     for (const auto& [flag, value] :
@@ -172,9 +173,9 @@ void run_register(const RegisterFlags& f) {
           {"--frames", f.frames},
           {"--poses", f.poses}})
       if (value.empty())
-        throw InputError(std::string("register: ") + flag + " is required (or --sequence)");
+        throw UsageError(std::string("register: ") + flag + " is required (or --sequence)");
   }
-  if (f.out.empty()) throw InputError("register: --out is required");
+  if (f.out.empty()) throw UsageError("register: --out is required");
   setup_threads(f.threads);
   const RegistrationSettings settings = settings_of(f);
   if (file_extension(f.out) != ".npy")
@@ -324,7 +325,9 @@ void add_register_command(CLI::App& app) {
   cmd->add_option(
       "--search-trans-mm", flags->search_trans_mm,
       "Spread of the extra starts' translations, mm " + default_text(defaults.search_trans_mm));
-  cmd->add_option("--seed", flags->seed, "Seed of the extra starts " + default_text(defaults.seed));
+  add_seed_option(
+      *cmd, [flags](uint64_t s) { flags->seed = s; },
+      "Seed of the extra starts " + default_text(defaults.seed));
   // The library's pyramid per metric: "8,4,2,1 for ssd, ncc, lncc, mi; 2,1 for lc2".
   std::vector<std::pair<std::string, std::string>> pyramids;  // levels, metrics
   for (RegistrationMetric m :

@@ -71,7 +71,7 @@ void run_simulate(const SimulateFlags& f) {
   }
   Stopwatch total;
   const int sources = !f.volume.path.empty() + !f.labels.empty() + !f.meshes.empty();
-  if (sources != 1) throw InputError("simulate: give exactly one of --volume, --labels, --meshes");
+  if (sources != 1) throw UsageError("simulate: give exactly one of --volume, --labels, --meshes");
   if (!f.tissues.empty() && !f.volume.path.empty())
     throw InputError(
         "--tissues: a CT (--volume) maps HU to tissues itself; --tissues is for "
@@ -81,10 +81,10 @@ void run_simulate(const SimulateFlags& f) {
         "--meshes: give --tissues, a table for label 0 (outside every mesh) and "
         "label k (inside the k-th mesh)");
   setup_threads(f.threads);
-  if (f.poses.empty()) throw InputError("simulate: --poses is required");
-  if (f.out.empty()) throw InputError("simulate: --out is required");
+  if (f.poses.empty()) throw UsageError("simulate: --poses is required");
+  if (f.out.empty()) throw UsageError("simulate: --out is required");
   if (f.probe.empty() && f.preset.empty())
-    throw InputError("simulate: give --probe or --preset (sonoslice simulate --list-presets)");
+    throw UsageError("simulate: give --probe or --preset (sonoslice simulate --list-presets)");
   const SimulationSettings settings = settings_of(f);
   if (!(f.voxel_size > 0)) throw InputError("--voxel-size must be > 0 mm");
 
@@ -210,7 +210,9 @@ void add_simulate_command(CLI::App& app) {
   cmd->add_option("--frequency", flags->frequency,
                   "Centre frequency in MHz (default: the preset's, else " +
                       default_text(SimulationSettings::kDefaultFrequencyMhz).substr(1));
-  cmd->add_option("--seed", flags->seed, "Speckle seed " + default_text(defaults.seed));
+  add_seed_option(
+      *cmd, [flags](uint64_t s) { flags->seed = s; },
+      "Speckle seed " + default_text(defaults.seed));
   cmd->add_option("--dynamic-range", flags->dynamic_range,
                   "Log compression range in dB " + default_text(defaults.dynamic_range_db));
   cmd->add_option("--tgc", flags->tgc,

@@ -85,6 +85,12 @@ int main(int argc, char** argv) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
     std::fprintf(stderr, "sonoslice: error: %s\n", usage_error(app, e, argc, argv).c_str());
     return kExitUsage;
+  } catch (const sonoslice::cli::UsageError& e) {
+    const std::string command =
+        app.get_subcommands().empty() ? "" : " " + app.get_subcommands().front()->get_name();
+    std::fprintf(stderr, "sonoslice: error: %s; see 'sonoslice%s --help'\n", e.what(),
+                 command.c_str());
+    return kExitUsage;
   } catch (const sonoslice::ParameterError& e) {
     // A library parameter, said as the flag that sets it.
     std::fprintf(stderr, "sonoslice: error: %s %s\n",

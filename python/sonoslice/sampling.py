@@ -24,9 +24,9 @@ def sample_seeds(base_seed: int, stream: int, first: int, count: int) -> np.ndar
     index) under ``base_seed``: (count,) uint64, each computed on its own (counter-based), so a
     shard knows its samples' seeds without drawing the others."""
     for name, v in (("base_seed", base_seed), ("stream", stream), ("first", first), ("count", count)):
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
-            raise ValueError(f"{name}: expected an integer >= 0, got {v!r}")
-    return _ext.sample_seeds(int(base_seed) % 2**64, int(stream) % 2**64, int(first), int(count))
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not 0 <= v < 2**64:
+            raise ValueError(f"{name}: expected an integer from 0 to 2**64 - 1, got {v!r}")
+    return _ext.sample_seeds(int(base_seed), int(stream), int(first), int(count))
 
 
 class PoseSampler:

@@ -111,6 +111,18 @@ using MatrixOut = nb::ndarray<nb::numpy, double, nb::shape<4, 4>>;
 using MatricesOut = nb::ndarray<nb::numpy, double, nb::shape<-1, 4, 4>>;
 
 /// NumPy's name of a DLPack dtype ("uint8", "float32", "complex64", "bool", ...).
+/// A seed given as any Python int: 0..2^64 − 1, else an InputError (ValueError) naming `what`
+/// instead of nanobind's generic "incompatible function arguments" (-1) or a silent wrap.
+inline uint64_t seed_value(const nb::int_& value, const std::string& what) {
+  const unsigned long long v = PyLong_AsUnsignedLongLong(value.ptr());
+  if (v == static_cast<unsigned long long>(-1) && PyErr_Occurred()) {
+    PyErr_Clear();
+    throw InputError(what + " " + nb::str(value).c_str() +
+                     ": expected a whole number from 0 to 18446744073709551615");
+  }
+  return uint64_t(v);
+}
+
 inline std::string dtype_name(nb::dlpack::dtype d) {
   using C = nb::dlpack::dtype_code;
   std::string name;

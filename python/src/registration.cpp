@@ -105,7 +105,7 @@ void bind_registration(nb::module_& m) {
           [](RegistrationSettings* self, RegistrationMetric metric,
              std::optional<RegistrationOptimizer> optimizer, RegistrationMode mode,
              std::optional<int> starts, double search_rot_deg, double search_trans_mm,
-             uint64_t seed, double smoothness, std::optional<std::vector<int>> pyramid,
+             nb::int_ seed, double smoothness, std::optional<std::vector<int>> pyramid,
              int max_iterations, double tolerance_mm, double tolerance_deg) {
             RegistrationSettings s;
             s.metric = metric;
@@ -114,7 +114,7 @@ void bind_registration(nb::module_& m) {
             s.starts = starts;
             s.search_rot_deg = search_rot_deg;
             s.search_trans_mm = search_trans_mm;
-            s.seed = seed;
+            s.seed = seed_value(seed, "seed");
             s.smoothness = smoothness;
             s.pyramid = std::move(pyramid);
             s.max_iterations = max_iterations;
@@ -126,7 +126,7 @@ void bind_registration(nb::module_& m) {
           nb::kw_only(), "metric"_a = settings.metric, "optimizer"_a.none() = nb::none(),
           "mode"_a = settings.mode, "starts"_a.none() = nb::none(),
           "search_rot_deg"_a = settings.search_rot_deg,
-          "search_trans_mm"_a = settings.search_trans_mm, "seed"_a = settings.seed,
+          "search_trans_mm"_a = settings.search_trans_mm, "seed"_a = nb::int_(settings.seed),
           "smoothness"_a = settings.smoothness, "pyramid"_a.none() = nb::none(),
           "max_iterations"_a = settings.max_iterations, "tolerance_mm"_a = settings.tolerance_mm,
           "tolerance_deg"_a = settings.tolerance_deg,

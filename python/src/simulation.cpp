@@ -178,13 +178,13 @@ void bind_simulation(nb::module_& m) {
       .def(
           "__init__",
           [](SimulationSettings* self, std::optional<std::string> preset,
-             std::optional<double> frequency_mhz, uint64_t seed, double dynamic_range_db,
+             std::optional<double> frequency_mhz, nb::int_ seed, double dynamic_range_db,
              bool tgc_auto, SimulationOutput output, double axial_fwhm_mm, double lateral_fwhm_mm,
              double elevation_fwhm_mm, const std::string& device) {
             SimulationSettings s;
             s.preset = std::move(preset);
             s.frequency_mhz = frequency_mhz;
-            s.seed = seed;
+            s.seed = seed_value(seed, "seed");
             s.dynamic_range_db = dynamic_range_db;
             s.tgc_auto = tgc_auto;
             s.output = output;
@@ -196,7 +196,7 @@ void bind_simulation(nb::module_& m) {
             new (self) SimulationSettings(std::move(s));
           },
           nb::kw_only(), "preset"_a.none() = nb::none(), "frequency_mhz"_a.none() = nb::none(),
-          "seed"_a = settings.seed, "dynamic_range_db"_a = settings.dynamic_range_db,
+          "seed"_a = nb::int_(settings.seed), "dynamic_range_db"_a = settings.dynamic_range_db,
           "tgc_auto"_a = settings.tgc_auto, "output"_a = settings.output,
           "axial_fwhm_mm"_a = settings.axial_fwhm_mm,
           "lateral_fwhm_mm"_a = settings.lateral_fwhm_mm,

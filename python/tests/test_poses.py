@@ -42,6 +42,13 @@ def test_command_and_binding_agree(cli, ph):
     # Each pose is its seed's: asking for a part gives that part.
     np.testing.assert_array_equal(sampler.sample(sonoslice.sample_seeds(9, 0, 100, 5)), poses[100:105])
     assert all(sampler.accepts(p) for p in poses[:50])
+    # A pose that is not one is bad input, not a rejection.
+    nan = poses[0].copy()
+    nan[0, 3] = np.nan
+    with pytest.raises(ValueError, match="^pose: pose 0: "):
+        sampler.accepts(nan)
+    with pytest.raises(ValueError, match="pose has shape \\(3, 3\\)"):
+        sampler.accepts(np.eye(3))
     # Rigid, and the face centre on the body's surface (the skin's sampled points).
     np.testing.assert_allclose(np.einsum("nji,njk->nik", poses[:, :3, :3], poses[:, :3, :3]),
                                np.broadcast_to(np.eye(3), (500, 3, 3)), atol=1e-9)
@@ -95,3 +102,30 @@ def test_python_errors_name_the_setting():
         sonoslice.PoseSampler("skin", probe)
     with pytest.raises(ValueError, match="seeds"):
         sonoslice.PoseSampler({"type": "sweep", "start": np.eye(4).tolist()}, probe).sample([0.5])
+
+
+def test_missing_required_flags_are_usage_errors(cli, ph, tmp_path):
+    full = ["poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+            "--count", "3", "--out", str(tmp_path / "never.npy")]
+    for flag in ("--sampler", "--probe", "--out"):
+        i = full.index(flag)
+        r = run(cli, *full[:i], *full[i + 2:])
+        assert r.returncode == 2, (flag, r.returncode, r.stderr)
+        assert r.stderr.count("\n") == 1 and flag + " is required" in r.stderr, r.stderr
+        assert r.stderr.rstrip().endswith("see 'sonoslice poses --help'"), r.stderr
+    assert not (tmp_path / "never.npy").exists()
+
+
+def test_seeds_outside_64_bits_are_refused(cli, ph, tmp_path):
+    base = ["--volume", str(ph / "ph" / "ct.nii.gz"), "--out", str(tmp_path / "never.npy")]
+    commands = [["poses", "--sampler", "skin", "--probe", W1, "--count", "2", *base],
+                ["simulate", "--preset", "lus", "--poses", str(ph / "ph" / "poses.npy"), *base]]
+    for command in commands:
+        for bad in ("-1", "18446744073709551616", "1.5", "0x10"):
+            r = run(cli, *command, "--seed", bad)
+            assert r.returncode == 1, (command[0], bad, r.stderr)
+            assert r.stderr == f"sonoslice: error: --seed {bad}: expected a whole number from 0 to " \
+                               "18446744073709551615\n", r.stderr
+    assert not (tmp_path / "never.npy").exists()
+    r = run(cli, *commands[0], "--seed", "18446744073709551615")
+    assert r.returncode == 0, r.stderr

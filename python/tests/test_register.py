@@ -174,6 +174,28 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
     r = run(cli, *args, "--mask", str(tmp_path / "mask.npy"))
     assert r.returncode == 0, r.stderr
     assert np.load(case / "png_refined.npy").shape == (4, 4, 4)
+    # The 2-D (H, W) mask `slice --mask` writes is taken as it is, and gives the same poses.
+    np.save(tmp_path / "mask2d.npy", mask)
+    r = run(cli, *args[:-1], str(case / "png_refined_2d.npy"), "--mask", str(tmp_path / "mask2d.npy"))
+    assert r.returncode == 0, r.stderr
+    assert np.array_equal(np.load(case / "png_refined_2d.npy"), np.load(case / "png_refined.npy"))
+    r = run(cli, "slice", "--volume", str(case / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
+            "--poses", str(case / "truth.npy"), "--out", str(tmp_path / "s.npy"), "--mask",
+            str(tmp_path / "fan.npy"), "-q")
+    assert r.returncode == 0 and np.load(tmp_path / "fan.npy").ndim == 2, r.stderr
+    r = run(cli, *base_args(case, "fan_refined.npy"), "--mask", str(tmp_path / "fan.npy"))
+    assert r.returncode == 0, r.stderr
+
+
+def test_missing_required_flags_are_usage_errors(cli, case):
+    full = base_args(case, "never.npy")
+    for flag in ("--volume", "--probe", "--frames", "--poses", "--out"):
+        i = full.index(flag)
+        r = run(cli, *full[:i], *full[i + 2:])
+        assert r.returncode == 2, (flag, r.returncode, r.stderr)
+        assert r.stderr.count("\n") == 1 and flag + " is required" in r.stderr, r.stderr
+        assert r.stderr.rstrip().endswith("see 'sonoslice register --help'"), r.stderr
+    assert not (case / "never.npy").exists()
 
 
 @pytest.mark.parametrize("extra, needle", [
@@ -325,3 +347,32 @@ def test_sequence_input_bad_input_is_one_line(cli, tmp_path):
         assert r.stderr.startswith("sonoslice: error: ") and r.stderr.count("\n") == 1, r.stderr
         assert needle in r.stderr, r.stderr
         assert not (tmp_path / "x.npy").exists()
+
+
+def test_one_warning_for_poses_a_little_off_orthonormal(cli, case, tmp_path):
+    skewed = np.load(case / "init.npy")
+    skewed[:, 0, 0] *= 1.01
+    np.save(tmp_path / "skewed.npy", skewed)
+    args = base_args(case, "skewed_refined.npy")
+    args[args.index("--poses") + 1] = str(tmp_path / "skewed.npy")
+    r = run(cli, *args, "--starts", "2")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("not orthonormal") == 1, r.stderr
+
+
+def test_constant_frames_keep_their_pose_and_say_why(cli, case, tmp_path):
+    frames = np.load(case / "frames.npy")
+    frames[1] = 7.0  # no contrast at all
+    np.save(tmp_path / "frames.npy", frames)
+    args = base_args(case, "const_refined.npy")
+    args[args.index("--frames") + 1] = str(tmp_path / "frames.npy")
+    r = run(cli, *args, "--report", str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr
+    assert "registration: frame 1 (1 of 4) constant over the compared pixels: nothing to register against; " \
+           "poses left as given" in r.stderr, r.stderr
+    report = json.load(open(tmp_path / "r.json"))
+    flat = report["frames"][1]
+    assert (flat["starts"], flat["evaluations"], flat["converged"], flat["metric"]) == (0, 0, False, None)
+    refined = np.load(case / "const_refined.npy")
+    np.testing.assert_array_equal(refined[1], np.load(case / "init.npy")[1])
+    assert report["frames"][0]["starts"] >= 1

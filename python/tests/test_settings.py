@@ -169,3 +169,16 @@ def test_calibration_mode_reports_its_probe_side_correction(phantom, poses):
     assert report["mode"] == "calibration" and np.asarray(report["correction"]).shape == (4, 4)
     np.testing.assert_allclose(np.asarray(report["correction"])[:3, 3], X0[:3, 3], atol=0.1)
     np.testing.assert_allclose(refined[:, :3, 3], truth[:, :3, 3], atol=0.1)
+
+
+@pytest.mark.parametrize("make", [
+    lambda seed: sonoslice.RegistrationSettings(seed=seed),
+    lambda seed: sonoslice.SimulationSettings(seed=seed),
+])
+def test_seeds_outside_64_bits_are_refused_naming_the_seed(make):
+    for bad in (-1, 2**64):
+        with pytest.raises(ValueError, match=f"^seed {bad}: expected a whole number from 0 to 18446744073709551615"):
+            make(bad)
+    assert make(2**64 - 1).seed == 2**64 - 1 and make(0).seed == 0
+    with pytest.raises(ValueError, match="^base_seed: expected an integer from 0 to 2"):
+        sonoslice.sample_seeds(2**64, 0, 0, 1)

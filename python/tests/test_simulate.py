@@ -26,8 +26,8 @@ def ph(cli, tmp_path_factory):
     return d
 
 
-def one_line_error(r, needle):
-    assert r.returncode == 1, (r.returncode, r.stderr)
+def one_line_error(r, needle, status=1):
+    assert r.returncode == status, (r.returncode, r.stderr)
     assert r.stderr.startswith("sonoslice: error: ") and r.stderr.count("\n") == 1, r.stderr
     assert needle in r.stderr, r.stderr
 
@@ -134,7 +134,6 @@ def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
         (["--volume", ct, "--poses", poses, "--device", "tpu"], "device 'tpu': expected cpu, cuda or cuda:K"),
         (["--volume", ct, "--poses", poses, "--frequency", "0"], "frequency 0"),
         (["--volume", ct, "--poses", poses, "--dynamic-range", "-3"], "dynamic range -3"),
-        (["--volume", ct, "--labels", labels, "--poses", poses], "exactly one of --volume, --labels"),
         (["--volume", ct, "--tissues", str(partial), "--poses", poses], "--tissues is for --labels"),
         (["--labels", labels, "--tissues", str(tmp_path / "none.json"), "--poses", poses], "none.json"),
         (["--labels", labels, "--tissues", str(bad_table), "--poses", poses], 'missing "scatter_mean"'),
@@ -148,8 +147,14 @@ def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
         r = run(cli, "simulate", *common, *args)
         one_line_error(r, needle)
         assert good.read_bytes() == before, args
+    # What is missing is a usage error (2), with a pointer to the command's help.
     r = run(cli, "simulate", "--volume", ct, "--poses", poses, "--out", str(tmp_path / "x.npy"))
-    one_line_error(r, "give --probe or --preset")
+    one_line_error(r, "give --probe or --preset", status=2)
+    r = run(cli, "simulate", *common, "--preset", "lus", "--volume", ct, "--labels", labels, "--poses", poses)
+    one_line_error(r, "exactly one of --volume, --labels, --meshes; see 'sonoslice simulate --help'", status=2)
+    for args, needle in [(["--volume", ct, "--out", str(good)], "--poses is required"),
+                         (["--volume", ct, "--poses", poses], "--out is required")]:
+        one_line_error(run(cli, "simulate", "--preset", "lus", *args), needle, status=2)
     assert sorted(os.listdir(tmp_path)) == ["bad.json", "good.npy", "nan.npy", "partial.json"]
 
 

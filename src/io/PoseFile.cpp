@@ -199,10 +199,10 @@ Mat4 read_matrix(const std::string& text, const std::string& what) {
   return m[0];
 }
 
-std::vector<Pose> read_poses(const std::string& path, WorldFrame frame) {
+std::vector<Pose> read_poses(const std::string& path, WorldFrame frame, bool warn_non_orthonormal) {
   std::vector<Pose> poses = read_matrices(path);
   for (Pose& p : poses) p = pose_to_lps(p, frame);
-  validate_poses(poses.data(), poses.size(), "poses '" + path + "'");
+  validate_poses(poses.data(), poses.size(), "poses '" + path + "'", 0, warn_non_orthonormal);
   return poses;
 }
 

@@ -341,13 +341,38 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
 #endif
 }
 
+namespace {
+/// A 2-D .npy (H, W) as a (W, H, 1) volume of unit spacing, in C order whatever the file's.
+Volume read_npy_image(const std::string& path, const std::string& what) {
+  const NpyArray a = read_npy(path);
+  const int64_t h = a.shape[0], w = a.shape[1];
+  if (h <= 0 || w <= 0) throw InputError(what + " '" + path + "': empty array");
+  VolumeGrid g;
+  g.dims = {w, h, 1};
+  Volume image = Volume::allocate(a.type, g);
+  const std::vector<int64_t> strides = npy_element_strides(a);
+  const size_t size = pixel_size(a.type);
+  const auto* from = static_cast<const char*>(a.data.get());
+  auto* to = static_cast<char*>(image.data());
+  for (int64_t v = 0; v < h; ++v)
+    for (int64_t u = 0; u < w; ++u)
+      std::memcpy(to + size_t(v * w + u) * size,
+                  from + size_t(v * strides[0] + u * strides[1]) * size, size);
+  return image;
+}
+}  // namespace
+
 Volume read_image_stack(const std::string& path, const std::string& what) {
   std::error_code ec;
   if (!fs::is_directory(path, ec)) {
     if (!fs::exists(path, ec)) throw FileError(what + " '" + path + "': no such file");
     // A stack of images has no voxel geometry to warn about: .npy frames get the default one.
     VolumeReadOptions options;
-    if (image_format(path, what) == ImageFormat::Npy) options.spacing_mm = Vec3{1, 1, 1};
+    if (image_format(path, what) == ImageFormat::Npy) {
+      options.spacing_mm = Vec3{1, 1, 1};
+      // One 2-D image (H, W), as `slice --mask` writes it: a stack of one.
+      if (read_npy_header(path).shape.size() == 2) return read_npy_image(path, what);
+    }
     return read_volume(path, options);
   }
   std::vector<std::string> files;

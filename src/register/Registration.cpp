@@ -26,6 +26,29 @@ using register_impl::rotation_angle_deg;
 using register_impl::SweepOutcome;
 using register_impl::SweepTerms;
 
+namespace {
+/// Per frame of level `l` (1: full resolution): whether its compared pixels are constant, or
+/// fewer than 16.
+std::vector<bool> flat_frames(const register_impl::Level& l, size_t count) {
+  const size_t plane = size_t(l.width) * l.height;
+  std::vector<bool> flat(count);
+  for (size_t k = 0; k < count; ++k) {
+    const float* f = l.frames.data() + k * plane;
+    const uint8_t* m = l.masks.data() + k * plane;
+    double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+    size_t n = 0;
+    for (size_t i = 0; i < plane; ++i)
+      if (m[i]) {
+        lo = std::min(lo, double(f[i]));
+        hi = std::max(hi, double(f[i]));
+        ++n;
+      }
+    flat[k] = n < 16 || !(hi > lo);
+  }
+  return flat;
+}
+}  // namespace
+
 std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
                                          const RegistrationSettings& requested,
                                          RegistrationReport* report) const {
@@ -38,6 +61,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
                      std::to_string(s.count) + " frames");
   validate_poses(initial.data(), initial.size(), "poses");
   for (int f : *settings.pyramid) prepare_level(f);
+  // Frames without contrast (constant over their compared pixels, or none left) have nothing to
+  // register against: per frame they keep their pose, and the warning says why.
+  const std::vector<bool> flat = flat_frames(s.level(1), s.count);
 
   std::vector<Pose> refined(s.count);
   std::vector<FrameReport> frames(s.count);
@@ -65,6 +91,12 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
   };
   if (settings.mode == RegistrationMode::PerFrame) {
     backend::parallel_for(int64_t(s.count), [&](int64_t k) {
+      if (flat[size_t(k)]) {
+        Outcome none;
+        none.starts = none.agreeing_starts = 0;
+        describe(size_t(k), none, 0, std::numeric_limits<double>::infinity());
+        return;
+      }
       Problem p;
       p.terms = [&, k](const Pose& X, int f, const Vec3& c, bool g) {
         return terms(size_t(k), X * initial[size_t(k)], f, c, g);
@@ -161,8 +193,22 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       }
     }
   }
-  size_t unconverged = 0;
-  for (const FrameReport& r : frames) unconverged += !r.converged;
+  std::string flat_list;
+  size_t flat_count = 0, unconverged = 0;
+  for (size_t k = 0; k < s.count; ++k) {
+    if (!flat[k]) {
+      unconverged += !frames[k].converged;
+      continue;
+    }
+    if (++flat_count <= 10) flat_list += (flat_list.empty() ? "" : ", ") + std::to_string(k);
+  }
+  if (flat_count > 10) flat_list += ", ...";
+  if (flat_count > 0)
+    warn("registration: frame" + std::string(flat_count > 1 ? "s " : " ") + flat_list + " (" +
+         std::to_string(flat_count) + " of " + std::to_string(s.count) +
+         ") constant over the compared pixels: nothing to register against" +
+         (settings.mode == RegistrationMode::PerFrame ? "; poses left as given"
+                                                      : "; they do not steer the sweep"));
   if (unconverged > 0)
     warn("registration: " + std::to_string(unconverged) + " of " + std::to_string(frames.size()) +
          " frames not converged (their best pose was reached from fewer than two of the starts; "

@@ -627,6 +627,7 @@ const std::vector<Vec3>& PoseSampler::surface_normals() const {
 }
 
 bool PoseSampler::accepts(const Pose& pose) const {
+  validate_poses(&pose, 1, "pose");  // NaN or a non-rigid matrix is bad input, not a rejection
   return state_->accepts(pose);
 }
 

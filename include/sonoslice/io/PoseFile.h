@@ -10,7 +10,10 @@ namespace sonoslice {
 
 /// Reads and validates the poses in `path`, converting them from `frame` to LPS. Errors name
 /// the file and, where it applies, the line or pose index.
-std::vector<Pose> read_poses(const std::string& path, WorldFrame frame = WorldFrame::LPS);
+/// `warn_non_orthonormal` false: no warning for poses a little off orthonormal, for a caller
+/// whose library call checks (and warns about) the same poses again.
+std::vector<Pose> read_poses(const std::string& path, WorldFrame frame = WorldFrame::LPS,
+                             bool warn_non_orthonormal = true);
 
 /// The 4×4 matrices in a pose file, as written: no frame conversion, no pose checks (for
 /// calibrations such as a pixel-to-probe matrix, whose axes are scaled).

@@ -39,8 +39,9 @@ struct DicomSeriesInfo {
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
 
 /// A stack of 2-D images as a volume of (W, H, N): any volume file (.npy (N, H, W), .nii, .mha,
-/// .nrrd: what `slice --out` writes), or a folder of .png images (read in name order, all of one
-/// size and type, as `slice --out DIR/` writes them). FileError / InputError naming `what`.
+/// .nrrd: what `slice --out` writes), a 2-D .npy (H, W) as a stack of one (what `slice --mask`
+/// writes), or a folder of .png images (read in name order, all of one size and type, as
+/// `slice --out DIR/` writes them). FileError / InputError naming `what`.
 Volume read_image_stack(const std::string& path, const std::string& what);
 
 /// Writes a volume atomically: .npy (C order (nz, ny, nx), geometry in a sidecar .json) or any

@@ -104,7 +104,8 @@ class PoseSampler {
   std::vector<Pose> sample(const uint64_t* seeds, size_t count) const;
   /// The first candidate of each seed, without rejection (the candidate rate of bench/).
   std::vector<Pose> candidates(const uint64_t* seeds, size_t count) const;
-  /// Whether `pose` passes the rejection rules.
+  /// Whether `pose` passes the rejection rules; InputError naming "pose" for a pose that is not
+  /// finite and rigid (validate_poses).
   bool accepts(const Pose& pose) const;
   /// Skin and mesh: the surface's points (mm) and outward unit normals, one per candidate site.
   const std::vector<Vec3>& surface_points() const;
