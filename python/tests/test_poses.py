@@ -4,6 +4,7 @@ normals, tilt ranges, uniform rotations) is checked in C++ (tests/sampling/)."""
 import json
 import os
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -129,3 +130,17 @@ def test_seeds_outside_64_bits_are_refused(cli, ph, tmp_path):
     assert not (tmp_path / "never.npy").exists()
     r = run(cli, *commands[0], "--seed", "18446744073709551615")
     assert r.returncode == 0, r.stderr
+
+
+def test_impossible_rules_fail_early_and_name_the_first_seed(cli, ph, tmp_path):
+    # Every seed would fail: the command stops at the first failing seeds instead of trying all
+    # 100,000 seeds' 1000 candidates, and names the same (first) seed as a short run does.
+    args = ["poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+            "--min-inside", "1.0", "--depth-mm", "500,500", "--out", str(tmp_path / "never.npy")]
+    start = time.monotonic()
+    big = run(cli, *args, "--count", "100000")
+    assert time.monotonic() - start < 30
+    small = run(cli, *args, "--count", "100")
+    assert big.returncode == small.returncode == 1, big.stderr
+    assert big.stderr == small.stderr and "passed the rejection rules in 1000 tries" in big.stderr, big.stderr
+    assert not (tmp_path / "never.npy").exists()

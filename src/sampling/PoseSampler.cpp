@@ -4,6 +4,7 @@
 #include "sonoslice/sampling/PoseSampler.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -662,16 +663,24 @@ std::vector<Pose> PoseSampler::sample(const uint64_t* seeds, size_t count) const
   const State& st = *state_;
   const size_t per = size_t(poses_per_seed());
   std::vector<Pose> out(count * per);
-  std::vector<uint8_t> failed(count, 0);
+  // The first seed (by index) whose candidates all fail. Any failure ends in an error, so once
+  // one is known only the seeds before it still matter: impossible rules fail after a few
+  // seeds' tries instead of every seed's, and the seed named is the same on every run.
+  std::atomic<int64_t> first_failed{int64_t(count)};
   backend::parallel_for_chunks(int64_t(count), kSeedsPerTask, [&](int64_t, int64_t b, int64_t e) {
-    for (int64_t k = b; k < e; ++k)
-      failed[size_t(k)] = !st.sample_one(seeds[size_t(k)], &out[size_t(k) * per]);
+    for (int64_t k = b; k < e && k < first_failed.load(std::memory_order_relaxed); ++k)
+      if (!st.sample_one(seeds[size_t(k)], &out[size_t(k) * per])) {
+        int64_t seen = first_failed.load();
+        while (k < seen && !first_failed.compare_exchange_weak(seen, k)) {
+        }
+        return;
+      }
   });
-  for (size_t k = 0; k < count; ++k)
-    if (failed[k])
-      throw InputError("sampler: no pose of seed " + std::to_string(seeds[k]) +
-                       " passed the rejection rules in " + std::to_string(st.s.max_tries) +
-                       " tries: the rules (reject) may be impossible for this volume and probe");
+  const int64_t k = first_failed.load();
+  if (k < int64_t(count))
+    throw InputError("sampler: no pose of seed " + std::to_string(seeds[size_t(k)]) +
+                     " passed the rejection rules in " + std::to_string(st.s.max_tries) +
+                     " tries: the rules (reject) may be impossible for this volume and probe");
   return out;
 }
 
