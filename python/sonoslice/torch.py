@@ -5,7 +5,8 @@ as a tensor that autograd can differentiate with respect to the poses ((N, 4, 4)
 mm) and, when ``volume`` is a tensor that requires grad, the volume. The backward pass computes
 dL/d(pose) from the trilinear interpolant's exact derivatives in the kernel, pixel by pixel,
 without storing a sampling grid: memory is O(N) beyond the images. CPU, float64 throughout (the
-result is cast to the volume's dtype).
+result is cast to a floating volume tensor's dtype, else to the poses' floating dtype, so that
+an integer volume still gives pose gradients).
 
 To optimise an increment ξ ∈ se(3) instead of the 4×4 entries, compose it with
 ``pose_increment(T, xi)`` (T·exp(ξ), differentiable in torch) and slice the result.
@@ -31,6 +32,9 @@ def _geometry_volume(volume, spacing, origin, direction):
         raise TypeError("volume: expected a sonoslice.Volume or a (Z, Y, X) torch tensor")
     if volume.ndim != 3:
         raise ValueError(f"volume: expected (Z, Y, X), got shape {tuple(volume.shape)}")
+    if volume.is_complex():
+        raise ValueError(f"volume: complex values ({volume.dtype}) have no meaning as intensities; "
+                         "pass the real part or the magnitude")
     array = np.ascontiguousarray(volume.detach().cpu().numpy().astype(np.float64, copy=False))
     kwargs = {"spacing": spacing}
     if origin is not None:
@@ -51,11 +55,16 @@ class _Slice(_torch.autograd.Function):
         images = _ext.slice_linear_f64(volume._cpp, probe._cpp, p, float(fill))
         ctx.volume, ctx.probe, ctx.poses = volume, probe, p
         ctx.volume_grad = volume_tensor is not None and volume_tensor.requires_grad
-        dtype = volume_tensor.dtype if volume_tensor is not None else poses.dtype
+        # The kernel reads the tensor's memory (no copy for a contiguous float64 tensor): saving it
+        # lets autograd's version counter refuse a backward after an in-place change to it.
+        ctx.save_for_backward(volume_tensor)
+        floating = volume_tensor is not None and volume_tensor.is_floating_point()
+        dtype = volume_tensor.dtype if floating else poses.dtype
         return _torch.from_numpy(np.array(images)).to(dtype=dtype, device=poses.device)
 
     @staticmethod
     def backward(ctx, grad):
+        ctx.saved_tensors  # raises if the volume tensor was modified in place since forward
         g = np.ascontiguousarray(grad.detach().cpu().numpy(), dtype=np.float64)
         grad_poses, grad_volume = _ext.slice_linear_backward(ctx.volume._cpp, ctx.probe._cpp, ctx.poses, g,
                                                              bool(ctx.volume_grad))
@@ -76,7 +85,11 @@ def slice(volume, poses, probe: Probe, *, spacing: Sequence[float] = (1.0, 1.0, 
     if not isinstance(probe, Probe):
         raise TypeError("probe: expected a sonoslice.Probe")
     if not isinstance(poses, _torch.Tensor):
-        poses = _torch.as_tensor(np.asarray(poses, dtype=np.float64))
+        poses = _torch.as_tensor(_arrays.matrices(poses, "poses"))
+    if poses.is_complex():
+        raise ValueError(f"poses: complex values ({poses.dtype}) are not a pose")
+    if not poses.is_floating_point():
+        poses = poses.to(_torch.float64)
     squeeze = poses.ndim == 2
     poses = _arrays.matrix_stack(poses, "poses")  # the tensor itself: autograd follows it
     geometry, tensor = _geometry_volume(volume, spacing, origin, direction)
@@ -90,7 +103,12 @@ def pose_increment(T, xi):
     """T·exp(ξ) for ξ = (v, ω) (N, 6) or (6,): translation v (mm) and rotation ω (rad, axis times
     angle, Rodrigues) in the probe frame, composed on the right; differentiable in torch, also
     at ξ = 0."""
+    if not isinstance(T, _torch.Tensor) or T.shape[-2:] != (4, 4):
+        raise ValueError("T: expected a (4, 4) or (N, 4, 4) torch tensor")
     xi = _torch.as_tensor(xi, dtype=T.dtype, device=T.device)
+    if xi.ndim not in (1, 2) or xi.shape[-1] != 6:
+        raise ValueError(f"xi: expected (6,) or (N, 6): translation (3) and rotation (3), got shape "
+                         f"{tuple(xi.shape)}")
     single = xi.ndim == 1
     if single:
         xi = xi[None]

@@ -77,3 +77,31 @@ def test_bad_input():
     bad[0, 3] = float("nan")
     with pytest.raises(ValueError, match="pose 0"):
         st.slice(torch.tensor(volume), bad, probe)
+    with pytest.raises(ValueError, match="^volume: complex values"):
+        st.slice(torch.tensor(volume, dtype=torch.complex128), torch.tensor(T), probe)
+    with pytest.raises(ValueError, match="^poses: complex values"):
+        st.slice(torch.tensor(volume), torch.tensor(T, dtype=torch.complex128), probe)
+    with pytest.raises(ValueError, match=r"^xi: expected \(6,\) or \(N, 6\)"):
+        st.pose_increment(torch.tensor(T), torch.zeros(5, dtype=torch.float64))
+
+
+def test_integer_volume_gives_float_images_and_pose_gradients():
+    volume, probe, T = small_case()
+    ints = torch.tensor(np.round(volume * 100), dtype=torch.int16)
+    poses = torch.tensor(T, requires_grad=True)
+    images = st.slice(ints, poses, probe)
+    assert images.dtype == torch.float64
+    images.sum().backward()
+    assert poses.grad is not None and torch.isfinite(poses.grad).all() and poses.grad.abs().sum() > 0
+    same = st.slice(torch.tensor(np.round(volume * 100)), torch.tensor(T), probe)
+    assert torch.equal(images.detach(), same)
+
+
+def test_a_volume_changed_in_place_before_backward_is_refused():
+    volume, probe, T = small_case()
+    v = torch.tensor(volume, requires_grad=True)
+    loss = st.slice(v, torch.tensor(T, requires_grad=True), probe).sum()
+    with torch.no_grad():
+        v.add_(1.0)
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        loss.backward()
