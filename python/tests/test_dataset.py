@@ -461,3 +461,29 @@ def test_webdataset_pipeline_of_the_docs_reads_the_same(mixed):
     for (image, meta), (tensor, pose, _) in zip(theirs, ours):
         np.testing.assert_array_equal(image, tensor.numpy())
         np.testing.assert_array_equal(np.array(meta["pose"]), pose.numpy())
+
+
+def test_shard_dataset_names_a_damaged_shard(mixed, tmp_path):
+    """A shard cut at a sample boundary (fewer samples than the manifest says), cut mid-member, or
+    replaced by garbage: ValueError naming the shard, not a silent short epoch or a bare tarfile error."""
+    pytest.importorskip("torch")
+    import shutil
+    from sonoslice.datasets.reader import ShardDataset, read_shard
+    _, ref, manifest = mixed
+    copy = tmp_path / "copy"
+    shutil.copytree(ref, copy)
+    first = copy / manifest["shards"][0]["name"]
+    with tarfile.open(ref / manifest["shards"][0]["name"]) as tar:
+        kept = [m for m in tar.getmembers() if int(m.name.split(".")[0]) < int(tar.getmembers()[-1].name.split(".")[0])]
+        with tarfile.open(first, "w", format=tarfile.USTAR_FORMAT) as out:
+            for m in kept:
+                out.addfile(m, tar.extractfile(m))
+    with pytest.raises(ValueError, match=f"^shard '{first}': 6 samples, its manifest says 7"):
+        list(ShardDataset(copy))
+    data = (ref / manifest["shards"][0]["name"]).read_bytes()
+    for damaged in (data[: len(data) // 2], b"not a tar at all" * 100):
+        first.write_bytes(damaged)
+        with pytest.raises(ValueError, match=f"^shard '{first}': not a complete tar archive"):
+            list(ShardDataset(copy))
+        with pytest.raises(ValueError, match="not a complete tar archive"):
+            list(read_shard(first))

@@ -49,35 +49,54 @@ def decode(name: str, data: bytes):
     raise ValueError(f"member '{name}': no decoder for its extension")
 
 
-def read_shard(path) -> Iterator[Dict[str, object]]:
+def read_shard(path, samples: Optional[int] = None) -> Iterator[Dict[str, object]]:
     """The samples of one shard, in order, as dicts: ``"__key__"``, ``"json"`` (the metadata) and one
     array per image kind (``"intensity"``, ``"labels"``, ``"colours"``, ``"ultrasound"``). Streams
-    the tar: one sample in memory at a time."""
+    the tar: one sample in memory at a time. ``samples``: how many the shard must hold (its
+    manifest entry's); a shard that is not a tar, is cut short or holds another count raises
+    ValueError naming it, after the samples read so far."""
+    name = os.fspath(path)
     sample: Dict[str, object] = {}
-    with tarfile.open(os.fspath(path), mode="r|") as tar:
-        for member in tar:
-            if not member.isfile():
-                continue
-            key, _, rest = member.name.partition(".")
-            if sample and key != sample["__key__"]:
-                yield sample
-                sample = {}
-            field = "json" if rest == "json" else rest.rsplit(".", 1)[0]
-            sample["__key__"] = key
-            sample[field] = decode(member.name, tar.extractfile(member).read())
+    count = 0
+    try:
+        with tarfile.open(name, mode="r|") as tar:
+            for member in tar:
+                if not member.isfile():
+                    continue
+                key, _, rest = member.name.partition(".")
+                if sample and key != sample["__key__"]:
+                    count += 1
+                    yield sample
+                    sample = {}
+                field = "json" if rest == "json" else rest.rsplit(".", 1)[0]
+                sample["__key__"] = key
+                sample[field] = decode(member.name, tar.extractfile(member).read())
+    except (tarfile.TarError, EOFError) as e:
+        raise ValueError(f"shard '{name}': not a complete tar archive ({e}): the file is damaged or was "
+                         "cut short") from None
     if sample:
+        count += 1
         yield sample
+    if samples is not None and count != samples:
+        raise ValueError(f"shard '{name}': {count} samples, its manifest says {samples}: the shard was cut "
+                         "short or replaced")
 
 
 def shard_paths(source) -> List[str]:
     """Shard paths from a dataset folder (its manifest.json's shards, in order), one shard path, or
     a list of paths."""
+    return [path for path, _ in _shards(source)]
+
+
+def _shards(source) -> List[tuple]:
+    """(path, samples the manifest promises or None) of each shard of ``source``."""
     if isinstance(source, (str, os.PathLike)) and os.path.isdir(source):
         with open(os.path.join(source, "manifest.json")) as f:
-            return [os.path.join(os.fspath(source), s["name"]) for s in json.load(f)["shards"]]
+            return [(os.path.join(os.fspath(source), s["name"]), s.get("samples"))
+                    for s in json.load(f)["shards"]]
     if isinstance(source, (str, os.PathLike)):
-        return [os.fspath(source)]
-    return [os.fspath(p) for p in source]
+        return [(os.fspath(source), None)]
+    return [(os.fspath(p), None) for p in source]
 
 
 def _tensor(a: np.ndarray) -> "torch.Tensor":
@@ -104,7 +123,9 @@ class ShardDataset(IterableDataset):
 
     def __init__(self, source, kinds: Union[None, str, Sequence[str]] = None, shuffle: bool = False,
                  buffer: int = 1000, seed: int = 0, transform: Optional[Callable] = None):
-        self.shards = shard_paths(source)
+        shards = _shards(source)
+        self.shards = [path for path, _ in shards]
+        self._samples = dict(shards)
         self.kinds, self.shuffle, self.buffer, self.seed, self.transform = kinds, shuffle, buffer, seed, transform
         self.epoch = 0
 
@@ -135,7 +156,7 @@ class ShardDataset(IterableDataset):
         return self.transform(*item) if self.transform is not None else item
 
     def __iter__(self):
-        samples = (s for path in self._my_shards() for s in read_shard(path))
+        samples = (s for path in self._my_shards() for s in read_shard(path, self._samples.get(path)))
         if self.shuffle and self.buffer > 1:
             samples = _shuffled(samples, self.buffer, random.Random(self.seed * 1_000_003 + self.epoch + 1))
         for sample in samples:
