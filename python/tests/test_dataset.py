@@ -365,6 +365,17 @@ def test_scheduler_errors(mixed, tmp_path, monkeypatch):
     spec_path, _, _ = mixed
     one_line_error(run(spec_path, "--out", tmp_path / "o", "--scheduler", "local:0"), "--scheduler 'local:0'")
     one_line_error(run(spec_path, "--out", tmp_path / "o", "--scheduler", "cluster"), "--scheduler 'cluster'")
+    one_line_error(run(spec_path, "--out", tmp_path / "o", "--scheduler", "tcp://127.0.0.1:notaport"),
+                   "--scheduler 'tcp://127.0.0.1:notaport': expected a Dask scheduler address tcp://HOST:PORT")
+    import socket
+    with socket.socket() as s:  # a port that was free a moment ago: nothing listens there now
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    pytest.importorskip("distributed")
+    start = time.monotonic()
+    with pytest.raises(OSError, match=f"^--scheduler 'tcp://127.0.0.1:{port}': cannot connect \\(nothing listens there\\)"):
+        ds.write_dataset(spec_path, tmp_path / "o", scheduler=f"tcp://127.0.0.1:{port}", progress=False)
+    assert time.monotonic() - start < 10
     monkeypatch.setitem(sys.modules, "distributed", None)  # as if Dask were not installed
     with pytest.raises(RuntimeError, match="needs Dask's distributed package"):
         ds.write_dataset(spec_path, tmp_path / "o", scheduler="local:2", progress=False)
@@ -487,3 +498,17 @@ def test_shard_dataset_names_a_damaged_shard(mixed, tmp_path):
             list(ShardDataset(copy))
         with pytest.raises(ValueError, match="not a complete tar archive"):
             list(read_shard(first))
+
+
+def test_a_full_disk_names_the_output(mixed, tmp_path, monkeypatch):
+    import errno
+    from sonoslice.datasets import writer
+
+    def full(f, members):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(writer, "write_tar", full)
+    spec_path, _, _ = mixed
+    out = tmp_path / "o"
+    with pytest.raises(OSError, match=f"^\\[Errno 28\\] --out '{out}': writing shard-000000.tar: No space left on device"):
+        ds.write_dataset(spec_path, out, progress=False)
+    assert not [n for n in os.listdir(out) if n.endswith(".tmp") or n.endswith(".tar")]

@@ -592,6 +592,11 @@ def write_shard(spec: Spec, index: int, out_dir) -> dict:
                  "sha256": sha, "bytes": size}
         _write_json(os.path.join(out_dir, CHECKSUMS, name + ".json"), {"fingerprint": spec.fingerprint, **entry})
         os.replace(tmp, path)
+    except OSError as e:  # a full disk, a quota, a folder gone: say which file
+        _remove(tmp)
+        if e.filename:
+            raise
+        raise OSError(e.errno, f"--out '{out_dir}': writing {name}: {e.strerror or e}") from None
     except BaseException:
         _remove(tmp)
         raise
@@ -732,9 +737,34 @@ def write_dataset(spec_path, out_dir, scheduler: Optional[str] = None, dry_run: 
     return manifest
 
 
+def _scheduler_address(scheduler: str) -> tuple:
+    """(host, port) of a tcp:// or tls:// Dask scheduler address; ValueError naming it otherwise."""
+    scheme, _, rest = scheduler.partition("://")
+    host, _, port = rest.rpartition(":")
+    if scheme not in ("tcp", "tls") or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--scheduler '{scheduler}': expected a Dask scheduler address tcp://HOST:PORT "
+                         "(PORT 1-65535), or local:N")
+    return host.strip("[]"), int(port)
+
+
+def _check_listening(scheduler: str) -> None:
+    """A quick TCP connection to the scheduler, so that a wrong host or a closed port is said at once
+    (Dask's own connect waits out its 30 s timeout)."""
+    import socket
+    host, port = _scheduler_address(scheduler)
+    try:
+        socket.create_connection((host, port), timeout=5).close()
+    except OSError as e:
+        why = "nothing listens there" if isinstance(e, ConnectionRefusedError) else (e.strerror or str(e))
+        raise OSError(f"--scheduler '{scheduler}': cannot connect ({why})") from None
+
+
 def _parse_scheduler(scheduler: Optional[str]) -> Optional[int]:
     """The worker count of ``local:N``; None for no scheduler or an address; ValueError otherwise."""
-    if scheduler is None or "://" in scheduler:
+    if scheduler is None:
+        return None
+    if "://" in scheduler:
+        _scheduler_address(scheduler)
         return None
     n = scheduler[len("local:"):] if scheduler.startswith("local:") else ""
     if not n.isdigit() or int(n) < 1:
@@ -849,6 +879,8 @@ def _write_on_dask(spec: Spec, out_dir: str, scheduler: str, workers: Optional[i
         cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=None, silence_logs=logging.CRITICAL)
     try:
+        if cluster is None:
+            _check_listening(scheduler)
         try:
             client = distributed.Client(cluster if cluster is not None else scheduler, timeout="30s")
         except (OSError, TimeoutError) as e:
