@@ -692,3 +692,29 @@ def test_bad_plus_input(tmp_path, nwire, nwire_config):
         nwire.transform(97, "ProbeToTracker")
     with pytest.raises(ValueError, match="skip"):
         sonoslice.plus_image_to_reference(nwire, nwire_config, skip=0)
+
+
+def test_absurd_spacing_and_a_broken_transform_are_named(cli, tmp_path):
+    sequence = os.path.join(PLUS, "NwirePhantomFreehand.igs.mha")
+    config = os.path.join(PLUS, "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml")
+    run = lambda *args: subprocess.run([cli, "compound", "--config", config, "--out", str(tmp_path / "v.nii"), *args],
+                                       capture_output=True, text=True, timeout=300)  # noqa: E731
+    r = run("--sequence", sequence, "--spacing", "1e-300")
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.startswith("sonoslice: error: --spacing 1e-300 mm: the frames span ") and \
+        "more than 2^31 voxels at this spacing" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    # Frame 5's ProbeToTracker translation set to 1e30.
+    data = open(sequence, "rb").read()
+    head, rest = data.split(b"ElementDataFile", 1)
+    lines = head.split(b"\n")
+    for n, line in enumerate(lines):
+        if line.startswith(b"Seq_Frame0005_ProbeToTrackerTransform ="):
+            numbers = line.split(b"=")[1].split()
+            numbers[3] = b"1e30"
+            lines[n] = b"Seq_Frame0005_ProbeToTrackerTransform = " + b" ".join(numbers)
+    broken = tmp_path / "broken.igs.mha"
+    broken.write_bytes(b"\n".join(lines) + b"ElementDataFile" + rest)
+    r = run("--sequence", str(broken))
+    assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert "frame 5 at 2.64e+29 mm): a frame's transform is broken" in r.stderr, r.stderr
+    assert os.listdir(tmp_path) == ["broken.igs.mha"]

@@ -106,12 +106,36 @@ namespace {
 // The box around the points given to add(): the grid PLUS fits around the frames.
 struct Bounds {
   Vec3 lo{{1e300, 1e300, 1e300}}, hi{{-1e300, -1e300, -1e300}};
+  size_t lo_frame[3] = {0, 0, 0}, hi_frame[3] = {0, 0, 0};  // the frames that set lo and hi
   bool empty = true;
-  void add(const Vec3& p) {
+  void add(const Vec3& p, size_t frame) {
     empty = false;
     for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], p[a]);
-      hi[a] = std::max(hi[a], p[a]);
+      if (p[a] < lo[a]) lo[a] = p[a], lo_frame[a] = frame;
+      if (p[a] > hi[a]) hi[a] = p[a], hi_frame[a] = frame;
+    }
+  }
+  // A box no scan spans (10 km) comes from a broken transform; a sane box at a spacing that
+  // would need more than 2^31 voxels along an axis, from the spacing.
+  void check_span(const Vec3& spacing_mm, const char* what) const {
+    static const char* const axis[3] = {"x", "y", "z"};
+    for (int a = 0; a < 3; ++a) {
+      const double span = hi[a] - lo[a];
+      char text[320];
+      if (!(span < 1e7)) {
+        std::snprintf(text, sizeof text,
+                      "%s: the frames span %.3g mm along %s (frame %zu at %.3g mm, frame %zu at "
+                      "%.3g mm): a frame's transform is broken",
+                      what, span, axis[a], lo_frame[a], lo[a], hi_frame[a], hi[a]);
+        throw InputError(text);
+      }
+      if (!(span / spacing_mm[a] < 2147483647.0)) {
+        std::snprintf(text, sizeof text,
+                      "%g mm: the frames span %.1f mm along %s, more than 2^31 voxels at this "
+                      "spacing",
+                      spacing_mm[a], span, axis[a]);
+        throw ParameterError("spacing_mm", text);
+      }
     }
   }
   // The grid fitted to the box per axis (Compounder::GridFit).
@@ -122,6 +146,7 @@ struct Bounds {
         throw InputError(std::string(what) + ": output spacing must be a positive number of mm");
     if (empty)
       throw InputError(std::string(what) + ": no valid frame to compute the output extent from");
+    check_span(spacing_mm, what);
     VolumeGrid g;
     for (int a = 0; a < 3; ++a) {
       const double s = spacing_mm[a];
@@ -156,10 +181,11 @@ VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, 
   // Corner pixel centres: first and last pixel of the clip rectangle.
   const double xs[2] = {double(r[0]), double(r[2] - 1)}, ys[2] = {double(r[1]), double(r[3] - 1)};
   Bounds box;
-  for (const Mat4& m : image_to_reference) {
+  for (size_t k = 0; k < image_to_reference.size(); ++k) {
+    const Mat4& m = image_to_reference[k];
     check_matrix(m, "compounding: image-to-reference");
     for (double x : xs)
-      for (double y : ys) box.add(m.transform_point(Vec3{{x, y, 0.0}}));
+      for (double y : ys) box.add(m.transform_point(Vec3{{x, y, 0.0}}), k);
   }
   return box.grid(spacing_mm, "compounding", fit);
 }
@@ -173,9 +199,9 @@ VolumeGrid Compounder::grid_around_beams(const std::vector<Mat4>& probe_to_refer
   for (const Vec3& d : beam_directions(geometry))
     for (double r : {geometry.r0_mm, r1}) ends.push_back(beam_point(geometry, d, r));
   Bounds box;
-  for (const Mat4& m : probe_to_reference) {
-    check_matrix(m, "compounding: probe-to-reference");
-    for (const Vec3& p : ends) box.add(m.transform_point(p));
+  for (size_t k = 0; k < probe_to_reference.size(); ++k) {
+    check_matrix(probe_to_reference[k], "compounding: probe-to-reference");
+    for (const Vec3& p : ends) box.add(probe_to_reference[k].transform_point(p), k);
   }
   return box.grid(spacing_mm, "compounding");
 }
