@@ -612,6 +612,14 @@ def test_bad_input_raises_and_names_the_argument(tmp_path):
     projective[3, 0] = 1
     with pytest.raises(ValueError, match="last row"):
         c.add(frame, projective)
+    for singular in (np.diag([1.0, 0, 1, 1]), np.array([[1, 2, 0, 0], [1, 2, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])):
+        with pytest.raises(ValueError, match="image-to-reference of frame 0: the matrix is singular"):
+            c.add(frame, singular)
+    flat_z = np.diag([1.0, 1, 0, 1])  # an image's z column is never used: fine for add, not for beams
+    c2 = sonoslice.Compounder(shape=(4, 4, 4), spacing=1.0)
+    c2.add(frame, flat_z)
+    with pytest.raises(ValueError, match="probe-to-reference of frame 1: the matrix is singular"):
+        c2.add_beams(np.ones((2, 2, 2), np.uint8), flat_z, sonoslice.BeamGeometry())
     with pytest.raises(ValueError, match="unknown clip key"):
         c.add(frame, np.eye(4), clip=dict(rectangle=(0, 0, 1, 1)))
     with pytest.raises(ValueError, match=r"clip mask has shape \(3, 3\) but frames are \(2, 2\)"):

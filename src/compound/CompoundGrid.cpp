@@ -34,7 +34,7 @@ uint64_t accumulator_bytes_per_voxel(const CompoundSettings& s) {
   return sizeof(Accumulator) + (s.mode == CompoundingMode::Latest ? sizeof(int32_t) : 0);
 }
 
-void check_matrix(const Mat4& m, const std::string& what) {
+void check_matrix(const Mat4& m, const std::string& what, int axes) {
   for (int r = 0; r < 4; ++r)
     for (int c = 0; c < 4; ++c)
       if (!std::isfinite(m.m[r][c]))
@@ -42,6 +42,20 @@ void check_matrix(const Mat4& m, const std::string& what) {
                          ", column " + std::to_string(c) + ")");
   if (m.m[3][0] != 0 || m.m[3][1] != 0 || m.m[3][2] != 0 || m.m[3][3] != 1)
     throw InputError(what + ": the matrix's last row must be 0 0 0 1");
+  Vec3 c[3];
+  double norms = 1;
+  for (int k = 0; k < 3; ++k) {
+    c[k] = Vec3{{m.m[0][k], m.m[1][k], m.m[2][k]}};
+    if (k < axes) norms *= std::sqrt(c[k][0] * c[k][0] + c[k][1] * c[k][1] + c[k][2] * c[k][2]);
+  }
+  const Vec3 x{{c[0][1] * c[1][2] - c[0][2] * c[1][1], c[0][2] * c[1][0] - c[0][0] * c[1][2],
+                c[0][0] * c[1][1] - c[0][1] * c[1][0]}};
+  const double volume = axes == 2 ? std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+                                  : std::fabs(x[0] * c[2][0] + x[1] * c[2][1] + x[2] * c[2][2]);
+  if (!(norms > 0) || !(volume > 1e-9 * norms))
+    throw InputError(what + ": the matrix is singular (its " +
+                     (axes == 2 ? "pixel x and y columns" : "x, y and z columns") +
+                     " are zero or parallel): the frame would collapse");
 }
 
 }  // namespace compound_impl
@@ -183,7 +197,7 @@ VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, 
   Bounds box;
   for (size_t k = 0; k < image_to_reference.size(); ++k) {
     const Mat4& m = image_to_reference[k];
-    check_matrix(m, "compounding: image-to-reference");
+    check_matrix(m, "compounding: image-to-reference", 2);
     for (double x : xs)
       for (double y : ys) box.add(m.transform_point(Vec3{{x, y, 0.0}}), k);
   }

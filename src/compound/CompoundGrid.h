@@ -27,9 +27,10 @@ uint64_t accumulator_bytes_per_voxel(const CompoundSettings& s);
 void check_fits_in_memory(const VolumeGrid& grid, const CompoundSettings& settings,
                           PixelType output_type, uint64_t max_memory_bytes);
 
-/// InputError naming `what` for a pose with a non-finite element or a last row other than
-/// 0 0 0 1.
-void check_matrix(const Mat4& m, const std::string& what);
+/// InputError naming `what` for a pose with a non-finite element, a last row other than 0 0 0 1,
+/// or axes that collapse the frame: the first `axes` columns (2: an image's pixel x and y; 3: a
+/// probe's x, y and z) zero or linearly dependent.
+void check_matrix(const Mat4& m, const std::string& what, int axes = 3);
 
 }  // namespace compound_impl
 }  // namespace sonoslice

@@ -251,12 +251,15 @@ struct Compounder::Impl {
     return settings.interpolation == Interpolation::Nearest ? 0.5 : 0.0;
   }
 
-  void check_frames(const void* data, int64_t count, const Mat4* matrices, const char* what) const {
+  // `axes`: the matrix columns a frame uses (2: an image's pixel x and y; 3: a probe's axes).
+  void check_frames(const void* data, int64_t count, const Mat4* matrices, const char* what,
+                    int axes) const {
     if (count < 0) throw InputError("compounding: negative frame count");
     if (count > 0 && (!data || !matrices)) throw InputError("compounding: null frame data");
     for (int64_t f = 0; f < count; ++f)
       check_matrix(matrices[f],
-                   std::string("compounding: ") + what + " of frame " + std::to_string(frames + f));
+                   std::string("compounding: ") + what + " of frame " + std::to_string(frames + f),
+                   axes);
   }
 
   // PLUS-exact insertion of `count` 2D frames (PlusExact.cpp), in batches of ~64 frames.
@@ -411,7 +414,7 @@ void Compounder::add_images(const void* pixels, PixelType type, int width, int h
   if (width <= 0 || height <= 0 || int64_t(width) * height > (int64_t(1) << 28))
     throw InputError("compounding: frame size " + std::to_string(width) + "x" +
                      std::to_string(height) + " is not usable");
-  im.check_frames(pixels, count, image_to_reference, "image-to-reference");
+  im.check_frames(pixels, count, image_to_reference, "image-to-reference", 2);
   if (count == 0) return;
   if (im.settings.plus_exact)
     return im.add_plus_exact(pixels, type, width, height, count, image_to_reference, clip);
@@ -436,7 +439,7 @@ void Compounder::add_beams(const void* samples, PixelType type, const BeamGeomet
   geometry.validate("compounding: beam geometry");
   if (im.settings.plus_exact)
     throw InputError("PLUS-exact compounding takes 2D frames, not beam-space frames");
-  im.check_frames(samples, count, probe_to_reference, "probe-to-reference");
+  im.check_frames(samples, count, probe_to_reference, "probe-to-reference", 3);
   if (count == 0) return;
   const int rows = geometry.n_elevation * geometry.n_azimuth, width = geometry.n_samples;
   std::vector<RowSpans> spans(static_cast<size_t>(rows));
