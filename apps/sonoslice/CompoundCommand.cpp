@@ -74,7 +74,11 @@ std::array<int, 4> parse_clip_rect(const std::string& text) {
 
 ReconstructionOptions options_of(const CompoundFlags& f) {
   ReconstructionOptions o;
-  o.names = flag_of;
+  // Messages about the probe name its file too.
+  o.names = [probe = f.probe](const std::string& parameter) {
+    const std::string flag = flag_of(parameter);
+    return parameter == "probe" && !probe.empty() ? flag + " '" + probe + "'" : flag;
+  };
   if (!f.spacing.empty()) o.spacing_mm = parse_spacing(f.spacing);
   if (!f.interp.empty()) o.interpolation = parse_interpolation(f.interp, "--interp");
   if (!f.compounding.empty()) o.mode = parse_compounding_mode(f.compounding);

@@ -726,3 +726,20 @@ def test_absurd_spacing_and_a_broken_transform_are_named(cli, tmp_path):
     assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
     assert "frame 5 at 2.64e+29 mm): a frame's transform is broken" in r.stderr, r.stderr
     assert os.listdir(tmp_path) == ["broken.igs.mha"]
+
+
+def test_a_probe_that_does_not_fit_the_frames_names_both_files(cli, tmp_path):
+    w1 = os.path.join(DATA, "fanslicer", "models_intensity_LUS_config.json")
+    r = subprocess.run([cli, "phantom", str(tmp_path / "ph"), "--poses", "2", "-q"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    frames, poses = tmp_path / "frames.npy", tmp_path / "ph" / "poses.npy"
+    r = subprocess.run([cli, "slice", "--volume", str(tmp_path / "ph" / "ct.nii.gz"), "--probe", w1, "--downsampling",
+                        "4", "--poses", str(poses), "--out", str(frames), "-q"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([cli, "compound", "--frames", str(frames), "--poses", str(poses), "--probe", w1, "--spacing", "1",
+                        "--out", str(tmp_path / "v.nii")], capture_output=True, text=True)
+    assert r.returncode == 1, r.stderr
+    last = r.stderr.splitlines()[-1]
+    assert last == f"sonoslice: error: --probe '{w1}': its mask is 668x544, the frames of '{frames}' are 167x136 " \
+                   "(the probe the frames were sliced with, at the same downsampling)", r.stderr
+    assert not (tmp_path / "v.nii").exists()

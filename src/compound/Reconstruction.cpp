@@ -275,9 +275,13 @@ void Reconstruction::Impl::resolve_settings(const PlusReconstructionConfig* conf
   }
   if (!clip.custom_mask.empty() && source.kind == FrameSource::Kind::Images &&
       clip.custom_mask.size() != source.samples_per_frame())
-    throw InputError(name(o.clip ? "clip" : "probe") +
-                     ": its mask is not the size of the frames (" +
-                     dims_text(source.width, source.height) + ")");
+    throw InputError(
+        name(o.clip ? "clip" : "probe") + ": its mask is " +
+        (o.clip || !source.probe
+             ? std::to_string(clip.custom_mask.size()) + " pixels"
+             : dims_text(source.probe->image.width, source.probe->image.height)) +
+        ", the frames of '" + source.name + "' are " + dims_text(source.width, source.height) +
+        (o.clip ? "" : " (the probe the frames were sliced with, at the same downsampling)"));
 
   output_type = o.output_type ? *o.output_type : default_output_type(source.type);
   if (o.plus_exact) resolve_plus_exact(config, o);
