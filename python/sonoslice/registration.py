@@ -56,6 +56,21 @@ def _report(report) -> dict:
     return out
 
 
+def _frames_and_poses(volume, probe, frames, poses, world: str):
+    """The checked inputs of register and registration_cost: (N, H, W) float32 frames (one (H, W)
+    frame as N = 1) and (N, 4, 4) LPS poses."""
+    if not isinstance(volume, Volume):
+        raise TypeError("volume: expected a sonoslice.Volume")
+    if not isinstance(probe, Probe):
+        raise TypeError("probe: expected a sonoslice.Probe")
+    f = np.ascontiguousarray(_arrays.real_array(frames, "frames"), dtype=np.float32)
+    if f.ndim == 2:
+        f = f[None]
+    if f.ndim != 3:
+        raise ValueError(f"frames: expected (N, H, W), got shape {f.shape}")
+    return f, _arrays.pose_array(poses, world)
+
+
 def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[str] = None,
              optimizer: Optional[str] = None, mode: Optional[str] = None, starts: Optional[int] = None,
              search_rot_deg: Optional[float] = None, search_trans_mm: Optional[float] = None,
@@ -83,16 +98,7 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     s = _settings(settings, dict(metric=metric, optimizer=optimizer, mode=mode, starts=starts,
                                  search_rot_deg=search_rot_deg, search_trans_mm=search_trans_mm, seed=seed,
                                  pyramid=pyramid, smoothness=smoothness))
-    if not isinstance(volume, Volume):
-        raise TypeError("volume: expected a sonoslice.Volume")
-    if not isinstance(probe, Probe):
-        raise TypeError("probe: expected a sonoslice.Probe")
-    f = np.ascontiguousarray(_arrays.real_array(frames, "frames"), dtype=np.float32)
-    if f.ndim == 2:
-        f = f[None]
-    if f.ndim != 3:
-        raise ValueError(f"frames: expected (N, H, W), got shape {f.shape}")
-    p = _arrays.pose_array(poses, world)
+    f, p = _frames_and_poses(volume, probe, frames, poses, world)
     m = None if mask is None else np.ascontiguousarray(_arrays.real_array(mask, "mask") != 0, dtype=np.uint8)
     refined, report = _ext.register_frames(volume._cpp, probe._cpp, f, p, mask=m, settings=s)
     return np.ascontiguousarray(_arrays.pose_to_lps(refined, world)), _report(report)
@@ -105,15 +111,6 @@ def registration_cost(volume: Volume, probe: Probe, frames, poses, *, metric: st
     pyramid ``level`` (a block size: 1 is full resolution). SSD, 1 − NCC, 1 − LNCC, −MI or
     1 − LC2 (docs/registration.md §2); +inf where too few pixels overlap the volume. For looking
     at a metric's landscape: give one frame repeated along a path of poses."""
-    if not isinstance(volume, Volume):
-        raise TypeError("volume: expected a sonoslice.Volume")
-    if not isinstance(probe, Probe):
-        raise TypeError("probe: expected a sonoslice.Probe")
-    f = np.ascontiguousarray(_arrays.real_array(frames, "frames"), dtype=np.float32)
-    if f.ndim == 2:
-        f = f[None]
-    if f.ndim != 3:
-        raise ValueError(f"frames: expected (N, H, W), got shape {f.shape}")
-    p = _arrays.pose_array(poses, world)
+    f, p = _frames_and_poses(volume, probe, frames, poses, world)
     s = _settings(None, dict(metric=metric))
     return np.asarray(_ext.registration_costs(volume._cpp, probe._cpp, f, p, s.metric, int(level)))
