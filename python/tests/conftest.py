@@ -80,3 +80,16 @@ def cuda():
 def small_probe():
     return sonoslice.Probe.curvilinear(radius_mm=20, depth_mm=60, sector_deg=60, width=96, height=80,
                                        spacing_mm=0.8)
+
+
+def assert_each_flag_required(cli, args, flags):
+    """``args`` (a command and its flags) run once without each of ``flags`` (and its value): a usage
+    error each time (exit 2, one line naming the flag and pointing at the command's --help)."""
+    import subprocess
+    for flag in flags:
+        i = args.index(flag)
+        r = subprocess.run([cli, *args[:i], *args[i + 2:]], capture_output=True, encoding="utf-8",
+                           errors="replace", timeout=300)
+        assert r.returncode == 2, (flag, r.returncode, r.stderr)
+        assert r.stderr.count("\n") == 1 and flag + " is required" in r.stderr, r.stderr
+        assert r.stderr.rstrip().endswith(f"see 'sonoslice {args[0]} --help'"), r.stderr

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import sonoslice
+from conftest import assert_each_flag_required
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
@@ -108,12 +109,7 @@ def test_python_errors_name_the_setting():
 def test_missing_required_flags_are_usage_errors(cli, ph, tmp_path):
     full = ["poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
             "--count", "3", "--out", str(tmp_path / "never.npy")]
-    for flag in ("--sampler", "--probe", "--out"):
-        i = full.index(flag)
-        r = run(cli, *full[:i], *full[i + 2:])
-        assert r.returncode == 2, (flag, r.returncode, r.stderr)
-        assert r.stderr.count("\n") == 1 and flag + " is required" in r.stderr, r.stderr
-        assert r.stderr.rstrip().endswith("see 'sonoslice poses --help'"), r.stderr
+    assert_each_flag_required(cli, full, ("--sampler", "--probe", "--out"))
     assert not (tmp_path / "never.npy").exists()
 
 

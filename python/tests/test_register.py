@@ -10,6 +10,8 @@ import subprocess
 import numpy as np
 import pytest
 
+from conftest import assert_each_flag_required
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
 REPORT_KEYS = {"index", "metric", "evaluations", "iterations", "translation_change_mm", "rotation_change_deg",
@@ -189,12 +191,7 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
 
 def test_missing_required_flags_are_usage_errors(cli, case):
     full = base_args(case, "never.npy")
-    for flag in ("--volume", "--probe", "--frames", "--poses", "--out"):
-        i = full.index(flag)
-        r = run(cli, *full[:i], *full[i + 2:])
-        assert r.returncode == 2, (flag, r.returncode, r.stderr)
-        assert r.stderr.count("\n") == 1 and flag + " is required" in r.stderr, r.stderr
-        assert r.stderr.rstrip().endswith("see 'sonoslice register --help'"), r.stderr
+    assert_each_flag_required(cli, full, ("--volume", "--probe", "--frames", "--poses", "--out"))
     assert not (case / "never.npy").exists()
 
 

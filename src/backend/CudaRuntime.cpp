@@ -253,12 +253,8 @@ void download(void* dst, const void* src, size_t bytes, void* stream, PinnedBuff
   auto land = [&](int k) {
     if (!pending[k].n) return;
     travelled[k].synchronize(what);
-    char* to = static_cast<char*>(dst) + pending[k].first;
-    const char* from = static_cast<const char*>(staging[k].data());
-    backend::parallel_for_chunks(int64_t(pending[k].n), int64_t(4) << 20,
-                                 [&](int64_t, int64_t begin, int64_t end) {
-                                   std::memcpy(to + begin, from + begin, size_t(end - begin));
-                                 });
+    backend::parallel_memcpy(static_cast<char*>(dst) + pending[k].first, staging[k].data(),
+                             pending[k].n);
     pending[k].n = 0;
   };
   for (int k = 0; k < 2; ++k) staging[k].reserve(chunk, what + ": pinned staging buffer");

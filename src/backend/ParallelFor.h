@@ -3,7 +3,9 @@
 /// Kernels are functors of per-element SONOSLICE_HOST_DEVICE functions; the CPU threads are the
 /// pool of ThreadPool.h (workers that sleep when idle, so a job shares the machine fairly). The
 /// CUDA backend provides the same entry points as grid-stride kernels (ParallelForCUDA.cuh).
+#include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <type_traits>
 #include <utility>
 
@@ -34,6 +36,16 @@ void parallel_for_chunks(int64_t n, int64_t chunk, const F& f) {
   parallel_for((n + chunk - 1) / chunk, [&](int64_t c) {
     const int64_t begin = c * chunk, end = begin + chunk < n ? begin + chunk : n;
     f(c, begin, end);
+  });
+}
+
+/// memcpy on every CPU thread, in 4 MiB pieces: one thread moves about 10 GB/s, a fraction of
+/// what a GPU copy delivers into (or takes from) page-locked memory.
+inline void parallel_memcpy(void* dst, const void* src, size_t bytes) {
+  char* to = static_cast<char*>(dst);
+  const char* from = static_cast<const char*>(src);
+  parallel_for_chunks(int64_t(bytes), int64_t(4) << 20, [&](int64_t, int64_t begin, int64_t end) {
+    std::memcpy(to + begin, from + begin, size_t(end - begin));
   });
 }
 

@@ -137,14 +137,9 @@ void cuda_slice_to_host(CudaSliceState& st, SliceLaunch l, const std::vector<Pix
   auto drain = [&](int s) {
     if (!pending[s].n) return;
     st.streams[s]->synchronize(st.name + ": slicing");
-    if (!direct) {
-      char* to = static_cast<char*>(host_out) + pending[s].first * ib;
-      const char* from = static_cast<const char*>(st.staging[s].data());
-      backend::parallel_for_chunks(int64_t(pending[s].n * ib), int64_t(4) << 20,
-                                   [&](int64_t, int64_t begin, int64_t end) {
-                                     std::memcpy(to + begin, from + begin, size_t(end - begin));
-                                   });
-    }
+    if (!direct)
+      backend::parallel_memcpy(static_cast<char*>(host_out) + pending[s].first * ib,
+                               st.staging[s].data(), pending[s].n * ib);
     pending[s].n = 0;
   };
   // Two streams alternate: while one chunk's images travel to the host (and are copied into the
