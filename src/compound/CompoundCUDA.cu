@@ -38,7 +38,7 @@ struct FinishVoxels {
   __device__ void operator()(int64_t i) const {
     const int64_t nx = in.g.nx, ny = in.g.ny;
     const int x = int(i % nx), y = int((i / nx) % ny), z = int(i / (nx * ny));
-    out[i] = finished_voxel<T>(in, x, y, z, true);
+    out[i] = finished_voxel<T>(in, x, y, z);
   }
 };
 }  // namespace

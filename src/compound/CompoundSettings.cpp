@@ -71,11 +71,6 @@ HoleFillingKernel::Type parse_hole_filling_type(const std::string& name) {
                    "DISTANCE_WEIGHT_INVERSE or STICK");
 }
 
-int HoleFillingKernel::reach() const {
-  if (type == Stick) return std::max(1, stick_length_limit - 2);
-  return std::max(1, (size - 1) / 2);
-}
-
 void HoleFillingKernel::validate(const std::string& what) const {
   if (type == Stick) {
     if (stick_length_limit < 3 || stick_length_limit > 255)

@@ -1,14 +1,16 @@
 // Finishing a reconstruction on CPU threads: the per-voxel code of FinishImpl.h (values, PLUS's
-// hole filling), with the hole-filling elements set up as PLUS sets them up, and a shortcut that
-// skips holes with no reached voxel within reach.
+// hole filling), with the hole-filling elements set up as PLUS sets them up; only the holes an
+// element may fill (FillCandidates.h) are visited voxel by voxel.
 #include "Finish.h"
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <type_traits>
 
 #include "../backend/Convert.h"
 #include "../backend/ParallelFor.h"
+#include "FillCandidates.h"
 
 namespace sonoslice {
 namespace compound_impl {
@@ -58,60 +60,41 @@ std::vector<float> plus_kernel(const HoleFillingKernel& k) {
   return kernel;
 }
 
-/// Per (y, z) row, the x range [lo, hi] within which a hole may have known voxels within
-/// `reach` voxels: the known range of every row within `reach` in y and z, widened by `reach`.
-/// Holes outside it (most of a big, sparse grid) are skipped without looking at neighbours.
-std::vector<std::pair<int, int>> reachable_ranges(const FinishInput& in, int reach) {
-  const AccumulatorView& g = in.g;
-  const std::pair<int, int> none{1 << 30, -(1 << 30)};
-  std::vector<std::pair<int, int>> rows(size_t(g.ny) * g.nz, none), tmp(rows.size(), none);
-  backend::parallel_for(g.nz, [&](int64_t z) {
-    for (int y = 0; y < g.ny; ++y) {
-      auto& r = rows[size_t(z) * g.ny + y];
-      const int64_t base = g.offset(0, y, int(z));
-      for (int x = 0; x < g.nx; ++x)
-        if (is_known(in, base + x)) {
-          r.first = std::min(r.first, x);
-          r.second = x;
-        }
-    }
-  });
-  const auto merge = [](std::pair<int, int>& a, const std::pair<int, int>& b) {
-    a.first = std::min(a.first, b.first);
-    a.second = std::max(a.second, b.second);
-  };
-  backend::parallel_for(g.nz, [&](int64_t z) {  // along y
-    for (int y = 0; y < g.ny; ++y)
-      for (int d = std::max(0, y - reach); d <= std::min(g.ny - 1, y + reach); ++d)
-        merge(tmp[size_t(z) * g.ny + y], rows[size_t(z) * g.ny + d]);
-  });
-  backend::parallel_for(g.nz, [&](int64_t z) {  // along z
-    for (int y = 0; y < g.ny; ++y) {
-      auto& r = rows[size_t(z) * g.ny + y];
-      r = none;
-      for (int d = std::max<int>(0, int(z) - reach); d <= std::min<int>(g.nz - 1, int(z) + reach);
-           ++d)
-        merge(r, tmp[size_t(d) * g.ny + y]);
-      r.first -= reach;
-      r.second += reach;
-    }
-  });
-  return rows;
-}
-
 template <typename TOut>
-void finish_typed(const FinishInput& in, int reach, TOut* out) {
+void finish_typed(const FinishInput& in, TOut* out) {
   const AccumulatorView& g = in.g;
-  std::vector<std::pair<int, int>> ranges;
-  if (in.element_count > 0) ranges = reachable_ranges(in, reach);
+  if (in.element_count == 0) {
+    backend::parallel_for(g.nz, [&](int64_t z) {
+      for (int y = 0; y < g.ny; ++y) {
+        const int64_t base = g.offset(0, y, int(z));
+        for (int x = 0; x < g.nx; ++x) out[base + x] = finished_voxel<TOut>(in, x, y, int(z));
+      }
+    });
+    return;
+  }
+  // With hole filling: voxel by voxel only where a voxel is known or an element may fill it.
+  const BitVolume known = find_known(in);
+  const FillCandidates candidates = find_fill_candidates(in, known);
   backend::parallel_for(g.nz, [&](int64_t z64) {
     const int z = int(z64);
     for (int y = 0; y < g.ny; ++y) {
-      const std::pair<int, int> range =
-          in.element_count == 0 ? std::pair<int, int>{1, 0} : ranges[size_t(z) * g.ny + y];
       const int64_t base = g.offset(0, y, z);
-      for (int x = 0; x < g.nx; ++x)
-        out[base + x] = finished_voxel<TOut>(in, x, y, z, x >= range.first && x <= range.second);
+      const uint64_t *known_bits = known.row(y, z), *fillable = candidates.any.row(y, z);
+      for (int w = 0; w < known.words; ++w) {
+        const int x0 = 64 * w, x1 = std::min(g.nx, x0 + 64);
+        uint64_t visit = known_bits[w] | fillable[w];
+        if (!visit) {  // 64 holes no element can fill
+          std::fill(out + base + x0, out + base + x1, TOut(0));
+          continue;
+        }
+        for (int x = x0; x < x1; ++x, visit >>= 1)
+          out[base + x] =
+              visit & 1
+                  ? finished_voxel<TOut>(
+                        in, x, y, z,
+                        [&](int e) { return candidates.per_element[size_t(e)].test(x, y, z); })
+                  : TOut(0);
+      }
     }
   });
 }
@@ -139,12 +122,6 @@ FillSetup setup_fill_elements(const std::vector<HoleFillingKernel>& kernels) {
   return setup;
 }
 
-int fill_reach(const std::vector<HoleFillingKernel>& kernels) {
-  int reach = 0;
-  for (const auto& k : kernels) reach = std::max(reach, k.reach());
-  return reach;
-}
-
 void finish_volume(const AccumulatorView& grid, Mode mode,
                    const std::vector<HoleFillingKernel>& kernels, PixelType out_type, void* out) {
   const FillSetup setup = setup_fill_elements(kernels);
@@ -153,10 +130,9 @@ void finish_volume(const AccumulatorView& grid, Mode mode,
   in.mode = mode;
   in.elements = setup.elements.data();
   in.element_count = int(setup.elements.size());
-  const int reach = fill_reach(kernels);
   visit_pixel_type(out_type, [&](auto zero) {
     using T = decltype(zero);
-    finish_typed<T>(in, reach, static_cast<T*>(out));
+    finish_typed<T>(in, static_cast<T*>(out));
   });
 }
 

@@ -21,9 +21,6 @@ struct FillSetup {
 };
 FillSetup setup_fill_elements(const std::vector<HoleFillingKernel>& kernels);
 
-/// The farthest voxel (along an axis) any of these elements reads around a hole.
-int fill_reach(const std::vector<HoleFillingKernel>& kernels);
-
 /// Writes every voxel of `out` (type `out_type`, x fastest): the compounded value where samples
 /// arrived (rounded and saturated), the first hole-filling element that can fill the voxel
 /// elsewhere (when `kernels` is not empty), 0 otherwise. Parallel over z, deterministic.

@@ -44,12 +44,20 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE double plus_accumulation(float w) {
   return a < 65535.0 ? a : 65535.0;
 }
 
-/// Whether voxel i was reached. With hole filling, exactly when PLUS's accumulation buffer would
-/// not be 0 there: a voxel reached only by linear splat weights summing to less than 1/512 is a
-/// hole.
+/// Whether a voxel of splat weight w was reached, with hole filling: exactly when PLUS's
+/// accumulation buffer would not be 0 there, plus_accumulation(w) != 0, so a voxel reached only
+/// by linear splat weights summing to less than 1/512 is a hole. Written without floor (a library
+/// call on the CPU's baseline ISA) and in float, so that it vectorises: floor(256·w + 0.5) is 0
+/// exactly when −1/512 <= w < 1/512 (256·w and the sum are exact in double for a float w; NaN:
+/// known, as floor(NaN) != 0).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool reached_for_filling(float w) {
+  return !(w >= -0x1p-9f && w < 0x1p-9f);
+}
+
+/// Whether voxel i was reached (without hole filling: any weight at all).
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool is_known(const FinishInput& in, int64_t i) {
   const float w = in.g.cells[i].weight;
-  return in.element_count > 0 ? plus_accumulation(w) != 0 : w > 0.f;
+  return in.element_count > 0 ? reached_for_filling(w) : w > 0.f;
 }
 
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE double known_value(const FinishInput& in, int64_t i) {
@@ -72,16 +80,21 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE double as_output_type(double v) {
 template <typename F>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int for_known_in_cube(const FinishInput& in, int x, int y,
                                                              int z, int range, F&& f) {
+  const AccumulatorView& g = in.g;
+  const int x0 = x - range < 0 ? 0 : x - range, x1 = x + range < g.nx ? x + range : g.nx - 1;
+  const int y0 = y - range < 0 ? 0 : y - range, y1 = y + range < g.ny ? y + range : g.ny - 1;
+  const int z0 = z - range < 0 ? 0 : z - range, z1 = z + range < g.nz ? z + range : g.nz - 1;
+  const int64_t slice = int64_t(g.nx) * g.ny;
   int known = 0;
-  for (int xx = x - range; xx <= x + range; ++xx)
-    for (int yy = y - range; yy <= y + range; ++yy)
-      for (int zz = z - range; zz <= z + range; ++zz) {
-        if (!in.g.contains(xx, yy, zz)) continue;
-        const int64_t i = in.g.offset(xx, yy, zz);
+  for (int xx = x0; xx <= x1; ++xx)
+    for (int yy = y0; yy <= y1; ++yy) {
+      int64_t i = g.offset(xx, yy, z0);
+      for (int zz = z0; zz <= z1; ++zz, i += slice) {
         if (!is_known(in, i)) continue;
         ++known;
         f(i, xx - (x - range), yy - (y - range), zz - (z - range));
       }
+    }
   return known;
 }
 
@@ -129,19 +142,25 @@ SONOSLICE_HOST_DEVICE bool fill_nearest(const FinishInput& in, const FillElement
   return false;
 }
 
+/// PLUS's 13 stick directions, in PLUS's order.
+constexpr int kStickDirections = 13;
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void stick_direction(int s, int* d) {
+  constexpr int kDirections[kStickDirections][3] = {
+      {1, 0, 0},  {0, 1, 0},  {0, 0, 1}, {1, 1, 0},  {1, 0, 1},  {0, 1, 1},  {1, -1, 0},
+      {1, 0, -1}, {0, 1, -1}, {1, 1, 1}, {-1, 1, 1}, {1, -1, 1}, {-1, -1, 1}};
+  d[0] = kDirections[s][0];
+  d[1] = kDirections[s][1];
+  d[2] = kDirections[s][2];
+}
+
 /// Walks from (x, y, z) along d for at most `limit` steps; the steps to the first known voxel
 /// (0: none before the limit or the grid's edge).
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int walk_to_known(const FinishInput& in, int x, int y, int z,
-                                                         int dx, int dy, int dz, int limit,
-                                                         int64_t* found) {
+                                                         const int* d, int sign, int limit) {
   for (int j = 1; j <= limit; ++j) {
-    const int px = x + j * dx, py = y + j * dy, pz = z + j * dz;
+    const int px = x + sign * j * d[0], py = y + sign * j * d[1], pz = z + sign * j * d[2];
     if (!in.g.contains(px, py, pz)) return 0;
-    const int64_t i = in.g.offset(px, py, pz);
-    if (is_known(in, i)) {
-      *found = i;
-      return j;
-    }
+    if (is_known(in, in.g.offset(px, py, pz))) return j;
   }
   return 0;
 }
@@ -152,41 +171,47 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int walk_to_known(const FinishInput& in, 
 /// (back + 1) / (forward + back + 1), PLUS's formula (not the linear interpolation
 /// back / (forward + back) it approximates), converted to the output type; its score is
 /// 1 / ((forward + back + 1) · |d|). The best scores are taken until sticks_to_use are used,
-/// every stick tied at a taken score with it, and averaged weighted by score.
+/// every stick tied at a taken score with it, and averaged weighted by score (a stick's value is
+/// computed only when it is taken).
 template <typename T>
 SONOSLICE_HOST_DEVICE bool fill_stick(const FinishInput& in, const FillElement& e, int x, int y,
                                       int z, double* result) {
-  constexpr int kDirections[13][3] = {{1, 0, 0},  {0, 1, 0},  {0, 0, 1},  {1, 1, 0},  {1, 0, 1},
-                                      {0, 1, 1},  {1, -1, 0}, {1, 0, -1}, {0, 1, -1}, {1, 1, 1},
-                                      {-1, 1, 1}, {1, -1, 1}, {-1, -1, 1}};
-  double value[13], score[13];
   const int limit = e.stick_length_limit;
-  for (int s = 0; s < 13; ++s) {
+  double score[kStickDirections];
+  int forward[kStickDirections], back[kStickDirections];
+  for (int s = 0; s < kStickDirections; ++s) {
     score[s] = 0;
-    value[s] = 0;
-    const int* d = kDirections[s];
-    int64_t fwd_i = 0, back_i = 0;
-    const int fwd = walk_to_known(in, x, y, z, d[0], d[1], d[2], limit - 1, &fwd_i);
-    if (fwd == 0) continue;
-    const int back = walk_to_known(in, x, y, z, -d[0], -d[1], -d[2], limit - 1 - fwd, &back_i);
-    if (back == 0) continue;
-    const double total = double(fwd + back + 1);
-    const double weight_fwd = double(back + 1) / total;
-    const double weight_back = 1.0 - weight_fwd;
-    score[s] = 1.0 / (total * sqrt(double(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])));
-    value[s] = as_output_type<T>(weight_back * known_value(in, back_i) +
-                                 weight_fwd * known_value(in, fwd_i));
+    int d[3];
+    stick_direction(s, d);
+    const int f = forward[s] = walk_to_known(in, x, y, z, d, 1, limit - 1);
+    if (f == 0) continue;
+    const int b = back[s] = walk_to_known(in, x, y, z, d, -1, limit - 1 - f);
+    if (b == 0) continue;
+    score[s] = 1.0 / (double(f + b + 1) * sqrt(double(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])));
   }
+  // A taken stick's value: its ends' values weighed as PLUS does, in the output type.
+  const auto value = [&](int s) {
+    int d[3];
+    stick_direction(s, d);
+    const int f = forward[s], b = back[s];
+    const double total = double(f + b + 1);
+    const double weight_fwd = double(b + 1) / total;
+    const double weight_back = 1.0 - weight_fwd;
+    const int64_t fwd_i = in.g.offset(x + f * d[0], y + f * d[1], z + f * d[2]);
+    const int64_t back_i = in.g.offset(x - b * d[0], y - b * d[1], z - b * d[2]);
+    return as_output_type<T>(weight_back * known_value(in, back_i) +
+                             weight_fwd * known_value(in, fwd_i));
+  };
   double sum = 0, wsum = 0;
   int used = 0;
   while (used < e.sticks_to_use) {
     double best = 0;
-    for (int s = 0; s < 13; ++s)
+    for (int s = 0; s < kStickDirections; ++s)
       if (score[s] > best) best = score[s];
     if (best == 0) break;
-    for (int s = 0; s < 13; ++s)
+    for (int s = 0; s < kStickDirections; ++s)
       if (score[s] == best) {
-        sum += value[s] * score[s];
+        sum += value(s) * score[s];
         wsum += score[s];
         ++used;
         score[s] = 0;
@@ -216,19 +241,27 @@ SONOSLICE_HOST_DEVICE bool fill(const FinishInput& in, const FillElement& e, int
 /// Voxel (x, y, z) of the finished volume: its own value where samples reached it (rounded to
 /// nearest for integer outputs), else the first element that can fill it (already in the output
 /// type, as PLUS's casts give it), else 0 (PLUS writes 0 where no element fills).
-/// `may_fill`: false where no known voxel is within reach (the CPU driver's shortcut).
-template <typename T>
+/// `may_fill(k)`: false where element k cannot fill this hole, so it need not be tried (the CPU
+/// driver's shortcut: no known voxel within the element's reach).
+template <typename T, typename MayFill>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T finished_voxel(const FinishInput& in, int x, int y, int z,
-                                                        bool may_fill) {
+                                                        const MayFill& may_fill) {
   const int64_t i = in.g.offset(x, y, z);
   double v = 0;
   if (is_known(in, i)) {
     v = known_value(in, i);
-  } else if (may_fill) {
+  } else {
     for (int k = 0; k < in.element_count; ++k)
-      if (fill<T>(in, in.elements[k], x, y, z, &v)) break;
+      if (may_fill(k) && fill<T>(in, in.elements[k], x, y, z, &v)) break;
   }
   return backend::saturate_cast<T>(v);
+}
+
+/// The same, every element tried.
+template <typename T>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T finished_voxel(const FinishInput& in, int x, int y,
+                                                        int z) {
+  return finished_voxel<T>(in, x, y, z, [](int) { return true; });
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

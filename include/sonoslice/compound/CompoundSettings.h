@@ -40,8 +40,6 @@ struct HoleFillingKernel {
   double minimum_known_ratio = 0.5;
   int stick_length_limit = 9;  ///< Stick: the longest stick, in voxels, ends included
   int sticks_to_use = 1;       ///< Stick: how many of the shortest sticks are averaged
-  /// The farthest voxel (in voxels along an axis) this element reads around a hole.
-  int reach() const;
   void validate(const std::string& what) const;
 };
 /// "nearest_neighbor", "gaussian", "gaussian_accumulation", "distance_weight_inverse", "stick".
