@@ -9,6 +9,8 @@
 #endif
 #include <immintrin.h>
 
+#include <cstring>
+
 #include <cstdint>
 #include <limits>
 #include <type_traits>
@@ -89,6 +91,73 @@ inline void add_interleaved(Vec8f a, Vec8f b, float* d01, float* d23, float* d45
   _mm_storeu_ps(d23, _mm_add_ps(_mm_loadu_ps(d23), _mm256_castps256_ps128(hi)));
   _mm_storeu_ps(d45, _mm_add_ps(_mm_loadu_ps(d45), _mm256_extractf128_ps(lo, 1)));
   _mm_storeu_ps(d67, _mm_add_ps(_mm_loadu_ps(d67), _mm256_extractf128_ps(hi, 1)));
+}
+
+/// Pairs as add_interleaved, for running maxima: the first of each pair becomes the larger of the
+/// two (a > d ? a : d, as a scalar maximum writes it) and the second the sum.
+inline void max_add_interleaved(Vec8f a, Vec8f b, float* d01, float* d23, float* d45, float* d67) {
+  const __m256 lo = _mm256_unpacklo_ps(a.v, b.v);  // lanes 0 1 | 4 5
+  const __m256 hi = _mm256_unpackhi_ps(a.v, b.v);  // lanes 2 3 | 6 7
+  const auto update = [](float* d, __m128 x) {
+    const __m128 old = _mm_loadu_ps(d);
+    _mm_storeu_ps(d, _mm_blend_ps(_mm_max_ps(x, old), _mm_add_ps(old, x), 0xA));
+  };
+  update(d01, _mm256_castps256_ps128(lo));
+  update(d23, _mm256_castps256_ps128(hi));
+  update(d45, _mm256_extractf128_ps(lo, 1));
+  update(d67, _mm256_extractf128_ps(hi, 1));
+}
+
+/// Latest mode's add_interleaved: lane k of a (value) and b (weight) goes to the pair at d_k as
+/// there, but where the voxel's stamp (int32 per voxel, at the same offsets from s01 as d_k from
+/// d01, in voxels) is not `frame` and b's lane is > 0, the pair is first cleared to +0 and the
+/// stamp set to frame: the voxel's first write by this frame replaces older frames' samples.
+SONOSLICE_INLINE void restart_add_interleaved(Vec8f a, Vec8f b, int32_t frame, float* d01,
+                                              float* d23, float* d45, float* d67, int32_t* s01,
+                                              int32_t* s23, int32_t* s45, int32_t* s67) {
+  const auto pair = [](const int32_t* p) {
+    int64_t v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  };
+  const __m256i stamps = _mm256_setr_epi64x(pair(s01), pair(s23), pair(s45), pair(s67));
+  const __m256i now = _mm256_set1_epi32(frame);
+  const __m256i touched = _mm256_castps_si256(_mm256_cmp_ps(b.v, _mm256_setzero_ps(), _CMP_GT_OQ));
+  const __m256i restart = _mm256_andnot_si256(_mm256_cmpeq_epi32(stamps, now), touched);
+  const __m256i updated = _mm256_blendv_epi8(stamps, now, touched);
+  alignas(32) int64_t out[4];
+  _mm256_store_si256(reinterpret_cast<__m256i*>(out), updated);
+  std::memcpy(s01, &out[0], 8);
+  std::memcpy(s23, &out[1], 8);
+  std::memcpy(s45, &out[2], 8);
+  std::memcpy(s67, &out[3], 8);
+  // Lane k's mask for both floats of pair k, in add_interleaved's unpacked order.
+  const __m256 r = _mm256_castsi256_ps(restart);
+  const __m256 rlo = _mm256_unpacklo_ps(r, r), rhi = _mm256_unpackhi_ps(r, r);
+  const __m256 lo = _mm256_unpacklo_ps(a.v, b.v), hi = _mm256_unpackhi_ps(a.v, b.v);
+  const auto update = [](float* d, __m128 x, __m128 clear) {
+    _mm_storeu_ps(d, _mm_add_ps(_mm_andnot_ps(clear, _mm_loadu_ps(d)), x));
+  };
+  update(d01, _mm256_castps256_ps128(lo), _mm256_castps256_ps128(rlo));
+  update(d23, _mm256_castps256_ps128(hi), _mm256_castps256_ps128(rhi));
+  update(d45, _mm256_extractf128_ps(lo, 1), _mm256_extractf128_ps(rlo, 1));
+  update(d67, _mm256_extractf128_ps(hi, 1), _mm256_extractf128_ps(rhi, 1));
+}
+
+/// a > b ? a : b per lane (NaN in b: b; in a: b).
+inline Vec8f maximum(Vec8f a, Vec8f b) {
+  return _mm256_max_ps(a.v, b.v);
+}
+/// All ones in the lanes where x >= t, zero elsewhere.
+inline Vec8f lanes_at_least(Vec8f x, float t) {
+  return _mm256_cmp_ps(x.v, _mm256_set1_ps(t), _CMP_GE_OQ);
+}
+/// a where the mask's lane is all ones, b where it is zero.
+inline Vec8f select(Vec8f mask, Vec8f a, Vec8f b) {
+  return _mm256_blendv_ps(b.v, a.v, mask.v);
+}
+inline Vec8f operator&(Vec8f a, Vec8f b) {
+  return _mm256_and_ps(a.v, b.v);
 }
 
 struct Vec8i {
@@ -199,6 +268,10 @@ inline void store_mask(Vec8i mask, float* p) {
 /// v where the mask `*bits` (from store_mask) is all ones, +0 where it is zero (every lane alike).
 inline Vec8f keep_if(Vec8f v, const float* bits) {
   return _mm256_and_ps(v.v, _mm256_broadcast_ss(bits));
+}
+/// v where the mask `*bits` is all ones, `other` where it is zero (every lane alike).
+inline Vec8f keep_or(Vec8f v, const float* bits, float other) {
+  return _mm256_blendv_ps(_mm256_set1_ps(other), v.v, _mm256_broadcast_ss(bits));
 }
 
 /// Lanes of x where the float lane k is at least t (all bits), zero elsewhere.

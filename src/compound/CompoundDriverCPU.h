@@ -283,7 +283,8 @@ struct CornerSums {
       w[k] = weight[k];
     }
   }
-  /// Mean mode, every corner inside: adds the sums to the cell whose lower corner is `base`.
+  /// Mean and latest modes, every corner inside: adds the sums to the cell whose lower corner is
+  /// `base` (a corner of weight 0 adds +0, which changes no accumulator: they never hold -0).
   SONOSLICE_INLINE void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
     for (int k = 0; k < 8; ++k) {
       Accumulator& a = base[(k >> 2) * sz + ((k >> 1) & 1) * sy + (k & 1)];
@@ -291,9 +292,42 @@ struct CornerSums {
       a.weight += weight[k];
     }
   }
+  /// Latest mode, every corner inside: add_to, each corner this frame reaches first restarted
+  /// (restart_for_frame; `stamp`: the stamp of the cell's lower corner).
+  SONOSLICE_INLINE void restart_add_to(Accumulator* base, int32_t* stamp, int64_t sy, int64_t sz,
+                                       int32_t frame) const {
+    for (int k = 0; k < 8; ++k) {
+      const int64_t o = (k >> 2) * sz + ((k >> 1) & 1) * sy + (k & 1);
+      if (weight[k] > 0.f && stamp[o] != frame) {
+        stamp[o] = frame;
+        base[o].value = 0.f;
+        base[o].weight = 0.f;
+      }
+    }
+    add_to(base, sy, sz);
+  }
+  /// Max mode, every corner inside: merges the maxima into that cell (a corner of weight 0 holds
+  /// -inf and adds weight 0: no change).
+  SONOSLICE_INLINE void merge_to(Accumulator* base, int64_t sy, int64_t sz) const {
+    for (int k = 0; k < 8; ++k) {
+      Accumulator& a = base[(k >> 2) * sz + ((k >> 1) & 1) * sy + (k & 1)];
+      a.value = merged<M>(a.value, value[k]);
+      a.weight += weight[k];
+    }
+  }
 };
 
 #if defined(SONOSLICE_COMPOUND_AVX2)
+/// The eight corners' weights of a sample with fractions (x, y, z) (every lane the same):
+/// corner_weight's products, lane k for corner k.
+SONOSLICE_INLINE backend::Vec8f corner_weights(backend::Vec8f x, backend::Vec8f y,
+                                               backend::Vec8f z) {
+  using backend::blend;
+  const backend::Vec8f one(1.f);
+  // Lane k takes f where bit (0, 1, 2) of k is set, 1 - f elsewhere.
+  return cell_weight(blend<0xAA>(one - x, x), blend<0xCC>(one - y, y), blend<0xF0>(one - z, z));
+}
+
 /// The eight corners in one AVX register (mean and latest).
 template <Mode M>
 struct CornerSums<M, true> {
@@ -302,17 +336,9 @@ struct CornerSums<M, true> {
     value = backend::Vec8f(0.f);
     weight = backend::Vec8f(0.f);
   }
-  /// The eight corners' weights of a sample with fractions (x, y, z) (every lane the same).
-  static SONOSLICE_INLINE backend::Vec8f weights(backend::Vec8f x, backend::Vec8f y,
-                                                 backend::Vec8f z) {
-    using backend::blend;
-    const backend::Vec8f one(1.f);
-    // Lane k takes f where bit (0, 1, 2) of k is set, 1 - f elsewhere.
-    return cell_weight(blend<0xAA>(one - x, x), blend<0xCC>(one - y, y), blend<0xF0>(one - z, z));
-  }
   SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
     using backend::Vec8f;
-    const Vec8f w = weights(Vec8f(fx), Vec8f(fy), Vec8f(fz));
+    const Vec8f w = corner_weights(Vec8f(fx), Vec8f(fy), Vec8f(fz));
     value = value + w * Vec8f(s);
     weight = weight + w;
   }
@@ -324,6 +350,41 @@ struct CornerSums<M, true> {
     // (value, weight) of corners 2j and 2j+1 are adjacent in memory: four 16-byte updates.
     backend::add_interleaved(value, weight, &base[0].value, &base[sy].value, &base[sz].value,
                              &base[sy + sz].value);
+  }
+  SONOSLICE_INLINE void restart_add_to(Accumulator* base, int32_t* stamp, int64_t sy, int64_t sz,
+                                       int32_t frame) const {
+    backend::restart_add_interleaved(value, weight, frame, &base[0].value, &base[sy].value,
+                                     &base[sz].value, &base[sy + sz].value, stamp, stamp + sy,
+                                     stamp + sz, stamp + sy + sz);
+  }
+};
+
+/// The eight corners' maxima and weights in one AVX register (max mode): gather<Max> per lane.
+template <>
+struct CornerSums<Mode::Max, false> {
+  backend::Vec8f value, weight;
+  SONOSLICE_INLINE void reset() {
+    value = backend::Vec8f(empty_value(Mode::Max));
+    weight = backend::Vec8f(0.f);
+  }
+  /// Lanes whose weight w counts for the maximum take max(s, value) and add w.
+  SONOSLICE_INLINE void gather(backend::Vec8f w, float s) {
+    using backend::Vec8f;
+    const Vec8f counted = backend::lanes_at_least(w, kMaxModeMinimumWeight);
+    value = backend::select(counted, backend::maximum(Vec8f(s), value), value);
+    weight = weight + (w & counted);
+  }
+  SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
+    using backend::Vec8f;
+    gather(corner_weights(Vec8f(fx), Vec8f(fy), Vec8f(fz)), s);
+  }
+  SONOSLICE_INLINE void get(float* v, float* w) const {
+    value.store(v);
+    weight.store(w);
+  }
+  SONOSLICE_INLINE void merge_to(Accumulator* base, int64_t sy, int64_t sz) const {
+    backend::max_add_interleaved(value, weight, &base[0].value, &base[sy].value, &base[sz].value,
+                                 &base[sy + sz].value);
   }
 };
 #endif
@@ -399,6 +460,13 @@ SONOSLICE_INLINE int splat_runs_linear(const AccumulatorView& g, const RowLine& 
         __builtin_prefetch(base + sy, 1);
         __builtin_prefetch(base + sz, 1);
         __builtin_prefetch(base + sy + sz, 1);
+        if constexpr (M == Mode::Latest) {  // and the voxels' frame stamps
+          const int32_t* stamp = g.stamp + g.offset(x, y, z);
+          __builtin_prefetch(stamp, 1);
+          __builtin_prefetch(stamp + sy, 1);
+          __builtin_prefetch(stamp + sz, 1);
+          __builtin_prefetch(stamp + sy + sz, 1);
+        }
       }
       // same is -1 or 0, so same + 1 counts the runs that start.
       const Vec8i r = backend::inclusive_sums(same + 1, runs);
@@ -410,8 +478,16 @@ SONOSLICE_INLINE int splat_runs_linear(const AccumulatorView& g, const RowLine& 
     weight.store(run_weight[0]);
     for (int l = 0; l < n; ++l) {
       const Vec8f w = backend::broadcast_quad(wxy[l]) * backend::halves(wz[0] + l, wz[1] + l);
-      value = backend::keep_if(value, continues + l) + w * Vec8f(samples[l]);
-      weight = backend::keep_if(weight, continues + l) + w;
+      if constexpr (M == Mode::Max) {  // CornerSums<Max>::gather, restarted where a run starts
+        value = backend::keep_or(value, continues + l, empty_value(M));
+        weight = backend::keep_if(weight, continues + l);
+        const Vec8f counted = backend::lanes_at_least(w, kMaxModeMinimumWeight);
+        value = backend::select(counted, backend::maximum(Vec8f(samples[l]), value), value);
+        weight = weight + (w & counted);
+      } else {
+        value = backend::keep_if(value, continues + l) + w * Vec8f(samples[l]);
+        weight = backend::keep_if(weight, continues + l) + w;
+      }
       value.store(run_value[run_of[l]]);
       weight.store(run_weight[run_of[l]]);
     }
@@ -460,13 +536,21 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
   const auto flush = [&] {
     if (cell[0] == std::numeric_limits<int>::min()) return;
     const int ca = Axis == 0 ? cell[0] : (Axis == 1 ? cell[1] : cell[2]);
-    if (M == Mode::Mean && cell[0] >= 0 && cell[1] >= 0 && cell[2] >= 0 && cell[0] + 1 < g.nx &&
-        cell[1] + 1 < g.ny && cell[2] + 1 < g.nz && ca >= slab.lo && ca + 1 < slab.hi) {
-      // All eight corners are ours (zero weights add nothing).
-      sums.add_to(g.cells + g.offset(cell[0], cell[1], cell[2]), sy, sz);
+    float value[8], weight[8];
+    if (cell[0] >= 0 && cell[1] >= 0 && cell[2] >= 0 && cell[0] + 1 < g.nx && cell[1] + 1 < g.ny &&
+        cell[2] + 1 < g.nz && ca >= slab.lo && ca + 1 < slab.hi) {
+      // All eight corners are ours (zero weights change nothing).
+      Accumulator* base = g.cells + g.offset(cell[0], cell[1], cell[2]);
+      if constexpr (M == Mode::Max) {
+        sums.merge_to(base, sy, sz);
+      } else {
+        if constexpr (M == Mode::Latest)  // this frame's first write restarts a voxel
+          sums.restart_add_to(base, g.stamp + g.offset(cell[0], cell[1], cell[2]), sy, sz, frame);
+        else
+          sums.add_to(base, sy, sz);
+      }
       return;
     }
-    float value[8], weight[8];
     sums.get(value, weight);
     for (int k = 0; k < 8; ++k) {
       const int x = cell[0] + (k & 1), y = cell[1] + ((k >> 1) & 1), z = cell[2] + (k >> 2);
@@ -507,7 +591,7 @@ void splat_row_linear(const AccumulatorView& g, const Slab& slab, const RowLine&
     using backend::Vec8f;
     const Vec8f c0[3] = {Vec8f(L.c0[0]), Vec8f(L.c0[1]), Vec8f(L.c0[2])};
     const Vec8f d[3] = {Vec8f(L.dc[0]), Vec8f(L.dc[1]), Vec8f(L.dc[2])};
-    if constexpr (M != Mode::Max) {
+    {
       const int64_t keys = (int64_t(g.nx) + 2) * (int64_t(g.ny) + 2) * (int64_t(g.nz) + 2);
       const bool keep_all = !(float(std::numeric_limits<T>::lowest()) < threshold);
       if (keep_all && keys < (int64_t(1) << 31))
