@@ -7,6 +7,7 @@
 #include <utility>
 
 #include "../backend/ParallelFor.h"
+#include "sonoslice/backend/Device.h"
 
 namespace sonoslice {
 namespace compound_impl {
@@ -116,24 +117,39 @@ void any_within(const BitVolume& known, const int* d, int k, BitVolume& power, B
 
 /// The holes a stick of at most `limit` voxels may fill: along some direction d a known voxel
 /// within L − 1 steps forward (A_L−1 along d) and one within L − 2 steps backward (A_L−2 along
-/// −d).
+/// −d). The 13 directions are shared among a few tasks, each running its directions' passes on
+/// one thread with its own buffers: a pass over a small grid is too short to share among threads
+/// (waking them cost more than the pass), and a few tasks bound the buffers' memory.
 BitVolume stick_candidates(const BitVolume& known, int limit) {
   const std::vector<uint64_t> mask = data_words(known);
-  BitVolume holes = like(known), power = like(known), half = like(known), forward = like(known);
   const int longest = std::max({known.nx, known.ny, known.nz});  // farther is outside the grid
   const int m = std::min(limit - 1, longest), n = std::min(limit - 2, longest);
-  if (n < 1) return holes;  // no stick fits
-  const uint64_t *F = forward.slice(0), *H = holes.slice(0);
-  for (int s = 0; s < kStickDirections; ++s) {
-    int d[3], minus_d[3];
-    stick_direction(s, d);
-    for (int a = 0; a < 3; ++a) minus_d[a] = -d[a];
-    any_within(known, d, m, power, half, forward, mask, [](size_t, uint64_t a) { return a; });
-    // holes(p) |= forward(p) & A_n(p) along −d
-    any_within(known, minus_d, n, power, half, holes, mask,
-               [F, H](size_t g, uint64_t back) { return H[g] | (F[g] & back); });
-  }
-  return holes;
+  const int tasks = std::max(1, std::min({cpu_threads(), kStickDirections, 4}));
+  std::vector<BitVolume> holes(size_t(tasks), like(known));
+  if (n < 1) return std::move(holes[0]);  // no stick fits
+  backend::parallel_for(tasks, [&](int64_t t) {
+    BitVolume power = like(known), half = like(known), forward = like(known);
+    BitVolume& mine = holes[size_t(t)];
+    const uint64_t *F = forward.slice(0), *H = mine.slice(0);
+    for (int s = int(t); s < kStickDirections; s += tasks) {  // the passes run on this thread
+      int d[3], minus_d[3];
+      stick_direction(s, d);
+      for (int a = 0; a < 3; ++a) minus_d[a] = -d[a];
+      any_within(known, d, m, power, half, forward, mask, [](size_t, uint64_t a) { return a; });
+      // holes(p) |= forward(p) & A_n(p) along −d
+      any_within(known, minus_d, n, power, half, mine, mask,
+                 [F, H](size_t g, uint64_t back) { return H[g] | (F[g] & back); });
+    }
+  });
+  uint64_t* all = holes[0].slice(0);
+  backend::parallel_for(known.nz, [&](int64_t z) {
+    const size_t words = known.slice_words(), base = size_t(z) * words;
+    for (int t = 1; t < tasks; ++t) {
+      const uint64_t* other = holes[size_t(t)].slice(0);
+      for (size_t g = base; g < base + words; ++g) all[g] |= other[g];
+    }
+  });
+  return std::move(holes[0]);
 }
 
 BitVolume cube_candidates(const BitVolume& known, int range) {
