@@ -77,6 +77,18 @@ std::function<double(int64_t)> voxel_reader(const Volume& v) {
   });
 }
 
+/// f(i, double(voxel i)) for the voxels of z-slice z, the pixel type dispatched once (not per
+/// voxel, as `read` does).
+template <typename F>
+void for_slice_values(const Volume& v, int64_t z, F&& f) {
+  const int64_t slice = v.grid().dims[0] * v.grid().dims[1];
+  visit_pixel_type(v.pixel_type(), [&](auto zero) {
+    using T = decltype(zero);
+    const T* data = v.data_as<T>();
+    for (int64_t i = z * slice; i < (z + 1) * slice; ++i) f(i, double(data[i]));
+  });
+}
+
 /// A volume read as double at any pixel type, with its world → index map kept (VolumeGrid
 /// computes it by inverting).
 struct VoxelSource {
@@ -303,8 +315,8 @@ void PoseSampler::State::build_skin() {
   const int64_t nx = g.dims[0], ny = g.dims[1], nz = g.dims[2], n = g.voxel_count();
   std::vector<uint8_t> body(size_t(n), 0);
   backend::parallel_for(nz, [&](int64_t z) {
-    for (int64_t i = z * nx * ny; i < (z + 1) * nx * ny; ++i)
-      body[size_t(i)] = ct.read(i) > s.threshold_hu ? 1 : 0;
+    for_slice_values(ct.volume, z,
+                     [&](int64_t i, double v) { body[size_t(i)] = v > s.threshold_hu ? 1 : 0; });
   });
   keep_largest_component(body, g.dims.data());
   fill_cavities(body, g.dims.data());  // lungs and bowel gas are inside, not skin
@@ -332,17 +344,31 @@ void PoseSampler::State::build_skin() {
   const double h = std::max({g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]});
   std::vector<uint8_t> soft(static_cast<size_t>(n));  // 0..255
   backend::parallel_for(nz, [&](int64_t z) {
-    for (int64_t j = z * nx * ny; j < (z + 1) * nx * ny; ++j) {
-      const double v = ct.read(j);
+    for_slice_values(ct.volume, z, [&](int64_t j, double v) {
       const double ramp = std::min(1.0, std::max(0.0, (v - s.threshold_hu) / 1000 + 0.5));
       const double f =
           body[size_t(j)] ? (v > s.threshold_hu ? ramp : 1.0) : (v > s.threshold_hu ? 0.0 : ramp);
       soft[size_t(j)] = uint8_t(255 * f + 0.5);
-    }
+    });
   });
   constexpr int r = 4;  // σ = 1.5 voxels, cut at 2.7σ
   double weight[2 * r + 1];
   for (int d = -r; d <= r; ++d) weight[d + r] = std::exp(-0.5 * d * d / (1.5 * 1.5));
+  // The 9³ taps once, in the order they are summed: weight (wx·wy)·wz, world offset, and flat
+  // index offset (the same products per voxel as computing them in the loop, so the same bits).
+  struct Tap {
+    int dx, dy, dz;
+    int64_t offset;
+    double w;
+    Vec3 o;
+  };
+  std::vector<Tap> taps;
+  for (int dz = -r; dz <= r; ++dz)
+    for (int dy = -r; dy <= r; ++dy)
+      for (int dx = -r; dx <= r; ++dx)
+        taps.push_back(
+            {dx, dy, dz, (dz * ny + dy) * nx + dx, weight[dx + r] * weight[dy + r] * weight[dz + r],
+             g.direction * Vec3{dx * g.spacing_mm[0], dy * g.spacing_mm[1], dz * g.spacing_mm[2]}});
   std::vector<Vec3> point(surface.size()), normal(surface.size());
   std::vector<uint8_t> ok(surface.size(), 0);
   backend::parallel_for_chunks(int64_t(surface.size()), 256, [&](int64_t, int64_t b, int64_t e) {
@@ -350,17 +376,16 @@ void PoseSampler::State::build_skin() {
       const int64_t i = surface[size_t(k)];
       const int64_t x = i % nx, y = (i / nx) % ny, z = i / (nx * ny);
       Vec3 sum{0, 0, 0};
-      for (int dz = -r; dz <= r; ++dz)
-        for (int dy = -r; dy <= r; ++dy)
-          for (int dx = -r; dx <= r; ++dx) {
-            const int64_t xx = x + dx, yy = y + dy, zz = z + dz;
-            if (xx < 0 || yy < 0 || zz < 0 || xx >= nx || yy >= ny || zz >= nz) continue;
-            const double w = weight[dx + r] * weight[dy + r] * weight[dz + r] *
-                             soft[size_t((zz * ny + yy) * nx + xx)];
-            const Vec3 o = g.direction *
-                           Vec3{dx * g.spacing_mm[0], dy * g.spacing_mm[1], dz * g.spacing_mm[2]};
-            sum = sum - w * o;
-          }
+      if (x >= r && y >= r && z >= r && x + r < nx && y + r < ny && z + r < nz) {
+        const uint8_t* around = soft.data() + i;
+        for (const Tap& t : taps) sum = sum - (t.w * around[t.offset]) * t.o;
+      } else {  // near the volume's border: the taps inside it
+        for (const Tap& t : taps) {
+          const int64_t xx = x + t.dx, yy = y + t.dy, zz = z + t.dz;
+          if (xx < 0 || yy < 0 || zz < 0 || xx >= nx || yy >= ny || zz >= nz) continue;
+          sum = sum - (t.w * soft[size_t(i + t.offset)]) * t.o;
+        }
+      }
       if (!(norm(sum) > 0)) continue;
       const Vec3 nrm = normalized(sum);
       const Vec3 p0 = g.index_to_world(Vec3{double(x), double(y), double(z)});
