@@ -512,3 +512,28 @@ def test_a_full_disk_names_the_output(mixed, tmp_path, monkeypatch):
     with pytest.raises(OSError, match=f"^\\[Errno 28\\] --out '{out}': writing shard-000000.tar: No space left on device"):
         ds.write_dataset(spec_path, out, progress=False)
     assert not [n for n in os.listdir(out) if n.endswith(".tmp") or n.endswith(".tar")]
+
+
+def test_write_tar_gives_tarfiles_bytes():
+    """The shards' tar writer (its own headers, members written from their pieces) writes what
+    Python's tarfile writes for the same members, long names included."""
+    import io
+    import random
+
+    from sonoslice.datasets.writer import write_tar
+    rng = random.Random(3)
+    for trial in range(30):
+        members = [(("d" * 60 + "/" + "x" * rng.randrange(40, 60)) if i == 3 else f"{i:08d}.{rng.choice(['json', 'labels.npy'])}",
+                    bytes(rng.randrange(256) for _ in range(rng.choice([0, 1, 511, 512, 513, 5000]))))
+                   for i in range(rng.randrange(0, 12))]
+        want = io.BytesIO()
+        with tarfile.open(fileobj=want, mode="w", format=tarfile.USTAR_FORMAT) as tar:
+            for name, data in members:
+                info = tarfile.TarInfo(name)
+                info.size, info.mtime, info.mode, info.uid, info.gid, info.uname, info.gname = \
+                    len(data), 0, 0o644, 0, 0, "", ""
+                tar.addfile(info, io.BytesIO(data))
+        got = io.BytesIO()
+        sha, size = write_tar(got, [(name, (data[:7], data[7:])) for name, data in members])
+        assert got.getvalue() == want.getvalue(), trial
+        assert (sha, size) == (hashlib.sha256(want.getvalue()).hexdigest(), len(want.getvalue()))
