@@ -19,11 +19,11 @@ import argparse
 import os
 import re
 import statistics
-import subprocess
 import tempfile
 import xml.etree.ElementTree as ET
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from benchcommon import CLI, ROOT, run_timed
+
 PLUS_DIR = os.path.join(ROOT, "data", "plus")
 SWEEPS = {
     "Bone": ("BoneUltrasound_L14.igs.mha", "BoneUltrasound_L14_config.xml"),
@@ -69,12 +69,9 @@ def write_config(sweep, interp, mode, fill, path):
 
 
 def reconstruction_ms(cli, sweep, config, out, threads):
-    cmd = [cli, "compound", "--sequence", os.path.join(PLUS_DIR, SWEEPS[sweep][0]), "--config", config,
-           "--out", out, "--threads", str(threads), "--verbose"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(f"plus_configs: {' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()}")
-    m = TIMES.search(r.stderr)
+    _, log = run_timed([cli, "compound", "--sequence", os.path.join(PLUS_DIR, SWEEPS[sweep][0]),
+                        "--config", config, "--out", out, "--threads", str(threads), "--verbose"])
+    m = TIMES.search(log)
     if not m:
         raise SystemExit("plus_configs: no splatting/finishing times in sonoslice compound --verbose")
     return 1e3 * float(m.group(1)), 1e3 * float(m.group(2))
@@ -82,7 +79,7 @@ def reconstruction_ms(cli, sweep, config, out, threads):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sonoslice", default=os.path.join(ROOT, "build", "bin", "sonoslice"))
+    ap.add_argument("--sonoslice", default=CLI, help="the sonoslice binary (default: build/bin's)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()

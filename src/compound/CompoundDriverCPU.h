@@ -328,10 +328,18 @@ SONOSLICE_INLINE backend::Vec8f corner_weights(backend::Vec8f x, backend::Vec8f 
   return cell_weight(blend<0xAA>(one - x, x), blend<0xCC>(one - y, y), blend<0xF0>(one - z, z));
 }
 
-/// The eight corners in one AVX register (mean and latest).
-template <Mode M>
-struct CornerSums<M, true> {
+/// The eight corners' running values and weights, one AVX register each (lane k: corner k).
+struct CornerLanes {
   backend::Vec8f value, weight;
+  SONOSLICE_INLINE void get(float* v, float* w) const {
+    value.store(v);
+    weight.store(w);
+  }
+};
+
+/// The eight corners' sums (mean and latest).
+template <Mode M>
+struct CornerSums<M, true> : CornerLanes {
   SONOSLICE_INLINE void reset() {
     value = backend::Vec8f(0.f);
     weight = backend::Vec8f(0.f);
@@ -341,10 +349,6 @@ struct CornerSums<M, true> {
     const Vec8f w = corner_weights(Vec8f(fx), Vec8f(fy), Vec8f(fz));
     value = value + w * Vec8f(s);
     weight = weight + w;
-  }
-  SONOSLICE_INLINE void get(float* v, float* w) const {
-    value.store(v);
-    weight.store(w);
   }
   SONOSLICE_INLINE void add_to(Accumulator* base, int64_t sy, int64_t sz) const {
     // (value, weight) of corners 2j and 2j+1 are adjacent in memory: four 16-byte updates.
@@ -359,10 +363,9 @@ struct CornerSums<M, true> {
   }
 };
 
-/// The eight corners' maxima and weights in one AVX register (max mode): gather<Max> per lane.
+/// The eight corners' maxima and weights (max mode): gather<Max> per lane.
 template <>
-struct CornerSums<Mode::Max, false> {
-  backend::Vec8f value, weight;
+struct CornerSums<Mode::Max, false> : CornerLanes {
   SONOSLICE_INLINE void reset() {
     value = backend::Vec8f(empty_value(Mode::Max));
     weight = backend::Vec8f(0.f);
@@ -377,10 +380,6 @@ struct CornerSums<Mode::Max, false> {
   SONOSLICE_INLINE void add(float fx, float fy, float fz, float s) {
     using backend::Vec8f;
     gather(corner_weights(Vec8f(fx), Vec8f(fy), Vec8f(fz)), s);
-  }
-  SONOSLICE_INLINE void get(float* v, float* w) const {
-    value.store(v);
-    weight.store(w);
   }
   SONOSLICE_INLINE void merge_to(Accumulator* base, int64_t sy, int64_t sz) const {
     backend::max_add_interleaved(value, weight, &base[0].value, &base[sy].value, &base[sz].value,
