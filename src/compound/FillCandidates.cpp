@@ -3,6 +3,7 @@
 #include "FillCandidates.h"
 
 #include <algorithm>
+#include <cstddef>
 #include <cstdlib>
 #include <utility>
 
@@ -42,7 +43,7 @@ struct Shift {
   int words, bits;  // shift = 64·words + bits, 0 <= bits < 64
   explicit Shift(int shift)
       : words(shift >= 0 ? shift / 64 : -((63 - shift) / 64)), bits(shift - 64 * words) {}
-  uint64_t operator()(const uint64_t* src, size_t i) const {
+  uint64_t operator()(const uint64_t* src, std::ptrdiff_t i) const {
     const uint64_t lo = src[i + words], hi = src[i + words + 1];
     return (lo >> bits) | ((hi << 1) << (63 - bits));
   }
@@ -74,9 +75,12 @@ void shifted_pass(BitVolume& dst, const BitVolume& src, int ox, int oy, int oz,
     if (sz < 0 || sz >= src.nz || !x_inside || y0 >= y1) y0 = y1 = 0;
     for (size_t i = 0; i < size_t(y0) * stride; ++i) out[base + i] = op(base + i, uint64_t(0));
     if (y0 < y1) {
-      const uint64_t* s = src.slice(sz) + std::ptrdiff_t(oy) * std::ptrdiff_t(stride);
+      // Word i of this slice reads word i + oy·stride of the source slice (from its rows and
+      // their padding, or the guard words before the first).
+      const uint64_t* s = src.slice(sz);
+      const std::ptrdiff_t rows = std::ptrdiff_t(oy) * std::ptrdiff_t(stride);
       for (size_t i = size_t(y0) * stride; i < size_t(y1) * stride; ++i)
-        out[base + i] = op(base + i, shift(s, i) & mask[i]);
+        out[base + i] = op(base + i, shift(s, std::ptrdiff_t(i) + rows) & mask[i]);
     }
     for (size_t i = size_t(y1) * stride; i < slice_words; ++i)
       out[base + i] = op(base + i, uint64_t(0));
