@@ -120,10 +120,43 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeG
   return L;
 }
 
-/// LC2 and local NCC patches: 11 full-resolution pixels a side (2.7 mm on W1), at least 3 level
-/// pixels.
-int patch_side(int f) {
-  return std::max(3, (11 + f / 2) / f);
+/// LC2 and local NCC patches: centred on each pixel, 2·half + 1 level pixels a side. 11 pixels
+/// (2.7 mm on W1) at full resolution; the same pixel count at coarser levels, so that a patch
+/// covers more of the frame where the frame is smoother (a wider basin, docs/registration.md §3).
+constexpr int kPatchHalf = 5;
+
+/// `out` = the sums of `in` (K values a pixel, W × H pixels, row-major) over the (2·half + 1)²
+/// window around each pixel, pixels outside the image counting 0: running sums along the rows,
+/// then along the columns a whole row at a time, so a pixel costs O(K) whatever the window.
+template <int K>
+void box_sums(const std::vector<double>& in, std::vector<double>& out, int W, int H, int half) {
+  std::vector<double> rows(in.size());
+  for (int v = 0; v < H; ++v) {
+    const double* a = in.data() + size_t(v) * W * K;
+    double* b = rows.data() + size_t(v) * W * K;
+    double run[K] = {};
+    for (int u = 0; u < std::min(half, W); ++u)
+      for (int c = 0; c < K; ++c) run[c] += a[u * K + c];
+    for (int u = 0; u < W; ++u) {
+      if (u + half < W)
+        for (int c = 0; c < K; ++c) run[c] += a[(u + half) * K + c];
+      if (u - half - 1 >= 0)
+        for (int c = 0; c < K; ++c) run[c] -= a[(u - half - 1) * K + c];
+      for (int c = 0; c < K; ++c) b[u * K + c] = run[c];
+    }
+  }
+  const size_t line = size_t(W) * K;
+  std::vector<double> run(line, 0.0);
+  for (int v = 0; v < std::min(half, H); ++v)
+    for (size_t j = 0; j < line; ++j) run[j] += rows[v * line + j];
+  out.resize(in.size());
+  for (int v = 0; v < H; ++v) {
+    if (v + half < H)
+      for (size_t j = 0; j < line; ++j) run[j] += rows[(v + half) * line + j];
+    if (v - half - 1 >= 0)
+      for (size_t j = 0; j < line; ++j) run[j] -= rows[(v - half - 1) * line + j];
+    std::copy(run.begin(), run.end(), out.begin() + v * line);
+  }
 }
 
 }  // namespace
@@ -146,18 +179,25 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
 std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pose& pose, int level,
                                                          RegistrationMetric metric) const {
   const State& s = *state_;
-  register_impl::TermsLaunch L =
+  const register_impl::TermsLaunch L =
       make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, Vec3{0, 0, 0});
-  L.patch = patch_side(s.level(level).f);
-  L.patches_x = (L.width + L.patch - 1) / L.patch;
-  const int patches_y = (L.height + L.patch - 1) / L.patch;
-  std::vector<double> sums(size_t(L.patches_x) * patches_y * register_impl::kLc2Sums, 0.0);
-  for (int v = 0; v < L.height; ++v) register_impl::accumulate_lc2_row(L, v, sums.data());
+  constexpr int K = register_impl::kLc2Sums;
+  const int W = L.width, H = L.height, half = kPatchHalf;
+  const size_t plane = size_t(W) * H;
+  // Each pixel's terms, then their sums over the patch around each pixel (Wein's LC2 is a
+  // patch per pixel: a patch grid would make the cost jump as structures cross its lines).
+  std::vector<double> q(plane * K, 0.0), sums;
+  for (int v = 0; v < H; ++v) register_impl::lc2_row_terms(L, v, q.data());
+  box_sums<K>(q, sums, W, H, half);
+  // A patch counts when at least half its window is compared (the fan's edge and the volume's
+  // border leave fits of a few pixels that would be noise).
+  const double least = std::max(8.0, 0.5 * (2 * half + 1) * (2 * half + 1));
   double weighted = 0, weight = 0;
-  for (size_t k = 0; k < sums.size(); k += register_impl::kLc2Sums) {
-    const double* t = &sums[k];
+  for (size_t i = 0; i < plane; ++i) {
+    if (q[i * K] == 0) continue;  // the patch's own centre is not compared
+    const double* t = &sums[i * K];
     const double n = t[0];
-    if (n < 8) continue;  // too few pixels for a 3-parameter fit or a local correlation
+    if (n < least) continue;
     const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
     const double vu = t[4] / n - mu * mu;
     if (!(vu > 1e-12)) continue;  // flat frame patch: nothing to explain

@@ -27,14 +27,13 @@ struct TermsLaunch {
   int width = 0, height = 0;
   double x0 = 0, y0 = 0, sx = 1, sy = 1;  // the level's pixel (u, v) → probe (x0 + u·sx, ...)
   bool gradients = false;
-  // LC2 (accumulate_lc2_row): the beam direction at each pixel (curvilinear: from the apex at
-  // probe (0, apex_y); linear: probe +y), and the patch grid of the local fits.
+  // LC2 (lc2_row_terms): the beam direction at each pixel (curvilinear: from the apex at
+  // probe (0, apex_y); linear: probe +y).
   bool curvilinear = false;
   double apex_y = 0;
-  int patch = 9, patches_x = 1;
 };
 
-/// Sums per LC2 patch: n, ΣU, Σp, Σg, ΣU², Σp², Σg², ΣUp, ΣUg, Σpg.
+/// LC2 terms per pixel, summed per patch: n, ΣU, Σp, Σg, ΣU², Σp², Σg², ΣUp, ΣUg, Σpg.
 constexpr int kLc2Sums = 10;
 
 /// The trilinear sample of the level's volume at probe point (x, y) and, with `gradient`, its
@@ -140,9 +139,10 @@ SONOSLICE_HOST_DEVICE inline void accumulate_mi_row(const TermsLaunch& L, int v,
 }
 
 /// LC2 (Wein et al. 2008), row v: for each pixel inside the mask and the volume, the frame's
-/// value U, the volume's p and its gradient magnitude along the beam g = |∇I · beam|, added to
-/// the sums of the pixel's patch (patch × patch pixels, row-major over the level's grid).
-SONOSLICE_HOST_DEVICE inline void accumulate_lc2_row(const TermsLaunch& L, int v, double* sums) {
+/// value U, the volume's p and its gradient magnitude along the beam g = |∇I · beam|, written at
+/// the pixel's place in `q` (kLc2Sums values a pixel: 1, U, p, g, U², p², g², Up, Ug, pg; the
+/// other pixels are left as they are), the terms whose sums over a patch make the patch's fit.
+SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, double* q) {
   const double y = L.y0 + v * L.sy;
   for_each_row_sample(L, v, true, [&](int64_t i, double x, const CellSample& cs) {
     const double p = cs.value;
@@ -161,18 +161,17 @@ SONOSLICE_HOST_DEVICE inline void accumulate_lc2_row(const TermsLaunch& L, int v
     }
     g = g < 0 ? -g : g;
     const double U = L.frame[i];
-    const int64_t u = i - int64_t(v) * L.width;
-    double* t = sums + kLc2Sums * (int64_t(v / L.patch) * L.patches_x + u / L.patch);
-    t[0] += 1;
-    t[1] += U;
-    t[2] += p;
-    t[3] += g;
-    t[4] += U * U;
-    t[5] += p * p;
-    t[6] += g * g;
-    t[7] += U * p;
-    t[8] += U * g;
-    t[9] += p * g;
+    double* t = q + kLc2Sums * i;
+    t[0] = 1;
+    t[1] = U;
+    t[2] = p;
+    t[3] = g;
+    t[4] = U * U;
+    t[5] = p * p;
+    t[6] = g * g;
+    t[7] = U * p;
+    t[8] = U * g;
+    t[9] = p * g;
   });
 }
 

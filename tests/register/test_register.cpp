@@ -417,6 +417,68 @@ TEST(Register, PatchAndHistogramMetricsPreferTheTruePoseAndRecoverFromCtLikeFram
   }
 }
 
+TEST(Register, Lc2FitsAPatchAroundEveryPixel) {
+  // A volume linear in world (trilinear sampling reproduces it: p = 2x + 3y + z/2 + 1 and the
+  // gradient along the linear probe's beams g = 3 everywhere, so each patch's fit is U on p
+  // alone) and a frame correlated with it plus noise, with a user mask: LC2 must be Wein's
+  // Σ σ_U·R² / Σ σ_U over the (2·5 + 1)² patch centred on every compared pixel that has at least
+  // half its patch compared, computed here by brute force.
+  VolumeGrid grid;
+  grid.dims = {40, 40, 5};
+  grid.spacing_mm = {1, 1, 1};
+  grid.origin_mm = {-20, -5, -2};
+  Volume volume = Volume::allocate(PixelType::Float32, grid);
+  for (int64_t z = 0; z < 5; ++z)
+    for (int64_t y = 0; y < 40; ++y)
+      for (int64_t x = 0; x < 40; ++x)
+        volume.data_as<float>()[(z * 40 + y) * 40 + x] =
+            float(2 * (x - 20) + 3 * (y - 5) + 0.5 * (z - 2) + 1);
+  ProbeGeometry probe = ProbeGeometry::linear(ImageGrid::centred(30, 24, 0.5, 0.5));
+  const int W = probe.image.width, H = probe.image.height;
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0, 1);
+  std::vector<float> frame(size_t(W) * H), p(frame.size());
+  std::vector<uint8_t> mask(frame.size(), 1);
+  for (int v = 0; v < H; ++v)
+    for (int u = 0; u < W; ++u) {
+      const double x = probe.image.origin_mm[0] + u * 0.5, y = probe.image.origin_mm[1] + v * 0.5;
+      p[size_t(v) * W + u] = float(2 * x + 3 * y + 1);
+      // Correlation that changes across the frame, and a hole in the mask.
+      frame[size_t(v) * W + u] = float(p[size_t(v) * W + u] * (u / double(W)) + 4 * noise(rng));
+      if (u > 20 && v > 15) mask[size_t(v) * W + u] = 0;
+    }
+  const FrameRegistration reg(volume, probe, frame.data(), 1, mask.data());
+  const auto [weighted, weight] = reg.patch_score(0, Pose::identity(), 1, RegistrationMetric::LC2);
+  double want_weighted = 0, want_weight = 0;
+  const std::vector<uint8_t> fan = probe.mask();
+  for (int v = 0; v < H; ++v)
+    for (int u = 0; u < W; ++u) {
+      if (!mask[size_t(v) * W + u] || !fan[size_t(v) * W + u]) continue;
+      double n = 0, su = 0, sp = 0, suu = 0, spp = 0, sup = 0;
+      for (int b = v - 5; b <= v + 5; ++b)
+        for (int a = u - 5; a <= u + 5; ++a) {
+          if (a < 0 || b < 0 || a >= W || b >= H) continue;
+          const size_t i = size_t(b) * W + a;
+          if (!mask[i] || !fan[i]) continue;
+          n += 1;
+          su += frame[i];
+          sp += p[i];
+          suu += double(frame[i]) * frame[i];
+          spp += double(p[i]) * p[i];
+          sup += double(frame[i]) * p[i];
+        }
+      if (n < 60.5) continue;
+      const double vu = suu / n - su * su / n / n, vp = spp / n - sp * sp / n / n;
+      const double c = sup / n - su * sp / n / n;
+      want_weighted += std::sqrt(vu) * c * c / (vp * vu);
+      want_weight += std::sqrt(vu);
+    }
+  ASSERT_GT(want_weight, 0);
+  EXPECT_NEAR(weight, want_weight, 1e-9 * want_weight);
+  EXPECT_NEAR(weighted / weight, want_weighted / want_weight, 1e-6);
+  std::printf("[ LC2 ] %.6f (brute force %.6f)\n", weighted / weight, want_weighted / want_weight);
+}
+
 TEST(Register, DifferentiableSliceGradientsMatchFiniteDifferences) {
   // A 9×8×7 float64 volume of smooth random values, a 5×4 linear probe at an oblique pose.
   VolumeGrid grid;
