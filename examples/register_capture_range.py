@@ -5,6 +5,7 @@ error; the success rate (within 1 mm and 1 degree at the fan's centre) against t
 
   build/venv/bin/python examples/register_capture_range.py [--phantom DIR] [--poses 40]
       [--noise 20] [--errors 2 4 6 8 10] [--starts auto 1 8] [--metric ncc] [--plot capture.svg]
+      [--simulated | --independent | --frames FRAMES.npy]
 
 Each perturbation moves the fan's centre by E mm in a random direction and turns the probe by
 E degrees about a random axis through that centre (seeded). The registration runs through the
@@ -12,7 +13,10 @@ CLI exactly as a user would call it (W1: fan-slicer's LUS config at --downsampli
 goes to stdout (markdown); --plot writes the curves as an SVG. `--starts auto` leaves the
 choice to the command (its default: starts until two agree). The table also says how many frames
 the report calls converged, and how many of the frames that missed were called converged anyway
-(the silent failures the convergence check is there to prevent).
+(the silent failures the convergence check is there to prevent). Instead of CT fans: --simulated
+registers `sonoslice simulate --preset lus` B-mode frames; --independent B-mode frames of another
+simulator (MUST's pymust, examples/independent_bmode.py; `pip install pymust`), so that the figure
+is not our simulator agreeing with itself.
 """
 import argparse
 import json
@@ -101,6 +105,11 @@ def main():
     ap.add_argument("--pyramid", help="the command's --pyramid (default: the metric's default)")
     ap.add_argument("--simulated", action="store_true",
                     help="frames from `sonoslice simulate --preset lus` (B-mode) instead of CT fans with noise")
+    ap.add_argument("--independent", action="store_true",
+                    help="frames from an independent simulator (MUST's pymust: examples/independent_bmode.py, "
+                         "from the phantom's labels and tissues) instead of CT fans with noise")
+    ap.add_argument("--frames", help="frames at the true poses made elsewhere (.npy, (N, H, W) on W1's grid, at the "
+                                     "first --poses poses of `sonoslice phantom DIR --size small --poses N`)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--plot", help="write the capture-range curves here (.svg)")
     args = ap.parse_args()
@@ -123,7 +132,15 @@ def main():
         origin, spacing = image["origin_mm"], image["spacing_mm"]
         centre = np.array([origin[0] + u.mean() * spacing[0], origin[1] + v.mean() * spacing[1], 0.0])
         frames_path = os.path.join(tmp, "frames.npy")
-        if args.simulated:  # the lus preset's probe is W1
+        if args.frames:
+            np.save(frames_path, np.load(args.frames)[: args.poses].astype(np.float32))
+        elif args.independent:
+            np.save(os.path.join(tmp, "truth.npy"), truth)
+            subprocess.run([sys.executable, os.path.join(ROOT, "examples", "independent_bmode.py"), "--labels",
+                            next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom))
+                                 if f.startswith("labels.")), "--tissues", os.path.join(phantom, "tissues.json"),
+                            "--poses", os.path.join(tmp, "truth.npy"), "--out", frames_path], check=True)
+        elif args.simulated:  # the lus preset's probe is W1
             np.save(os.path.join(tmp, "truth.npy"), truth)
             subprocess.run([CLI, "simulate", "--volume", ct_path, "--preset", "lus", "--poses",
                             os.path.join(tmp, "truth.npy"), "--out", frames_path, "-q"], check=True)
@@ -175,9 +192,11 @@ def main():
                           f"uncertainty {u_mm[k]:.3g} mm {u_deg[k]:.3g} deg)",
                           file=sys.stderr)
             curves[f"{args.metric}, {starts} start{'' if starts == '1' else 's'}"] = rates
-    kind = "simulated B-mode frames (lus preset)" if args.simulated else f"CT fans with {args.noise:g} HU noise"
+    kind = ("frames of " + args.frames if args.frames else
+            "independent B-mode frames (pymust)" if args.independent else
+            "simulated B-mode frames (lus preset)" if args.simulated else f"CT fans with {args.noise:g} HU noise")
     print(f"\n{args.poses} W1 {kind} of the full phantom, metric {args.metric}, default optimizer, "
-          f"pyramid 8-4-2-1, {args.threads} threads\n")
+          f"pyramid {args.pyramid or 'default'}, {args.threads} threads\n")
     print("| starts | initial error (mm and deg) | within 1 mm and 1 deg | median error after | called converged "
           "| missed but called converged | pose evaluations | seconds |")
     print("|---|---|---|---|---|---|---|---|")
