@@ -34,6 +34,26 @@ CLI = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonosl
 W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
 
 
+def phantom_folder(phantom, tmp):
+    """The full phantom's folder: `phantom`, or one written under `tmp`."""
+    if not phantom:
+        phantom = os.path.join(tmp, "phantom")
+        subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
+    return phantom
+
+
+def phantom_file(folder, prefix):
+    """The file of `folder` whose name starts with `prefix` ("ct.", "labels.")."""
+    return next(os.path.join(folder, f) for f in sorted(os.listdir(folder)) if f.startswith(prefix))
+
+
+def body_poses(tmp, n):
+    """n probe poses inside the phantom's body (`sonoslice phantom --size small --poses n`: the
+    same every time)."""
+    subprocess.run([CLI, "phantom", os.path.join(tmp, "p"), "--size", "small", "--poses", str(n), "-q"], check=True)
+    return np.load(os.path.join(tmp, "p", "poses.npy"))[:n]
+
+
 def rotation(axis, angle):
     axis = axis / np.linalg.norm(axis)
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
@@ -115,14 +135,9 @@ def main():
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
-        phantom = args.phantom
-        if not phantom:
-            phantom = os.path.join(tmp, "phantom")
-            subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
-        ct_path = next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom)) if f.startswith("ct."))
-        subprocess.run([CLI, "phantom", os.path.join(tmp, "p"), "--size", "small", "--poses", str(args.poses),
-                        "-q"], check=True)
-        truth = np.load(os.path.join(tmp, "p", "poses.npy"))[: args.poses]
+        phantom = phantom_folder(args.phantom, tmp)
+        ct_path = phantom_file(phantom, "ct.")
+        truth = body_poses(tmp, args.poses)
         ct = sonoslice.Volume.from_file(ct_path)
         probe = sonoslice.Probe.from_fanslicer(W1, downsampling=2)
         geometry = json.loads(probe.to_json())
@@ -137,8 +152,7 @@ def main():
         elif args.independent:
             np.save(os.path.join(tmp, "truth.npy"), truth)
             subprocess.run([sys.executable, os.path.join(ROOT, "examples", "independent_bmode.py"), "--labels",
-                            next(os.path.join(phantom, f) for f in sorted(os.listdir(phantom))
-                                 if f.startswith("labels.")), "--tissues", os.path.join(phantom, "tissues.json"),
+                            phantom_file(phantom, "labels."), "--tissues", os.path.join(phantom, "tissues.json"),
                             "--poses", os.path.join(tmp, "truth.npy"), "--out", frames_path], check=True)
         elif args.simulated:  # the lus preset's probe is W1
             np.save(os.path.join(tmp, "truth.npy"), truth)

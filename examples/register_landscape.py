@@ -17,15 +17,15 @@ import argparse
 import json
 import os
 import subprocess
+import sys
 import tempfile
 
 import numpy as np
 
 import sonoslice
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-CLI = os.environ.get("SONOSLICE_CLI", os.path.join(ROOT, "build", "bin", "sonoslice"))
-W1 = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from register_capture_range import CLI, W1, body_poses, phantom_file  # noqa: E402
 
 
 def moved(pose, centre, axis, d):
@@ -71,10 +71,8 @@ def main():
     args = ap.parse_args()
     steps = np.arange(-10, 10.1, 1.0)
     with tempfile.TemporaryDirectory() as tmp:
-        ct_path = next(os.path.join(args.phantom, f) for f in sorted(os.listdir(args.phantom)) if f.startswith("ct."))
-        subprocess.run([CLI, "phantom", os.path.join(tmp, "p"), "--size", "small", "--poses", str(args.poses),
-                        "-q"], check=True)
-        truth = np.load(os.path.join(tmp, "p", "poses.npy"))[: args.poses]
+        ct_path = phantom_file(args.phantom, "ct.")
+        truth = body_poses(tmp, args.poses)
         if args.frames:
             frames = np.load(args.frames)[: args.poses].astype(np.float32)
         else:

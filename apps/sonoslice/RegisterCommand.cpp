@@ -318,7 +318,9 @@ void add_register_command(CLI::App& app) {
   cmd->add_option("--starts", flags->starts,
                   "Optimisations per frame (per sweep) from spread points (default: automatic, "
                   "until two reach the same pose, at most " +
-                      std::to_string(kAutoMaxStarts) + ")");
+                      std::to_string(kAutoMaxStarts) +
+                      "; a sweep's shared correction: three, at most " +
+                      std::to_string(kAutoMaxSweepStarts) + ")");
   cmd->add_option(
       "--search-rot-deg", flags->search_rot_deg,
       "Spread of the extra starts' rotations, degrees " + default_text(defaults.search_rot_deg));

@@ -88,7 +88,7 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     "evaluations" and "seconds". A frame is converged when its best pose was
     reached from at least two starts; a registration with frames that are not warns
     (``UserWarning``, one message). ``starts``: None (default) runs starts until two agree, at
-    most 8.
+    most 8 (a sweep's shared correction: until three agree, at most 16).
 
     The settings are :class:`RegistrationSettings`' (give one as ``settings``, or its keywords;
     unset ones take the library's defaults, ``RegistrationSettings()``). ``optimizer``: by default

@@ -125,6 +125,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     }
     Problem p;
     p.frames_per_evaluation = int64_t(s.count);
+    p.shared = true;
     p.terms = [&](const Pose& X, int f, const Vec3& c, bool g) {
       std::vector<PoseTerms> each(s.count);
       backend::parallel_for(int64_t(s.count), [&](int64_t k) {

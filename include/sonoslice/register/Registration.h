@@ -102,7 +102,8 @@ struct RegistrationSettings {
   /// search_rot_deg about a random axis through the frame's centre, translation uniform in a
   /// ball of search_trans_mm); the best end wins. Unset (the default): automatic, one start after
   /// another until the best end has been reached from two starts (kAgreementMm and
-  /// kAgreementDeg apart at most), at most kAutoMaxStarts. A number: exactly that many.
+  /// kAgreementDeg apart at most), at most kAutoMaxStarts; in the sweep modes and calibration
+  /// mode from three, at most kAutoMaxSweepStarts. A number: exactly that many.
   std::optional<int> starts;
   double search_rot_deg = 10, search_trans_mm = 10;
   uint64_t seed = 0;  ///< the multi-start draws
@@ -133,6 +134,12 @@ struct RegistrationSettings {
 
 /// Automatic starts (RegistrationSettings::starts unset): at most this many.
 constexpr int kAutoMaxStarts = 8;
+/// Automatic starts for one correction shared by a whole sweep (rigid-sweep, smooth-sweep's
+/// first stage, calibration): the best end must be reached from three starts, at most this
+/// many. One wrong sweep moves every frame, and a sweep's optimisation costs about as much as
+/// its frames' would, so it gets more evidence: on 40 sweeps up to 10 mm and 10° off, two
+/// starts once agreed on a local minimum that a later start would have left.
+constexpr int kAutoMaxSweepStarts = 16;
 /// Two optimisations reached the same end when their results move the frame's (or the sweep's)
 /// centre at most this far apart and turn at most this much apart.
 constexpr double kAgreementMm = 1, kAgreementDeg = 1;
