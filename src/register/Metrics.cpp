@@ -122,7 +122,7 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeG
 
 /// LC2 and local NCC patches: centred on each pixel, 2·half + 1 level pixels a side. 11 pixels
 /// (2.7 mm on W1) at full resolution; the same pixel count at coarser levels, so that a patch
-/// covers more of the frame where the frame is smoother (a wider basin, docs/registration.md §3).
+/// covers more of the frame where the frame is smoother (a wider basin, docs/registration.md §1).
 constexpr int kPatchHalf = 5;
 
 /// `out` = the sums of `in` (K values a pixel, W × H pixels, row-major) over the (2·half + 1)²
@@ -198,20 +198,28 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
     const double* t = &sums[i * K];
     const double n = t[0];
     if (n < least) continue;
+    // Variances from running sums carry their round-off (about 1e-16 of the mean square, times
+    // the steps they ran): a variance below 1e-10 of the mean square is a flat patch, and its
+    // covariances are round-off too.
+    const auto spread = [n](double sum, double sum_sq) {
+      const double mean = sum / n, v = sum_sq / n - mean * mean;
+      return v > 1e-10 * (sum_sq / n) + 1e-300 ? v : 0.0;
+    };
     const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
-    const double vu = t[4] / n - mu * mu;
-    if (!(vu > 1e-12)) continue;  // flat frame patch: nothing to explain
-    double cpp = t[5] / n - mp * mp, cgg = t[6] / n - mg * mg;
-    const double bup = t[7] / n - mu * mp;
+    const double vu = spread(t[1], t[4]);
+    if (!(vu > 0)) continue;  // flat frame patch: nothing to explain
+    double cpp = spread(t[2], t[5]), cgg = spread(t[3], t[6]);
+    const double bup = cpp > 0 ? t[7] / n - mu * mp : 0;
     if (metric == RegistrationMetric::LNCC) {
       // The patch's NCC of frame and volume, every patch alike; a flat volume patch scores 0.
-      if (cpp > 1e-12) weighted += bup / std::sqrt(vu * cpp);
+      if (cpp > 0) weighted += bup / std::sqrt(vu * cpp);
       weight += 1;
       continue;
     }
     // LC2: the least-squares fit U ≈ α·p + β·g + γ, R² = bᵀ·C⁻¹·b / var U with C the covariance
     // of (p, g) and b their covariances with U (a small ridge keeps a flat p or g solvable).
-    const double cpg = t[9] / n - mp * mg, bug = t[8] / n - mu * mg;
+    const double cpg = cpp > 0 && cgg > 0 ? t[9] / n - mp * mg : 0;
+    const double bug = cgg > 0 ? t[8] / n - mu * mg : 0;
     const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
     cpp += ridge;
     cgg += ridge;

@@ -477,6 +477,14 @@ TEST(Register, Lc2FitsAPatchAroundEveryPixel) {
   EXPECT_NEAR(weight, want_weight, 1e-9 * want_weight);
   EXPECT_NEAR(weighted / weight, want_weighted / want_weight, 1e-6);
   std::printf("[ LC2 ] %.6f (brute force %.6f)\n", weighted / weight, want_weighted / want_weight);
+
+  // A flat volume explains nothing: every patch's fit is 0, not the round-off of its sums.
+  for (int64_t i = 0; i < grid.voxel_count(); ++i) volume.data_as<float>()[i] = 1000.3f;
+  const FrameRegistration flat(volume, probe, frame.data(), 1, mask.data());
+  const auto [flat_weighted, flat_weight] =
+      flat.patch_score(0, Pose::identity(), 1, RegistrationMetric::LC2);
+  EXPECT_EQ(flat_weighted, 0.0);
+  EXPECT_NEAR(flat_weight, want_weight, 1e-9 * want_weight);
 }
 
 TEST(Register, DifferentiableSliceGradientsMatchFiniteDifferences) {
