@@ -28,4 +28,6 @@ build/venv/bin/python -m pip install -q "${options[@]}" .
 # sonoslice dataset: Dask's distributed (--scheduler) and webdataset (its docs' reader, tests)
 # come from PyPI.
 build/venv/bin/python -m pip install -q "distributed>=2023.1" "webdataset>=0.2"
+# sonoslice live: pyigtl, an independent OpenIGTLink implementation (tests and the example sender).
+build/venv/bin/python -m pip install -q "pyigtl>=0.3"
 build/venv/bin/python -c "import sonoslice; print('sonoslice', sonoslice.__version__, 'installed in build/venv')"

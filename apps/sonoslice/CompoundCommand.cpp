@@ -9,6 +9,7 @@
 
 #include "Commands.h"
 #include "Common.h"
+#include "ReconstructionFlags.h"
 #include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
@@ -22,55 +23,13 @@ namespace {
 struct CompoundFlags {
   std::string sequence, config, frames, poses, image_to_probe, probe, beam_frames, beam_geometry;
   std::string out, weights;
-  std::string spacing, interp, compounding, fill_holes, clip_rect, image_to_reference;
-  std::string device = "cpu", max_memory, dtype, world = "LPS";
-  std::optional<double> rejection_threshold;
+  ReconstructionFlags recon;
+  std::string image_to_reference, world = "LPS";
   std::optional<int> skip;
-  std::optional<int> threads;  // unset: all hardware threads
   bool quiet = false, verbose = false, plus_exact = false;
   std::string plus_optimization;
   std::string plus_grid;
 };
-
-// "8G", "512M", "1.5GiB", "2000000000" → bytes.
-uint64_t parse_bytes(const std::string& text) {
-  char* end = nullptr;
-  const double v = std::strtod(text.c_str(), &end);
-  std::string unit(end);
-  for (auto& c : unit) c = char(std::toupper(static_cast<unsigned char>(c)));
-  double scale = 1;
-  if (unit == "K" || unit == "KB" || unit == "KIB")
-    scale = 1024.0;
-  else if (unit == "M" || unit == "MB" || unit == "MIB")
-    scale = 1024.0 * 1024;
-  else if (unit == "G" || unit == "GB" || unit == "GIB")
-    scale = 1024.0 * 1024 * 1024;
-  else if (unit == "T" || unit == "TB" || unit == "TIB")
-    scale = 1024.0 * 1024 * 1024 * 1024;
-  else if (!unit.empty() && unit != "B")
-    throw InputError("--max-memory " + text + ": expected a size such as 8G, 512M or 2000000000");
-  if (end == text.c_str() || !(v > 0) || !std::isfinite(v))
-    throw InputError("--max-memory " + text + ": expected a positive size such as 8G or 512M");
-  return uint64_t(v * scale);
-}
-
-// "S" or "SX,SY,SZ" → mm (the recipe checks the values).
-Vec3 parse_spacing(const std::string& text) {
-  const bool one = text.find(',') == std::string::npos;
-  const auto v = parse_numbers(text, one ? 1 : 3, "--spacing");
-  return one ? Vec3{{v[0], v[0], v[0]}} : Vec3{{v[0], v[1], v[2]}};
-}
-
-std::array<int, 4> parse_clip_rect(const std::string& text) {
-  const auto r = parse_numbers(text, 4, "--clip-rect");
-  std::array<int, 4> out{};
-  for (size_t i = 0; i < 4; ++i) {
-    if (r[i] < 0 || r[i] != std::floor(r[i]) || r[i] > 1e9)
-      throw InputError("--clip-rect " + text + ": expected four whole numbers X,Y,W,H >= 0");
-    out[i] = int(r[i]);
-  }
-  return out;
-}
 
 ReconstructionOptions options_of(const CompoundFlags& f) {
   ReconstructionOptions o;
@@ -79,21 +38,11 @@ ReconstructionOptions options_of(const CompoundFlags& f) {
     const std::string flag = flag_of(parameter);
     return parameter == "probe" && !probe.empty() ? flag + " '" + probe + "'" : flag;
   };
-  if (!f.spacing.empty()) o.spacing_mm = parse_spacing(f.spacing);
-  if (!f.interp.empty()) o.interpolation = parse_interpolation(f.interp, "--interp");
-  if (!f.compounding.empty()) o.mode = parse_compounding_mode(f.compounding);
-  if (!f.fill_holes.empty()) {
-    if (f.fill_holes != "on" && f.fill_holes != "off")
-      throw InputError("--fill-holes " + f.fill_holes + ": expected on or off");
-    o.fill_holes = f.fill_holes == "on";
-  }
-  if (f.rejection_threshold) o.rejection_threshold = *f.rejection_threshold;
+  f.recon.apply(o);
   if (f.skip) o.skip = *f.skip;
-  if (!f.clip_rect.empty()) o.clip_rectangle = parse_clip_rect(f.clip_rect);
   if (!f.image_to_reference.empty()) o.transform = f.image_to_reference;
   if (!f.image_to_probe.empty())
     o.image_to_probe = read_matrix(f.image_to_probe, "--image-to-probe");
-  if (!f.dtype.empty()) o.output_type = parse_pixel_type(f.dtype);
   o.plus_exact = f.plus_exact;
   if (!f.plus_optimization.empty()) {
     if (!f.plus_exact) throw InputError("--plus-optimization needs --plus-exact");
@@ -103,14 +52,13 @@ ReconstructionOptions options_of(const CompoundFlags& f) {
     if (!f.plus_exact) throw InputError("--plus-grid needs --plus-exact");
     o.plus_grid = f.plus_grid;
   }
-  if (!f.max_memory.empty()) o.max_memory_bytes = parse_bytes(f.max_memory);
   return o;
 }
 
 void run_compound(const CompoundFlags& f) {
   Stopwatch total;
   ReconstructionOptions options = options_of(f);
-  options.device = setup_device(f.device, f.threads);
+  options.device = setup_device(f.recon.device, f.recon.threads);
   if (!f.config.empty() && f.sequence.empty())
     throw InputError("--config: a PLUS configuration goes with --sequence");
   // Refuse unwritable outputs before the (possibly long) reading and splatting, and outputs that
@@ -211,20 +159,11 @@ void add_compound_command(CLI::App& app) {
                   "Their geometry JSON (docs/conventions.md §7)");
   cmd->add_option("--out", flags->out, "Output volume: .nii/.nii.gz/.mha/.nrrd/.npy")->required();
   cmd->add_option("--weights", flags->weights, "Also write the splat weight per voxel (float32)");
-  cmd->add_option("--spacing", flags->spacing,
-                  "Voxel size in mm: S or SX,SY,SZ (default: the XML's)");
-  cmd->add_option("--interp", flags->interp,
-                  "nearest or linear splats (default: the XML's, else linear)");
-  cmd->add_option("--compounding", flags->compounding, "mean (default), max or latest");
-  cmd->add_option("--fill-holes", flags->fill_holes, "on or off (default: the XML's, else off)");
-  cmd->add_option("--clip-rect", flags->clip_rect, "X,Y,W,H: the W x H pixels from (X,Y) go in");
-  cmd->add_option("--rejection-threshold", flags->rejection_threshold,
-                  "Pixels below this value are not inserted");
+  flags->recon.add_to(*cmd);
   cmd->add_option("--skip", flags->skip,
                   "Use every K-th frame (default: the XML's SkipInterval, else 1)");
   cmd->add_option("--image-to-reference", flags->image_to_reference,
                   "Transform to reconstruct in, e.g. ImageToReference (default) or ImageToTracker");
-  cmd->add_option("--dtype", flags->dtype, "Output type (default: the frames' type)");
   cmd->add_flag("--plus-exact", flags->plus_exact,
                 "PLUS's arithmetic bit for bit: output in the frames' type rounded after every "
                 "update, PLUS's uint16 weights (docs/compounding.md 4b); CPU, 2D frames");
@@ -235,11 +174,7 @@ void add_compound_command(CLI::App& app) {
                   "With --plus-exact and no grid in the XML: legacy (default; PLUS 2.x, origin at "
                   "the frames' minimum) or lattice (current PLUS/IGSIO, origin on a multiple of "
                   "the spacing)");
-  cmd->add_option("--max-memory", flags->max_memory,
-                  "Memory the reconstruction may use, e.g. 8G (default: what is available)");
   cmd->add_option("--world", flags->world, "Frame of --poses: LPS (default) or RAS");
-  cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");
-  add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--quiet,-q", flags->quiet, "No progress bar or summary");
   cmd->add_flag("--verbose,-v", flags->verbose, "Print the input and the settings used");
   cmd->callback([flags] { run_compound(*flags); });

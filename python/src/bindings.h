@@ -15,6 +15,7 @@
 #include <utility>
 #include <vector>
 
+#include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/geometry/Math.h"
 #include "sonoslice/geometry/Pose.h"
@@ -35,6 +36,7 @@ void bind_reconstruction(nb::module_& m);  // the reconstruction recipe (reconst
 void bind_simulation(nb::module_& m);      // Simulator, its settings, tissue tables, presets
 void bind_registration(nb::module_& m);    // register_frames, its settings and report
 void bind_sampling(nb::module_& m);        // PoseSampler, SamplerSettings, sample_seeds
+void bind_live(nb::module_& m);            // LiveCompounder, the live compound server
 
 /// A Python value (dicts, lists, tuples, numbers, strings, None, NumPy arrays and scalars,
 /// objects with keys() such as Tissue) as JSON text for the library's parsers (json.cpp), so a
@@ -108,6 +110,22 @@ using HostPixels = nb::ndarray<nb::ro, nb::c_contig, nb::device::cpu>;
 
 // ---- arrays out
 using MatrixOut = nb::ndarray<nb::numpy, double, nb::shape<4, 4>>;
+
+/// The reconstruction recipe's parameter → Python's keyword ("mode" → "compounding", ...).
+std::string keyword_of(const std::string& parameter);
+/// reconstruct_plus's (and LiveCompounder's) keywords → the recipe's options (strings parsed by
+/// the library's parsers; messages name the keywords).
+ReconstructionOptions reconstruction_options(
+    std::optional<Vec3> spacing, const std::optional<std::string>& interpolation,
+    const std::optional<std::string>& compounding, std::optional<bool> fill_holes,
+    std::optional<std::vector<HoleFillingKernel>> hole_filling,
+    std::optional<double> rejection_threshold, std::optional<FrameClip> clip,
+    std::optional<int> skip, std::optional<std::string> transform,
+    const std::optional<Matrix4>& image_to_probe, const std::optional<std::string>& dtype,
+    const std::string& device, uint64_t max_memory, bool plus_exact,
+    const std::optional<std::string>& plus_optimization,
+    const std::optional<std::string>& plus_grid, std::optional<Vec3> origin = std::nullopt,
+    std::optional<std::array<int64_t, 3>> extent = std::nullopt);
 using MatricesOut = nb::ndarray<nb::numpy, double, nb::shape<-1, 4, 4>>;
 
 /// NumPy's name of a DLPack dtype ("uint8", "float32", "complex64", "bool", ...).

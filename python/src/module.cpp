@@ -70,4 +70,5 @@ NB_MODULE(_sonoslice, m) {
   bindings::bind_simulation(m);
   bindings::bind_registration(m);
   bindings::bind_sampling(m);
+  bindings::bind_live(m);
 }

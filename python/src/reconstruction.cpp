@@ -16,20 +16,18 @@
 #include "sonoslice/plus/PlusSequence.h"
 
 namespace sonoslice::bindings {
-namespace {
 
 using namespace nb::literals;
 
-// The recipe's parameter → reconstruct_plus's keyword.
 std::string keyword_of(const std::string& parameter) {
   if (parameter == "mode") return "compounding";
   if (parameter == "output_type") return "dtype";
   if (parameter == "max_memory_bytes") return "max_memory";
+  if (parameter == "origin_mm") return "origin";
   return parameter;
 }
 
-// reconstruct_plus's keywords → the recipe's options (strings parsed by the library's parsers).
-ReconstructionOptions options_of(
+ReconstructionOptions reconstruction_options(
     std::optional<Vec3> spacing, const std::optional<std::string>& interpolation,
     const std::optional<std::string>& compounding, std::optional<bool> fill_holes,
     std::optional<std::vector<HoleFillingKernel>> hole_filling,
@@ -38,7 +36,8 @@ ReconstructionOptions options_of(
     const std::optional<Matrix4>& image_to_probe, const std::optional<std::string>& dtype,
     const std::string& device, uint64_t max_memory, bool plus_exact,
     const std::optional<std::string>& plus_optimization,
-    const std::optional<std::string>& plus_grid) {
+    const std::optional<std::string>& plus_grid, std::optional<Vec3> origin,
+    std::optional<std::array<int64_t, 3>> extent) {
   ReconstructionOptions o;
   o.names = keyword_of;
   o.spacing_mm = spacing;
@@ -57,8 +56,12 @@ ReconstructionOptions options_of(
   o.plus_exact = plus_exact;
   o.plus_optimization = plus_optimization;
   o.plus_grid = plus_grid;
+  o.origin_mm = origin;
+  o.extent = extent;
   return o;
 }
+
+namespace {
 
 // A Reconstruction that keeps the Python objects whose memory it views alive.
 struct PyReconstruction {
@@ -105,7 +108,7 @@ void bind_reconstruction(nb::module_& m) {
             const PlusSequence& s = nb::cast<const PlusSequence&>(sequence);
             const PlusReconstructionConfig* c =
                 config.is_none() ? nullptr : &nb::cast<const PlusReconstructionConfig&>(config);
-            const ReconstructionOptions o = options_of(
+            const ReconstructionOptions o = reconstruction_options(
                 spacing, interpolation, compounding, fill_holes, std::move(hole_filling),
                 rejection_threshold, std::move(clip), skip, std::move(transform), image_to_probe,
                 dtype, device, max_memory, plus_exact, plus_optimization, plus_grid);

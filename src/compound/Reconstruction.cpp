@@ -32,16 +32,6 @@ std::string dims_text(int64_t a, int64_t b) {
   return std::to_string(a) + "x" + std::to_string(b);
 }
 
-// Pixel (u, v) → probe mm for a probe's image grid (docs/conventions.md §3).
-Mat4 image_to_probe_of(const ProbeGeometry& p) {
-  Mat4 m;
-  m.m[0][0] = p.image.spacing_mm[0];
-  m.m[1][1] = p.image.spacing_mm[1];
-  m.m[0][3] = p.image.origin_mm[0];
-  m.m[1][3] = p.image.origin_mm[1];
-  return m;
-}
-
 // A calibration applies to every frame: an all-zero or degenerate one is refused, naming where it
 // came from, rather than collapsing every frame onto a point (docs/compounding.md §3).
 void check_image_to_probe(const Mat4& m, const std::string& name) {
@@ -386,7 +376,7 @@ FrameSelection select_frames(const FrameSource& source, const PlusReconstruction
         check_image_to_probe(*o.image_to_probe, name("image_to_probe"));
         image_to_probe = *o.image_to_probe;
       } else if (source.probe) {
-        image_to_probe = image_to_probe_of(*source.probe);
+        image_to_probe = source.probe->pixel_to_probe();
       } else
         throw InputError(source.name + ": 2D frames need the pixel-to-probe mapping (" +
                          name("image_to_probe") + " or " + name("probe") + ")");
@@ -437,15 +427,72 @@ void Reconstruction::Impl::select_frames(const PlusReconstructionConfig* config,
                      ")");
 }
 
+namespace {
+
+// The spacing: the caller's, else the configuration's OutputSpacing.
+Vec3 resolve_spacing(const PlusReconstructionConfig* config, const ReconstructionOptions& o) {
+  const std::optional<Vec3> spacing = o.spacing_mm ? o.spacing_mm
+                                      : config     ? config->output_spacing_mm
+                                                   : std::nullopt;
+  if (!spacing)
+    throw InputError("give " + spelled(o.names, "spacing") + " (mm) or a PLUS configuration (" +
+                     spelled(o.names, "config") + ") with OutputSpacing");
+  for (double s : *spacing)
+    if (!(s > 0) || !std::isfinite(s))
+      throw InputError(spelled(o.names, "spacing") + " " + std::to_string(s) + ": must be > 0 mm");
+  return *spacing;
+}
+
+// The grid the caller (origin and extent) or the configuration (OutputOrigin/Extent, unless the
+// caller chose a spacing) fixes; std::nullopt when it is to be fitted around the frames.
+std::optional<VolumeGrid> fixed_grid(const PlusReconstructionConfig* config,
+                                     const ReconstructionOptions& o, const Vec3& spacing) {
+  if (bool(o.origin_mm) != bool(o.extent))
+    throw InputError("give " + spelled(o.names, "origin_mm") + " and " +
+                     spelled(o.names, "extent") + " together");
+  if (o.origin_mm) {
+    VolumeGrid grid;
+    grid.spacing_mm = spacing;
+    grid.origin_mm = *o.origin_mm;
+    for (int a = 0; a < 3; ++a) grid.dims[a] = (*o.extent)[a];
+    for (int a = 0; a < 3; ++a)
+      if (grid.dims[a] < 1 || grid.dims[a] > (int64_t(1) << 20) ||
+          !std::isfinite(grid.origin_mm[a]))
+        throw InputError(spelled(o.names, "extent") + " / " + spelled(o.names, "origin_mm") +
+                         ": expected finite origin and 1 to 1048576 voxels per axis");
+    return grid;
+  }
+  return config && !o.spacing_mm ? config->output_grid() : std::nullopt;
+}
+
+}  // namespace
+
+StreamPlan plan_stream(PixelType frame_type, int width, int height,
+                       const PlusReconstructionConfig* config, const ReconstructionOptions& o) {
+  Reconstruction::Impl im;
+  im.source.kind = FrameSource::Kind::Images;
+  im.source.name = "frames";
+  im.source.type = frame_type;
+  im.source.width = width;
+  im.source.height = height;
+  im.names = o.names;
+  StreamPlan plan;
+  plan.spacing_mm = resolve_spacing(config, o);
+  im.resolve_settings(config, o);
+  plan.settings = im.settings;
+  plan.clip = im.clip;
+  plan.output_type = im.output_type;
+  plan.grid = fixed_grid(config, o, plan.spacing_mm);
+  return plan;
+}
+
 void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
                                     const ReconstructionOptions& o,
                                     const std::optional<Vec3>& spacing) {
-  // The configuration's grid when it gives origin and extent, unless the caller chose a spacing.
-  const std::optional<VolumeGrid> config_grid =
-      config && !o.spacing_mm ? config->output_grid() : std::nullopt;
-  report.grid_from_config = bool(config_grid);
-  if (config_grid)
-    grid = *config_grid;
+  const std::optional<VolumeGrid> fixed = fixed_grid(config, o, *spacing);
+  report.grid_from_config = fixed && !o.origin_mm;
+  if (fixed)
+    grid = *fixed;
   else if (source.kind == FrameSource::Kind::Beams)
     grid = Compounder::grid_around_beams(to_reference, source.beam_geometry, *spacing);
   else
@@ -465,15 +512,7 @@ Reconstruction::Reconstruction(const FrameSource& frames, const PlusReconstructi
   im.names = o.names;
   im.device = o.device;
   im.max_memory_bytes = o.max_memory_bytes;
-  std::optional<Vec3> spacing = o.spacing_mm ? o.spacing_mm
-                                : config     ? config->output_spacing_mm
-                                             : std::nullopt;
-  if (!spacing)
-    throw InputError("give " + im.name("spacing") + " (mm) or a PLUS configuration (" +
-                     im.name("config") + ") with OutputSpacing");
-  for (double s : *spacing)
-    if (!(s > 0) || !std::isfinite(s))
-      throw InputError(im.name("spacing") + " " + std::to_string(s) + ": must be > 0 mm");
+  const std::optional<Vec3> spacing = resolve_spacing(config, o);
   im.resolve_settings(config, o);
   im.select_frames(config, o);
   im.fit_grid(config, o, spacing);

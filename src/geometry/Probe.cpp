@@ -53,6 +53,15 @@ bool ProbeGeometry::inside(double x, double y) const {
   return true;
 }
 
+Mat4 ProbeGeometry::pixel_to_probe() const {
+  Mat4 m;
+  m.m[0][0] = image.spacing_mm[0];
+  m.m[1][1] = image.spacing_mm[1];
+  m.m[0][3] = image.origin_mm[0];
+  m.m[1][3] = image.origin_mm[1];
+  return m;
+}
+
 std::vector<uint8_t> ProbeGeometry::mask() const {
   std::vector<uint8_t> m(size_t(image.pixel_count()));
   for (int v = 0; v < image.height; ++v) {

@@ -30,6 +30,7 @@ namespace sonoslice {
 
 struct PlusSequence;
 struct PlusReconstructionConfig;
+struct StreamPlan;
 
 /// Tracked frames, as views: the memory belongs to the caller and must outlive the
 /// Reconstruction built from it.
@@ -95,6 +96,11 @@ struct ReconstructionOptions {
   /// Voxel size (mm). Default: the configuration's OutputSpacing; required without one. Giving
   /// it also drops the configuration's OutputOrigin/OutputExtent (the grid is fitted instead).
   std::optional<Vec3> spacing_mm;
+  /// The grid itself, axes parallel to the reference frame: voxel (0,0,0)'s centre (mm) and the
+  /// voxels per axis; both or neither. They replace the configuration's OutputOrigin/OutputExtent
+  /// and the grid fitted around the frames.
+  std::optional<Vec3> origin_mm;
+  std::optional<std::array<int64_t, 3>> extent;
   std::optional<Interpolation> interpolation;  ///< default: the configuration's, else linear
   std::optional<CompoundingMode> mode;         ///< default: the configuration's, else mean
   /// Default: the configuration's; true when `hole_filling` is given; else false.
@@ -200,9 +206,26 @@ class Reconstruction {
                            const std::function<void(int64_t, int64_t)>& progress = {});
 
  private:
+  friend StreamPlan plan_stream(PixelType, int, int, const PlusReconstructionConfig*,
+                                const ReconstructionOptions&);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+/// What a reconstruction of 2D frames arriving one at a time (live, docs/live.md) uses, resolved
+/// by the same rules as Reconstruction from the first frame's type and size: the settings, the
+/// clip, the output type, the spacing, and the grid when the options or the configuration fix it
+/// (std::nullopt: the caller grows one around the frames).
+struct StreamPlan {
+  CompoundSettings settings;
+  FrameClip clip;
+  PixelType output_type = PixelType::UInt8;
+  Vec3 spacing_mm{{1, 1, 1}};
+  std::optional<VolumeGrid> grid;
+};
+StreamPlan plan_stream(PixelType frame_type, int width, int height,
+                       const PlusReconstructionConfig* config,
+                       const ReconstructionOptions& options);
 
 /// The transform name `name` (e.g. "ImageToReference" or "ImageToReferenceTransform") split into
 /// its frames ("Image", "Reference"); InputError otherwise.

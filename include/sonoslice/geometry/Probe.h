@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include "sonoslice/geometry/Math.h"
+
 namespace sonoslice {
 
 /// The output image grid in probe coordinates (mm). Pixel (u, v) (column u, row v) has its
@@ -58,6 +60,9 @@ struct ProbeGeometry {
 
   /// The H×W uint8 mask (row-major, row 0 first): 1 where the pixel centre is inside.
   std::vector<uint8_t> mask() const;
+  /// Pixel (u, v) at (u, v, 0) → probe mm, from the image grid (docs/conventions.md §3): what a
+  /// pose is multiplied with to place an image in the world.
+  Mat4 pixel_to_probe() const;
 
   std::string describe() const;
 

@@ -1,0 +1,278 @@
+// sonoslice live: OpenIGTLink in and out (docs/live.md). `live compound`: tracked frames in, a
+// growing volume out, driven by PlusServer's reconstruction commands; `live slice`: a virtual
+// probe answering each pose with the image `slice` makes there.
+#include <atomic>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+
+#include "Commands.h"
+#include "Common.h"
+#include "ReconstructionFlags.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/io/ProbeFile.h"
+#include "sonoslice/live/LiveServers.h"
+#include "sonoslice/plus/PlusConfig.h"
+
+namespace sonoslice {
+namespace cli {
+namespace {
+
+std::atomic<bool> g_stop{false};
+extern "C" void request_stop(int) {
+  g_stop.store(true);
+}
+
+// SIGINT/SIGTERM end a live run cleanly (its outputs are then written); afterwards the usual
+// handlers (which remove half-written outputs) are back.
+struct StopOnSignals {
+  StopOnSignals() {
+    g_stop.store(false);
+    struct sigaction a {};
+    a.sa_handler = request_stop;
+    sigemptyset(&a.sa_mask);
+    ::sigaction(SIGINT, &a, nullptr);
+    ::sigaction(SIGTERM, &a, nullptr);
+  }
+  ~StopOnSignals() { install_output_cleanup_on_signals(); }
+};
+
+struct Endpoint {
+  std::string listen, connect;
+  void add_to(CLI::App& cmd) {
+    cmd.add_option("--listen", listen,
+                   "[HOST:]PORT: wait for OpenIGTLink clients (host 127.0.0.1 unless given; "
+                   "port 0: a free one, printed)");
+    cmd.add_option("--connect", connect, "HOST:PORT: be a client of an OpenIGTLink server");
+  }
+  IgtlEndpointOptions options() const {
+    if (listen.empty() == connect.empty()) throw UsageError("give one of --listen or --connect");
+    IgtlEndpointOptions o;
+    o.listen = !listen.empty();
+    parse_host_port(o.listen ? listen : connect, o.listen ? "--listen" : "--connect", o.host,
+                    o.port);
+    return o;
+  }
+};
+
+void announce(const char* command, const IgtlEndpoint& e) {
+  // One line on stdout, flushed: scripts and tests read the port from it.
+  std::printf("sonoslice live %s: %s %s:%d\n", command,
+              e.options().listen ? "listening on" : "connecting to", e.options().host.c_str(),
+              e.port());
+  std::fflush(stdout);
+}
+
+void write_text_file(const std::string& path, const std::string& text) {
+  AtomicFile f(path);
+  std::FILE* out = fdopen(dup(f.fd()), "w");
+  if (!out || std::fputs(text.c_str(), out) < 0 || std::fclose(out) != 0)
+    throw FileError("cannot write '" + path + "'");
+  f.commit();
+}
+
+struct LiveCompoundFlags {
+  Endpoint endpoint;
+  std::string config;
+  ReconstructionFlags recon;
+  std::string image_device, queue = "all", out, record, stats;
+  int queue_size = 16;
+  int64_t max_frames = 0;
+  double max_seconds = 0;
+  bool quiet = false;
+};
+
+void run_live_compound_command(const LiveCompoundFlags& f) {
+  const IgtlEndpointOptions endpoint = f.endpoint.options();
+  ReconstructionOptions options;
+  options.names = flag_of;
+  f.recon.apply(options);
+  options.device = setup_device(f.recon.device, f.recon.threads);
+  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0");
+  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0");
+  check_distinct_outputs({{"--out", f.out}, {"--record", f.record}, {"--stats", f.stats}},
+                         {{"--config", f.config}});
+  check_volume_output(f.out, "--out");
+  if (!f.record.empty()) check_output_path(f.record);
+  if (!f.stats.empty()) check_output_path(f.stats);
+  std::shared_ptr<const PlusReconstructionConfig> config;
+  if (!f.config.empty())
+    config = std::make_shared<PlusReconstructionConfig>(read_plus_config(f.config));
+  LiveOptions live;
+  live.queue = parse_queue_policy(f.queue, "--queue");
+  live.queue_size = f.queue_size;
+  live.keep_frames = !f.record.empty();
+  LiveCompounder compounder(config, options, live);
+
+  LiveCompoundRun run;
+  run.endpoint = endpoint;
+  run.image_device = f.image_device;
+  run.limits.max_frames = f.max_frames;
+  run.limits.max_seconds = f.max_seconds;
+  run.limits.stop = &g_stop;
+  run.on_ready = [](const IgtlEndpoint& e) { announce("compound", e); };
+  if (!f.quiet)
+    run.log = [](const std::string& line) {
+      std::fprintf(stderr, "sonoslice live compound: %s\n", line.c_str());
+    };
+  LiveCompoundResult result;
+  {
+    StopOnSignals signals;
+    result = run_live_compound(compounder, run);
+  }
+  // The statistics first: they say why a run has no volume.
+  std::string why;
+  for (const auto& [reason, n] : result.stats.rejected_by_reason)
+    why += "; " + std::to_string(n) + " rejected: " + reason;
+  for (const auto& [key, n] : result.network)
+    if (key.rfind("rejected: ", 0) == 0 || key.rfind("ignored: ", 0) == 0)
+      why += "; " + std::to_string(n) + " " + key;
+  if (!f.stats.empty()) {
+    std::string text = result.stats.json();
+    // The network counts and the stop reason beside the frame counts.
+    text.pop_back();  // the closing brace
+    while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
+    text += ",\n  \"stopped_by\": \"" + result.stopped_by + "\",\n  \"network\": {";
+    bool first = true;
+    for (const auto& [key, n] : result.network) {
+      text += std::string(first ? "" : ",") + "\n    \"" + key + "\": " + std::to_string(n);
+      first = false;
+    }
+    text += "\n  }\n}\n";
+    write_text_file(f.stats, text);
+  }
+  std::fprintf(stderr, "sonoslice live compound: stopped by %s: %s%s\n", result.stopped_by.c_str(),
+               result.stats.summary().c_str(), why.c_str());
+  if (result.volume.grid().voxel_count() == 0)
+    throw InputError("live compound: no frame was compounded, nothing written to '" + f.out +
+                     "' (" + std::to_string(result.stats.received) + " frames received" + why +
+                     ")");
+  OutputSet outputs;
+  write_volume(f.out, result.volume, &outputs);
+  outputs.commit();
+  if (!f.record.empty()) write_plus_sequence(f.record, compounder.recorded());
+  if (!f.quiet && result.stats.grid) {
+    const VolumeGrid& g = *result.stats.grid;
+    std::fprintf(stderr,
+                 "sonoslice live compound: %s: %lldx%lldx%lld voxels, origin %.17g,%.17g,%.17g\n",
+                 f.out.c_str(), (long long)g.dims[0], (long long)g.dims[1], (long long)g.dims[2],
+                 g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]);
+  }
+}
+
+struct LiveSliceFlags {
+  Endpoint endpoint;
+  VolumeFlags volume;
+  std::string labels, probe, interp = "linear", dtype = "float32", world = "LPS";
+  std::string device = "cpu", pose_device, image_device = "Image", stats;
+  double fill = 0;
+  int downsampling = 1;
+  std::optional<int> threads;
+  int64_t max_frames = 0;
+  double max_seconds = 0;
+};
+
+void run_live_slice_command(const LiveSliceFlags& f) {
+  const IgtlEndpointOptions endpoint = f.endpoint.options();
+  if (f.volume.path.empty() == f.labels.empty())
+    throw UsageError("live slice: give one of --volume or --labels");
+  const Device device = setup_device(f.device, f.threads);
+  SliceSettings settings;
+  settings.interpolation = parse_interpolation(f.interp);
+  settings.output_type = parse_pixel_type(f.dtype);
+  settings.fill_value = f.fill;
+  if (!f.labels.empty()) settings.interpolation = Interpolation::Nearest;
+  if (!f.stats.empty()) check_output_path(f.stats);
+  const ProbeGeometry probe = read_probe(f.probe, f.downsampling);
+  const std::string path = f.volume.path.empty() ? f.labels : f.volume.path;
+  const Volume v = read_volume(path, f.volume.options());
+  const Slicer slicer(v, probe, settings, device);
+
+  ProbeRenderer renderer;
+  renderer.width = probe.image.width;
+  renderer.height = probe.image.height;
+  renderer.type = settings.output_type;
+  renderer.pixel_to_probe = probe.pixel_to_probe();
+  renderer.render = [&slicer](const Pose& pose, void* out) { slicer.slice(&pose, 1, out, 0); };
+  VirtualProbeRun run;
+  run.endpoint = endpoint;
+  run.pose_device = f.pose_device;
+  run.image_device = f.image_device;
+  run.world = parse_world_frame(f.world);
+  run.limits.max_frames = f.max_frames;
+  run.limits.max_seconds = f.max_seconds;
+  run.limits.stop = &g_stop;
+  run.on_ready = [](const IgtlEndpoint& e) { announce("slice", e); };
+  VirtualProbeResult result;
+  {
+    StopOnSignals signals;
+    result = run_virtual_probe(renderer, run);
+  }
+  std::fprintf(stderr,
+               "sonoslice live slice: stopped by %s: %lld poses, %lld images (%.0f/s), %lld "
+               "rejected; latency p50 %.2f ms, p99 %.2f ms\n",
+               result.stopped_by.c_str(), (long long)result.poses, (long long)result.images,
+               result.seconds > 0 ? result.images / result.seconds : 0.0,
+               (long long)result.rejected, result.latency_ms_p50, result.latency_ms_p99);
+  if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
+}
+
+}  // namespace
+
+void add_live_command(CLI::App& app) {
+  CLI::App* live = app.add_subcommand(
+      "live", "OpenIGTLink in and out: live compounding and a virtual probe (docs/live.md)");
+  live->require_subcommand(1);
+
+  auto c = std::make_shared<LiveCompoundFlags>();
+  CLI::App* cmd =
+      live->add_subcommand("compound",
+                           "Tracked frames (IMAGE messages) in, a growing volume out; PlusServer's "
+                           "volume reconstruction commands");
+  c->endpoint.add_to(*cmd);
+  cmd->add_option("--config", c->config,
+                  "PLUS configuration XML: its VolumeReconstruction settings and grid");
+  c->recon.add_to(*cmd);
+  cmd->add_option("--image-device", c->image_device,
+                  "Only IMAGE messages of this device name (default: every IMAGE)");
+  cmd->add_option("--queue", c->queue,
+                  "all (default: every frame, the sender waits when --queue-size wait) or newest "
+                  "(only the newest waiting frame; the others are dropped and counted)");
+  cmd->add_option("--queue-size", c->queue_size, "Frames that may wait with --queue all (16)");
+  cmd->add_option("--max-frames", c->max_frames, "Stop after N frames");
+  cmd->add_option("--max-seconds", c->max_seconds, "Stop after S seconds");
+  cmd->add_option("--out", c->out, "The volume: .nii/.nii.gz/.mha/.nrrd/.npy")->required();
+  cmd->add_option("--record", c->record,
+                  "Also write the compounded frames as a PLUS sequence (.igs.mha/.igs.nrrd)");
+  cmd->add_option("--stats", c->stats, "Write the counts and latencies here (JSON)");
+  cmd->add_flag("--quiet,-q", c->quiet, "Only the summary line");
+  cmd->callback([c] { run_live_compound_command(*c); });
+
+  auto s = std::make_shared<LiveSliceFlags>();
+  cmd = live->add_subcommand("slice",
+                             "A virtual probe: each TRANSFORM (probe pose) gets the IMAGE "
+                             "`sonoslice slice` makes there");
+  s->endpoint.add_to(*cmd);
+  s->volume.add_to(*cmd, /*path_required=*/false);
+  cmd->add_option("--labels", s->labels, "A label volume (uint8/uint16): label images, nearest");
+  cmd->add_option("--probe", s->probe, "Probe JSON (native or fan-slicer config)")->required();
+  cmd->add_option("--downsampling", s->downsampling, "Divide the probe image size by K");
+  cmd->add_option("--interp", s->interp, "linear (default) or nearest");
+  cmd->add_option("--dtype", s->dtype, "float32 (default), int16, uint8 or uint16");
+  cmd->add_option("--fill", s->fill, "Value outside the fan or the volume (default 0)");
+  cmd->add_option("--world", s->world, "Frame of the poses and images: LPS (default) or RAS");
+  cmd->add_option("--pose-device", s->pose_device,
+                  "Only TRANSFORM messages of this device name (default: every one)");
+  cmd->add_option("--image-device", s->image_device, "Device name of the images sent (Image)");
+  cmd->add_option("--device", s->device, "cpu (default), cuda or cuda:K");
+  add_threads_option(*cmd, s->threads);
+  cmd->add_option("--max-frames", s->max_frames, "Stop after N images");
+  cmd->add_option("--max-seconds", s->max_seconds, "Stop after S seconds");
+  cmd->add_option("--stats", s->stats, "Write the counts and latencies here (JSON)");
+  cmd->callback([s] { run_live_slice_command(*s); });
+}
+
+}  // namespace cli
+}  // namespace sonoslice

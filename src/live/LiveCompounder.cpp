@@ -1,0 +1,450 @@
+// Live compounding: a queue in front of the Compounder, one worker thread inserting the frames in
+// arrival order (the Compounder's own kernels use the CPU thread pool), counts and latencies.
+#include "sonoslice/live/LiveCompounder.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <deque>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "../core/Text.h"
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace {
+
+double now_seconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+struct Frame {
+  std::vector<uint8_t> pixels;
+  Mat4 to_reference;
+  double timestamp = 0, arrival = 0;
+};
+
+// A lattice box of voxel indices (voxel n's centre at n · spacing), inclusive.
+struct Box {
+  std::array<int64_t, 3> lo{}, hi{};
+  bool contains(const Box& b) const {
+    for (int a = 0; a < 3; ++a)
+      if (b.lo[a] < lo[a] || b.hi[a] > hi[a]) return false;
+    return true;
+  }
+  void add(const Box& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  VolumeGrid grid(const Vec3& spacing) const {
+    VolumeGrid g;
+    g.spacing_mm = spacing;
+    for (int a = 0; a < 3; ++a) {
+      g.origin_mm[a] = double(lo[a]) * spacing[a];
+      g.dims[a] = hi[a] - lo[a] + 1;
+    }
+    return g;
+  }
+};
+
+double percentile(std::vector<float> v, double p) {
+  if (v.empty()) return 0;
+  // Nearest rank: the smallest value with at least p % of the values at or below it.
+  const size_t k = std::max<size_t>(1, size_t(std::ceil(p / 100.0 * double(v.size())))) - 1;
+  std::nth_element(v.begin(), v.begin() + long(k), v.end());
+  return v[k];
+}
+
+std::string matrix_text(const Mat4& m) {
+  std::string s;
+  char b[40];
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) {
+      std::snprintf(b, sizeof(b), "%.17g", m.m[r][c]);
+      if (!s.empty()) s += ' ';
+      s += b;
+    }
+  return s;
+}
+
+}  // namespace
+
+QueuePolicy parse_queue_policy(const std::string& text, const std::string& what) {
+  const std::string t = text::lower(text);
+  if (t == "all") return QueuePolicy::All;
+  if (t == "newest") return QueuePolicy::Newest;
+  throw InputError(what + " \"" + text + "\": expected all or newest");
+}
+
+struct LiveCompounder::Impl {
+  std::shared_ptr<const PlusReconstructionConfig> config;
+  ReconstructionOptions options;
+  LiveOptions live;
+  double start = now_seconds();
+
+  mutable std::mutex mutex;  // queue, counts, kept frames
+  std::condition_variable changed;
+  std::deque<Frame> queue;
+  bool busy = false, stop = false, suspended = false;
+  LiveStats counts;
+  std::vector<float> latencies_ms;
+  // The first frame fixes these.
+  std::optional<PixelType> type;
+  int width = 0, height = 0;
+
+  mutable std::mutex volume_mutex;  // the compounder and the grid
+  std::optional<StreamPlan> plan;
+  std::unique_ptr<Compounder> compounder;
+  // The compounded frames, when kept: in blocks of frames stored one after the other, so they go
+  // back in batches and keeping one more never copies the others.
+  std::vector<std::vector<uint8_t>> kept_pixels;
+  std::vector<Mat4> kept_to_reference;
+  std::vector<double> kept_timestamps;
+  bool growing = false;
+  Box tight, allocated;
+  std::thread worker;
+
+  std::string reject(const std::string& why) {
+    ++counts.rejected;
+    ++counts.rejected_by_reason[why];
+    return why;
+  }
+  Box frame_box(const Frame& f) const {
+    const VolumeGrid g =
+        Compounder::grid_around({f.to_reference}, width, height, plan->clip, plan->spacing_mm,
+                                Compounder::GridFit::PlusLattice);
+    Box b;
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = std::llround(g.origin_mm[a] / plan->spacing_mm[a]);
+      b.hi[a] = b.lo[a] + g.dims[a] - 1;
+    }
+    return b;
+  }
+  void rebuild(const VolumeGrid& grid) {
+    compounder = std::make_unique<Compounder>(grid, plan->settings, options.device,
+                                              options.max_memory_bytes, plan->output_type);
+    int64_t first = 0;
+    for (const auto& block : kept_pixels) {
+      const int64_t count = int64_t(block.size() / frame_bytes());
+      compounder->add_images(block.data(), *type, width, height, count,
+                             kept_to_reference.data() + first, plan->clip);
+      first += count;
+    }
+  }
+  size_t frame_bytes() const { return size_t(width) * size_t(height) * pixel_size(*type); }
+  void keep(const Frame& f) {
+    const size_t block_frames = std::max<size_t>(1, (size_t(32) << 20) / frame_bytes());
+    if (kept_pixels.empty() || kept_pixels.back().size() == block_frames * frame_bytes()) {
+      kept_pixels.emplace_back();
+      kept_pixels.back().reserve(block_frames * frame_bytes());
+    }
+    kept_pixels.back().insert(kept_pixels.back().end(), f.pixels.begin(), f.pixels.end());
+    kept_to_reference.push_back(f.to_reference);
+    kept_timestamps.push_back(f.timestamp);
+  }
+  void insert_into_compounder(const Frame& f) {
+    compounder->add_image(f.pixels.data(), *type, width, height, f.to_reference, plan->clip);
+  }
+  void insert(Frame& f);  // under volume_mutex
+  void run();
+};
+
+void LiveCompounder::Impl::insert(Frame& f) {
+  if (!plan) {
+    plan = plan_stream(*type, width, height, config.get(), options);
+    growing = !plan->grid;
+    if (!growing)
+      compounder = std::make_unique<Compounder>(*plan->grid, plan->settings, options.device,
+                                                options.max_memory_bytes, plan->output_type);
+  }
+  if (growing) {
+    const Box b = frame_box(f);
+    if (!compounder) {
+      tight = allocated = b;
+    } else {
+      tight.add(b);
+    }
+    if (!compounder || !allocated.contains(b)) {
+      // Grow by a quarter of the current size (at least 16 voxels) where the frame leaves the
+      // box: a sweep re-inserts its frames a few times, not at every frame, and the margin
+      // stays small enough to allocate quickly.
+      Box grown = compounder ? allocated : b;
+      grown.add(b);
+      for (int a = 0; a < 3; ++a) {
+        const int64_t pad = std::max<int64_t>(16, (grown.hi[a] - grown.lo[a] + 1) / 4);
+        if (!compounder || b.lo[a] < allocated.lo[a]) grown.lo[a] -= pad;
+        if (!compounder || b.hi[a] > allocated.hi[a]) grown.hi[a] += pad;
+      }
+      allocated = grown;
+      rebuild(allocated.grid(plan->spacing_mm));
+    }
+  }
+  insert_into_compounder(f);
+  if (live.keep_frames || growing) keep(f);
+}
+
+void LiveCompounder::Impl::run() {
+  std::unique_lock<std::mutex> lock(mutex);
+  for (;;) {
+    changed.wait(lock, [&] { return stop || !queue.empty(); });
+    if (queue.empty()) return;  // stop, and nothing left
+    Frame f = std::move(queue.front());
+    queue.pop_front();
+    busy = true;
+    changed.notify_all();  // room in the queue
+    lock.unlock();
+    std::string error;
+    const double arrival = f.arrival;
+    try {
+      std::lock_guard<std::mutex> v(volume_mutex);
+      insert(f);
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    const double done = now_seconds();
+    lock.lock();
+    busy = false;
+    if (error.empty()) {
+      ++counts.compounded;
+      latencies_ms.push_back(float((done - arrival) * 1e3));
+    } else {
+      reject(error);
+    }
+    changed.notify_all();
+  }
+}
+
+LiveCompounder::LiveCompounder(std::shared_ptr<const PlusReconstructionConfig> config,
+                               ReconstructionOptions options, LiveOptions live)
+    : impl_(std::make_unique<Impl>()) {
+  Impl& im = *impl_;
+  if (live.queue_size < 1 || live.queue_size > 100000)
+    throw InputError(spelled(options.names, "queue_size") + " " + std::to_string(live.queue_size) +
+                     ": expected 1 to 100000 frames");
+  if (options.plus_exact)
+    throw InputError(spelled(options.names, "plus_exact") + ": not for live frames");
+  im.config = std::move(config);
+  im.options = std::move(options);
+  im.live = live;
+  // Every setting is checked now, before a frame arrives (the frames' type only changes the
+  // default output type).
+  reset(im.options);
+  im.worker = std::thread([&im] { im.run(); });
+}
+
+LiveCompounder::~LiveCompounder() {
+  {
+    std::lock_guard<std::mutex> lock(impl_->mutex);
+    impl_->stop = true;
+    impl_->queue.clear();
+  }
+  impl_->changed.notify_all();
+  if (impl_->worker.joinable()) impl_->worker.join();
+}
+
+std::string LiveCompounder::push(const void* pixels, PixelType type, int width, int height,
+                                 const Mat4& m, double timestamp_s, std::optional<double> arrival) {
+  Impl& im = *impl_;
+  Frame f;
+  f.arrival = arrival ? *arrival : now_seconds();
+  f.timestamp = timestamp_s;
+  f.to_reference = m;
+  std::unique_lock<std::mutex> lock(im.mutex);
+  ++im.counts.received;
+  if (type != PixelType::UInt8 && type != PixelType::Int8 && type != PixelType::UInt16 &&
+      type != PixelType::Int16 && type != PixelType::Float32)
+    return im.reject("a " + to_string(type) + " frame (uint8, int8, uint16, int16 or float32)");
+  if (width < 1 || height < 1) return im.reject("an empty frame");
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c)
+      if (!std::isfinite(m.m[r][c])) return im.reject("a frame matrix with a non-finite value");
+  const Vec3 u = m.column3(0), v = m.column3(1);
+  const Vec3 n{{u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]}};
+  if (!(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-18))
+    return im.reject("a singular frame matrix (its pixel axes are zero or parallel)");
+  if (im.type && (*im.type != type || im.width != width || im.height != height))
+    return im.reject("a frame of " + std::to_string(width) + "x" + std::to_string(height) + " " +
+                     to_string(type) + " after frames of " + std::to_string(im.width) + "x" +
+                     std::to_string(im.height) + " " + to_string(*im.type));
+  im.type = type;
+  im.width = width;
+  im.height = height;
+  const size_t bytes = size_t(width) * size_t(height) * pixel_size(type);
+  im.counts.bytes += bytes;
+  if (im.suspended) {
+    ++im.counts.suspended;
+    return "";
+  }
+  if (im.live.queue == QueuePolicy::All) {
+    im.changed.wait(lock, [&] { return int(im.queue.size()) < im.live.queue_size; });
+  } else if (!im.queue.empty()) {
+    im.counts.dropped += int64_t(im.queue.size());
+    im.queue.clear();
+  }
+  lock.unlock();
+  // The copy happens outside the lock, so the worker is never held up by it.
+  f.pixels.assign(static_cast<const uint8_t*>(pixels), static_cast<const uint8_t*>(pixels) + bytes);
+  lock.lock();
+  im.queue.push_back(std::move(f));
+  im.changed.notify_all();
+  return "";
+}
+
+bool LiveCompounder::full() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->live.queue == QueuePolicy::All &&
+         int(impl_->queue.size()) >= impl_->live.queue_size;
+}
+
+void LiveCompounder::drain() {
+  std::unique_lock<std::mutex> lock(impl_->mutex);
+  impl_->changed.wait(lock, [&] { return impl_->queue.empty() && !impl_->busy; });
+}
+
+void LiveCompounder::suspend() {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->suspended = true;
+}
+void LiveCompounder::resume() {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->suspended = false;
+}
+bool LiveCompounder::is_suspended() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->suspended;
+}
+
+void LiveCompounder::reset() {
+  drain();
+  std::lock_guard<std::mutex> v(impl_->volume_mutex);
+  impl_->compounder.reset();
+  impl_->kept_pixels.clear();
+  impl_->kept_to_reference.clear();
+  impl_->kept_timestamps.clear();
+  impl_->plan.reset();
+}
+
+void LiveCompounder::reset(const ReconstructionOptions& options) {
+  const StreamPlan check = plan_stream(PixelType::UInt8, 1, 1, impl_->config.get(), options);
+  if (check.grid) check.grid->validate(spelled(options.names, "extent"));
+  drain();
+  std::lock_guard<std::mutex> v(impl_->volume_mutex);
+  impl_->options = options;
+  impl_->compounder.reset();
+  impl_->kept_pixels.clear();
+  impl_->kept_to_reference.clear();
+  impl_->kept_timestamps.clear();
+  impl_->plan.reset();
+}
+
+const ReconstructionOptions& LiveCompounder::options() const {
+  return impl_->options;
+}
+
+Volume LiveCompounder::snapshot() const {
+  std::lock_guard<std::mutex> v(impl_->volume_mutex);
+  if (!impl_->compounder) return Volume();
+  return impl_->compounder->volume(impl_->plan->output_type);
+}
+
+Volume LiveCompounder::finish() {
+  drain();
+  Impl& im = *impl_;
+  std::lock_guard<std::mutex> v(im.volume_mutex);
+  if (!im.compounder) return Volume();
+  if (im.growing && (im.tight.lo != im.allocated.lo || im.tight.hi != im.allocated.hi)) {
+    im.allocated = im.tight;
+    im.rebuild(im.tight.grid(im.plan->spacing_mm));
+  }
+  return im.compounder->volume(im.plan->output_type);
+}
+
+LiveStats LiveCompounder::stats() const {
+  const Impl& im = *impl_;
+  LiveStats s;
+  std::vector<float> latencies;
+  {
+    std::lock_guard<std::mutex> lock(im.mutex);
+    s = im.counts;
+    s.waiting = int64_t(im.queue.size()) + (im.busy ? 1 : 0);
+    latencies = im.latencies_ms;
+  }
+  s.seconds = now_seconds() - im.start;
+  s.latency_ms_p50 = percentile(latencies, 50);
+  s.latency_ms_p95 = percentile(latencies, 95);
+  s.latency_ms_p99 = percentile(latencies, 99);
+  s.latency_ms_max = latencies.empty() ? 0 : *std::max_element(latencies.begin(), latencies.end());
+  std::lock_guard<std::mutex> v(im.volume_mutex);
+  if (im.compounder) s.grid = im.compounder->grid();
+  return s;
+}
+
+PlusSequence LiveCompounder::recorded() const {
+  const Impl& im = *impl_;
+  std::lock_guard<std::mutex> v(im.volume_mutex);
+  if (!im.live.keep_frames)
+    throw Error("LiveCompounder::recorded: made without keep_frames (LiveOptions)");
+  PlusSequence s;
+  s.path = "recorded";
+  s.width = im.width;
+  s.height = im.height;
+  s.pixel_type = im.type ? *im.type : PixelType::UInt8;
+  s.frame_count = int(im.kept_to_reference.size());
+  const std::string transform =
+      (im.config ? im.config->image_frame + "To" + im.config->reference_frame
+                 : std::string("ImageToReference")) +
+      "Transform";
+  for (const auto& block : im.kept_pixels)
+    s.pixels.insert(s.pixels.end(), block.begin(), block.end());
+  for (size_t k = 0; k < im.kept_to_reference.size(); ++k) {
+    char t[40];
+    std::snprintf(t, sizeof(t), "%.6f", im.kept_timestamps[k]);
+    s.frame_fields.push_back({{transform, matrix_text(im.kept_to_reference[k])},
+                              {transform + "Status", "OK"},
+                              {"Timestamp", t},
+                              {"ImageStatus", "OK"}});
+  }
+  return s;
+}
+
+std::string LiveStats::json() const {
+  nlohmann::ordered_json j;
+  j["frames_received"] = received;
+  j["frames_compounded"] = compounded;
+  j["frames_dropped"] = dropped;
+  j["frames_suspended"] = suspended;
+  j["frames_rejected"] = rejected;
+  j["rejected_by_reason"] = rejected_by_reason;
+  j["frames_waiting"] = waiting;
+  j["bytes"] = bytes;
+  j["latency_ms"] = {{"p50", latency_ms_p50},
+                     {"p95", latency_ms_p95},
+                     {"p99", latency_ms_p99},
+                     {"max", latency_ms_max}};
+  j["seconds"] = seconds;
+  if (grid) {
+    j["grid"] = {
+        {"origin_mm", grid->origin_mm}, {"spacing_mm", grid->spacing_mm}, {"extent", grid->dims}};
+  }
+  return j.dump(2);
+}
+
+std::string LiveStats::summary() const {
+  char b[400];
+  std::snprintf(b, sizeof(b),
+                "%lld frames received, %lld compounded, %lld dropped, %lld rejected; latency "
+                "p50 %.2f ms, p95 %.2f ms, p99 %.2f ms, max %.2f ms",
+                (long long)received, (long long)compounded, (long long)dropped, (long long)rejected,
+                latency_ms_p50, latency_ms_p95, latency_ms_p99, latency_ms_max);
+  return b;
+}
+
+}  // namespace sonoslice

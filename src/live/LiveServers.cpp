@@ -1,0 +1,436 @@
+// The live workflows: an IgtlEndpoint loop around a LiveCompounder (with PlusServer's volume
+// reconstruction commands) or around a renderer (the virtual probe).
+#include "sonoslice/live/LiveServers.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#ifdef SONOSLICE_HAVE_PUGIXML
+#include <pugixml.hpp>
+#endif
+
+#include "../io/ByteOrder.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/VolumeFile.h"
+
+namespace sonoslice {
+namespace {
+
+double now_seconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+uint64_t wall_timestamp() {
+  return igtl::timestamp_of_seconds(
+      std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count());
+}
+
+// The stop conditions every live run shares.
+struct Limiter {
+  LiveLimits limits;
+  double start = now_seconds();
+  std::string reason(int64_t frames) const {
+    if (limits.stop && limits.stop->load()) return "a signal";
+    if (limits.max_frames > 0 && frames >= limits.max_frames) return "--max-frames";
+    if (limits.max_seconds > 0 && now_seconds() - start >= limits.max_seconds)
+      return "--max-seconds";
+    return "";
+  }
+};
+
+std::string xml_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      default:
+        out += c;
+    }
+  }
+  return out;
+}
+
+// A volume as a 3-D IMAGE message (its index → world matrix; PLUS sends the reconstruction in
+// the reference frame).
+std::vector<uint8_t> volume_message(const Volume& v, const std::string& device) {
+  const VolumeGrid& g = v.grid();
+  Mat4 m = Mat4::identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int a = 0; a < 3; ++a) m.m[r][a] = g.direction.m[r][a] * g.spacing_mm[a];
+    m.m[r][3] = g.origin_mm[r];
+  }
+  const int size[3] = {int(g.dims[0]), int(g.dims[1]), int(g.dims[2])};
+  return igtl::pack("IMAGE", device, wall_timestamp(),
+                    igtl::image_content(v.data(), v.pixel_type(), size, m));
+}
+
+// One PlusServer command: its name and attributes.
+struct PlusCommand {
+  std::string name;
+  std::map<std::string, std::string> attributes;
+  std::string attribute(const std::string& key) const {
+    const auto it = attributes.find(key);
+    return it == attributes.end() ? "" : it->second;
+  }
+};
+
+std::string parse_plus_command(const std::string& xml, PlusCommand& out) {
+#ifdef SONOSLICE_HAVE_PUGIXML
+  pugi::xml_document doc;
+  if (!doc.load_buffer(xml.data(), xml.size())) return "command XML that does not parse";
+  const pugi::xml_node root = doc.document_element();
+  if (std::string(root.name()) != "Command") return "command XML without a Command element";
+  for (const pugi::xml_attribute& a : root.attributes()) out.attributes[a.name()] = a.value();
+  out.name = out.attribute("Name");
+  return "";
+#else
+  (void)xml;
+  (void)out;
+  return "a command (sonoslice was built without pugixml)";
+#endif
+}
+
+// PlusServer's OutputSpacing / OutputOrigin / OutputExtent attributes → options.
+std::string apply_grid_attributes(const PlusCommand& c, ReconstructionOptions& o) {
+  const auto numbers = [](const std::string& text, size_t n, std::vector<double>& out) {
+    out.clear();
+    const char* p = text.c_str();
+    char* end = nullptr;
+    for (;;) {
+      const double v = std::strtod(p, &end);
+      if (end == p) break;
+      out.push_back(v);
+      p = end;
+    }
+    return out.size() == n;
+  };
+  std::vector<double> v;
+  if (!c.attribute("OutputSpacing").empty()) {
+    if (!numbers(c.attribute("OutputSpacing"), 3, v)) return "OutputSpacing is not 3 numbers";
+    o.spacing_mm = Vec3{{v[0], v[1], v[2]}};
+  }
+  const bool origin = !c.attribute("OutputOrigin").empty(),
+             extent = !c.attribute("OutputExtent").empty();
+  if (origin != extent) return "give OutputOrigin and OutputExtent together";
+  if (origin) {
+    if (!o.spacing_mm) return "OutputOrigin/OutputExtent need OutputSpacing";
+    std::vector<double> e;
+    if (!numbers(c.attribute("OutputOrigin"), 3, v)) return "OutputOrigin is not 3 numbers";
+    if (!numbers(c.attribute("OutputExtent"), 6, e)) return "OutputExtent is not 6 numbers";
+    Vec3 org{};
+    std::array<int64_t, 3> dims{};
+    for (int a = 0; a < 3; ++a) {
+      org[a] = v[size_t(a)] + e[size_t(2 * a)] * (*o.spacing_mm)[a];
+      dims[a] = int64_t(e[size_t(2 * a + 1)] - e[size_t(2 * a)]) + 1;
+    }
+    o.origin_mm = org;
+    o.extent = dims;
+  } else if (o.spacing_mm) {
+    o.origin_mm.reset();
+    o.extent.reset();
+  }
+  return "";
+}
+
+class CompoundServer {
+ public:
+  CompoundServer(LiveCompounder& c, const LiveCompoundRun& run)
+      : compounder_(&c), run_(run), endpoint_(run.endpoint) {}
+  LiveCompoundResult serve();
+
+ private:
+  void on_message(int client, igtl::Message&& m, double arrival);
+  void on_image(const igtl::Message& m, double arrival);
+  // Runs a PlusServer command; true on success, `message` says what happened.
+  bool on_command(int client, const PlusCommand& c, std::string& message);
+  void reply(int client, const igtl::Message& request, const std::string& name, bool ok,
+             const std::string& message);
+  void log(const std::string& line) {
+    if (run_.log) run_.log(line);
+  }
+  void ignore(const std::string& why) { ++ignored_["ignored: " + why]; }
+
+  LiveCompounder* compounder_;
+  const LiveCompoundRun& run_;
+  IgtlEndpoint endpoint_;
+  std::map<std::string, int64_t> ignored_;
+  int64_t frames_ = 0;
+  std::string stopped_by_;
+};
+
+void CompoundServer::on_image(const igtl::Message& m, double arrival) {
+  if (!run_.image_device.empty() && m.header.device != run_.image_device)
+    return ignore("IMAGE of another device");
+  igtl::Image image;
+  std::string problem = igtl::parse_image(m.content, image);
+  if (problem.empty() && image.components != 1)
+    problem = "an image of " + std::to_string(image.components) + " components (frames have 1)";
+  if (problem.empty() && image.size[2] != 1) problem = "a 3-D image (frames are 2-D)";
+  ++frames_;
+  if (!problem.empty()) {
+    endpoint_.reject(problem);
+    return;
+  }
+  const uint8_t* pixels = image.pixels;
+  std::vector<uint8_t> swapped;
+  if (image.big_endian && pixel_size(image.type) > 1) {
+    swapped.assign(image.pixels, image.pixels + image.pixel_bytes);
+    byteswap(swapped.data(), swapped.size() / pixel_size(image.type), pixel_size(image.type));
+    pixels = swapped.data();
+  }
+  compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
+                    igtl::seconds_of_timestamp(m.header.timestamp), arrival);
+}
+
+void CompoundServer::reply(int client, const igtl::Message& request, const std::string& name,
+                           bool ok, const std::string& message) {
+  const char* status = ok ? "SUCCESS" : "FAIL";
+  if (request.header.type == "COMMAND") {
+    igtl::Command c;
+    c.id = 0;
+    igtl::parse_command(request.content, c);
+    const std::string text = "<CommandReply Name=\"" + xml_escape(name) + "\" Status=\"" + status +
+                             "\"" + (ok ? "" : " Error=\"" + xml_escape(message) + "\"") +
+                             " Message=\"" + xml_escape(message) + "\"></CommandReply>";
+    std::vector<std::pair<std::string, std::string>> meta = {{"Message", message},
+                                                             {"Status", status}};
+    if (!ok) meta.emplace_back("Error", message);
+    endpoint_.send(client, igtl::pack("RTS_COMMAND", request.header.device, wall_timestamp(),
+                                      igtl::command_content({c.id, c.name, text}), 2,
+                                      request.message_id, meta));
+    return;
+  }
+  // STRING CMD_<uid> → STRING ACK_<uid> (PlusServer reads the uid as a number).
+  const std::string uid = request.header.device.substr(4);
+  char* end = nullptr;
+  const long id = std::strtol(uid.c_str(), &end, 10);
+  const std::string device = uid.empty() || *end ? "ACK" : "ACK_" + std::to_string(id);
+  const std::string text = std::string("<CommandReply Status=\"") + status + "\" Message=\"" +
+                           xml_escape(message) + "\" />";
+  endpoint_.send(client, igtl::pack("STRING", device, wall_timestamp(), igtl::string_content(text),
+                                    request.header.version, request.message_id));
+}
+
+bool CompoundServer::on_command(int client, const PlusCommand& c, std::string& message) {
+  const std::string file = c.attribute("OutputVolFilename");
+  const std::string device = c.attribute("OutputVolDeviceName");
+  // Snapshot and Stop: the volume to the file and/or to the asking client, as PlusServer does.
+  const auto deliver = [&](const Volume& v) {
+    if (v.grid().voxel_count() == 0) return;
+    if (!file.empty()) {
+      write_volume(file, v);
+      message += " saved reconstructed volume to file: " + file + ";";
+    }
+    if (!device.empty()) {
+      endpoint_.send(client, volume_message(v, device));
+      message += " image sent as: " + device + ";";
+    }
+  };
+  if (c.name == "StartVolumeReconstruction") {
+    // PlusServer's Start clears the volume and applies the command's grid attributes.
+    ReconstructionOptions o = compounder_->options();
+    const std::string problem = apply_grid_attributes(c, o);
+    if (!problem.empty()) {
+      message = problem;
+      return false;
+    }
+    compounder_->reset(o);
+    compounder_->resume();
+    message = "Volume reconstruction from live frames started.";
+    return true;
+  }
+  if (c.name == "SuspendVolumeReconstruction") {
+    if (compounder_->is_suspended()) {
+      message = "reconstruction is not running";
+      return false;
+    }
+    compounder_->suspend();
+    message = "Volume reconstruction from live frames suspended.";
+    return true;
+  }
+  if (c.name == "ResumeVolumeReconstruction") {
+    if (!compounder_->is_suspended()) {
+      message = "reconstruction is already running";
+      return false;
+    }
+    compounder_->resume();
+    message = "Volume reconstruction from live frames resumed.";
+    return true;
+  }
+  if (c.name == "GetVolumeReconstructionSnapshot") {
+    compounder_->drain();  // every frame received before the command is in it
+    message = "Snapshot:";
+    deliver(compounder_->snapshot());
+    return true;
+  }
+  if (c.name == "StopVolumeReconstruction") {
+    stopped_by_ = "StopVolumeReconstruction";
+    message = "Volume reconstruction stopped:";
+    if (!file.empty() || !device.empty()) deliver(compounder_->finish());
+    return true;
+  }
+  message = "unknown command " + c.name;
+  return false;
+}
+
+void CompoundServer::on_message(int client, igtl::Message&& m, double arrival) {
+  const std::string& type = m.header.type;
+  if (type == "IMAGE") return on_image(m, arrival);
+  const bool string_command = type == "STRING" && m.header.device.rfind("CMD_", 0) == 0;
+  if (string_command || type == "COMMAND") {
+    std::string text, problem;
+    igtl::Command command;
+    if (string_command) {
+      problem = igtl::parse_string(m.content, text);
+    } else {
+      problem = igtl::parse_command(m.content, command);
+      text = command.text;
+    }
+    PlusCommand c;
+    if (problem.empty()) problem = parse_plus_command(text, c);
+    if (problem.empty() && !command.name.empty() && command.name != c.name)
+      problem = "a COMMAND named " + command.name + " holding a " + c.name + " command";
+    if (!problem.empty()) {
+      endpoint_.reject(problem);
+      reply(client, m, c.name, false, problem);
+      return;
+    }
+    std::string message;
+    bool ok = false;
+    try {
+      ok = on_command(client, c, message);
+    } catch (const std::exception& e) {
+      message = e.what();
+    }
+    log(c.name + (ok ? ": " : " failed: ") + message);
+    reply(client, m, c.name, ok, message);
+    return;
+  }
+  if (type == "GET_STATUS") {
+    endpoint_.send(client, igtl::pack("STATUS", m.header.device, wall_timestamp(),
+                                      igtl::status_content(igtl::kStatusOk, 0, "",
+                                                           compounder_->stats().json()),
+                                      m.header.version, m.message_id));
+    return;
+  }
+  ignore(type + " message");
+}
+
+LiveCompoundResult CompoundServer::serve() {
+  if (run_.on_ready) run_.on_ready(endpoint_);
+  Limiter limiter{run_.limits};
+  const auto handler = [this](int client, igtl::Message&& m, double arrival) {
+    on_message(client, std::move(m), arrival);
+  };
+  while (stopped_by_.empty()) {
+    endpoint_.poll(10, !compounder_->full(), handler);
+    if (stopped_by_.empty()) stopped_by_ = limiter.reason(frames_);
+  }
+  LiveCompoundResult r;
+  r.volume = compounder_->finish();
+  endpoint_.flush(1000);  // replies and volumes still on their way
+  r.stats = compounder_->stats();
+  r.network = endpoint_.counts();
+  for (const auto& [k, n] : ignored_) r.network[k] += n;
+  r.stopped_by = stopped_by_;
+  return r;
+}
+
+}  // namespace
+
+LiveCompoundResult run_live_compound(LiveCompounder& compounder, const LiveCompoundRun& run) {
+  CompoundServer server(compounder, run);
+  return server.serve();
+}
+
+std::string VirtualProbeResult::json() const {
+  nlohmann::ordered_json j;
+  j["poses_received"] = poses;
+  j["images_sent"] = images;
+  j["rejected"] = rejected;
+  j["network"] = network;
+  j["seconds"] = seconds;
+  j["images_per_second"] = seconds > 0 ? double(images) / seconds : 0.0;
+  j["latency_ms"] = {{"p50", latency_ms_p50}, {"p99", latency_ms_p99}, {"max", latency_ms_max}};
+  j["stopped_by"] = stopped_by;
+  return j.dump(2);
+}
+
+VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const VirtualProbeRun& run) {
+  IgtlEndpoint endpoint(run.endpoint);
+  if (run.on_ready) run.on_ready(endpoint);
+  Limiter limiter{run.limits};
+  VirtualProbeResult r;
+  std::vector<uint8_t> image(size_t(renderer.width) * size_t(renderer.height) *
+                             pixel_size(renderer.type));
+  std::vector<float> latencies;
+  const int size[3] = {renderer.width, renderer.height, 1};
+  const auto handler = [&](int client, igtl::Message&& m, double arrival) {
+    if (m.header.type != "TRANSFORM") {
+      ++r.network["ignored: " + m.header.type + " message"];
+      return;
+    }
+    if (!run.pose_device.empty() && m.header.device != run.pose_device) {
+      ++r.network["ignored: TRANSFORM of another device"];
+      return;
+    }
+    ++r.poses;
+    Mat4 pose;
+    std::string problem = igtl::parse_transform(m.content, pose);
+    if (problem.empty()) {
+      pose = pose_to_lps(pose, run.world);
+      try {
+        validate_poses(&pose, 1, "TRANSFORM " + m.header.device, 0, false);
+      } catch (const InputError& e) {
+        problem = e.what();
+      }
+    }
+    if (!problem.empty()) {
+      ++r.rejected;
+      endpoint.reject(problem);
+      return;
+    }
+    renderer.render(pose, image.data());
+    const Mat4 placed = pose_to_lps(pose * renderer.pixel_to_probe, run.world);
+    endpoint.send(client, igtl::pack("IMAGE", run.image_device, m.header.timestamp,
+                                     igtl::image_content(image.data(), renderer.type, size, placed,
+                                                         run.world == WorldFrame::RAS),
+                                     m.header.version, m.message_id));
+    ++r.images;
+    latencies.push_back(float((now_seconds() - arrival) * 1e3));
+  };
+  while (r.stopped_by.empty()) {
+    endpoint.poll(10, true, handler);
+    r.stopped_by = limiter.reason(r.images);
+  }
+  endpoint.flush(1000);
+  r.seconds = now_seconds() - limiter.start;
+  for (const auto& [k, n] : endpoint.counts()) r.network[k] += n;
+  if (!latencies.empty()) {
+    std::sort(latencies.begin(), latencies.end());
+    const auto at = [&](double p) {
+      return latencies[std::min(latencies.size() - 1, size_t(p / 100.0 * latencies.size()))];
+    };
+    r.latency_ms_p50 = at(50);
+    r.latency_ms_p99 = at(99);
+    r.latency_ms_max = latencies.back();
+  }
+  return r;
+}
+
+}  // namespace sonoslice
