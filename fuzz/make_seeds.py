@@ -60,6 +60,51 @@ def f64(values):
     return struct.pack("<%dd" % len(values), *values)
 
 
+def crc64(data):
+    """OpenIGTLink's CRC-64 (ECMA-182 polynomial, not reflected, initial value 0)."""
+    crc = 0
+    for byte in data:
+        crc ^= byte << 56
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x42F0E1EBA9EA3693) if crc & (1 << 63) else crc << 1
+            crc &= (1 << 64) - 1
+    return crc
+
+
+def igtl(kind, device, content, version=1, metadata=()):
+    """An OpenIGTLink message: the 58-byte header, [extended header], content, [metadata]."""
+    body = content
+    if version == 2:
+        keys = b"".join(struct.pack(">HHI", len(k), 3, len(v)) for k, v in metadata)
+        values = b"".join(k + v for k, v in metadata)
+        meta_header = struct.pack(">H", len(metadata)) + keys
+        body = struct.pack(">HHII", 12, len(meta_header), len(values), 7) + content + meta_header + values
+    return (struct.pack(">H12s20sQQQ", version, kind, device, 0, len(body), crc64(body)) + body)
+
+
+def igtl_seeds():
+    """OpenIGTLink streams as `sonoslice live` receives them (fuzz_igtl)."""
+    w, h = 6, 4
+    matrix = struct.pack(">12f", 0.3, 0, 0, 0, 0.3, 0, 0, 0, 1, 1.5, 2.5, 0)
+    image = struct.pack(">HBBBBHHH", 1, 1, 3, 2, 2, w, h, 1) + matrix + struct.pack(">6H", 0, 0, 0, w, h, 1)
+    image += bytes(range(w * h))
+    transform = struct.pack(">12f", 1, 0, 0, 0, 1, 0, 0, 0, 1, 10, 20, 30)
+    command = b'<Command Name="StopVolumeReconstruction" OutputVolDeviceName="Volume" />'
+    string = struct.pack(">HH", 3, len(command)) + command
+    status = struct.pack(">Hq20s", 1, 0, b"") + b"300 frames\0"
+    cmd_v2 = struct.pack(">I128sHI", 3, b"StopVolumeReconstruction", 3, len(command)) + command
+    put("igtl", "image-v1.bin", igtl(b"IMAGE", b"Image_Reference", image))
+    put("igtl", "image-v2-metadata.bin", igtl(b"IMAGE", b"Image_Reference", image, 2, [(b"Key", b"value")]))
+    put("igtl", "transform.bin", igtl(b"TRANSFORM", b"ProbeToReference", transform))
+    put("igtl", "string-command.bin", igtl(b"STRING", b"CMD_1", string))
+    put("igtl", "status.bin", igtl(b"STATUS", b"", status))
+    put("igtl", "command-v2.bin", igtl(b"COMMAND", b"command", cmd_v2, 2, [(b"Name", b"x")]))
+    put("igtl", "stream.bin", igtl(b"IMAGE", b"a", image) + igtl(b"STRING", b"CMD_2", string) +
+        igtl(b"GET_STATUS", b"", b""))
+    put("igtl", "image-3d-rgb.bin", igtl(b"IMAGE", b"x", image[:2] + b"\x03" + image[3:10] + b"\x00\x02" +
+                                         image[12:] + bytes(2 * w * h) * 3))
+
+
 def main():
     if os.path.isdir(OUT):
         shutil.rmtree(OUT)
@@ -276,6 +321,8 @@ def main():
         "vn 0 0 1\nvt 0 0\n" + "".join("f %d/1/1 %d/1/1 %d/1/1\n" % tuple(i + 1 for i in t) for t in tris))
     put("mesh_obj", "quad-negative.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf -4 -3 -2 -1\nf 1//1 2//1 3//1\n")
     put("mesh_obj", "garbage.obj", "v 1 2\nf 0 0 0\nf 1 2 999999\nv nan inf -inf\nvt\nmtllib x.mtl\n")
+
+    igtl_seeds()
 
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(OUT) for f in fs)
     print("fuzz/corpus: %d files, %d KB" % (sum(len(fs) for _, _, fs in os.walk(OUT)), total // 1024))

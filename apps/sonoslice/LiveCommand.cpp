@@ -1,6 +1,6 @@
 // sonoslice live: OpenIGTLink in and out (docs/live.md). `live compound`: tracked frames in, a
-// growing volume out, driven by PlusServer's reconstruction commands; `live slice`: a virtual
-// probe answering each pose with the image `slice` makes there.
+// growing volume out, driven by PlusServer's reconstruction commands; `live slice` and `live
+// simulate`: a virtual probe answering each pose with the image `slice` / `simulate` makes there.
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -10,6 +10,7 @@
 #include "Commands.h"
 #include "Common.h"
 #include "ReconstructionFlags.h"
+#include "SimulationFlags.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/ProbeFile.h"
@@ -162,29 +163,78 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   }
 }
 
-struct LiveSliceFlags {
+// What `live slice` and `live simulate` share: the endpoint, device names, limits, statistics.
+struct VirtualProbeFlags {
   Endpoint endpoint;
+  std::string pose_device, image_device = "Image", stats;
+  int64_t max_frames = 0;
+  double max_seconds = 0;
+  void add_to(CLI::App& cmd) {
+    endpoint.add_to(cmd);
+    cmd.add_option("--pose-device", pose_device,
+                   "Only TRANSFORM messages of this device name (default: every one)");
+    cmd.add_option("--image-device", image_device, "Device name of the images sent (Image)");
+    cmd.add_option("--max-frames", max_frames, "Stop after N images");
+    cmd.add_option("--max-seconds", max_seconds, "Stop after S seconds");
+    cmd.add_option("--stats", stats, "Write the counts and latencies here (JSON)");
+  }
+};
+
+// Serves `renderer` until a limit or a signal; the summary line and --stats.
+void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
+                         const IgtlEndpointOptions& endpoint, WorldFrame world,
+                         const ProbeRenderer& renderer) {
+  VirtualProbeRun run;
+  run.endpoint = endpoint;
+  run.pose_device = f.pose_device;
+  run.image_device = f.image_device;
+  run.world = world;
+  run.limits.max_frames = f.max_frames;
+  run.limits.max_seconds = f.max_seconds;
+  run.limits.stop = &g_stop;
+  run.on_ready = [command](const IgtlEndpoint& e) { announce(command, e); };
+  VirtualProbeResult result;
+  {
+    StopOnSignals signals;
+    result = run_virtual_probe(renderer, run);
+  }
+  std::fprintf(stderr,
+               "sonoslice live %s: stopped by %s: %lld poses, %lld images (%.0f/s), %lld "
+               "rejected; latency p50 %.2f ms, p99 %.2f ms\n",
+               command, result.stopped_by.c_str(), (long long)result.poses,
+               (long long)result.images, result.seconds > 0 ? result.images / result.seconds : 0.0,
+               (long long)result.rejected, result.latency_ms_p50, result.latency_ms_p99);
+  if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
+}
+
+void check_probe_flags(const VirtualProbeFlags& f) {
+  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0");
+  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0");
+  if (!f.stats.empty()) check_output_path(f.stats);
+}
+
+struct LiveSliceFlags {
+  VirtualProbeFlags probe_flags;
   VolumeFlags volume;
   std::string labels, probe, interp = "linear", dtype = "float32", world = "LPS";
-  std::string device = "cpu", pose_device, image_device = "Image", stats;
+  std::string device = "cpu";
   double fill = 0;
   int downsampling = 1;
   std::optional<int> threads;
-  int64_t max_frames = 0;
-  double max_seconds = 0;
 };
 
 void run_live_slice_command(const LiveSliceFlags& f) {
-  const IgtlEndpointOptions endpoint = f.endpoint.options();
+  const IgtlEndpointOptions endpoint = f.probe_flags.endpoint.options();
   if (f.volume.path.empty() == f.labels.empty())
     throw UsageError("live slice: give one of --volume or --labels");
+  check_probe_flags(f.probe_flags);
   const Device device = setup_device(f.device, f.threads);
   SliceSettings settings;
   settings.interpolation = parse_interpolation(f.interp);
   settings.output_type = parse_pixel_type(f.dtype);
   settings.fill_value = f.fill;
   if (!f.labels.empty()) settings.interpolation = Interpolation::Nearest;
-  if (!f.stats.empty()) check_output_path(f.stats);
+  const WorldFrame world = parse_world_frame(f.world);
   const ProbeGeometry probe = read_probe(f.probe, f.downsampling);
   const std::string path = f.volume.path.empty() ? f.labels : f.volume.path;
   const Volume v = read_volume(path, f.volume.options());
@@ -196,27 +246,35 @@ void run_live_slice_command(const LiveSliceFlags& f) {
   renderer.type = settings.output_type;
   renderer.pixel_to_probe = probe.pixel_to_probe();
   renderer.render = [&slicer](const Pose& pose, void* out) { slicer.slice(&pose, 1, out, 0); };
-  VirtualProbeRun run;
-  run.endpoint = endpoint;
-  run.pose_device = f.pose_device;
-  run.image_device = f.image_device;
-  run.world = parse_world_frame(f.world);
-  run.limits.max_frames = f.max_frames;
-  run.limits.max_seconds = f.max_seconds;
-  run.limits.stop = &g_stop;
-  run.on_ready = [](const IgtlEndpoint& e) { announce("slice", e); };
-  VirtualProbeResult result;
-  {
-    StopOnSignals signals;
-    result = run_virtual_probe(renderer, run);
-  }
-  std::fprintf(stderr,
-               "sonoslice live slice: stopped by %s: %lld poses, %lld images (%.0f/s), %lld "
-               "rejected; latency p50 %.2f ms, p99 %.2f ms\n",
-               result.stopped_by.c_str(), (long long)result.poses, (long long)result.images,
-               result.seconds > 0 ? result.images / result.seconds : 0.0,
-               (long long)result.rejected, result.latency_ms_p50, result.latency_ms_p99);
-  if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
+  serve_virtual_probe("slice", f.probe_flags, endpoint, world, renderer);
+}
+
+struct LiveSimulateFlags {
+  VirtualProbeFlags probe_flags;
+  SimulateFlags simulation;
+};
+
+void run_live_simulate_command(const LiveSimulateFlags& f) {
+  const IgtlEndpointOptions endpoint = f.probe_flags.endpoint.options();
+  const SimulateFlags& s = f.simulation;
+  check_simulation_flags(s, "live simulate");
+  check_probe_flags(f.probe_flags);
+  setup_threads(s.threads);
+  const SimulationSettings settings = settings_of(s);
+  const std::optional<ProbeGeometry> probe = probe_of(s);
+  const WorldFrame world = parse_world_frame(s.world);
+  const std::vector<Tissue> tissues = tissues_of(s);
+  const SimulationInput input = read_simulation_input(s);
+  const Simulator sim(input.volume, input.source, probe, tissues, settings);
+
+  ProbeRenderer renderer;
+  renderer.width = sim.width();
+  renderer.height = sim.height();
+  renderer.type =
+      settings.output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32;
+  renderer.pixel_to_probe = sim.probe().pixel_to_probe();
+  renderer.render = [&sim](const Pose& pose, void* out) { sim.simulate(&pose, 1, out, 0); };
+  serve_virtual_probe("simulate", f.probe_flags, endpoint, world, renderer);
 }
 
 }  // namespace
@@ -254,7 +312,7 @@ void add_live_command(CLI::App& app) {
   cmd = live->add_subcommand("slice",
                              "A virtual probe: each TRANSFORM (probe pose) gets the IMAGE "
                              "`sonoslice slice` makes there");
-  s->endpoint.add_to(*cmd);
+  s->probe_flags.add_to(*cmd);
   s->volume.add_to(*cmd, /*path_required=*/false);
   cmd->add_option("--labels", s->labels, "A label volume (uint8/uint16): label images, nearest");
   cmd->add_option("--probe", s->probe, "Probe JSON (native or fan-slicer config)")->required();
@@ -263,15 +321,17 @@ void add_live_command(CLI::App& app) {
   cmd->add_option("--dtype", s->dtype, "float32 (default), int16, uint8 or uint16");
   cmd->add_option("--fill", s->fill, "Value outside the fan or the volume (default 0)");
   cmd->add_option("--world", s->world, "Frame of the poses and images: LPS (default) or RAS");
-  cmd->add_option("--pose-device", s->pose_device,
-                  "Only TRANSFORM messages of this device name (default: every one)");
-  cmd->add_option("--image-device", s->image_device, "Device name of the images sent (Image)");
   cmd->add_option("--device", s->device, "cpu (default), cuda or cuda:K");
   add_threads_option(*cmd, s->threads);
-  cmd->add_option("--max-frames", s->max_frames, "Stop after N images");
-  cmd->add_option("--max-seconds", s->max_seconds, "Stop after S seconds");
-  cmd->add_option("--stats", s->stats, "Write the counts and latencies here (JSON)");
   cmd->callback([s] { run_live_slice_command(*s); });
+
+  auto m = std::make_shared<LiveSimulateFlags>();
+  cmd = live->add_subcommand("simulate",
+                             "A virtual probe: each TRANSFORM (probe pose) gets the IMAGE "
+                             "`sonoslice simulate` makes there");
+  m->probe_flags.add_to(*cmd);
+  add_simulation_flags(*cmd, m->simulation);
+  cmd->callback([m] { run_live_simulate_command(*m); });
 }
 
 }  // namespace cli

@@ -6,6 +6,7 @@
 
 #include "Commands.h"
 #include "Common.h"
+#include "SimulationFlags.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/MeshFile.h"
@@ -17,24 +18,7 @@
 
 namespace sonoslice {
 namespace cli {
-namespace {
 
-struct SimulateFlags {
-  VolumeFlags volume;
-  std::string labels, tissues;
-  std::vector<std::string> meshes;
-  double voxel_size = 0.5;
-  std::string probe, poses, out, mask, world = "LPS";
-  int downsampling = 1;
-  // The simulation settings the user gave; the library has the defaults (SimulationSettings).
-  std::string preset, device, tgc, output;
-  std::optional<double> frequency, dynamic_range;
-  std::optional<uint64_t> seed;
-  std::optional<int> threads;
-  bool quiet = false, verbose = false, list_presets = false, print_tissues = false;
-};
-
-/// The flag of a simulation setting.
 std::string simulate_flag(const std::string& setting) {
   if (setting == "frequency_mhz") return "--frequency";
   if (setting == "dynamic_range_db") return "--dynamic-range";
@@ -42,7 +26,6 @@ std::string simulate_flag(const std::string& setting) {
   return flag_named(setting);
 }
 
-/// The settings the flags give, resolved: unset flags keep the library's defaults.
 SimulationSettings settings_of(const SimulateFlags& f) {
   SimulationSettings s;
   if (!f.preset.empty()) s.preset = f.preset;
@@ -59,19 +42,10 @@ SimulationSettings settings_of(const SimulateFlags& f) {
   return s.resolved(simulate_flag);
 }
 
-void run_simulate(const SimulateFlags& f) {
-  if (f.list_presets) {
-    for (const SimulationPreset& p : simulation_presets())
-      std::printf("%-14s %s\n", p.name.c_str(), p.description.c_str());
-    return;
-  }
-  if (f.print_tissues) {
-    std::cout << tissue_table_json(default_tissues());
-    return;
-  }
-  Stopwatch total;
+void check_simulation_flags(const SimulateFlags& f, const std::string& command) {
   const int sources = !f.volume.path.empty() + !f.labels.empty() + !f.meshes.empty();
-  if (sources != 1) throw UsageError("simulate: give exactly one of --volume, --labels, --meshes");
+  if (sources != 1)
+    throw UsageError(command + ": give exactly one of --volume, --labels, --meshes");
   if (!f.tissues.empty() && !f.volume.path.empty())
     throw InputError(
         "--tissues: a CT (--volume) maps HU to tissues itself; --tissues is for "
@@ -80,48 +54,35 @@ void run_simulate(const SimulateFlags& f) {
     throw InputError(
         "--meshes: give --tissues, a table for label 0 (outside every mesh) and "
         "label k (inside the k-th mesh)");
-  setup_threads(f.threads);
-  if (f.poses.empty()) throw UsageError("simulate: --poses is required");
-  if (f.out.empty()) throw UsageError("simulate: --out is required");
   if (f.probe.empty() && f.preset.empty())
-    throw UsageError("simulate: give --probe or --preset (sonoslice simulate --list-presets)");
-  const SimulationSettings settings = settings_of(f);
+    throw UsageError(command + ": give --probe or --preset (sonoslice simulate --list-presets)");
   if (!(f.voxel_size > 0)) throw InputError("--voxel-size must be > 0 mm");
+}
 
-  // Everything small and checkable first, so a typo fails before a CT is loaded.
-  std::vector<NamedPath> inputs = {
-      {"--volume", f.volume.path}, {"--labels", f.labels}, {"--tissues", f.tissues},
-      {"--probe", f.probe},        {"--poses", f.poses},   {"--npy-config", f.volume.npy_config}};
-  for (const std::string& mesh : f.meshes) inputs.push_back({"--meshes", mesh});
-  check_distinct_outputs({{"--out", f.out}, {"--mask", f.mask}}, inputs);
-  std::optional<ProbeGeometry> given_probe;  // else the preset's
-  if (!f.probe.empty())
-    given_probe = read_probe(f.probe, f.downsampling);
-  else if (f.downsampling != 1)
-    throw InputError("--downsampling applies to --probe files");
+std::optional<ProbeGeometry> probe_of(const SimulateFlags& f) {
+  if (!f.probe.empty()) return read_probe(f.probe, f.downsampling);
+  if (f.downsampling != 1) throw InputError("--downsampling applies to --probe files");
+  return std::nullopt;  // the preset's
+}
+
+std::vector<Tissue> tissues_of(const SimulateFlags& f) {
+  return f.tissues.empty() ? default_tissues() : read_tissue_table(f.tissues);
+}
+
+SimulationInput read_simulation_input(const SimulateFlags& f) {
   const WorldFrame frame = parse_world_frame(f.world);
-  const std::vector<Pose> poses = read_poses(f.poses, frame);
-  const std::vector<Tissue> tissues =
-      f.tissues.empty() ? default_tissues() : read_tissue_table(f.tissues);
-  const StackFormat format = stack_format(f.out);
-  check_output_path(f.out, format == StackFormat::PngDirectory);
-  if (!f.mask.empty()) check_image_output(f.mask, "--mask");
-
-  Stopwatch load;
-  Volume volume;
-  SimulationSource source = SimulationSource::Labels;
-  std::string description;
+  SimulationInput in;
   if (!f.volume.path.empty()) {
-    volume = read_volume(f.volume.path, f.volume.options());
-    source = SimulationSource::HounsfieldUnits;
-    description = f.volume.path + " (HU)";
+    in.volume = read_volume(f.volume.path, f.volume.options());
+    in.source = SimulationSource::HounsfieldUnits;
+    in.description = f.volume.path + " (HU)";
   } else if (!f.labels.empty()) {
-    volume = read_volume(f.labels, f.volume.options());
-    if (volume.pixel_type() != PixelType::UInt8 && volume.pixel_type() != PixelType::UInt16)
+    in.volume = read_volume(f.labels, f.volume.options());
+    if (in.volume.pixel_type() != PixelType::UInt8 && in.volume.pixel_type() != PixelType::UInt16)
       throw InputError("--labels '" + f.labels +
                        "': a label volume is uint8 or uint16, this one is " +
-                       to_string(volume.pixel_type()));
-    description = f.labels + " (labels)";
+                       to_string(in.volume.pixel_type()));
+    in.description = f.labels + " (labels)";
   } else {
     // Meshes: label k for the k-th mesh, voxelised at --voxel-size.
     std::vector<TriangleMesh> meshes;
@@ -136,10 +97,82 @@ void run_simulate(const SimulateFlags& f) {
     } catch (const ParameterError& e) {
       throw InputError("--voxel-size " + e.detail());
     }
-    volume = voxelize(meshes, grid, labels);
-    description = std::to_string(meshes.size()) + " meshes voxelised at " +
-                  std::to_string(f.voxel_size) + " mm";
+    in.volume = voxelize(meshes, grid, labels);
+    in.description = std::to_string(meshes.size()) + " meshes voxelised at " +
+                     std::to_string(f.voxel_size) + " mm";
   }
+  return in;
+}
+
+void add_simulation_flags(CLI::App& cmd, SimulateFlags& f) {
+  f.volume.add_to(cmd, /*path_required=*/false);
+  cmd.add_option("--labels", f.labels, "A label volume (uint8/uint16) with --tissues");
+  cmd.add_option("--tissues", f.tissues,
+                 "Tissue table JSON for labels and meshes (default: --print-tissues)");
+  cmd.add_option("--meshes", f.meshes, "Surface meshes: label k for the k-th, voxelised");
+  cmd.add_option("--voxel-size", f.voxel_size, "Meshes: voxel size (mm, default 0.5)");
+  cmd.add_option("--probe", f.probe, "Probe JSON (native or fan-slicer config)");
+  cmd.add_option("--preset", f.preset,
+                 "A probe and frequency: abdominal, laparoscopic, lus (--list-presets)");
+  cmd.add_option("--downsampling", f.downsampling, "Divide the probe image size by K");
+  const SimulationSettings defaults;
+  cmd.add_option("--frequency", f.frequency,
+                 "Centre frequency in MHz (default: the preset's, else " +
+                     default_text(SimulationSettings::kDefaultFrequencyMhz).substr(1));
+  add_seed_option(
+      cmd, [&f](uint64_t s) { f.seed = s; }, "Speckle seed " + default_text(defaults.seed));
+  cmd.add_option("--dynamic-range", f.dynamic_range,
+                 "Log compression range in dB " + default_text(defaults.dynamic_range_db));
+  cmd.add_option("--tgc", f.tgc,
+                 std::string("Time-gain compensation: auto or off (default ") +
+                     (defaults.tgc_auto ? "auto" : "off") + ")");
+  cmd.add_option("--output", f.output,
+                 std::string("bmode (uint8) or envelope (float32, before TGC and log "
+                             "compression); default ") +
+                     to_string(defaults.output));
+  cmd.add_option("--world", f.world, "Frame of the poses and meshes: LPS (default) or RAS");
+  add_threads_option(cmd, f.threads);
+  cmd.add_option("--device", f.device, "cpu (default), cuda or cuda:K");
+}
+
+namespace {
+
+void run_simulate(const SimulateFlags& f) {
+  if (f.list_presets) {
+    for (const SimulationPreset& p : simulation_presets())
+      std::printf("%-14s %s\n", p.name.c_str(), p.description.c_str());
+    return;
+  }
+  if (f.print_tissues) {
+    std::cout << tissue_table_json(default_tissues());
+    return;
+  }
+  Stopwatch total;
+  check_simulation_flags(f, "simulate");
+  setup_threads(f.threads);
+  if (f.poses.empty()) throw UsageError("simulate: --poses is required");
+  if (f.out.empty()) throw UsageError("simulate: --out is required");
+  const SimulationSettings settings = settings_of(f);
+
+  // Everything small and checkable first, so a typo fails before a CT is loaded.
+  std::vector<NamedPath> inputs = {
+      {"--volume", f.volume.path}, {"--labels", f.labels}, {"--tissues", f.tissues},
+      {"--probe", f.probe},        {"--poses", f.poses},   {"--npy-config", f.volume.npy_config}};
+  for (const std::string& mesh : f.meshes) inputs.push_back({"--meshes", mesh});
+  check_distinct_outputs({{"--out", f.out}, {"--mask", f.mask}}, inputs);
+  const std::optional<ProbeGeometry> given_probe = probe_of(f);
+  const WorldFrame frame = parse_world_frame(f.world);
+  const std::vector<Pose> poses = read_poses(f.poses, frame);
+  const std::vector<Tissue> tissues = tissues_of(f);
+  const StackFormat format = stack_format(f.out);
+  check_output_path(f.out, format == StackFormat::PngDirectory);
+  if (!f.mask.empty()) check_image_output(f.mask, "--mask");
+
+  Stopwatch load;
+  const SimulationInput input = read_simulation_input(f);
+  const Volume& volume = input.volume;
+  const SimulationSource source = input.source;
+  const std::string& description = input.description;
   const double load_seconds = load.seconds();
   const Simulator sim(volume, source, given_probe, tissues, settings);
   const ProbeGeometry& probe = sim.probe();
@@ -192,39 +225,11 @@ void add_simulate_command(CLI::App& app) {
   auto flags = std::make_shared<SimulateFlags>();
   CLI::App* cmd = app.add_subcommand(
       "simulate", "Simulate ultrasound images from a CT, labels or meshes (docs/simulation.md)");
-  flags->volume.add_to(*cmd, /*path_required=*/false);
-  cmd->add_option("--labels", flags->labels, "A label volume (uint8/uint16) with --tissues");
-  cmd->add_option("--tissues", flags->tissues,
-                  "Tissue table JSON for labels and meshes (default: --print-tissues)");
-  cmd->add_option("--meshes", flags->meshes, "Surface meshes: label k for the k-th, voxelised");
-  cmd->add_option("--voxel-size", flags->voxel_size, "Meshes: voxel size (mm, default 0.5)");
-  cmd->add_option("--probe", flags->probe, "Probe JSON (native or fan-slicer config)");
-  cmd->add_option("--preset", flags->preset,
-                  "A probe and frequency: abdominal, laparoscopic, lus (--list-presets)");
+  add_simulation_flags(*cmd, *flags);
   cmd->add_option("--poses", flags->poses, "Pose file: .npy, .txt/.csv, .json");
   cmd->add_option("--out", flags->out,
                   "Output: .nii/.nii.gz/.mha/.nrrd stack, .npy (N,H,W), or a directory of PNGs");
-  cmd->add_option("--downsampling", flags->downsampling, "Divide the probe image size by K");
   cmd->add_option("--mask", flags->mask, "Also write the HxW fan mask here");
-  const SimulationSettings defaults;
-  cmd->add_option("--frequency", flags->frequency,
-                  "Centre frequency in MHz (default: the preset's, else " +
-                      default_text(SimulationSettings::kDefaultFrequencyMhz).substr(1));
-  add_seed_option(
-      *cmd, [flags](uint64_t s) { flags->seed = s; },
-      "Speckle seed " + default_text(defaults.seed));
-  cmd->add_option("--dynamic-range", flags->dynamic_range,
-                  "Log compression range in dB " + default_text(defaults.dynamic_range_db));
-  cmd->add_option("--tgc", flags->tgc,
-                  std::string("Time-gain compensation: auto or off (default ") +
-                      (defaults.tgc_auto ? "auto" : "off") + ")");
-  cmd->add_option("--output", flags->output,
-                  std::string("bmode (uint8) or envelope (float32, before TGC and log "
-                              "compression); default ") +
-                      to_string(defaults.output));
-  cmd->add_option("--world", flags->world, "Frame of the poses and meshes: LPS (default) or RAS");
-  add_threads_option(*cmd, flags->threads);
-  cmd->add_option("--device", flags->device, "cpu (default), cuda or cuda:K");
   cmd->add_flag("--list-presets", flags->list_presets, "Print the presets and exit");
   cmd->add_flag("--print-tissues", flags->print_tissues,
                 "Write the default tissue table to stdout as JSON and exit");

@@ -20,6 +20,7 @@ its folder (src/<area>/):
 * :mod:`sonoslice.surfaces` (meshes, voxelize, exact label images), :mod:`sonoslice.phantom`;
 * :mod:`sonoslice.compounding` (freehand 3D reconstruction, docs/conventions.md §7) and
   :mod:`sonoslice.plus` (PLUS toolkit files, ``reconstruct_plus``);
+* :mod:`sonoslice.live` (live compounding and the OpenIGTLink servers, docs/live.md);
 * :mod:`sonoslice.simulation` (ultrasound simulation, docs/simulation.md),
   :mod:`sonoslice.registration` (docs/registration.md), :mod:`sonoslice.sampling` (pose samplers);
 * :mod:`sonoslice.datasets` (``writer``: SPEC → shards; ``reader``: shards → PyTorch;
@@ -38,6 +39,7 @@ from .compounding import (BeamGeometry, Compounder, FrameClip, Grid, HoleFilling
                           grid_around_beams)
 from .devices import cuda_available, devices, set_threads, threads
 from .files import read_poses, validate_poses, write_poses, write_stack
+from .live import LiveCompounder, LiveCompoundServer
 from .phantom import PHANTOM_LABELS, phantom, phantom_poses, surface_poses
 from .plus import (PlusConfig, PlusSequence, TransformRepository, plus_image_to_reference, read_plus_config,
                    read_plus_sequence, reconstruct_plus, write_plus_sequence)
@@ -67,4 +69,6 @@ __all__ = [
     "RegistrationMode",
     # pose samplers and datasets (docs/datasets.md)
     "PoseSampler", "SamplerSettings", "sample_seeds",
+    # live compounding (docs/live.md; sonoslice.live also has plus_frames and serve)
+    "LiveCompounder", "LiveCompoundServer",
 ]

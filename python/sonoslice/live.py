@@ -157,7 +157,8 @@ class LiveCompoundServer:
             volume, stats, network, stopped_by = self._cpp.wait()
             stats = json.loads(stats)
             stats["network"] = dict(network)
-            stats["stopped_by"] = stopped_by
+            # "--max-frames" (the CLI's words) as this class's keyword
+            stats["stopped_by"] = stopped_by[2:].replace("-", "_") if stopped_by.startswith("--") else stopped_by
             self._result = (Volume._wrap(volume) if volume.shape[0] else None, stats)
         return self._result
 

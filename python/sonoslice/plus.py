@@ -266,7 +266,8 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
                      transform: Optional[str] = None, image_to_probe=None, dtype=None, device: str = "cpu",
                      max_memory: Union[None, int, str] = None, return_weights: bool = False,
                      return_report: bool = False, plus_exact: bool = False,
-                     plus_optimization: Optional[str] = None, plus_grid: Optional[str] = None):
+                     plus_optimization: Optional[str] = None, plus_grid: Optional[str] = None,
+                     origin=None, extent=None):
     """Reconstructs a PLUS sequence with the same C++ recipe as ``sonoslice compound --sequence S
     --config X`` (same inputs, same bytes) and returns the :class:`Volume` (with
     ``return_weights=True``: ``(volume, weights)``; with ``return_report=True`` a dict of what was
@@ -274,7 +275,8 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
     transform, grid_from_config, splat/finish seconds).
 
     Settings come from the configuration XML (``config``: path or :class:`PlusConfig`), then the
-    keywords override them. The grid is the XML's when it gives OutputOrigin and OutputExtent (and
+    keywords override them. The grid is ``origin`` (centre of voxel (0, 0, 0), mm) with ``extent``
+    (voxels along x, y, z) when given, else the XML's when it gives OutputOrigin and OutputExtent (and
     ``spacing`` is not given), else PLUS's grid around the clipped frames at ``spacing`` (mm;
     default the XML's OutputSpacing). ``fill_holes`` defaults to the XML's, or True when
     ``hole_filling`` is given. ``clip`` replaces the XML's clip (a dict, a mask or a
@@ -309,6 +311,8 @@ def reconstruct_plus(sequence, config=None, *, spacing=None, interpolation: Opti
         device=str(device), max_memory=_memory_bytes(max_memory), plus_exact=bool(plus_exact),
         plus_optimization=None if plus_optimization is None else str(plus_optimization),
         plus_grid=None if plus_grid is None else str(plus_grid),
+        origin=None if origin is None else _arrays.floats(origin, "origin", 3),
+        extent=None if extent is None else tuple(_arrays.whole(v, "extent") for v in extent),
         **_plus_options(seq, clip, image_to_probe, spacing, dtype))
     volume, weights = r.run(bool(return_weights))
     out: Tuple[Any, ...] = (Volume._wrap(volume),)

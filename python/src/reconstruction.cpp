@@ -104,14 +104,16 @@ void bind_reconstruction(nb::module_& m) {
              std::optional<int> skip, std::optional<std::string> transform,
              std::optional<Matrix4> image_to_probe, std::optional<std::string> dtype,
              std::string device, uint64_t max_memory, bool plus_exact,
-             std::optional<std::string> plus_optimization, std::optional<std::string> plus_grid) {
+             std::optional<std::string> plus_optimization, std::optional<std::string> plus_grid,
+             std::optional<Vec3> origin, std::optional<std::array<int64_t, 3>> extent) {
             const PlusSequence& s = nb::cast<const PlusSequence&>(sequence);
             const PlusReconstructionConfig* c =
                 config.is_none() ? nullptr : &nb::cast<const PlusReconstructionConfig&>(config);
             const ReconstructionOptions o = reconstruction_options(
                 spacing, interpolation, compounding, fill_holes, std::move(hole_filling),
                 rejection_threshold, std::move(clip), skip, std::move(transform), image_to_probe,
-                dtype, device, max_memory, plus_exact, plus_optimization, plus_grid);
+                dtype, device, max_memory, plus_exact, plus_optimization, plus_grid, origin,
+                extent);
             std::unique_ptr<Reconstruction> r;
             {
               nb::gil_scoped_release release;  // fitting the grid and allocating take a while
@@ -126,7 +128,8 @@ void bind_reconstruction(nb::module_& m) {
           "skip"_a.none() = nb::none(), "transform"_a.none() = nb::none(),
           "image_to_probe"_a.none() = nb::none(), "dtype"_a.none() = nb::none(), "device"_a = "cpu",
           "max_memory"_a = 0, "plus_exact"_a = false, "plus_optimization"_a = nb::none(),
-          "plus_grid"_a = nb::none())
+          "plus_grid"_a = nb::none(), "origin"_a.none() = nb::none(),
+          "extent"_a.none() = nb::none())
       .def_prop_ro("grid", [](const PyReconstruction& r) { return r.recon->grid(); })
       .def_prop_ro("settings", [](const PyReconstruction& r) { return r.recon->settings(); })
       .def_prop_ro("clip", [](const PyReconstruction& r) { return r.recon->clip(); })
