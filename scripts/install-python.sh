@@ -29,5 +29,6 @@ build/venv/bin/python -m pip install -q "${options[@]}" .
 # come from PyPI.
 build/venv/bin/python -m pip install -q "distributed>=2023.1" "webdataset>=0.2"
 # sonoslice live: pyigtl, an independent OpenIGTLink implementation (tests and the example sender).
-build/venv/bin/python -m pip install -q "pyigtl>=0.3"
+# --no-deps: its numpy and crcmod are Debian's (a PyPI numpy would hide the one torch is built for).
+build/venv/bin/python -m pip install -q --no-deps "pyigtl>=0.3"
 build/venv/bin/python -c "import sonoslice; print('sonoslice', sonoslice.__version__, 'installed in build/venv')"

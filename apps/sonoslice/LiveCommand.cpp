@@ -130,20 +130,7 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   for (const auto& [key, n] : result.network)
     if (key.rfind("rejected: ", 0) == 0 || key.rfind("ignored: ", 0) == 0)
       why += "; " + std::to_string(n) + " " + key;
-  if (!f.stats.empty()) {
-    std::string text = result.stats.json();
-    // The network counts and the stop reason beside the frame counts.
-    text.pop_back();  // the closing brace
-    while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
-    text += ",\n  \"stopped_by\": \"" + result.stopped_by + "\",\n  \"network\": {";
-    bool first = true;
-    for (const auto& [key, n] : result.network) {
-      text += std::string(first ? "" : ",") + "\n    \"" + key + "\": " + std::to_string(n);
-      first = false;
-    }
-    text += "\n  }\n}\n";
-    write_text_file(f.stats, text);
-  }
+  if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
   std::fprintf(stderr, "sonoslice live compound: stopped by %s: %s%s\n", result.stopped_by.c_str(),
                result.stats.summary().c_str(), why.c_str());
   if (result.volume.grid().voxel_count() == 0)

@@ -139,9 +139,10 @@ class LiveCompoundServer:
             host, port = _host_port(listen, "listen")
         self._compounder = compounder
         self._result = None
-        self._cpp = _ext.LiveCompoundServer(compounder._cpp, connect is None, host, port,
-                                            image_device or "", _arrays.whole(max_frames, "max_frames"),
-                                            float(max_seconds))
+        self._cpp = _ext.LiveCompoundServer(compounder._cpp, listen=connect is None, host=host, port=port,
+                                            image_device=image_device or "",
+                                            max_frames=_arrays.whole(max_frames, "max_frames"),
+                                            max_seconds=float(max_seconds))
 
     @property
     def port(self) -> int:
@@ -154,10 +155,10 @@ class LiveCompoundServer:
         """Joins the server: (final volume or None, statistics with "network" counts and
         "stopped_by")."""
         if self._result is None:
-            volume, stats, network, stopped_by = self._cpp.wait()
-            stats = json.loads(stats)
-            stats["network"] = dict(network)
+            volume, text = self._cpp.wait()
+            stats = json.loads(text)
             # "--max-frames" (the CLI's words) as this class's keyword
+            stopped_by = stats["stopped_by"]
             stats["stopped_by"] = stopped_by[2:].replace("-", "_") if stopped_by.startswith("--") else stopped_by
             self._result = (Volume._wrap(volume) if volume.shape[0] else None, stats)
         return self._result

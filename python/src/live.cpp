@@ -1,7 +1,6 @@
 // Live compounding (include/sonoslice/live): the LiveCompounder for frames from the caller's own
 // acquisition code, and the `sonoslice live compound` server run on a thread of this process.
 #include <nanobind/stl/array.h>
-#include <nanobind/stl/map.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
@@ -159,8 +158,8 @@ void bind_live(nb::module_& m) {
             nb::gil_scoped_release release;
             self->port = port_of.get();  // rethrows a bind error
           },
-          "compounder"_a, "listen"_a, "host"_a, "port"_a, "image_device"_a = "", "max_frames"_a = 0,
-          "max_seconds"_a = 0.0)
+          "compounder"_a, nb::kw_only(), "listen"_a, "host"_a, "port"_a, "image_device"_a = "",
+          "max_frames"_a = 0, "max_seconds"_a = 0.0)
       .def_prop_ro("port", [](const PyLiveServer& s) { return s.port; })
       .def("stop", [](PyLiveServer& s) { s.stop.store(true); })
       .def(
@@ -171,10 +170,9 @@ void bind_live(nb::module_& m) {
               if (s.thread.joinable()) s.thread.join();
             }
             if (s.error) std::rethrow_exception(s.error);
-            return nb::make_tuple(s.result.volume, s.result.stats.json(), s.result.network,
-                                  s.result.stopped_by);
+            return nb::make_tuple(s.result.volume, s.result.json());
           },
-          "Joins the server: (volume, stats JSON, network counts, stopped_by).");
+          "Joins the server: (volume, statistics JSON with network counts and stopped_by).");
 }
 
 }  // namespace sonoslice::bindings

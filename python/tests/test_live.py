@@ -5,7 +5,6 @@ answers them; malformed messages are counted and leave the server serving; the v
 answers poses with the images `slice` makes; the Python LiveCompounder and server."""
 import json
 import os
-import signal
 import socket
 import struct
 import subprocess

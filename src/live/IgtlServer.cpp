@@ -86,13 +86,13 @@ struct IgtlEndpoint::Impl {
     ++counts["rejected: " + reason];
     ++rejected;
   }
-  void close_connection(size_t k, const char* why) {
+  void close_connection(size_t k, const std::string& why) {
     Connection& c = connections[k];
     if (c.connected) {
       ++counts["disconnects"];
       if (!c.sent_anything) ++counts["connections that sent nothing"];
     }
-    if (why) count_reject(why);
+    if (!why.empty()) count_reject(why);
     ::close(c.fd);
     connections.erase(connections.begin() + long(k));
   }
@@ -115,7 +115,7 @@ struct IgtlEndpoint::Impl {
     connections.push_back(std::move(c));
   }
   // Reads what `c` has; false when the connection must close.
-  bool read_from(size_t k, const MessageHandler& on_message, const char*& why);
+  bool read_from(size_t k, const MessageHandler& on_message, std::string& why);
   bool write_to(Connection& c);
 };
 
@@ -173,7 +173,7 @@ void IgtlEndpoint::reject(const std::string& reason) {
   impl_->count_reject(reason);
 }
 
-bool IgtlEndpoint::Impl::read_from(size_t k, const MessageHandler& on_message, const char*& why) {
+bool IgtlEndpoint::Impl::read_from(size_t k, const MessageHandler& on_message, std::string& why) {
   uint8_t buffer[1 << 16];
   for (int rounds = 0; rounds < 64; ++rounds) {
     Connection& c = connections[k];
@@ -194,12 +194,8 @@ bool IgtlEndpoint::Impl::read_from(size_t k, const MessageHandler& on_message, c
     c.in.insert(c.in.end(), buffer, buffer + got);
     if (c.in.size() == igtl::kHeaderBytes) {
       h = igtl::parse_header(c.in.data());
-      static thread_local std::string problem;
-      problem = igtl::header_problem(h);
-      if (!problem.empty()) {
-        why = problem.c_str();  // the stream cannot be resynchronised after a bad header
-        return false;
-      }
+      why = igtl::header_problem(h);
+      if (!why.empty()) return false;  // the stream cannot be resynchronised after a bad header
       c.in.reserve(igtl::kHeaderBytes + size_t(h.body_bytes));
     }
     if (c.in.size() >= igtl::kHeaderBytes) {
@@ -295,8 +291,12 @@ void IgtlEndpoint::poll(int timeout_ms, bool read, const MessageHandler& on_mess
       ++im.counts["connections"];
     }
     bool keep = true;
-    const char* why = nullptr;
+    std::string why;
     if (ev & POLLIN) keep = im.read_from(at, on_message, why);
+    // The handler may have sent (and dropped a client that does not read): find it again.
+    at = 0;
+    while (at < im.connections.size() && im.connections[at].id != ids[k]) ++at;
+    if (at == im.connections.size()) continue;
     if (keep && (ev & POLLOUT)) keep = im.write_to(im.connections[at]);
     if (keep && (ev & (POLLERR | POLLNVAL))) keep = false;
     if (keep && (ev & POLLHUP) && !(ev & POLLIN)) keep = false;
@@ -312,7 +312,7 @@ void IgtlEndpoint::send(int client, std::vector<uint8_t> bytes) {
     Connection& c = impl_->connections[k];
     if (c.id != client) continue;
     if (c.out_bytes + bytes.size() > kMaxPendingSend) {
-      impl_->close_connection(k, "a client that does not read what it is sent");
+      impl_->close_connection(k, std::string("a client that does not read what it is sent"));
       return;
     }
     c.out_bytes += bytes.size();

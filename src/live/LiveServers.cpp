@@ -2,6 +2,8 @@
 // reconstruction commands) or around a renderer (the virtual probe).
 #include "sonoslice/live/LiveServers.h"
 
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -181,7 +183,6 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
   if (problem.empty() && image.components != 1)
     problem = "an image of " + std::to_string(image.components) + " components (frames have 1)";
   if (problem.empty() && image.size[2] != 1) problem = "a 3-D image (frames are 2-D)";
-  ++frames_;
   if (!problem.empty()) {
     endpoint_.reject(problem);
     return;
@@ -193,6 +194,7 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
     byteswap(swapped.data(), swapped.size() / pixel_size(image.type), pixel_size(image.type));
     pixels = swapped.data();
   }
+  ++frames_;  // --max-frames counts the frames handed to the compounder
   compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
                     igtl::seconds_of_timestamp(m.header.timestamp), arrival);
 }
@@ -356,6 +358,16 @@ LiveCompoundResult CompoundServer::serve() {
 LiveCompoundResult run_live_compound(LiveCompounder& compounder, const LiveCompoundRun& run) {
   CompoundServer server(compounder, run);
   return server.serve();
+}
+
+std::string LiveCompoundResult::json() const {
+  nlohmann::ordered_json j = nlohmann::ordered_json::parse(stats.json());
+  struct rusage usage {};
+  getrusage(RUSAGE_SELF, &usage);
+  j["peak_memory_mb"] = usage.ru_maxrss / 1024;  // what a flood or a long session cost
+  j["stopped_by"] = stopped_by;
+  j["network"] = network;
+  return j.dump(2);
 }
 
 std::string VirtualProbeResult::json() const {

@@ -38,6 +38,9 @@ struct LiveCompoundResult {
   LiveStats stats;
   std::map<std::string, int64_t> network;  ///< IgtlEndpoint::counts() and ignored messages
   std::string stopped_by;                  ///< "--max-frames", "StopVolumeReconstruction", ...
+  /// The statistics (LiveStats::json) with "peak_memory_mb" (the process's), "stopped_by" and
+  /// "network" added.
+  std::string json() const;
 };
 
 /// Serves `compounder` until a limit or a StopVolumeReconstruction command. IMAGE messages are
