@@ -39,7 +39,7 @@ def send(port, frames, count, rate):
     sock = socket.create_connection(("127.0.0.1", port), timeout=60)
     start = time.perf_counter()
     for n in range(count):
-        delay = start + n / rate - time.perf_counter()
+        delay = start + n / rate - time.perf_counter() if rate > 0 else 0
         if delay > 0:
             time.sleep(delay)
         sock.sendall(messages[n % len(messages)])
@@ -62,14 +62,15 @@ def run(label, frames, args, extra):
     print(f"{label:<14} sent {args.frames} at {args.frames / seconds:6.1f}/s: received "
           f"{s['frames_received']}, compounded {s['frames_compounded']}, dropped "
           f"{s['frames_dropped']}, rejected {s['frames_rejected']}; latency ms p50 "
-          f"{lat['p50']:.2f} p95 {lat['p95']:.2f} p99 {lat['p99']:.2f} max {lat['max']:.2f}")
+          f"{lat['p50']:.2f} p95 {lat['p95']:.2f} p99 {lat['p99']:.2f} max {lat['max']:.2f}; "
+          f"peak memory {s['peak_memory_mb']} MB")
     return s
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--frames", type=int, default=300)
-    p.add_argument("--rate", type=float, default=30.0)
+    p.add_argument("--rate", type=float, default=30.0, help="frames/s (0: as fast as the socket takes them)")
     p.add_argument("--queue", default="all")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--grid", choices=["fixed", "growing", "both"], default="both")

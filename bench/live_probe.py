@@ -12,8 +12,10 @@ The answers are checked against `sonoslice.Slicer` at the same poses (the first 
 figure is of correct images.
 """
 import argparse
+import json
 import os
 import socket
+import subprocess
 import sys
 import tempfile
 import time
@@ -68,29 +70,34 @@ def main(argv=None):
     p.add_argument("--simulate", action="store_true", help="live simulate (preset lus) instead")
     a = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        ct, _ = sonoslice.phantom("full")
         ct_path = os.path.join(tmp, "ct.nii")
-        ct.save(ct_path)
+        sonoslice.phantom("full")[0].save(ct_path)
+        ct = sonoslice.Volume.from_file(ct_path)  # as the server reads it (NIfTI's float32 header)
         poses = sonoslice.phantom_poses(a.poses, seed=7).astype(np.float32).astype(np.float64)
+        stats_path = os.path.join(tmp, "stats.json")
+        common = ["--threads", str(a.threads), "--stats", stats_path]
         if a.simulate:
-            server = serve("simulate", "--volume", ct_path, "--preset", "lus", "--threads", str(a.threads))
+            server = serve("simulate", "--volume", ct_path, "--preset", "lus", *common,
+                           stderr=subprocess.DEVNULL)
         else:
-            server = serve("slice", "--volume", ct_path, "--probe", PROBE, "--downsampling", "2",
-                           "--threads", str(a.threads))
-        sock = socket.create_connection(("127.0.0.1", server.port))
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        messages = [pyigtl.TransformMessage(pose, device_name="ProbeToReference").pack() for pose in poses]
-        # Correct images first: the first answers against the library's slicer.
-        if not a.simulate:
-            probe = sonoslice.Probe.from_fanslicer(PROBE, downsampling=2)
-            expected = sonoslice.Slicer(ct, probe).slice(poses[:5])
-            for k in range(5):
-                sock.sendall(messages[k])
-                np.testing.assert_array_equal(receive_image(sock).image[0], expected[k])
-        lockstep = run(sock, messages[: max(1, len(messages) // 4)], 1)
-        pipelined = run(sock, messages, a.window)
-        sock.close()
-        server.stop()
+            server = serve("slice", "--volume", ct_path, "--probe", PROBE, "--downsampling", "2", *common,
+                           stderr=subprocess.DEVNULL)
+        with server:
+            sock = socket.create_connection(("127.0.0.1", server.port))
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            messages = [pyigtl.TransformMessage(pose, device_name="ProbeToReference").pack() for pose in poses]
+            # Correct images first: the first answers against the library's slicer.
+            if not a.simulate:
+                probe = sonoslice.Probe.from_fanslicer(PROBE, downsampling=2)
+                expected = sonoslice.Slicer(ct, probe).slice(poses[:5])
+                for k in range(5):
+                    sock.sendall(messages[k])
+                    np.testing.assert_array_equal(receive_image(sock).image[0], expected[k])
+            lockstep = run(sock, messages[: max(1, len(messages) // 4)], 1)
+            pipelined = run(sock, messages, a.window)
+            sock.close()
+        with open(stats_path) as f:
+            server_latency = json.load(f)["latency_ms"]
     n_lock = max(1, len(messages) // 4)
     kind = "live simulate (lus preset)" if a.simulate else "live slice W1 (334x272 float32)"
     print(f"{kind}, full phantom, {a.threads} threads, loopback, pyigtl client:")
@@ -98,6 +105,8 @@ def main(argv=None):
           f"({lockstep / n_lock * 1e3:.2f} ms per pose, round trip)")
     print(f"  pipelined  {len(messages):5d} poses: {len(messages) / pipelined:7.1f} poses/s "
           f"(window {a.window})")
+    print(f"  server side, TRANSFORM read -> IMAGE queued: p50 {server_latency['p50']:.2f} ms, "
+          f"p99 {server_latency['p99']:.2f} ms")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <functional>
 
 namespace sonoslice {
 namespace igtl {
@@ -40,25 +41,36 @@ void put_text(std::vector<uint8_t>& out, const std::string& text, size_t n) {
   for (size_t i = 0; i < n; ++i) out.push_back(i < text.size() ? uint8_t(text[i]) : 0);
 }
 
-const std::array<uint64_t, 256>& crc_table() {
-  static const std::array<uint64_t, 256> table = [] {
-    std::array<uint64_t, 256> t{};
+// CRC-64 tables for eight bytes at a time ("slicing by 8"): table[k][b] is the CRC register
+// after byte b followed by k zero bytes; table[0] is the classic byte-at-a-time table.
+using CrcTables = std::array<std::array<uint64_t, 256>, 8>;
+const CrcTables& crc_tables() {
+  static const CrcTables tables = [] {
+    CrcTables t{};
     const uint64_t poly = 0x42F0E1EBA9EA3693ULL;
     for (uint64_t i = 0; i < 256; ++i) {
       uint64_t c = i << 56;
       for (int b = 0; b < 8; ++b) c = (c & (1ULL << 63)) ? (c << 1) ^ poly : c << 1;
-      t[size_t(i)] = c;
+      t[0][size_t(i)] = c;
     }
+    for (size_t k = 1; k < 8; ++k)
+      for (size_t i = 0; i < 256; ++i)
+        t[k][i] = t[0][size_t(t[k - 1][i] >> 56)] ^ (t[k - 1][i] << 8);
     return t;
   }();
-  return table;
+  return tables;
 }
 
 }  // namespace
 
 uint64_t crc64(const uint8_t* data, size_t n, uint64_t crc) {
-  const auto& t = crc_table();
-  for (size_t i = 0; i < n; ++i) crc = t[size_t((crc >> 56) ^ data[i]) & 0xFF] ^ (crc << 8);
+  const CrcTables& t = crc_tables();
+  for (; n >= 8; n -= 8, data += 8) {
+    const uint64_t x = crc ^ get_be(data, 8);
+    crc = t[7][x >> 56] ^ t[6][(x >> 48) & 0xFF] ^ t[5][(x >> 40) & 0xFF] ^ t[4][(x >> 32) & 0xFF] ^
+          t[3][(x >> 24) & 0xFF] ^ t[2][(x >> 16) & 0xFF] ^ t[1][(x >> 8) & 0xFF] ^ t[0][x & 0xFF];
+  }
+  for (; n > 0; --n, ++data) crc = t[0][size_t((crc >> 56) ^ *data) & 0xFF] ^ (crc << 8);
   return crc;
 }
 
@@ -155,36 +167,39 @@ std::vector<uint8_t> pack(const std::string& type, const std::string& device, ui
                           const std::vector<uint8_t>& content, uint16_t version,
                           uint32_t message_id,
                           const std::vector<std::pair<std::string, std::string>>& metadata) {
-  std::vector<uint8_t> body;
+  // Header v2: the extended header before the content, the metadata after it.
+  std::vector<uint8_t> before, after;
   if (version >= 2) {
-    std::vector<uint8_t> meta_header, meta_body;
-    put_be(meta_header, metadata.size(), 2);
+    std::vector<uint8_t> meta_body;
+    put_be(after, metadata.size(), 2);
     for (const auto& [key, value] : metadata) {
-      put_be(meta_header, key.size(), 2);
-      put_be(meta_header, 3, 2);  // US-ASCII, as OpenIGTLink's default
-      put_be(meta_header, value.size(), 4);
+      put_be(after, key.size(), 2);
+      put_be(after, 3, 2);  // US-ASCII, as OpenIGTLink's default
+      put_be(after, value.size(), 4);
       meta_body.insert(meta_body.end(), key.begin(), key.end());
       meta_body.insert(meta_body.end(), value.begin(), value.end());
     }
-    put_be(body, kExtendedHeaderBytes, 2);
-    put_be(body, meta_header.size(), 2);
-    put_be(body, meta_body.size(), 4);
-    put_be(body, message_id, 4);
-    body.insert(body.end(), content.begin(), content.end());
-    body.insert(body.end(), meta_header.begin(), meta_header.end());
-    body.insert(body.end(), meta_body.begin(), meta_body.end());
-  } else {
-    body = content;
+    put_be(before, kExtendedHeaderBytes, 2);
+    put_be(before, after.size(), 2);
+    put_be(before, meta_body.size(), 4);
+    put_be(before, message_id, 4);
+    after.insert(after.end(), meta_body.begin(), meta_body.end());
   }
+  const size_t body = before.size() + content.size() + after.size();
   std::vector<uint8_t> out;
-  out.reserve(kHeaderBytes + body.size());
+  out.reserve(kHeaderBytes + body);
   put_be(out, version, 2);
   put_text(out, type, 12);
   put_text(out, device, 20);
   put_be(out, timestamp, 8);
-  put_be(out, body.size(), 8);
-  put_be(out, crc64(body.data(), body.size()), 8);
-  out.insert(out.end(), body.begin(), body.end());
+  put_be(out, body, 8);
+  uint64_t crc = crc64(before.data(), before.size());
+  crc = crc64(content.data(), content.size(), crc);
+  crc = crc64(after.data(), after.size(), crc);
+  put_be(out, crc, 8);
+  out.insert(out.end(), before.begin(), before.end());
+  out.insert(out.end(), content.begin(), content.end());
+  out.insert(out.end(), after.begin(), after.end());
   return out;
 }
 
@@ -278,11 +293,11 @@ std::string parse_image(const std::vector<uint8_t>& c, Image& out) {
   return "";
 }
 
-std::vector<uint8_t> image_content(const void* pixels, PixelType type, const int size[3],
-                                   const Mat4& ijk_to_world, bool ras) {
-  std::vector<uint8_t> out;
-  const size_t bytes = size_t(size[0]) * size[1] * size[2] * pixel_size(type);
-  out.reserve(kImageHeaderBytes + bytes);
+namespace {
+
+// The 72-byte image header (image header version 1): one component, little-endian pixels.
+void put_image_header(std::vector<uint8_t>& out, PixelType type, const int size[3],
+                      const Mat4& ijk_to_world, bool ras) {
   put_be(out, 1, 2);  // image header version
   out.push_back(1);   // one component
   out.push_back(uint8_t(scalar_of_pixel_type(type)));
@@ -297,8 +312,53 @@ std::vector<uint8_t> image_content(const void* pixels, PixelType type, const int
   for (int r = 0; r < 3; ++r) put_float(out, centre[r]);
   for (int a = 0; a < 3; ++a) put_be(out, 0, 2);
   for (int a = 0; a < 3; ++a) put_be(out, uint64_t(size[a]), 2);
+}
+
+size_t pixel_bytes_of(PixelType type, const int size[3]) {
+  return size_t(size[0]) * size_t(size[1]) * size_t(size[2]) * pixel_size(type);
+}
+
+}  // namespace
+
+std::vector<uint8_t> image_content(const void* pixels, PixelType type, const int size[3],
+                                   const Mat4& ijk_to_world, bool ras) {
+  std::vector<uint8_t> out;
+  const size_t bytes = pixel_bytes_of(type, size);
+  out.reserve(kImageHeaderBytes + bytes);
+  put_image_header(out, type, size, ijk_to_world, ras);
   const auto* b = static_cast<const uint8_t*>(pixels);
   out.insert(out.end(), b, b + bytes);
+  return out;
+}
+
+std::vector<uint8_t> pack_image(const std::string& device, uint64_t timestamp, PixelType type,
+                                const int size[3], const Mat4& ijk_to_world, bool ras,
+                                const std::function<void(uint8_t* pixels)>& fill, uint16_t version,
+                                uint32_t message_id) {
+  const size_t bytes = pixel_bytes_of(type, size);
+  const size_t extended = version >= 2 ? kExtendedHeaderBytes : 0;
+  const size_t metadata = version >= 2 ? 2 : 0;  // an empty metadata index
+  const size_t body = extended + kImageHeaderBytes + bytes + metadata;
+  std::vector<uint8_t> out;
+  out.reserve(kHeaderBytes + body);
+  put_be(out, version, 2);
+  put_text(out, "IMAGE", 12);
+  put_text(out, device, 20);
+  put_be(out, timestamp, 8);
+  put_be(out, body, 8);
+  put_be(out, 0, 8);  // the CRC, below
+  if (version >= 2) {
+    put_be(out, kExtendedHeaderBytes, 2);
+    put_be(out, metadata, 2);
+    put_be(out, 0, 4);
+    put_be(out, message_id, 4);
+  }
+  put_image_header(out, type, size, ijk_to_world, ras);
+  out.resize(out.size() + bytes);
+  fill(out.data() + out.size() - bytes);
+  if (version >= 2) put_be(out, 0, 2);
+  const uint64_t crc = crc64(out.data() + kHeaderBytes, body);
+  for (int i = 0; i < 8; ++i) out[50 + size_t(i)] = uint8_t(crc >> (56 - 8 * i));
   return out;
 }
 

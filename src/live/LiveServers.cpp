@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -77,8 +78,9 @@ std::vector<uint8_t> volume_message(const Volume& v, const std::string& device) 
     m.m[r][3] = g.origin_mm[r];
   }
   const int size[3] = {int(g.dims[0]), int(g.dims[1]), int(g.dims[2])};
-  return igtl::pack("IMAGE", device, wall_timestamp(),
-                    igtl::image_content(v.data(), v.pixel_type(), size, m));
+  const size_t bytes = size_t(g.voxel_count()) * pixel_size(v.pixel_type());
+  return igtl::pack_image(device, wall_timestamp(), v.pixel_type(), size, m, false,
+                          [&](uint8_t* out) { std::memcpy(out, v.data(), bytes); });
 }
 
 // One PlusServer command: its name and attributes.
@@ -388,8 +390,6 @@ VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const Virtua
   if (run.on_ready) run.on_ready(endpoint);
   Limiter limiter{run.limits};
   VirtualProbeResult r;
-  std::vector<uint8_t> image(size_t(renderer.width) * size_t(renderer.height) *
-                             pixel_size(renderer.type));
   std::vector<float> latencies;
   const int size[3] = {renderer.width, renderer.height, 1};
   const auto handler = [&](int client, igtl::Message&& m, double arrival) {
@@ -417,12 +417,13 @@ VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const Virtua
       endpoint.reject(problem);
       return;
     }
-    renderer.render(pose, image.data());
     const Mat4 placed = pose_to_lps(pose * renderer.pixel_to_probe, run.world);
-    endpoint.send(client, igtl::pack("IMAGE", run.image_device, m.header.timestamp,
-                                     igtl::image_content(image.data(), renderer.type, size, placed,
-                                                         run.world == WorldFrame::RAS),
-                                     m.header.version, m.message_id));
+    // The image is rendered straight into the message that carries it.
+    endpoint.send(
+        client, igtl::pack_image(
+                    run.image_device, m.header.timestamp, renderer.type, size, placed,
+                    run.world == WorldFrame::RAS, [&](uint8_t* out) { renderer.render(pose, out); },
+                    m.header.version, m.message_id));
     ++r.images;
     latencies.push_back(float((now_seconds() - arrival) * 1e3));
   };

@@ -123,6 +123,20 @@ TEST(Igtl, EveryMessageTypeRoundTripsThroughPackAndParse) {
   EXPECT_EQ(back.text, c.text);
 }
 
+TEST(Igtl, ImagesBuiltInPlaceAreTheSameBytes) {
+  const TestFrame f = test_frame(7, 5, 3);
+  const int size[3] = {7, 5, 1};
+  for (uint16_t version : {1, 2}) {
+    const auto in_place = igtl::pack_image(
+        "Image", 99, PixelType::UInt8, size, f.to_reference, version == 2,
+        [&](uint8_t* out) { std::memcpy(out, f.pixels.data(), f.pixels.size()); }, version, 4);
+    EXPECT_EQ(in_place, igtl::pack("IMAGE", "Image", 99,
+                                   igtl::image_content(f.pixels.data(), PixelType::UInt8, size,
+                                                       f.to_reference, version == 2),
+                                   version, 4));
+  }
+}
+
 TEST(Igtl, MalformedMessagesAreNamedNotTrusted) {
   const TestFrame f = test_frame(4, 4, 0);
   const int size[3] = {4, 4, 1};

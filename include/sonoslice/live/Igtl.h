@@ -9,6 +9,7 @@
 /// Every number on the wire is big-endian; image pixels carry their own byte order.
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <utility>
@@ -91,6 +92,13 @@ std::string parse_image(const std::vector<uint8_t>& content, Image& out);
 /// component, little-endian) placed by `ijk_to_world` (first pixel's centre).
 std::vector<uint8_t> image_content(const void* pixels, PixelType type, const int size[3],
                                    const Mat4& ijk_to_world, bool ras = false);
+
+/// A whole IMAGE message (as pack() of image_content() would give it) built in one buffer: `fill`
+/// writes the pixels in place, so a large image is not copied on its way out.
+std::vector<uint8_t> pack_image(const std::string& device, uint64_t timestamp, PixelType type,
+                                const int size[3], const Mat4& ijk_to_world, bool ras,
+                                const std::function<void(uint8_t* pixels)>& fill,
+                                uint16_t version = 1, uint32_t message_id = 0);
 
 /// TRANSFORM: 12 float32s (the rotation's columns, then the translation).
 std::string parse_transform(const std::vector<uint8_t>& content, Mat4& out);
