@@ -6,7 +6,8 @@ peers, 3D Slicer) as PlusServer broadcasts it: one IMAGE message per frame, devi
         --config data/plus/BoneUltrasound_L14_config.xml --port 18944 --rate 30
 
 The transforms come from the sequence and the configuration's CoordinateDefinitions (the
-calibration), as PLUS chains them. Frames whose chain is invalid are skipped. Uses pyigtl
+calibration), as PLUS chains them (sonoslice.live.plus_frames). Frames whose chain is invalid are
+skipped. Uses pyigtl
 (pip install pyigtl), an OpenIGTLink implementation independent of sonoslice's.
 """
 import argparse
@@ -17,22 +18,7 @@ import time
 import numpy as np
 import pyigtl
 
-import sonoslice
-
-
-def tracked_frames(sequence_path, config_path, transform="ImageToReference"):
-    """(pixels (H, W), 4x4 image-to-reference, timestamp) for each usable frame."""
-    sequence = sonoslice.read_plus_sequence(sequence_path)
-    repository = (sonoslice.read_plus_config(config_path).coordinate_definitions.copy()
-                  if config_path else sonoslice.TransformRepository())
-    frames = sequence.frames
-    timestamps = sequence.timestamps
-    for k in range(len(sequence)):
-        repository.set_frame(sequence, k)
-        matrix = repository.get(transform)
-        if matrix is None or not sequence.image_ok(k):
-            continue
-        yield frames[k], matrix, float(timestamps[k]) if np.isfinite(timestamps[k]) else 0.0
+from sonoslice.live import plus_frames
 
 
 def main(argv=None):
@@ -49,7 +35,7 @@ def main(argv=None):
                    help="then send PlusServer's StopVolumeReconstruction command")
     a = p.parse_args(argv)
 
-    frames = list(tracked_frames(a.sequence, a.config))
+    frames = list(plus_frames(a.sequence, a.config))
     if not frames:
         sys.exit(f"{a.sequence}: no frame with a valid ImageToReference transform")
     sock = socket.create_connection((a.host, a.port), timeout=30)

@@ -190,7 +190,7 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
                "rejected; latency p50 %.2f ms, p99 %.2f ms\n",
                command, result.stopped_by.c_str(), (long long)result.poses,
                (long long)result.images, result.seconds > 0 ? result.images / result.seconds : 0.0,
-               (long long)result.rejected, result.latency_ms_p50, result.latency_ms_p99);
+               (long long)result.rejected, result.latency_ms.p50, result.latency_ms.p99);
   if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
 }
 

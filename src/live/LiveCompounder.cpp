@@ -55,14 +55,6 @@ struct Box {
   }
 };
 
-double percentile(std::vector<float> v, double p) {
-  if (v.empty()) return 0;
-  // Nearest rank: the smallest value with at least p % of the values at or below it.
-  const size_t k = std::max<size_t>(1, size_t(std::ceil(p / 100.0 * double(v.size())))) - 1;
-  std::nth_element(v.begin(), v.begin() + long(k), v.end());
-  return v[k];
-}
-
 std::string matrix_text(const Mat4& m) {
   std::string s;
   char b[40];
@@ -76,6 +68,25 @@ std::string matrix_text(const Mat4& m) {
 }
 
 }  // namespace
+
+Latencies Latencies::of(std::vector<float> ms) {
+  Latencies l;
+  if (ms.empty()) return l;
+  std::sort(ms.begin(), ms.end());
+  // Nearest rank: the smallest value with at least p % of the values at or below it.
+  const auto rank = [&](double p) {
+    return double(ms[std::max<size_t>(1, size_t(std::ceil(p / 100.0 * double(ms.size())))) - 1]);
+  };
+  l.p50 = rank(50);
+  l.p95 = rank(95);
+  l.p99 = rank(99);
+  l.max = ms.back();
+  return l;
+}
+
+static nlohmann::ordered_json latency_json(const Latencies& l) {
+  return {{"p50", l.p50}, {"p95", l.p95}, {"p99", l.p99}, {"max", l.max}};
+}
 
 QueuePolicy parse_queue_policy(const std::string& text, const std::string& what) {
   const std::string t = text::lower(text);
@@ -378,10 +389,7 @@ LiveStats LiveCompounder::stats() const {
     latencies = im.latencies_ms;
   }
   s.seconds = now_seconds() - im.start;
-  s.latency_ms_p50 = percentile(latencies, 50);
-  s.latency_ms_p95 = percentile(latencies, 95);
-  s.latency_ms_p99 = percentile(latencies, 99);
-  s.latency_ms_max = latencies.empty() ? 0 : *std::max_element(latencies.begin(), latencies.end());
+  s.latency_ms = Latencies::of(std::move(latencies));
   std::lock_guard<std::mutex> v(im.volume_mutex);
   if (im.compounder) s.grid = im.compounder->grid();
   return s;
@@ -425,10 +433,7 @@ std::string LiveStats::json() const {
   j["rejected_by_reason"] = rejected_by_reason;
   j["frames_waiting"] = waiting;
   j["bytes"] = bytes;
-  j["latency_ms"] = {{"p50", latency_ms_p50},
-                     {"p95", latency_ms_p95},
-                     {"p99", latency_ms_p99},
-                     {"max", latency_ms_max}};
+  j["latency_ms"] = latency_json(latency_ms);
   j["seconds"] = seconds;
   if (grid) {
     j["grid"] = {
@@ -443,7 +448,7 @@ std::string LiveStats::summary() const {
                 "%lld frames received, %lld compounded, %lld dropped, %lld rejected; latency "
                 "p50 %.2f ms, p95 %.2f ms, p99 %.2f ms, max %.2f ms",
                 (long long)received, (long long)compounded, (long long)dropped, (long long)rejected,
-                latency_ms_p50, latency_ms_p95, latency_ms_p99, latency_ms_max);
+                latency_ms.p50, latency_ms.p95, latency_ms.p99, latency_ms.max);
   return b;
 }
 

@@ -380,7 +380,10 @@ std::string VirtualProbeResult::json() const {
   j["network"] = network;
   j["seconds"] = seconds;
   j["images_per_second"] = seconds > 0 ? double(images) / seconds : 0.0;
-  j["latency_ms"] = {{"p50", latency_ms_p50}, {"p99", latency_ms_p99}, {"max", latency_ms_max}};
+  j["latency_ms"] = {{"p50", latency_ms.p50},
+                     {"p95", latency_ms.p95},
+                     {"p99", latency_ms.p99},
+                     {"max", latency_ms.max}};
   j["stopped_by"] = stopped_by;
   return j.dump(2);
 }
@@ -434,15 +437,7 @@ VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const Virtua
   endpoint.flush(1000);
   r.seconds = now_seconds() - limiter.start;
   for (const auto& [k, n] : endpoint.counts()) r.network[k] += n;
-  if (!latencies.empty()) {
-    std::sort(latencies.begin(), latencies.end());
-    const auto at = [&](double p) {
-      return latencies[std::min(latencies.size() - 1, size_t(p / 100.0 * latencies.size()))];
-    };
-    r.latency_ms_p50 = at(50);
-    r.latency_ms_p99 = at(99);
-    r.latency_ms_max = latencies.back();
-  }
+  r.latency_ms = Latencies::of(std::move(latencies));
   return r;
 }
 

@@ -246,8 +246,13 @@ TEST(LiveCompounder, FramesPushedOneByOneGiveTheBatchReconstructionsBytes) {
   EXPECT_EQ(s.received, 20);
   EXPECT_EQ(s.compounded, 20);
   EXPECT_EQ(s.dropped + s.rejected, 0);
-  EXPECT_GE(s.latency_ms_max, s.latency_ms_p99);
-  EXPECT_GE(s.latency_ms_p99, s.latency_ms_p50);
+  EXPECT_GE(s.latency_ms.max, s.latency_ms.p99);
+  EXPECT_GE(s.latency_ms.p99, s.latency_ms.p50);
+  EXPECT_GT(s.latency_ms.p50, 0);
+  const Latencies l = Latencies::of({5, 1, 4, 2, 3});  // nearest rank
+  EXPECT_EQ(l.p50, 3);
+  EXPECT_EQ(l.p95, 5);
+  EXPECT_EQ(l.max, 5);
 }
 
 TEST(LiveCompounder, AGrowingGridEndsAsTheOfflineReconstructionOnItsGrid) {

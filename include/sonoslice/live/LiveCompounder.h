@@ -9,6 +9,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "sonoslice/compound/Reconstruction.h"
 #include "sonoslice/plus/PlusConfig.h"
@@ -30,6 +31,12 @@ struct LiveOptions {
   bool keep_frames = false;
 };
 
+/// Latencies in milliseconds: nearest-rank percentiles and the maximum.
+struct Latencies {
+  double p50 = 0, p95 = 0, p99 = 0, max = 0;
+  static Latencies of(std::vector<float> ms);
+};
+
 /// Counts since the start, and the latency from a frame's arrival to its being in the volume.
 struct LiveStats {
   int64_t received = 0;    ///< frames offered (push), accepted or not
@@ -40,7 +47,7 @@ struct LiveStats {
   std::map<std::string, int64_t> rejected_by_reason;
   int64_t waiting = 0;  ///< in the queue now
   uint64_t bytes = 0;   ///< pixel bytes of the frames received
-  double latency_ms_p50 = 0, latency_ms_p95 = 0, latency_ms_p99 = 0, latency_ms_max = 0;
+  Latencies latency_ms;
   double seconds = 0;  ///< since the compounder was made
   std::optional<VolumeGrid> grid;
   /// One JSON object: these fields (latency under "latency_ms": p50, p95, p99, max) and the

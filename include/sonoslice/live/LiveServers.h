@@ -71,7 +71,7 @@ struct VirtualProbeResult {
   int64_t poses = 0, images = 0, rejected = 0;
   std::map<std::string, int64_t> network;
   double seconds = 0;
-  double latency_ms_p50 = 0, latency_ms_p99 = 0, latency_ms_max = 0;  ///< pose in → image queued
+  Latencies latency_ms;  ///< a TRANSFORM read → its IMAGE queued
   std::string stopped_by;
   std::string json() const;
 };
