@@ -120,7 +120,7 @@ struct LiveCompounder::Impl {
   std::vector<Mat4> kept_to_reference;
   std::vector<double> kept_timestamps;
   bool growing = false;
-  Box tight, allocated;
+  Box allocated;  // the growing grid, on the spacing's lattice
   std::thread worker;
 
   std::string reject(const std::string& why) {
@@ -178,11 +178,6 @@ void LiveCompounder::Impl::insert(Frame& f) {
   }
   if (growing) {
     const Box b = frame_box(f);
-    if (!compounder) {
-      tight = allocated = b;
-    } else {
-      tight.add(b);
-    }
     if (!compounder || !allocated.contains(b)) {
       // Grow by a quarter of the current size (at least 16 voxels) where the frame leaves the
       // box: a sweep re-inserts its frames a few times, not at every frame, and the margin
@@ -371,9 +366,13 @@ Volume LiveCompounder::finish() {
   Impl& im = *impl_;
   std::lock_guard<std::mutex> v(im.volume_mutex);
   if (!im.compounder) return Volume();
-  if (im.growing && (im.tight.lo != im.allocated.lo || im.tight.hi != im.allocated.hi)) {
-    im.allocated = im.tight;
-    im.rebuild(im.tight.grid(im.plan->spacing_mm));
+  if (im.growing) {
+    // The grid `sonoslice compound` fits around the same frames, so the recording compounded
+    // offline with the same settings gives these bytes.
+    const VolumeGrid fitted = Compounder::grid_around(im.kept_to_reference, im.width, im.height,
+                                                      im.plan->clip, im.plan->spacing_mm);
+    const VolumeGrid& now = im.compounder->grid();
+    if (fitted.dims != now.dims || fitted.origin_mm != now.origin_mm) im.rebuild(fitted);
   }
   return im.compounder->volume(im.plan->output_type);
 }

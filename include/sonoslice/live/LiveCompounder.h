@@ -63,7 +63,8 @@ class LiveCompounder {
   /// compounding, hole filling, clip, output type, origin/extent, device, memory); errors for
   /// bad settings are thrown here, before any frame. Without a grid from the options or the
   /// configuration, the grid grows around the frames on the lattice of the spacing (origin a
-  /// multiple of it), keeping the frames to re-insert them; finish() then fits it tightly.
+  /// multiple of it), keeping the frames to re-insert them; finish() then fits it around them as
+  /// `sonoslice compound` does (Compounder::grid_around).
   LiveCompounder(std::shared_ptr<const PlusReconstructionConfig> config,
                  ReconstructionOptions options, LiveOptions live = {});
   ~LiveCompounder();
@@ -96,7 +97,8 @@ class LiveCompounder {
   /// The volume of the frames compounded so far (holes filled when the settings say so), in
   /// the output type; an empty Volume before the first frame.
   Volume snapshot() const;
-  /// drain(), then the final volume (a growing grid fitted tightly around the frames).
+  /// drain(), then the final volume (a growing grid fitted around the frames as `compound` fits
+  /// it).
   Volume finish();
   LiveStats stats() const;
   /// The compounded frames as a PLUS sequence (each with its `<Image>To<Reference>Transform`,
