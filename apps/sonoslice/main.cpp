@@ -31,6 +31,16 @@ std::string join(const std::vector<std::string>& items, const std::string& separ
 /// One line for a CLI11 parse error, naming what was wrong and where to look. CLI11 checks
 /// required flags before unexpected ones, so a mistyped flag would otherwise be reported as the
 /// required one it failed to set: unexpected arguments are named first.
+// " live compound": the subcommands parsed, nested ones included ("" for none).
+std::string command_path(CLI::App& app) {
+  std::string path;
+  for (CLI::App* sub = &app; !sub->get_subcommands().empty();) {
+    sub = sub->get_subcommands().front();
+    path += " " + sub->get_name();
+  }
+  return path;
+}
+
 std::string usage_error(CLI::App& app, const CLI::ParseError& e, int argc, char** argv) {
   const std::vector<CLI::App*> parsed = app.get_subcommands();
   std::vector<std::string> commands;
@@ -47,9 +57,7 @@ std::string usage_error(CLI::App& app, const CLI::ParseError& e, int argc, char*
     what = "unexpected argument(s) " + join(extra, " ") + " (and " + what + ")";
   for (char& c : what)
     if (c == '\n') c = ' ';
-  const std::string help =
-      parsed.empty() ? "sonoslice --help" : "sonoslice " + parsed.front()->get_name() + " --help";
-  return what + "; see '" + help + "'";
+  return what + "; see 'sonoslice" + command_path(app) + " --help'";
 }
 
 }  // namespace
@@ -87,10 +95,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "sonoslice: error: %s\n", usage_error(app, e, argc, argv).c_str());
     return kExitUsage;
   } catch (const sonoslice::cli::UsageError& e) {
-    const std::string command =
-        app.get_subcommands().empty() ? "" : " " + app.get_subcommands().front()->get_name();
     std::fprintf(stderr, "sonoslice: error: %s; see 'sonoslice%s --help'\n", e.what(),
-                 command.c_str());
+                 command_path(app).c_str());
     return kExitUsage;
   } catch (const sonoslice::ParameterError& e) {
     // A library parameter, said as the flag that sets it.
