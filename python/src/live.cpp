@@ -156,7 +156,13 @@ void bind_live(nb::module_& m) {
               }
             });
             nb::gil_scoped_release release;
-            self->port = port_of.get();  // rethrows a bind error
+            try {
+              self->port = port_of.get();  // rethrows a bind error
+            } catch (...) {
+              self->thread.join();  // it has ended: an object that failed to start holds nothing
+              self->~PyLiveServer();
+              throw;
+            }
           },
           "compounder"_a, nb::kw_only(), "listen"_a, "host"_a, "port"_a, "image_device"_a = "",
           "max_frames"_a = 0, "max_seconds"_a = 0.0)

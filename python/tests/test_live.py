@@ -400,6 +400,8 @@ def test_python_server_in_process(frames):
         volume, stats = server.wait()
         peer.close()
     assert stats["stopped_by"] == "max_frames"
+    with pytest.raises(ValueError, match="10.1.2.3:5000: cannot listen"):
+        LiveCompoundServer(live, listen="10.1.2.3:5000")
     assert stats["frames_compounded"] == 6 and volume.array.max() > 0
 
 
