@@ -361,6 +361,20 @@ def test_virtual_probe_answers_each_pose_with_the_slice_image(cli, tmp_path):
     peer.close()
     s = json.loads(stats.read_text())
     assert s["poses_received"] == s["images_sent"] == len(poses)
+    # --world RAS (3D Slicer's frame): RAS poses in, the same images, matrices in RAS.
+    ras = np.diag([-1.0, -1.0, 1.0, 1.0])
+    server = serve("slice", "--volume", str(ct_path), "--probe", str(probe_path), "--world", "RAS",
+                   "--max-frames", "2", cli=cli)
+    peer = Peer(server.port)
+    for k in range(2):
+        peer.send(pyigtl.TransformMessage(ras @ poses[k], device_name="ProbeToReference"))
+        _, _, image = peer.receive()
+        np.testing.assert_array_equal(image.image[0], expected[k])
+        assert image.world_coordinate_system == "ras"
+        np.testing.assert_allclose(image.ijk_to_world_matrix[:3, :2], (ras @ poses[k] @ pixel_to_probe)[:3, :2],
+                                   atol=1e-5)
+    assert server.wait(30) == 0
+    peer.close()
 
 
 def test_python_live_compounder_matches_reconstruct_plus(tmp_path, frames):
