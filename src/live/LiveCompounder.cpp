@@ -14,6 +14,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "../compound/CompoundGrid.h"
 #include "../core/Text.h"
 #include "sonoslice/core/Error.h"
 
@@ -172,10 +173,10 @@ void LiveCompounder::Impl::insert(Frame& f) {
   if (!plan) {
     plan = plan_stream(*type, width, height, config.get(), options);
     growing = !plan->grid;
-    if (!growing)
-      compounder = std::make_unique<Compounder>(*plan->grid, plan->settings, options.device,
-                                                options.max_memory_bytes, plan->output_type);
   }
+  if (!growing && !compounder)  // tried again at the next frame if memory was short
+    compounder = std::make_unique<Compounder>(*plan->grid, plan->settings, options.device,
+                                              options.max_memory_bytes, plan->output_type);
   if (growing) {
     const Box b = frame_box(f);
     if (!compounder || !allocated.contains(b)) {
@@ -189,8 +190,8 @@ void LiveCompounder::Impl::insert(Frame& f) {
         if (!compounder || b.lo[a] < allocated.lo[a]) grown.lo[a] -= pad;
         if (!compounder || b.hi[a] > allocated.hi[a]) grown.hi[a] += pad;
       }
-      allocated = grown;
-      rebuild(allocated.grid(plan->spacing_mm));
+      rebuild(grown.grid(plan->spacing_mm));
+      allocated = grown;  // once the larger grid exists (a failed one leaves the old)
     }
   }
   insert_into_compounder(f);
@@ -269,13 +270,11 @@ std::string LiveCompounder::push(const void* pixels, PixelType type, int width, 
       type != PixelType::Int16 && type != PixelType::Float32)
     return im.reject("a " + to_string(type) + " frame (uint8, int8, uint16, int16 or float32)");
   if (width < 1 || height < 1) return im.reject("an empty frame");
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c)
-      if (!std::isfinite(m.m[r][c])) return im.reject("a frame matrix with a non-finite value");
-  const Vec3 u = m.column3(0), v = m.column3(1);
-  const Vec3 n{{u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]}};
-  if (!(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 1e-18))
-    return im.reject("a singular frame matrix (its pixel axes are zero or parallel)");
+  try {
+    compound_impl::check_matrix(m, "a frame", 2);  // the check the Compounder's callers use
+  } catch (const InputError& e) {
+    return im.reject(e.what());
+  }
   if (im.type && (*im.type != type || im.width != width || im.height != height))
     return im.reject("a frame of " + std::to_string(width) + "x" + std::to_string(height) + " " +
                      to_string(type) + " after frames of " + std::to_string(im.width) + "x" +
@@ -340,7 +339,11 @@ void LiveCompounder::reset() {
 
 void LiveCompounder::reset(const ReconstructionOptions& options) {
   const StreamPlan check = plan_stream(PixelType::UInt8, 1, 1, impl_->config.get(), options);
-  if (check.grid) check.grid->validate(spelled(options.names, "extent"));
+  if (check.grid) {  // a given grid must fit in memory now, not at the first frame
+    check.grid->validate(spelled(options.names, "extent"));
+    compound_impl::check_fits_in_memory(*check.grid, check.settings, check.output_type,
+                                        options.max_memory_bytes);
+  }
   drain();
   std::lock_guard<std::mutex> v(impl_->volume_mutex);
   impl_->options = options;
