@@ -23,6 +23,8 @@ packages=(
   python3-venv python3-numpy python3-pytest python3-tqdm python3-torch python3-yaml  # the Python package's tests
   libopenigtlink-dev python3-crcmod      # sonoslice live's tests: an OpenIGTLink peer on Debian's
                                          # library; pyigtl's CRC (with its C extension)
+  libcpp-httplib-dev                     # sonoslice view's HTTP server
+  chromium chromium-driver               # sonoslice view's browser tests (headless, selenium)
 )
 if [[ "${1:-}" == "--bench" ]]; then
   packages+=(python3-vtk9 python3-scipy python3-nibabel)

@@ -31,4 +31,6 @@ build/venv/bin/python -m pip install -q "distributed>=2023.1" "webdataset>=0.2"
 # sonoslice live: pyigtl, an independent OpenIGTLink implementation (tests and the example sender).
 # --no-deps: its numpy and crcmod are Debian's (a PyPI numpy would hide the one torch is built for).
 build/venv/bin/python -m pip install -q --no-deps "pyigtl>=0.3"
+# sonoslice view: selenium drives Debian's chromium + chromium-driver in the browser tests.
+build/venv/bin/python -m pip install -q "selenium>=4.10"
 build/venv/bin/python -c "import sonoslice; print('sonoslice', sonoslice.__version__, 'installed in build/venv')"

@@ -16,5 +16,6 @@ void add_register_command(CLI::App& app);
 void add_poses_command(CLI::App& app);
 void add_dataset_command(CLI::App& app);
 void add_live_command(CLI::App& app);
+void add_view_command(CLI::App& app);
 }  // namespace cli
 }  // namespace sonoslice

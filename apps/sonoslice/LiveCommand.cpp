@@ -6,11 +6,13 @@
 #include <cstdio>
 #include <fstream>
 #include <memory>
+#include <mutex>
 
 #include "Commands.h"
 #include "Common.h"
 #include "ReconstructionFlags.h"
 #include "SimulationFlags.h"
+#include "ViewFlags.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/ProbeFile.h"
@@ -66,6 +68,15 @@ void announce(const char* command, const IgtlEndpoint& e) {
   std::fflush(stdout);
 }
 
+// --view after a run: the page keeps showing its end until Ctrl-C (at once when a Ctrl-C ended
+// the run).
+void keep_serving(const char* command, const ViewServer& view) {
+  if (g_stop.load()) return;
+  std::fprintf(stderr, "sonoslice live %s: the run ended; %s shows it until Ctrl-C\n", command,
+               view.url().c_str());
+  wait_for_interrupt();
+}
+
 void write_text_file(const std::string& path, const std::string& text) {
   AtomicFile f(path);
   std::FILE* out = fdopen(dup(f.fd()), "w");
@@ -74,11 +85,17 @@ void write_text_file(const std::string& path, const std::string& text) {
   f.commit();
 }
 
+void add_view_option(CLI::App& cmd, std::string& view) {
+  cmd.add_option("--view", view,
+                 "[HOST:]PORT: also serve the browser viewer there (docs/view.md; port 0: a free "
+                 "one); it stays up after the run until Ctrl-C");
+}
+
 struct LiveCompoundFlags {
   Endpoint endpoint;
   std::string config;
   ReconstructionFlags recon;
-  std::string image_device, queue = "all", out, record, stats;
+  std::string image_device, queue = "all", out, record, stats, view;
   int queue_size = 16;
   int64_t max_frames = 0;
   double max_seconds = 0;
@@ -118,11 +135,33 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
     run.log = [](const std::string& line) {
       std::fprintf(stderr, "sonoslice live compound: %s\n", line.c_str());
     };
+  // --view: the page shows the newest frame, the statistics and the growing volume.
+  std::shared_ptr<LiveFeed> feed;
+  std::unique_ptr<ViewServer> view;
+  if (!f.view.empty()) {
+    feed = std::make_shared<LiveFeed>();
+    feed->set_stats([&compounder] { return compounder.stats().json(); });
+    feed->set_volume_source([&compounder] { return compounder.snapshot(); });
+    // Started once the endpoint listens, so the endpoint's line comes first on stdout.
+    run.on_ready = [&view, &f, feed](const IgtlEndpoint& e) {
+      announce("compound", e);
+      ViewContent content;
+      content.title = "live compound";
+      view = start_view("sonoslice live compound", std::move(content), f.view, feed);
+    };
+    run.on_frame = [feed](const void* pixels, PixelType type, int w, int h, const Mat4& m) {
+      feed->frame(pixels, type, w, h, m);
+    };
+  }
   LiveCompoundResult result;
   {
+    // The feed's snapshots stop before the compounder goes, whichever way this scope is left.
+    const std::unique_ptr<LiveFeed, void (*)(LiveFeed*)> snapshots(
+        feed.get(), [](LiveFeed* fd) { fd->finish(std::nullopt); });
     StopOnSignals signals;
     result = run_live_compound(compounder, run);
   }
+  if (feed) feed->finish(result.volume);
   // The statistics first: they say why a run has no volume.
   std::string why;
   for (const auto& [reason, n] : result.stats.rejected_by_reason)
@@ -148,12 +187,13 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
                  f.out.c_str(), (long long)g.dims[0], (long long)g.dims[1], (long long)g.dims[2],
                  g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]);
   }
+  if (view) keep_serving("compound", *view);
 }
 
 // What `live slice` and `live simulate` share: the endpoint, device names, limits, statistics.
 struct VirtualProbeFlags {
   Endpoint endpoint;
-  std::string pose_device, image_device = "Image", stats;
+  std::string pose_device, image_device = "Image", stats, view;
   int64_t max_frames = 0;
   double max_seconds = 0;
   void add_to(CLI::App& cmd) {
@@ -164,13 +204,14 @@ struct VirtualProbeFlags {
     cmd.add_option("--max-frames", max_frames, "Stop after N images");
     cmd.add_option("--max-seconds", max_seconds, "Stop after S seconds");
     cmd.add_option("--stats", stats, "Write the counts and latencies here (JSON)");
+    add_view_option(cmd, view);
   }
 };
 
 // Serves `renderer` until a limit or a signal; the summary line and --stats.
 void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
                          const IgtlEndpointOptions& endpoint, WorldFrame world,
-                         const ProbeRenderer& renderer) {
+                         const ProbeRenderer& renderer, ViewContent content) {
   VirtualProbeRun run;
   run.endpoint = endpoint;
   run.pose_device = f.pose_device;
@@ -180,6 +221,37 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
   run.limits.max_seconds = f.max_seconds;
   run.limits.stop = &g_stop;
   run.on_ready = [command](const IgtlEndpoint& e) { announce(command, e); };
+  // --view: the page shows the volume's planes, each image sent in its place and the counts.
+  std::unique_ptr<ViewServer> view;
+  if (!f.view.empty()) {
+    auto feed = std::make_shared<LiveFeed>();
+    struct Counts {
+      std::mutex mutex;
+      int64_t images = 0;
+      std::vector<float> latency_ms;
+    };
+    auto counts = std::make_shared<Counts>();
+    feed->set_stats([counts] {
+      std::lock_guard<std::mutex> lock(counts->mutex);
+      LiveStats s;  // the keys the page reads, as live compound's
+      s.received = s.compounded = counts->images;
+      s.latency_ms = Latencies::of(counts->latency_ms);
+      return s.json();
+    });
+    run.on_image = [feed, counts, &renderer](const Pose& pose, const void* image, double ms) {
+      feed->frame(image, renderer.type, renderer.width, renderer.height,
+                  pose * renderer.pixel_to_probe);
+      std::lock_guard<std::mutex> lock(counts->mutex);
+      ++counts->images;
+      counts->latency_ms.push_back(float(ms));
+    };
+    content.title = std::string("live ") + command;
+    // Started once the endpoint listens, so the endpoint's line comes first on stdout.
+    run.on_ready = [&view, &f, feed, command, &content](const IgtlEndpoint& e) {
+      announce(command, e);
+      view = start_view(std::string("sonoslice live ") + command, std::move(content), f.view, feed);
+    };
+  }
   VirtualProbeResult result;
   {
     StopOnSignals signals;
@@ -192,6 +264,7 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
                (long long)result.images, result.seconds > 0 ? result.images / result.seconds : 0.0,
                (long long)result.rejected, result.latency_ms.p50, result.latency_ms.p99);
   if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
+  if (view) keep_serving(command, *view);
 }
 
 void check_probe_flags(const VirtualProbeFlags& f) {
@@ -233,7 +306,11 @@ void run_live_slice_command(const LiveSliceFlags& f) {
   renderer.type = settings.output_type;
   renderer.pixel_to_probe = probe.pixel_to_probe();
   renderer.render = [&slicer](const Pose& pose, void* out) { slicer.slice(&pose, 1, out, 0); };
-  serve_virtual_probe("slice", f.probe_flags, endpoint, world, renderer);
+  ViewContent content;
+  content.volume = v;
+  content.volume_name = path;
+  content.probe = probe;
+  serve_virtual_probe("slice", f.probe_flags, endpoint, world, renderer, std::move(content));
 }
 
 struct LiveSimulateFlags {
@@ -261,7 +338,12 @@ void run_live_simulate_command(const LiveSimulateFlags& f) {
       settings.output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32;
   renderer.pixel_to_probe = sim.probe().pixel_to_probe();
   renderer.render = [&sim](const Pose& pose, void* out) { sim.simulate(&pose, 1, out, 0); };
-  serve_virtual_probe("simulate", f.probe_flags, endpoint, world, renderer);
+  ViewContent content;
+  content.volume = input.volume;
+  content.volume_name = s.volume.path.empty() ? s.labels : s.volume.path;
+  content.probe = sim.probe();
+  if (renderer.type == PixelType::UInt8) content.image_window = std::make_pair(127.5, 255.0);
+  serve_virtual_probe("simulate", f.probe_flags, endpoint, world, renderer, std::move(content));
 }
 
 }  // namespace
@@ -292,6 +374,7 @@ void add_live_command(CLI::App& app) {
   cmd->add_option("--record", c->record,
                   "Also write the compounded frames as a PLUS sequence (.igs.mha/.igs.nrrd)");
   cmd->add_option("--stats", c->stats, "Write the counts and latencies here (JSON)");
+  add_view_option(*cmd, c->view);
   cmd->add_flag("--quiet,-q", c->quiet, "Only the summary line");
   cmd->callback([c] { run_live_compound_command(*c); });
 

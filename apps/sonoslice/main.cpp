@@ -83,6 +83,7 @@ int main(int argc, char** argv) {
   sonoslice::cli::add_poses_command(app);
   sonoslice::cli::add_dataset_command(app);
   sonoslice::cli::add_live_command(app);
+  sonoslice::cli::add_view_command(app);
   sonoslice::cli::add_bench_command(app);
   sonoslice::set_warning_handler(&print_warning);
   // Ctrl-C, SIGTERM or a file-size limit mid-write: the half-written temporaries go, good outputs

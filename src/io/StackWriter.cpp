@@ -25,15 +25,6 @@ size_t image_bytes(const StackSpec& s) {
   return size_t(s.width) * size_t(s.height) * size_t(s.components) * pixel_size(s.type);
 }
 
-template <typename F>
-void for_each_value(const void* data, PixelType type, size_t n, F&& f) {
-  visit_pixel_type(type, [&](auto zero) {
-    using T = decltype(zero);
-    const T* p = static_cast<const T*>(data);
-    for (size_t i = 0; i < n; ++i) f(i, double(p[i]));
-  });
-}
-
 // .npy: header first, then images appended chunk by chunk.
 class NpyStackWriter : public StackWriter {
  public:

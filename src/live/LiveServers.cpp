@@ -199,6 +199,8 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
   ++frames_;  // --max-frames counts the frames handed to the compounder
   compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
                     igtl::seconds_of_timestamp(m.header.timestamp), arrival);
+  if (run_.on_frame)
+    run_.on_frame(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world);
 }
 
 void CompoundServer::reply(int client, const igtl::Message& request, const std::string& name,
@@ -422,11 +424,15 @@ VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const Virtua
     }
     const Mat4 placed = pose_to_lps(pose * renderer.pixel_to_probe, run.world);
     // The image is rendered straight into the message that carries it.
-    endpoint.send(
-        client, igtl::pack_image(
-                    run.image_device, m.header.timestamp, renderer.type, size, placed,
-                    run.world == WorldFrame::RAS, [&](uint8_t* out) { renderer.render(pose, out); },
-                    m.header.version, m.message_id));
+    endpoint.send(client, igtl::pack_image(
+                              run.image_device, m.header.timestamp, renderer.type, size, placed,
+                              run.world == WorldFrame::RAS,
+                              [&](uint8_t* out) {
+                                renderer.render(pose, out);
+                                if (run.on_image)
+                                  run.on_image(pose, out, (now_seconds() - arrival) * 1e3);
+                              },
+                              m.header.version, m.message_id));
     ++r.images;
     latencies.push_back(float((now_seconds() - arrival) * 1e3));
   };

@@ -31,6 +31,11 @@ struct LiveCompoundRun {
   std::function<void(const IgtlEndpoint&)> on_ready;
   /// Progress lines (commands received, snapshots sent); may be empty.
   std::function<void(const std::string&)> log;
+  /// Each frame handed to the compounder (a viewer's newest frame): w×h pixels of `type`,
+  /// pixel (u, v, 0, 1) → the reconstruction frame. May be empty.
+  std::function<void(const void* pixels, PixelType type, int width, int height,
+                     const Mat4& to_reference)>
+      on_frame;
 };
 
 struct LiveCompoundResult {
@@ -65,6 +70,9 @@ struct VirtualProbeRun {
   WorldFrame world = WorldFrame::LPS;  ///< the frame of the poses received and images sent
   LiveLimits limits;                   ///< max_frames counts images sent
   std::function<void(const IgtlEndpoint&)> on_ready;
+  /// Each image sent (a viewer's newest frame): the renderer's pixels at `pose` (LPS), and the
+  /// time from its TRANSFORM's arrival. May be empty.
+  std::function<void(const Pose& pose, const void* image, double latency_ms)> on_image;
 };
 
 struct VirtualProbeResult {

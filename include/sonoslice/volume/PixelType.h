@@ -100,4 +100,14 @@ decltype(auto) visit_pixel_type(PixelTypes<Ts...>, PixelType type, F&& f, const 
       });
 }
 
+/// Calls f(i, double(value i)) for each of the `n` values of `type` at `data`, in order.
+template <typename F>
+void for_each_value(const void* data, PixelType type, size_t n, F&& f) {
+  visit_pixel_type(type, [&](auto zero) {
+    using T = decltype(zero);
+    const T* p = static_cast<const T*>(data);
+    for (size_t i = 0; i < n; ++i) f(i, double(p[i]));
+  });
+}
+
 }  // namespace sonoslice

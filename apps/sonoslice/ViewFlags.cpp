@@ -1,0 +1,52 @@
+#include "ViewFlags.h"
+
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <thread>
+
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/AtomicFile.h"
+#include "sonoslice/live/IgtlServer.h"
+
+namespace sonoslice {
+namespace cli {
+namespace {
+std::atomic<bool> g_interrupted{false};
+extern "C" void on_interrupt(int) {
+  g_interrupted.store(true);
+}
+}  // namespace
+
+std::unique_ptr<ViewServer> start_view(const std::string& command, ViewContent content,
+                                       const std::string& host_port,
+                                       std::shared_ptr<LiveFeed> live) {
+#ifdef SONOSLICE_HAVE_VIEW
+  std::string host = "127.0.0.1";
+  int port = 0;
+  parse_host_port(host_port, command == "sonoslice view" ? "--port" : "--view", host, port);
+  auto server = std::make_unique<ViewServer>(std::move(content), host, port, std::move(live));
+  std::printf("%s: %s\n", command.c_str(), server->url().c_str());
+  std::fflush(stdout);
+  return server;
+#else
+  (void)content, (void)host_port, (void)live;
+  throw Error(command +
+              ": this build has no viewer (it needs cpp-httplib: Debian's libcpp-httplib-dev)");
+#endif
+}
+
+void wait_for_interrupt() {
+  g_interrupted.store(false);
+  struct sigaction a {};
+  a.sa_handler = on_interrupt;
+  sigemptyset(&a.sa_mask);
+  ::sigaction(SIGINT, &a, nullptr);
+  ::sigaction(SIGTERM, &a, nullptr);
+  while (!g_interrupted.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  install_output_cleanup_on_signals();
+}
+
+}  // namespace cli
+}  // namespace sonoslice

@@ -1,0 +1,686 @@
+// The viewer's server: scene geometry as JSON, planes and images as raw float32, sliced on demand
+// with the library's Slicer. The page (web/) does all drawing; see docs/view.md for the API.
+#include "sonoslice/view/ViewServer.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdlib>
+#include <cstring>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include <httplib.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <sys/socket.h>
+#include <nlohmann/json.hpp>
+
+#include "WebAssets.h"
+#include "sonoslice/core/Error.h"
+#include "sonoslice/io/StackWriter.h"
+#include "sonoslice/slice/Slicer.h"
+#include "sonoslice/volume/PixelType.h"
+
+namespace sonoslice {
+
+using nlohmann::json;
+
+namespace {
+
+double now_seconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+json vec_json(const Vec3& v) {
+  return json::array({v[0], v[1], v[2]});
+}
+
+json mat_json(const Mat4& m) {
+  json a = json::array();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) a.push_back(m.m[r][c]);
+  return a;
+}
+
+std::array<Vec3, 8> box_corners(const VolumeGrid& g) {
+  std::array<Vec3, 8> c;
+  for (int b = 0; b < 8; ++b)
+    c[size_t(b)] =
+        g.index_to_world({double((b & 1) ? g.dims[0] - 1 : 0), double((b & 2) ? g.dims[1] - 1 : 0),
+                          double((b & 4) ? g.dims[2] - 1 : 0)});
+  return c;
+}
+
+// The level and width a user first sees: the stack writers' robust auto window (0.5–99.5 %) on
+// at most ~1 M voxels taken at a regular stride, so a 100 M-voxel CT answers in milliseconds.
+std::pair<double, double> auto_volume_window(const Volume& v) {
+  const int64_t n = v.grid().voxel_count();
+  const int64_t stride = std::max<int64_t>(1, n / 1000000);
+  std::vector<float> sample;
+  sample.reserve(size_t(n / stride + 1));
+  visit_pixel_type(v.pixel_type(), [&](auto zero) {
+    const auto* p = static_cast<const decltype(zero)*>(v.data());
+    for (int64_t i = 0; i < n; i += stride) sample.push_back(float(p[i]));
+  });
+  return auto_window(sample.data(), PixelType::Float32, 1, sample.size(), nullptr);
+}
+
+// The probe's outline in probe mm (closed, last point not repeated) and its four corners
+// (near-left, near-right, far-right, far-left), from the same shape `inside` tests.
+void probe_outline(const ProbeGeometry& p, json& outline, json& corners) {
+  outline = json::array();
+  std::vector<std::array<double, 2>> pts;
+  if (p.type == ProbeType::Curvilinear) {
+    const double apex_y = p.face_y_mm - p.radius_mm, half = p.sector_deg * kPi / 360.0;
+    const int n = 32;
+    for (int k = 0; k <= n; ++k) {  // near arc, left to right
+      const double a = -half + 2 * half * k / n;
+      pts.push_back({p.radius_mm * std::sin(a), apex_y + p.radius_mm * std::cos(a)});
+    }
+    const double far = p.radius_mm + p.depth_mm;
+    for (int k = n; k >= 0; --k) {  // far arc, right to left
+      const double a = -half + 2 * half * k / n;
+      pts.push_back({far * std::sin(a), apex_y + far * std::cos(a)});
+    }
+    corners = json::array({json::array({pts[0][0], pts[0][1]}),
+                           json::array({pts[size_t(n)][0], pts[size_t(n)][1]}),
+                           json::array({pts[size_t(n) + 1][0], pts[size_t(n) + 1][1]}),
+                           json::array({pts.back()[0], pts.back()[1]})});
+  } else {
+    const ImageGrid& g = p.image;
+    double x0 = g.origin_mm[0], x1 = g.origin_mm[0] + (g.width - 1) * g.spacing_mm[0];
+    double y0 = g.origin_mm[1], y1 = g.origin_mm[1] + (g.height - 1) * g.spacing_mm[1];
+    if (p.has_width) x0 = std::max(x0, -p.width_mm / 2), x1 = std::min(x1, p.width_mm / 2);
+    if (p.has_depth) y0 = std::max(y0, p.face_y_mm), y1 = std::min(y1, p.face_y_mm + p.depth_mm);
+    pts = {{x0, y0}, {x1, y0}, {x1, y1}, {x0, y1}};
+    corners = json::array();
+    for (const auto& q : pts) corners.push_back(json::array({q[0], q[1]}));
+  }
+  for (const auto& q : pts) outline.push_back(json::array({q[0], q[1]}));
+}
+
+void send_floats(httplib::Response& res, std::vector<float> values) {
+  res.set_content(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float),
+                  "application/octet-stream");
+}
+
+}  // namespace
+
+// ----------------------------------------------------------------------------------- planes --
+
+Pose ViewPlane::pose_at(double position) const {
+  const Vec3 n = cross(u, v);
+  Vec3 o = origin;
+  o[size_t(axis)] = position;
+  Pose t;
+  for (int r = 0; r < 3; ++r) {
+    t.m[r][0] = u[size_t(r)];
+    t.m[r][1] = v[size_t(r)];
+    t.m[r][2] = n[size_t(r)];
+    t.m[r][3] = o[size_t(r)];
+  }
+  return t;
+}
+
+const char* ViewPlane::name() const {
+  return axis == 0 ? "sagittal" : axis == 1 ? "coronal" : "axial";
+}
+
+std::array<ViewPlane, 3> view_planes(const VolumeGrid& grid, int max_pixels) {
+  Vec3 lo{{1e300, 1e300, 1e300}}, hi{{-1e300, -1e300, -1e300}};
+  for (const Vec3& c : box_corners(grid))
+    for (size_t a = 0; a < 3; ++a) lo[a] = std::min(lo[a], c[a]), hi[a] = std::max(hi[a], c[a]);
+  const Vec3 ext = hi - lo;
+  double s = std::min({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
+  const double widest = std::max({ext[0], ext[1], ext[2]});
+  if (widest / s + 1 > max_pixels) s = widest / (max_pixels - 1);
+  const auto pixels = [&](double extent) { return int(std::floor(extent / s + 1e-9)) + 1; };
+  std::array<ViewPlane, 3> planes;
+  for (int axis = 0; axis < 3; ++axis) {
+    ViewPlane& p = planes[size_t(axis)];
+    p.axis = axis;
+    p.spacing = s;
+    p.min = lo[size_t(axis)];
+    p.max = hi[size_t(axis)];
+    // The scroll step: the spacing of the index axis that runs most along this world axis.
+    int best = 0;
+    for (int c = 1; c < 3; ++c)
+      if (std::fabs(grid.direction.m[axis][c]) > std::fabs(grid.direction.m[axis][best])) best = c;
+    p.step = grid.spacing_mm[size_t(best)];
+    // As 3D Slicer shows them (docs/view.md): axial right = +x (patient left), down = +y
+    // (posterior); coronal and sagittal down = −z (inferior); sagittal right = +y (posterior).
+    if (axis == 2) {
+      p.u = {{1, 0, 0}}, p.v = {{0, 1, 0}}, p.origin = {{lo[0], lo[1], 0}};
+      p.width = pixels(ext[0]), p.height = pixels(ext[1]);
+    } else if (axis == 1) {
+      p.u = {{1, 0, 0}}, p.v = {{0, 0, -1}}, p.origin = {{lo[0], 0, hi[2]}};
+      p.width = pixels(ext[0]), p.height = pixels(ext[2]);
+    } else {
+      p.u = {{0, 1, 0}}, p.v = {{0, 0, -1}}, p.origin = {{0, lo[1], hi[2]}};
+      p.width = pixels(ext[1]), p.height = pixels(ext[2]);
+    }
+  }
+  return planes;
+}
+
+// ---------------------------------------------------------------------------------- live feed --
+
+struct LiveFeed::Impl {
+  std::mutex mutex;
+  std::condition_variable wake;
+  // newest frame
+  std::vector<uint8_t> pixels;
+  PixelType type = PixelType::UInt8;
+  int width = 0, height = 0;
+  Mat4 to_world;
+  int64_t seq = 0;
+  std::function<std::string()> stats;
+  // The volume: snapshots taken on the refresher thread, so that neither the run's thread nor a
+  // request waits for one.
+  std::function<Volume()> snapshot;
+  double min_interval = 0.04;
+  std::thread refresher;
+  bool stopping = false;
+  // A new snapshot is taken only once a page has fetched the last one: no page, no cost, and
+  // no snapshot (which holds the compounder for its length) that nobody looks at.
+  bool wanted = true;
+  int64_t frames_at_snapshot = 0;
+  std::shared_ptr<const Volume> volume;
+  int64_t volume_version = 0, scene_version = 0;
+  bool running = true;
+
+  void refresh_loop() {
+    std::unique_lock<std::mutex> lock(mutex);
+    double last = -1e9;
+    while (!stopping) {
+      const double wait = min_interval - (now_seconds() - last);
+      if (seq == frames_at_snapshot || !wanted || wait > 0) {
+        // Woken by a new frame, by a page taking the last snapshot, or when the interval ends.
+        wake.wait_for(lock, std::chrono::duration<double>(std::max(wait, 0.005)));
+        continue;
+      }
+      const int64_t at = seq;
+      last = now_seconds();
+      lock.unlock();
+      std::shared_ptr<Volume> v;
+      try {
+        v = std::make_shared<Volume>(snapshot());
+      } catch (const std::exception&) {
+        // nothing compounded yet (every frame so far rejected): no volume to show
+      }
+      lock.lock();
+      frames_at_snapshot = at;
+      if (v && v->grid().voxel_count() > 0 && running) {
+        set_volume(std::move(v));
+        wanted = false;
+      }
+    }
+  }
+  void stop_refresher() {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      stopping = true;
+    }
+    wake.notify_all();
+    if (refresher.joinable()) refresher.join();
+  }
+  void set_volume(std::shared_ptr<const Volume> v) {  // under mutex
+    const bool same_grid = volume && v && volume->grid().dims == v->grid().dims &&
+                           volume->grid().origin_mm == v->grid().origin_mm;
+    if (!same_grid) ++scene_version;
+    volume = std::move(v);
+    ++volume_version;
+  }
+};
+
+LiveFeed::LiveFeed() : impl_(std::make_unique<Impl>()) {}
+LiveFeed::~LiveFeed() {
+  impl_->stop_refresher();
+}
+
+void LiveFeed::frame(const void* pixels, PixelType type, int width, int height,
+                     const Mat4& to_world) {
+  const size_t bytes = size_t(width) * size_t(height) * pixel_size(type);
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->pixels.assign(static_cast<const uint8_t*>(pixels),
+                       static_cast<const uint8_t*>(pixels) + bytes);
+  impl_->type = type;
+  impl_->width = width;
+  impl_->height = height;
+  impl_->to_world = to_world;
+  ++impl_->seq;
+  impl_->wake.notify_all();
+}
+
+void LiveFeed::set_stats(std::function<std::string()> stats_json) {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->stats = std::move(stats_json);
+}
+
+void LiveFeed::set_volume_source(std::function<Volume()> snapshot, double min_interval_s) {
+  impl_->stop_refresher();
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->snapshot = std::move(snapshot);
+  impl_->min_interval = min_interval_s;
+  impl_->stopping = false;
+  impl_->refresher = std::thread([im = impl_.get()] { im->refresh_loop(); });
+}
+
+void LiveFeed::finish(std::optional<Volume> final_volume) {
+  impl_->stop_refresher();
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->running = false;
+  if (final_volume) impl_->set_volume(std::make_shared<Volume>(std::move(*final_volume)));
+}
+
+// ------------------------------------------------------------------------------------ server --
+
+struct ViewServer::Impl {
+  ViewContent content;
+  std::shared_ptr<LiveFeed> live;
+  httplib::Server http;
+  std::thread thread;
+  std::string host;
+  int port = 0;
+  // The shown volume: the content's, or the live run's newest snapshot.
+  std::shared_ptr<const Volume> volume;
+  std::optional<std::pair<double, double>> volume_window, volume_range;
+  int64_t volume_version = -1;
+  std::array<ViewPlane, 3> planes;
+  // Slicers (one caller at a time each): planes of the volume and of the labels, per axis.
+  std::mutex slice_mutex;
+  std::map<std::pair<int, int>, std::unique_ptr<Slicer>> plane_slicers;  // (layer, axis)
+  std::mutex render_mutex;
+  std::vector<uint8_t> probe_mask;
+
+  // The volume the planes show now (under slice_mutex): picks up a newer live snapshot.
+  std::shared_ptr<const Volume> current_volume(int64_t* version) {
+    if (live) {
+      std::lock_guard<std::mutex> lock(live->impl_->mutex);
+      live->impl_->wanted = true;  // the page is looking: the refresher may take the next one
+      live->impl_->wake.notify_all();
+      if (live->impl_->volume_version != volume_version && live->impl_->volume) {
+        const bool regrid = !volume || volume->grid().dims != live->impl_->volume->grid().dims ||
+                            volume->grid().origin_mm != live->impl_->volume->grid().origin_mm;
+        volume = live->impl_->volume;
+        volume_version = live->impl_->volume_version;
+        plane_slicers.erase(plane_slicers.lower_bound({0, 0}), plane_slicers.lower_bound({1, 0}));
+        if (regrid) planes = view_planes(volume->grid());
+        volume_window.reset();  // the range and the auto window follow the live volume
+      }
+    }
+    *version = volume_version;
+    return volume;
+  }
+
+  const Slicer& plane_slicer(int layer, int axis, const Volume& v) {
+    auto& s = plane_slicers[{layer, axis}];
+    if (!s) {
+      const ViewPlane& p = planes[size_t(axis)];
+      ImageGrid g;
+      g.width = p.width;
+      g.height = p.height;
+      g.spacing_mm[0] = g.spacing_mm[1] = p.spacing;
+      SliceSettings settings;
+      settings.output_type = PixelType::Float32;
+      settings.interpolation = layer == 0 ? Interpolation::Linear : Interpolation::Nearest;
+      s = std::make_unique<Slicer>(v, ProbeGeometry::linear(g), settings);
+    }
+    return *s;
+  }
+
+  json scene_json() {
+    std::lock_guard<std::mutex> lock(slice_mutex);
+    int64_t version = 0;
+    const std::shared_ptr<const Volume> v = current_volume(&version);
+    json j;
+    j["title"] = content.title;
+    j["mode"] = !live ? "view" : live->impl_->snapshot ? "live-compound" : "live-probe";
+    j["volume"] = nullptr;
+    j["planes"] = json::array();
+    const Volume* shown = v ? v.get() : content.labels ? &*content.labels : nullptr;
+    if (v) {
+      const VolumeGrid& g = v->grid();
+      if (!volume_window) {
+        volume_window = auto_volume_window(*v);
+        volume_range = v->value_range();
+      }
+      const auto [lo, hi] = *volume_range;
+      json dir = json::array();
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) dir.push_back(g.direction.m[r][c]);
+      json presets = json::array();
+      // CT presets only where the values look like Hounsfield units.
+      if (lo <= -500 && hi >= 300) {
+        presets.push_back({"CT soft tissue", 40, 400});
+        presets.push_back({"CT abdomen", 60, 350});
+        presets.push_back({"CT bone", 400, 1800});
+        presets.push_back({"CT lung", -600, 1500});
+      }
+      presets.push_back({"Auto", volume_window->first, volume_window->second});
+      presets.push_back({"Full range", (lo + hi) / 2, std::max(hi - lo, 1e-6)});
+      json corners = json::array();
+      for (const Vec3& c : box_corners(g)) corners.push_back(vec_json(c));
+      j["volume"] = {{"name", content.volume_name},
+                     {"dims", {g.dims[0], g.dims[1], g.dims[2]}},
+                     {"spacing", vec_json(g.spacing_mm)},
+                     {"origin", vec_json(g.origin_mm)},
+                     {"direction", dir},
+                     {"type", to_string(v->pixel_type())},
+                     {"range", {lo, hi}},
+                     {"window", {volume_window->first, volume_window->second}},
+                     {"presets", presets},
+                     {"corners", corners}};
+    }
+    if (shown) {
+      if (!v) {  // labels alone: their box
+        json corners = json::array();
+        for (const Vec3& c : box_corners(shown->grid())) corners.push_back(vec_json(c));
+        j["volume"] = {{"name", content.labels_name},
+                       {"corners", corners},
+                       {"window", {0.5, 1.0}},
+                       {"presets", json::array()},
+                       {"labels_only", true}};
+      }
+      for (const ViewPlane& p : planes)
+        j["planes"].push_back({{"axis", p.axis},
+                               {"name", p.name()},
+                               {"width", p.width},
+                               {"height", p.height},
+                               {"spacing", p.spacing},
+                               {"origin", vec_json(p.origin)},
+                               {"u", vec_json(p.u)},
+                               {"v", vec_json(p.v)},
+                               {"min", p.min},
+                               {"max", p.max},
+                               {"step", p.step},
+                               {"position", (p.min + p.max) / 2}});
+    }
+    j["labels"] = nullptr;
+    if (content.labels) {
+      json colors = json::array();
+      for (const auto& c : content.label_colors) colors.push_back({c[0], c[1], c[2]});
+      j["labels"] = {{"name", content.labels_name}, {"colors", colors}};
+    }
+    j["meshes"] = json::array();
+    for (size_t i = 0; i < content.meshes.size(); ++i) {
+      const ViewMesh& m = content.meshes[i];
+      j["meshes"].push_back({{"name", m.mesh.name},
+                             {"color", {m.color[0], m.color[1], m.color[2]}},
+                             {"url", "/api/mesh/" + std::to_string(i)},
+                             {"triangles", m.mesh.triangles.size()}});
+    }
+    j["probe"] = nullptr;
+    if (content.probe) {
+      const ProbeGeometry& p = *content.probe;
+      json outline, corners;
+      probe_outline(p, outline, corners);
+      j["probe"] = {{"type", to_string(p.type)}, {"width", p.image.width},
+                    {"height", p.image.height},  {"pixel_to_probe", mat_json(p.pixel_to_probe())},
+                    {"outline", outline},        {"corners", corners}};
+    }
+    j["poses"] = {{"count", content.poses.size()}, {"url", "/api/poses"}};
+    j["image_source"] = content.render ? json(content.image_source) : json(nullptr);
+    std::pair<double, double> iw = content.image_window.value_or(
+        volume_window ? *volume_window : std::make_pair(127.5, 255.0));
+    j["image_window"] = {iw.first, iw.second};
+    j["live"] = live ? json{{"url", "/api/live"}} : json(nullptr);
+    return j;
+  }
+
+  void plane(const httplib::Request& req, httplib::Response& res) {
+    const int axis = std::stoi(req.get_param_value("axis"));
+    const double pos = std::stod(req.get_param_value("pos"));
+    const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "volume";
+    if (axis < 0 || axis > 2 || !std::isfinite(pos) || (layer != "volume" && layer != "labels"))
+      throw InputError("plane: axis 0..2, a finite pos and layer volume|labels");
+    std::lock_guard<std::mutex> lock(slice_mutex);
+    int64_t version = 0;
+    const std::shared_ptr<const Volume> v = current_volume(&version);
+    const int index = layer == "volume" ? 0 : 1;
+    const Volume* source = index == 0 ? v.get() : content.labels ? &*content.labels : nullptr;
+    if (!source) throw InputError("plane: no " + layer + " to show");
+    const ViewPlane& p = planes[size_t(axis)];
+    std::vector<float> out(size_t(p.width) * size_t(p.height));
+    const Pose pose = p.pose_at(pos);
+    plane_slicer(index, axis, *source).slice(&pose, 1, out.data());
+    res.set_header("X-Volume-Version", std::to_string(version));
+    send_floats(res, std::move(out));
+  }
+
+  void image(const httplib::Request& req, httplib::Response& res) {
+    if (!content.render || !content.probe) throw InputError("image: no image source");
+    Pose pose;
+    int64_t index = -1;
+    if (req.has_param("pose")) {
+      const long k = std::stol(req.get_param_value("pose"));
+      if (k < 0 || size_t(k) >= content.poses.size())
+        throw InputError("image: pose " + std::to_string(k) + " out of range");
+      pose = content.poses[size_t(k)];
+      index = k;
+    } else {
+      std::vector<double> m;
+      std::string text = req.get_param_value("matrix");
+      for (size_t at = 0; at <= text.size();) {
+        const size_t comma = std::min(text.find(',', at), text.size());
+        m.push_back(std::stod(text.substr(at, comma - at)));
+        at = comma + 1;
+      }
+      if (m.size() != 16) throw InputError("image: matrix has 16 numbers");
+      for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c) pose.m[r][c] = m[size_t(4 * r + c)];
+      validate_poses(&pose, 1, "image matrix", 0, false);
+    }
+    std::vector<float> out(size_t(content.probe->image.pixel_count()));
+    const double t0 = now_seconds();
+    {
+      std::lock_guard<std::mutex> lock(render_mutex);
+      content.render(pose, index, out.data());
+    }
+    res.set_header("X-Elapsed-Ms", std::to_string((now_seconds() - t0) * 1e3));
+    send_floats(res, std::move(out));
+  }
+
+  void live_state(httplib::Response& res) {
+    LiveFeed::Impl& f = *live->impl_;
+    std::lock_guard<std::mutex> lock(f.mutex);
+    // The run's statistics (LiveStats::json) under the short names the page shows.
+    json j = f.stats ? json::parse(f.stats()) : json::object();
+    for (const char* key : {"received", "compounded", "dropped", "rejected"})
+      j[key] = j.value(std::string("frames_") + key, 0);
+    j["images"] = j["compounded"];
+    j["running"] = f.running;
+    j["volume_version"] = f.volume_version;
+    j["scene_version"] = f.scene_version;
+    j["frame"] = nullptr;
+    if (f.seq > 0)
+      j["frame"] = {{"seq", f.seq},
+                    {"width", f.width},
+                    {"height", f.height},
+                    {"matrix", mat_json(f.to_world)}};
+    res.set_content(j.dump(), "application/json");
+  }
+
+  void live_frame(httplib::Response& res) {
+    LiveFeed::Impl& f = *live->impl_;
+    std::lock_guard<std::mutex> lock(f.mutex);
+    res.set_header("X-Frame-Seq", std::to_string(f.seq));
+    // B-mode frames travel as they came (a quarter of the bytes); other types as float32.
+    if (f.type == PixelType::UInt8) {
+      res.set_header("X-Pixel-Type", "uint8");
+      res.set_content(reinterpret_cast<const char*>(f.pixels.data()), f.pixels.size(),
+                      "application/octet-stream");
+      return;
+    }
+    std::vector<float> out(size_t(f.width) * size_t(f.height));
+    for_each_value(f.pixels.data(), f.type, out.size(),
+                   [&](size_t i, double x) { out[i] = float(x); });
+    res.set_header("X-Pixel-Type", "float32");
+    send_floats(res, std::move(out));
+  }
+
+  void mesh(size_t i, httplib::Response& res) {
+    if (i >= content.meshes.size())
+      throw InputError("mesh " + std::to_string(i) + ": no such mesh");
+    const TriangleMesh& m = content.meshes[i].mesh;
+    std::string body(8 + 12 * m.vertices.size() + 12 * m.triangles.size(), '\0');
+    char* at = body.data();
+    const uint32_t counts[2] = {uint32_t(m.vertices.size()), uint32_t(m.triangles.size())};
+    std::memcpy(at, counts, 8);
+    at += 8;
+    for (const Vec3& p : m.vertices) {
+      const float xyz[3] = {float(p[0]), float(p[1]), float(p[2])};
+      std::memcpy(at, xyz, 12);
+      at += 12;
+    }
+    for (const auto& t : m.triangles) {
+      const uint32_t idx[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
+      std::memcpy(at, idx, 12);
+      at += 12;
+    }
+    res.set_content(std::move(body), "application/octet-stream");
+  }
+
+  void routes() {
+    // Every answer is for this machine's page only: no caching of data that changes live.
+    http.set_default_headers({{"Cache-Control", "no-store"}});
+    http.Get("/", [](const httplib::Request&, httplib::Response& res) {
+      const WebAsset* a = find_web_asset("index.html");
+      res.set_content(a->data, a->size, a->mime);
+    });
+    http.Get(R"(/([a-z0-9_.\-]+\.(?:js|css|html)))",
+             [](const httplib::Request& req, httplib::Response& res) {
+               const WebAsset* a = find_web_asset(req.matches[1].str());
+               if (!a) {
+                 res.status = 404;
+                 return;
+               }
+               res.set_content(a->data, a->size, a->mime);
+             });
+    http.Get("/favicon.ico", [](const httplib::Request&, httplib::Response& res) {
+      res.status = 204;  // none: a 404 would be a console error in the browser
+    });
+    http.Get("/api/scene", [this](const httplib::Request&, httplib::Response& res) {
+      res.set_content(scene_json().dump(), "application/json");
+    });
+    http.Get("/api/plane",
+             [this](const httplib::Request& q, httplib::Response& r) { plane(q, r); });
+    http.Get("/api/image",
+             [this](const httplib::Request& q, httplib::Response& r) { image(q, r); });
+    http.Get("/api/poses", [this](const httplib::Request&, httplib::Response& res) {
+      std::vector<float> out;
+      out.reserve(content.poses.size() * 16);
+      for (const Pose& p : content.poses)
+        for (int r = 0; r < 4; ++r)
+          for (int c = 0; c < 4; ++c) out.push_back(float(p.m[r][c]));
+      send_floats(res, std::move(out));
+    });
+    http.Get("/api/mask", [this](const httplib::Request&, httplib::Response& res) {
+      if (!content.probe) throw InputError("mask: no probe");
+      res.set_content(reinterpret_cast<const char*>(probe_mask.data()), probe_mask.size(),
+                      "application/octet-stream");
+    });
+    http.Get(R"(/api/mesh/(\d+))", [this](const httplib::Request& req, httplib::Response& res) {
+      mesh(size_t(std::stoul(req.matches[1].str())), res);
+    });
+    if (live) {
+      http.Get("/api/live",
+               [this](const httplib::Request&, httplib::Response& r) { live_state(r); });
+      http.Get("/api/live/frame",
+               [this](const httplib::Request&, httplib::Response& r) { live_frame(r); });
+    }
+    // A bad request gets a 400 with the library's one-line message; the server keeps serving.
+    http.set_exception_handler(
+        [](const httplib::Request&, httplib::Response& res, std::exception_ptr ep) {
+          std::string message = "error";
+          try {
+            std::rethrow_exception(ep);
+          } catch (const std::exception& e) {
+            message = e.what();
+          }
+          res.status = 400;
+          res.set_content(message, "text/plain");
+        });
+  }
+};
+
+ViewServer::ViewServer(ViewContent content, const std::string& host, int port,
+                       std::shared_ptr<LiveFeed> live)
+    : impl_(std::make_unique<Impl>()) {
+  Impl& im = *impl_;
+  im.content = std::move(content);
+  im.live = std::move(live);
+  im.host = host;
+  if (im.content.volume) {
+    im.volume = std::make_shared<Volume>(*im.content.volume);
+    im.volume_version = 0;
+  }
+  if (im.volume)
+    im.planes = view_planes(im.volume->grid());
+  else if (im.content.labels)
+    im.planes = view_planes(im.content.labels->grid());
+  if (im.content.probe) im.probe_mask = im.content.probe->mask();
+  if (im.volume) {  // the scene's window and range now, not while the page waits for them
+    im.volume_window = auto_volume_window(*im.volume);
+    im.volume_range = im.volume->value_range();
+  }
+  if (port < 0 || port > 65535)
+    throw InputError("--port " + std::to_string(port) + ": expected 0 to 65535");
+  im.routes();
+  // Small answers go out at once (no Nagle delay against the browser's delayed ACKs); accepted
+  // sockets inherit the option from the listening one.
+  im.http.set_socket_options([](socket_t sock) {
+    int yes = 1;
+    ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
+    ::setsockopt(sock, IPPROTO_TCP, TCP_NODELAY, &yes, sizeof(yes));
+  });
+  im.port = port == 0                          ? im.http.bind_to_any_port(host)
+            : im.http.bind_to_port(host, port) ? port
+                                               : -1;
+  if (im.port < 0)
+    throw Error("view: cannot listen on " + host + ":" + std::to_string(port) +
+                " (in use, or not an address of this machine)");
+  im.thread = std::thread([&im] { im.http.listen_after_bind(); });
+}
+
+ViewServer::~ViewServer() {
+  stop();
+}
+
+int ViewServer::port() const {
+  return impl_->port;
+}
+
+std::string ViewServer::url() const {
+  const std::string& h = impl_->host;
+  const std::string shown = h == "0.0.0.0" || h.empty() ? "127.0.0.1" : h;
+  return "http://" + shown + ":" + std::to_string(impl_->port) + "/";
+}
+
+void ViewServer::stop() {
+  if (impl_->thread.joinable()) {
+    impl_->http.stop();
+    impl_->thread.join();
+  }
+}
+
+bool open_in_browser(const std::string& url) {
+#ifdef __APPLE__
+  const std::string opener = "open";
+#else
+  const std::string opener = "xdg-open";
+#endif
+  if (!std::getenv("DISPLAY") && !std::getenv("WAYLAND_DISPLAY")) {
+#ifndef __APPLE__
+    return false;
+#endif
+  }
+  const std::string command = opener + " '" + url + "' >/dev/null 2>&1 &";
+  return std::system(command.c_str()) == 0;
+}
+
+}  // namespace sonoslice
