@@ -223,8 +223,9 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
   run.on_ready = [command](const IgtlEndpoint& e) { announce(command, e); };
   // --view: the page shows the volume's planes, each image sent in its place and the counts.
   std::unique_ptr<ViewServer> view;
+  std::shared_ptr<LiveFeed> feed;
   if (!f.view.empty()) {
-    auto feed = std::make_shared<LiveFeed>();
+    feed = std::make_shared<LiveFeed>();
     struct Counts {
       std::mutex mutex;
       int64_t images = 0;
@@ -257,6 +258,7 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
     StopOnSignals signals;
     result = run_virtual_probe(renderer, run);
   }
+  if (feed) feed->finish(std::nullopt);
   std::fprintf(stderr,
                "sonoslice live %s: stopped by %s: %lld poses, %lld images (%.0f/s), %lld "
                "rejected; latency p50 %.2f ms, p99 %.2f ms\n",

@@ -58,6 +58,9 @@ std::array<Vec3, 8> box_corners(const VolumeGrid& g) {
 // The level and width a user first sees: the stack writers' robust auto window (0.5–99.5 %) on
 // at most ~1 M voxels taken at a regular stride, so a 100 M-voxel CT answers in milliseconds.
 std::pair<double, double> auto_volume_window(const Volume& v) {
+  // uint8: B-mode (compounded ultrasound, labels' own scale aside) is shown over its whole range,
+  // as a scanner shows it; the voxels no frame reached (0) would otherwise set the window.
+  if (v.pixel_type() == PixelType::UInt8) return {127.5, 255.0};
   const int64_t n = v.grid().voxel_count();
   const int64_t stride = std::max<int64_t>(1, n / 1000000);
   std::vector<float> sample;
@@ -182,11 +185,11 @@ struct LiveFeed::Impl {
   // The volume: snapshots taken on the refresher thread, so that neither the run's thread nor a
   // request waits for one.
   std::function<Volume()> snapshot;
-  double min_interval = 0.04;
+  double min_interval = 0.07;
   std::thread refresher;
   bool stopping = false;
-  // A new snapshot is taken only once a page has fetched the last one: no page, no cost, and
-  // no snapshot (which holds the compounder for its length) that nobody looks at.
+  // Snapshots are taken only while a page polls: no page, no cost (a snapshot holds the
+  // compounder for its length).
   bool wanted = true;
   int64_t frames_at_snapshot = 0;
   std::shared_ptr<const Volume> volume;
@@ -301,8 +304,6 @@ struct ViewServer::Impl {
   std::shared_ptr<const Volume> current_volume(int64_t* version) {
     if (live) {
       std::lock_guard<std::mutex> lock(live->impl_->mutex);
-      live->impl_->wanted = true;  // the page is looking: the refresher may take the next one
-      live->impl_->wake.notify_all();
       if (live->impl_->volume_version != volume_version && live->impl_->volume) {
         const bool regrid = !volume || volume->grid().dims != live->impl_->volume->grid().dims ||
                             volume->grid().origin_mm != live->impl_->volume->grid().origin_mm;
@@ -488,6 +489,8 @@ struct ViewServer::Impl {
   void live_state(httplib::Response& res) {
     LiveFeed::Impl& f = *live->impl_;
     std::lock_guard<std::mutex> lock(f.mutex);
+    f.wanted = true;  // a page is looking: the refresher may take the next snapshot
+    f.wake.notify_all();
     // The run's statistics (LiveStats::json) under the short names the page shows.
     json j = f.stats ? json::parse(f.stats()) : json::object();
     for (const char* key : {"received", "compounded", "dropped", "rejected"})
