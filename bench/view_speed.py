@@ -21,7 +21,7 @@ import sonoslice
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "python", "tests"))
-from test_view import Viewer, call, chromium  # noqa: E402  (the browser tests' own driver)
+from test_view import Viewer, call, chromium  # noqa: E402,F401  (the browser tests' own driver)
 
 PROBE = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
 
@@ -39,14 +39,16 @@ def main(argv=None):
         np.save(poses, sonoslice.phantom_poses(a.poses, seed=7))
         viewer = Viewer([a.cli, "view", "--no-browser", "--volume", ct, "--probe", PROBE, "--downsampling", "2",
                          "--poses", poses, "--threads", str(a.threads)])
-        driver = chromium()
+        driver = chromium(logs=False)
         try:
-            driver.get("about:blank")
-            t0 = time.time()
-            driver.get(viewer.url)
-            while not driver.execute_script("return !!(window.sonosliceView && window.sonosliceView.ready)"):
-                time.sleep(0.005)
-            first = time.time() - t0
+            first = []  # a browser that has not shown the page yet, then reloads
+            for _ in range(3):
+                driver.get("about:blank")
+                t0 = time.time()
+                driver.get(viewer.url)
+                while not driver.execute_script("return !!(window.sonosliceView && window.sonosliceView.ready)"):
+                    time.sleep(0.005)
+                first.append(time.time() - t0)
             driver.execute_script("window.sonosliceView.stats.imageMs.length = 0")
             for k in range(1, a.poses):
                 call(driver, f"window.sonosliceView.setPose({k})")
@@ -66,7 +68,8 @@ def main(argv=None):
             driver.quit()
             viewer.stop()
     print(f"sonoslice view, full phantom (512x512x400), W1, {a.threads} threads, headless Chromium:")
-    print(f"  first image on screen   {first * 1e3:7.0f} ms   (target < 1000 ms)")
+    print(f"  first image on screen   {first[0] * 1e3:7.0f} ms new browser, "
+          f"{min(first[1:]) * 1e3:.0f}-{max(first[1:]) * 1e3:.0f} ms reloads   (target < 1000 ms)")
     print(f"  pose change -> image    p50 {np.percentile(ms, 50):5.1f} ms  p95 {np.percentile(ms, 95):5.1f} ms"
           f"   ({len(ms)} changes; target p95 < 50 ms)")
     print(f"  plane scrolling         {fps:7.1f} planes/s (target >= 30)")

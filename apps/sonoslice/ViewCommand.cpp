@@ -12,6 +12,7 @@
 #include "sonoslice/io/MeshFile.h"
 #include "sonoslice/io/PoseFile.h"
 #include "sonoslice/io/ProbeFile.h"
+#include "sonoslice/simulate/Simulator.h"
 #include "sonoslice/surface/SurfaceConfig.h"
 
 namespace sonoslice {
@@ -25,7 +26,7 @@ struct ViewFlags {
   std::string host = "127.0.0.1";
   int port = 0, downsampling = 1;
   std::optional<int> threads;
-  bool no_browser = false;
+  bool no_browser = false, simulate = false;
 };
 
 Volume read_labels(const std::string& path, const VolumeReadOptions& options) {
@@ -48,6 +49,9 @@ void run_view(const ViewFlags& f) {
     throw UsageError("view: --probe and --poses go together");
   if (!f.images.empty() && (f.probe.empty() || f.poses.empty()))
     throw UsageError("--images: give the --probe and --poses the images were taken with");
+  if (f.simulate && (f.probe.empty() || (f.volume.path.empty() && f.labels.empty())))
+    throw UsageError("--simulate: give a --probe and the --volume (CT) or --labels to simulate");
+  if (f.simulate && !f.images.empty()) throw UsageError("give --simulate or --images, not both");
   if (f.volume.path.empty() && f.labels.empty() && f.compound.empty() && f.meshes.empty() &&
       f.mesh_dir.empty() && f.poses.empty())
     throw UsageError("view: nothing to show (give --volume, --labels, --meshes, --poses, ...)");
@@ -96,6 +100,21 @@ void run_view(const ViewFlags& f) {
       for_each_value(base, stack->pixel_type(), pixels,
                      [out](size_t i, double v) { out[i] = float(v); });
     };
+  } else if (f.simulate) {
+    // As `sonoslice simulate` at its defaults: the source (CT or labels) guessed from the volume.
+    const Volume& source = c.volume ? *c.volume : *c.labels;
+    auto sim = std::make_shared<Simulator>(source, default_simulation_source(source, false),
+                                           *c.probe, default_tissues());
+    auto bytes = std::make_shared<std::vector<uint8_t>>(sim->image_bytes());
+    const PixelType type =
+        sim->settings().output == SimulationOutput::BMode ? PixelType::UInt8 : PixelType::Float32;
+    c.image_source = "simulate";
+    if (type == PixelType::UInt8) c.image_window = std::make_pair(127.5, 255.0);
+    c.render = [sim, bytes, type](const Pose& pose, int64_t, float* out) {
+      sim->simulate(&pose, 1, bytes->data());
+      for_each_value(bytes->data(), type, size_t(sim->probe().image.pixel_count()),
+                     [out](size_t i, double v) { out[i] = float(v); });
+    };
   } else if (c.probe && (c.volume || c.labels)) {
     SliceSettings settings;
     if (!c.volume) settings.interpolation = Interpolation::Nearest;  // labels stay labels
@@ -129,6 +148,9 @@ void add_view_command(CLI::App& app) {
                   "A stack of images at the poses (.npy (N,H,W), .nii, .mha, .nrrd) shown instead "
                   "of slicing");
   cmd->add_option("--compound", f->compound, "A compounded volume, shown in the planes");
+  cmd->add_flag(
+      "--simulate", f->simulate,
+      "The image at a pose is simulated ultrasound (`simulate`'s defaults), not the slice");
   cmd->add_option("--world", f->world, "Frame of the poses and meshes: LPS (default) or RAS");
   cmd->add_option("--downsampling", f->downsampling, "Divide the probe image size by K");
   cmd->add_option("--host", f->host, "Address to serve on (127.0.0.1)");

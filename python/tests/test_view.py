@@ -75,14 +75,16 @@ def start_view(cli, *args):
     return Viewer([cli, "view", "--no-browser", *map(str, args)])
 
 
-def chromium(*extra):
-    """Debian's Chromium, headless, with its console and network logs kept."""
+def chromium(*extra, logs=True):
+    """Debian's Chromium, headless, with its console and network logs kept (`logs`; they cost the
+    page time, so the benchmark leaves them off)."""
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1400,900",
               "--force-device-scale-factor=1", *extra):
         options.add_argument(a)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    if logs:
+        options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
     driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
     driver.set_script_timeout(60)
     return driver
@@ -379,5 +381,24 @@ def test_live_compound_view_updates_and_ends_on_the_offline_volume(cli, browser,
         check_planes(browser, sonoslice.Volume.from_file(offline), 127.5, 255)
         sock.close()
         assert_clean(browser, viewer.url)
+    finally:
+        viewer.stop()
+
+
+def test_simulated_image_at_a_pose_is_what_simulate_writes(cli, phantom_dir, tmp_path):
+    import urllib.request
+    ct, poses = phantom_dir / "ct.nii.gz", phantom_dir / "surface_poses.txt"
+    sim = tmp_path / "sim.npy"
+    subprocess.run([cli, "simulate", "--volume", str(ct), "--probe", LUS, "--downsampling", "2", "--poses",
+                    str(poses), "--out", str(sim), "-q"], check=True)
+    expected = np.load(sim)
+    viewer = start_view(cli, "--volume", ct, "--probe", LUS, "--downsampling", 2, "--poses", poses, "--simulate")
+    try:
+        scene = json.loads(urllib.request.urlopen(viewer.url + "api/scene", timeout=10).read())
+        assert scene["image_source"] == "simulate" and scene["image_window"] == [127.5, 255.0]
+        for k in (0, 7):
+            body = urllib.request.urlopen(viewer.url + f"api/image?pose={k}", timeout=30).read()
+            shown = np.frombuffer(body, np.float32).reshape(expected.shape[1:])
+            np.testing.assert_array_equal(shown, expected[k].astype(np.float32))
     finally:
         viewer.stop()

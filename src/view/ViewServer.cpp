@@ -140,8 +140,10 @@ std::array<ViewPlane, 3> view_planes(const VolumeGrid& grid, int max_pixels) {
   const Vec3 ext = hi - lo;
   double s = std::min({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
   const double widest = std::max({ext[0], ext[1], ext[2]});
-  if (widest / s + 1 > max_pixels) s = widest / (max_pixels - 1);
-  const auto pixels = [&](double extent) { return int(std::floor(extent / s + 1e-9)) + 1; };
+  if (std::ceil(widest / s - 1e-9) + 1 > max_pixels) s = widest / (max_pixels - 1);
+  // Enough pixels that the last one reaches the box's far side (an oblique box's extent is rarely
+  // a whole number of pixels).
+  const auto pixels = [&](double extent) { return int(std::ceil(extent / s - 1e-9)) + 1; };
   std::array<ViewPlane, 3> planes;
   for (int axis = 0; axis < 3; ++axis) {
     ViewPlane& p = planes[size_t(axis)];
@@ -505,7 +507,7 @@ struct ViewServer::Impl {
                     {"width", f.width},
                     {"height", f.height},
                     {"matrix", mat_json(f.to_world)}};
-    res.set_content(j.dump(), "application/json");
+    res.set_content(j.dump(), "application/json; charset=utf-8");
   }
 
   void live_frame(httplib::Response& res) {
@@ -567,8 +569,10 @@ struct ViewServer::Impl {
     http.Get("/favicon.ico", [](const httplib::Request&, httplib::Response& res) {
       res.status = 204;  // none: a 404 would be a console error in the browser
     });
+    // JSON goes out as "application/json; charset=utf-8": only the exact "application/json" is
+    // brotli-compressed by cpp-httplib, at a cost (tens of ms) far above loopback's transfer.
     http.Get("/api/scene", [this](const httplib::Request&, httplib::Response& res) {
-      res.set_content(scene_json().dump(), "application/json");
+      res.set_content(scene_json().dump(), "application/json; charset=utf-8");
     });
     http.Get("/api/plane",
              [this](const httplib::Request& q, httplib::Response& r) { plane(q, r); });
