@@ -39,7 +39,7 @@ def main(argv=None):
         np.save(poses, sonoslice.phantom_poses(a.poses, seed=7))
         viewer = Viewer([a.cli, "view", "--no-browser", "--volume", ct, "--probe", PROBE, "--downsampling", "2",
                          "--poses", poses, "--threads", str(a.threads)])
-        driver = chromium(logs=False)
+        driver = chromium(network_log=False)
         try:
             first = []  # a browser that has not shown the page yet, then reloads
             for _ in range(3):

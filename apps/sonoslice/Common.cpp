@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <csignal>
 #include <cstdint>
 #include <cstdlib>
 #include <map>
@@ -217,6 +218,30 @@ void write_mask(const std::string& path, const ProbeGeometry& probe,
     for (auto& v : out) v = v ? 255 : 0;
   write_image(path, out.data(), PixelType::UInt8, {probe.image.width, probe.image.height},
               {probe.image.spacing_mm[0], probe.image.spacing_mm[1]}, 1, together);
+}
+
+namespace {
+std::atomic<bool> g_stop{false};
+extern "C" void request_stop(int) {
+  g_stop.store(true);
+}
+}  // namespace
+
+StopOnSignals::StopOnSignals() {
+  g_stop.store(false);
+  struct sigaction a {};
+  a.sa_handler = request_stop;
+  sigemptyset(&a.sa_mask);
+  ::sigaction(SIGINT, &a, nullptr);
+  ::sigaction(SIGTERM, &a, nullptr);
+}
+
+StopOnSignals::~StopOnSignals() {
+  install_output_cleanup_on_signals();
+}
+
+const std::atomic<bool>& StopOnSignals::stop_requested() {
+  return g_stop;
 }
 
 }  // namespace cli

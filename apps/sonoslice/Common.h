@@ -1,6 +1,7 @@
 #pragma once
 // Pieces shared by the sonoslice subcommands: volume input flags, the progress bar, timing,
 // the built-in probes and the chunked slice-and-write loop.
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <functional>
@@ -70,6 +71,18 @@ void setup_threads(const std::optional<int>& threads);
 /// setup_threads(threads), then parses --device and checks that it can be used (InputError /
 /// Error otherwise).
 Device setup_device(const std::string& device, const std::optional<int>& threads);
+
+/// While alive, SIGINT and SIGTERM set stop_requested() instead of ending the process (a live run
+/// or a viewer then ends cleanly, its outputs written); afterwards the usual handlers (which
+/// remove half-written outputs) are back.
+struct StopOnSignals {
+  StopOnSignals();
+  ~StopOnSignals();
+  StopOnSignals(const StopOnSignals&) = delete;
+  StopOnSignals& operator=(const StopOnSignals&) = delete;
+  /// Set by a signal since the last StopOnSignals was made.
+  static const std::atomic<bool>& stop_requested();
+};
 
 /// Wall-clock seconds since construction.
 class Stopwatch {

@@ -2,11 +2,12 @@
 // growing volume out, driven by PlusServer's reconstruction commands; `live slice` and `live
 // simulate`: a virtual probe answering each pose with the image `slice` / `simulate` makes there.
 #include <atomic>
-#include <csignal>
 #include <cstdio>
 #include <fstream>
 #include <memory>
 #include <mutex>
+
+#include <unistd.h>
 
 #include "Commands.h"
 #include "Common.h"
@@ -22,25 +23,6 @@
 namespace sonoslice {
 namespace cli {
 namespace {
-
-std::atomic<bool> g_stop{false};
-extern "C" void request_stop(int) {
-  g_stop.store(true);
-}
-
-// SIGINT/SIGTERM end a live run cleanly (its outputs are then written); afterwards the usual
-// handlers (which remove half-written outputs) are back.
-struct StopOnSignals {
-  StopOnSignals() {
-    g_stop.store(false);
-    struct sigaction a {};
-    a.sa_handler = request_stop;
-    sigemptyset(&a.sa_mask);
-    ::sigaction(SIGINT, &a, nullptr);
-    ::sigaction(SIGTERM, &a, nullptr);
-  }
-  ~StopOnSignals() { install_output_cleanup_on_signals(); }
-};
 
 struct Endpoint {
   std::string listen, connect;
@@ -71,7 +53,7 @@ void announce(const char* command, const IgtlEndpoint& e) {
 // --view after a run: the page keeps showing its end until Ctrl-C (at once when a Ctrl-C ended
 // the run).
 void keep_serving(const char* command, const ViewServer& view) {
-  if (g_stop.load()) return;
+  if (StopOnSignals::stop_requested().load()) return;
   std::fprintf(stderr, "sonoslice live %s: the run ended; %s shows it until Ctrl-C\n", command,
                view.url().c_str());
   wait_for_interrupt();
@@ -129,7 +111,7 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   run.image_device = f.image_device;
   run.limits.max_frames = f.max_frames;
   run.limits.max_seconds = f.max_seconds;
-  run.limits.stop = &g_stop;
+  run.limits.stop = &StopOnSignals::stop_requested();
   run.on_ready = [](const IgtlEndpoint& e) { announce("compound", e); };
   if (!f.quiet)
     run.log = [](const std::string& line) {
@@ -219,7 +201,7 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
   run.world = world;
   run.limits.max_frames = f.max_frames;
   run.limits.max_seconds = f.max_seconds;
-  run.limits.stop = &g_stop;
+  run.limits.stop = &StopOnSignals::stop_requested();
   run.on_ready = [command](const IgtlEndpoint& e) { announce(command, e); };
   // --view: the page shows the volume's planes, each image sent in its place and the counts.
   std::unique_ptr<ViewServer> view;

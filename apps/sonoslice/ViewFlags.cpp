@@ -1,23 +1,15 @@
 #include "ViewFlags.h"
 
-#include <atomic>
 #include <chrono>
-#include <csignal>
 #include <cstdio>
 #include <thread>
 
+#include "Common.h"
 #include "sonoslice/core/Error.h"
-#include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/live/IgtlServer.h"
 
 namespace sonoslice {
 namespace cli {
-namespace {
-std::atomic<bool> g_interrupted{false};
-extern "C" void on_interrupt(int) {
-  g_interrupted.store(true);
-}
-}  // namespace
 
 std::unique_ptr<ViewServer> start_view(const std::string& command, ViewContent content,
                                        const std::string& host_port,
@@ -38,14 +30,9 @@ std::unique_ptr<ViewServer> start_view(const std::string& command, ViewContent c
 }
 
 void wait_for_interrupt() {
-  g_interrupted.store(false);
-  struct sigaction a {};
-  a.sa_handler = on_interrupt;
-  sigemptyset(&a.sa_mask);
-  ::sigaction(SIGINT, &a, nullptr);
-  ::sigaction(SIGTERM, &a, nullptr);
-  while (!g_interrupted.load()) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  install_output_cleanup_on_signals();
+  StopOnSignals signals;
+  while (!StopOnSignals::stop_requested().load())
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
 }
 
 }  // namespace cli

@@ -15,7 +15,7 @@ std::unique_ptr<ViewServer> start_view(const std::string& command, ViewContent c
                                        const std::string& host_port,
                                        std::shared_ptr<LiveFeed> live = nullptr);
 
-/// Blocks until SIGINT or SIGTERM.
+/// Blocks until SIGINT or SIGTERM (StopOnSignals, Common.h).
 void wait_for_interrupt();
 
 }  // namespace cli
