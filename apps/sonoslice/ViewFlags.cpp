@@ -14,7 +14,6 @@ namespace cli {
 std::unique_ptr<ViewServer> start_view(const std::string& command, ViewContent content,
                                        const std::string& host_port,
                                        std::shared_ptr<LiveFeed> live) {
-#ifdef SONOSLICE_HAVE_VIEW
   std::string host = "127.0.0.1";
   int port = 0;
   parse_host_port(host_port, command == "sonoslice view" ? "--port" : "--view", host, port);
@@ -22,11 +21,6 @@ std::unique_ptr<ViewServer> start_view(const std::string& command, ViewContent c
   std::printf("%s: %s\n", command.c_str(), server->url().c_str());
   std::fflush(stdout);
   return server;
-#else
-  (void)content, (void)host_port, (void)live;
-  throw Error(command +
-              ": this build has no viewer (it needs cpp-httplib: Debian's libcpp-httplib-dev)");
-#endif
 }
 
 void wait_for_interrupt() {

@@ -6,7 +6,9 @@
 #include <cstring>
 #include <string>
 
+#ifdef SONOSLICE_HAVE_HTTPLIB
 #include "WebAssets.h"
+#endif
 #include "sonoslice/view/ViewServer.h"
 
 namespace sonoslice {
@@ -88,6 +90,7 @@ TEST(ViewPlanes, HugeBoxesAreCappedInPixels) {
   EXPECT_NEAR(planes[2].spacing, 399.9 / 1023, 1e-12);
 }
 
+#ifdef SONOSLICE_HAVE_HTTPLIB
 TEST(ViewPage, IsCompiledIn) {
   const WebAsset* index = find_web_asset("index.html");
   ASSERT_NE(index, nullptr);
@@ -97,6 +100,7 @@ TEST(ViewPage, IsCompiledIn) {
   EXPECT_NE(std::string(find_web_asset("view.css")->mime).find("text/css"), std::string::npos);
   EXPECT_EQ(find_web_asset("../CMakeLists.txt"), nullptr);
 }
+#endif
 
 }  // namespace
 }  // namespace sonoslice
