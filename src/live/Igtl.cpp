@@ -143,6 +143,8 @@ std::string parse_body(const Header& h, const uint8_t* body, size_t n, Message& 
     begin = ext;
     end = n - size_t(meta_header + meta_body);
     if (meta_header > 0) {
+      // The index starts with its 2-byte entry count: a shorter index has no room for it.
+      if (meta_header < 2) return "a metadata index shorter than its entry count";
       const uint8_t* m = body + end;
       const size_t count = size_t(get_be(m, 2));
       if (meta_header < 2 + 8 * uint64_t(count)) return "a metadata index larger than its header";
