@@ -185,6 +185,81 @@ inline Vec8i operator+(Vec8i a, int32_t b) {
   return {_mm256_add_epi32(a.v, _mm256_set1_epi32(b))};
 }
 
+/// The lane operations the simulation's speckle crossings need (SimulateImpl.h layer_cells),
+/// named as their scalar counterparts there so that one template serves both.
+inline Vec8f operator/(Vec8f a, Vec8f b) {
+  return _mm256_div_ps(a.v, b.v);
+}
+inline Vec8f abs(Vec8f a) {
+  return _mm256_andnot_ps(_mm256_set1_ps(-0.0f), a.v);
+}
+inline Vec8f min(Vec8f a, Vec8f b) {
+  return _mm256_min_ps(a.v, b.v);
+}
+inline Vec8f max(Vec8f a, Vec8f b) {
+  return _mm256_max_ps(a.v, b.v);
+}
+inline Vec8f sqrt(Vec8f a) {
+  return _mm256_sqrt_ps(a.v);
+}
+/// 1 / √x for x > 0: the 12-bit estimate and one Newton step (relative error about 1e-7).
+inline Vec8f inverse_sqrt(Vec8f x) {
+  const __m256 r = _mm256_rsqrt_ps(x.v);
+  const __m256 half_x_r2 =
+      _mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(0.5f), x.v), _mm256_mul_ps(r, r));
+  return _mm256_mul_ps(r, _mm256_sub_ps(_mm256_set1_ps(1.5f), half_x_r2));
+}
+inline Vec8i operator+(Vec8i a, Vec8i b) {
+  return {_mm256_add_epi32(a.v, b.v)};
+}
+inline Vec8i operator*(Vec8i a, Vec8i b) {
+  return {_mm256_mullo_epi32(a.v, b.v)};
+}
+inline Vec8i operator*(Vec8i a, int32_t b) {
+  return {_mm256_mullo_epi32(a.v, _mm256_set1_epi32(b))};
+}
+inline Vec8i operator^(Vec8i a, Vec8i b) {
+  return {_mm256_xor_si256(a.v, b.v)};
+}
+inline Vec8i operator&(Vec8i a, int32_t b) {
+  return {_mm256_and_si256(a.v, _mm256_set1_epi32(b))};
+}
+/// Logical (unsigned) right shift.
+inline Vec8i shift_right(Vec8i a, int n) {
+  return {_mm256_srli_epi32(a.v, n)};
+}
+/// table[i] for lane indices i in 0..7 (a register permute, not a gather).
+inline Vec8f lookup8(const float* table, Vec8i i) {
+  return _mm256_permutevar8x32_ps(_mm256_loadu_ps(table), i.v);
+}
+inline Vec8i load_int(const int32_t* p) {
+  return {_mm256_loadu_si256(reinterpret_cast<const __m256i*>(p))};
+}
+
+inline Vec8f operator-(Vec8f a) {
+  return _mm256_xor_ps(a.v, _mm256_set1_ps(-0.0f));
+}
+/// 2^n for integer lanes n in [−126, 127], exactly (the exponent field).
+inline Vec8f exp2_of_int(Vec8i n) {
+  return _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(n.v, _mm256_set1_epi32(127)), 23));
+}
+/// Masks: all bits set where the comparison holds.
+inline Vec8f operator<(Vec8f a, Vec8f b) {
+  return _mm256_cmp_ps(a.v, b.v, _CMP_LT_OQ);
+}
+inline Vec8f operator>(Vec8f a, Vec8f b) {
+  return _mm256_cmp_ps(a.v, b.v, _CMP_GT_OQ);
+}
+inline Vec8f operator|(Vec8f a, Vec8f b) {
+  return _mm256_or_ps(a.v, b.v);
+}
+inline Vec8f and_not(Vec8f mask, Vec8f a) {  // a where mask is clear
+  return _mm256_andnot_ps(mask.v, a.v);
+}
+inline int lanes_of(Vec8f mask) {
+  return _mm256_movemask_ps(mask.v);
+}
+
 /// Eight consecutive integer samples from p as int32 lanes (sign- or zero-extended).
 inline Vec8i load_as_int(const uint8_t* p) {
   return {_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)))};

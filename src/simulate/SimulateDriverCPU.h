@@ -3,6 +3,7 @@
 /// stages run in a fixed order on one thread with that thread's buffers, so the bytes do not
 /// depend on the number of threads. Included by SimulateCPU.cpp (generic x86-64) and
 /// SimulateCPUAvx2.cpp (AVX2 + FMA); Simulator.cpp picks one at run time.
+#include <cstring>
 #include <vector>
 
 #include "../backend/ParallelFor.h"
@@ -16,10 +17,12 @@ inline namespace SONOSLICE_KERNEL_ISA {
 struct Scratch {
   std::vector<float> echo, echo_filtered, specular, specular_filtered, loss, tmp, level, across,
       knots;
+  std::vector<uint8_t> has_specular;  // per beam: any specular echo
 };
 
-/// One image: trace every beam, the PSF (axial along each beam, then lateral across the beams
-/// at each depth), TGC levels, then scan conversion, envelope and log compression.
+/// One image: trace every beam (eight at a time on AVX2 lanes), the speckle, the PSF (axial along
+/// each beam, then lateral across the beams at each depth), TGC levels, then scan conversion,
+/// envelope and log compression.
 inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   const int B = m.beams, S = m.samples;
   const size_t n = size_t(B) * size_t(S);
@@ -31,21 +34,31 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   w.tmp.resize(2 * size_t(S));
   w.level.resize(size_t(S));
   w.across.resize(size_t(B));
-  for (int b = 0; b < B; ++b) {
+  w.has_specular.resize(size_t(B));
+  int traced = 0;
+#if defined(__AVX2__) && defined(__FMA__)
+  for (; traced + 8 <= B; traced += 8)
+    trace_beams8(m, traced, w.echo.data(), w.specular.data(), w.loss.data());
+#endif
+  for (int b = traced; b < B; ++b)
     trace_beam(m, b, w.echo.data(), w.specular.data(), w.loss.data());
-    add_speckle(m, b, w.echo.data());
-  }
   for (int b = 0; b < B; ++b) {
-    filter_axial(w.echo.data() + 2 * size_t(b) * S, S, 2, m.axial_speckle, m.axial_speckle_radius,
-                 w.tmp.data());
+    const float* spec = w.specular.data() + size_t(b) * S;
+    bool any = false;
+    for (int s = 0; s < S; ++s) any = any || spec[s] != 0;
+    w.has_specular[size_t(b)] = any;
+  }
+  for (int b = 0; b < B; ++b) add_speckle(m, b, w.echo.data());
+  for (int b = 0; b < B; ++b) {
+    filter_axial_speckle(m, b, w.echo.data() + 2 * size_t(b) * S, w.tmp.data());
     filter_axial(w.specular.data() + size_t(b) * S, S, 1, m.axial_specular, m.axial_specular_radius,
                  w.tmp.data());
   }
   for (int b = 0; b < B; ++b) {
-    filter_lateral(w.echo.data(), w.echo_filtered.data(), B, S, 2, m.lateral_speckle,
+    filter_lateral(w.echo.data(), w.echo_filtered.data(), B, S, 2, lateral_speckle_taps(m),
                    m.lateral_radius, b);
     filter_lateral(w.specular.data(), w.specular_filtered.data(), B, S, 1, m.lateral_specular,
-                   m.lateral_radius, b);
+                   m.lateral_radius, b, w.has_specular.data());
   }
   for (size_t i = 0; i < n; ++i)
     add_specular(w.echo_filtered.data(), w.specular_filtered.data(), int64_t(i));
@@ -57,8 +70,9 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   }
   for (int s = 0; s < S; ++s) w.level[size_t(s)] = tgc_level(m, w.knots.data(), s);
   const int64_t pixels = int64_t(m.width) * m.height;
-  for (int64_t i = 0; i < pixels; ++i)
-    scan_pixel(m, w.echo_filtered.data(), w.level.data(), i, out);
+  std::memset(out, 0, size_t(pixels) * (m.bmode ? 1 : sizeof(float)));
+  for (int64_t k = 0; k < m.scan_count; ++k)
+    scan_pixel(m, w.echo_filtered.data(), w.level.data(), m.scan_order[k], out);
 }
 
 /// `count` images, pose n's map maps[n], into out (image n at n·image_bytes).

@@ -50,8 +50,8 @@ struct FilterAxial {
     const ImageModel& m = b.models[n];
     float* tmp = b.tmp + i * 2 * b.samples;
     if (speckle)
-      filter_axial(b.echo + (n * b.beam_samples() + int64_t(beam) * b.samples) * 2, b.samples, 2,
-                   m.axial_speckle, m.axial_speckle_radius, tmp);
+      filter_axial_speckle(m, beam, b.echo + (n * b.beam_samples() + int64_t(beam) * b.samples) * 2,
+                           tmp);
     else
       filter_axial(b.specular + n * b.beam_samples() + int64_t(beam) * b.samples, b.samples, 1,
                    m.axial_specular, m.axial_specular_radius, tmp);
@@ -67,7 +67,7 @@ struct FilterLateral {
     const ImageModel& m = b.models[n];
     if (speckle)
       filter_lateral(b.echo + n * 2 * b.beam_samples(), b.echo_filtered + n * 2 * b.beam_samples(),
-                     b.beams, b.samples, 2, m.lateral_speckle, m.lateral_radius, beam);
+                     b.beams, b.samples, 2, lateral_speckle_taps(m), m.lateral_radius, beam);
     else
       filter_lateral(b.specular + n * b.beam_samples(), b.specular_filtered + n * b.beam_samples(),
                      b.beams, b.samples, 1, m.lateral_specular, m.lateral_radius, beam);

@@ -14,6 +14,7 @@
 /// memory traffic of the tiles and the beam buffers.
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 
 #include "../geometry/Sampling.h"
 #include "sonoslice/backend/HostDevice.h"
@@ -25,8 +26,6 @@
 namespace sonoslice {
 namespace simulate_impl {
 
-/// Elevation samples across the slice thickness: at most this many.
-constexpr int kMaxElevations = 16;
 /// Lateral filter taps each side: at most this many (σ is at most kMaxLateralRadius / 3 beams).
 constexpr int kMaxLateralRadius = 24;
 
@@ -41,16 +40,39 @@ struct Props {
   float z, alpha, scatter;
 };
 
-/// A complex speckle tile: n³ nodes of (re, im), standard complex Gaussian, periodic. Stored
-/// padded to (n+1)³ (node n repeats node 0 along each axis), so a cell's upper corners never
-/// wrap. Lattice coordinate k ≥ 0 (floor, shifted by the model's lattice offset) lies on node
-/// (k − offset) mod n = r − n·⌊(r + ½)/n⌋ with r = k + shift (shift ≡ −offset mod n): arithmetic
-/// rather than a table, so that the loops around it vectorise (a table lookup there is a gather).
-struct NoiseTile {
-  const float* nodes;
-  int32_t stride_y, stride_z;  // floats from a node to the next along y, along z
-  int32_t n, shift;
-  float inverse_n;
+/// The speckle table: kSpeckleNodes complex nodes, standard complex Gaussian, stored as int16
+/// (re, im) pairs at kSpeckleScale per unit (a quantisation step of 1.2e-4 σ: 256 KB, so it stays
+/// in a core's L2 cache), followed by its first kSpecklePad nodes again, so that the four nodes of
+/// a cell, r, r + 1, r + W and r + W + 1, never wrap. docs/simulation.md §3.
+constexpr int kSpeckleBits = 16;
+constexpr int32_t kSpeckleNodes = int32_t(1) << kSpeckleBits;
+constexpr int32_t kSpeckleMask = kSpeckleNodes - 1;
+/// A layer's nodes are the table read as rows of W nodes (node (i, j) at i + W·j + offset, modulo
+/// the table), W one of eight odd widths 255, 257, ..., 269 picked per layer. Each width's rows
+/// wrap into a 2-D lattice whose shortest period is at least 252 nodes (a spectral test over the
+/// table size), so no layer repeats within an image along any axis; layers of different widths
+/// repeat along different vectors, so their sum does not repeat at all.
+constexpr int32_t kRowWidthBase = 255, kRowWidthStep = 2;
+constexpr int32_t kSpecklePad = kRowWidthBase + 7 * kRowWidthStep + 2;
+constexpr float kSpeckleScale = 8192.f;
+/// Layer families blended at one pose (one per lattice axis), and crossings of the slice
+/// thickness summed per family (a thicker slice takes every stride-th layer).
+constexpr int kMaxFields = 3;
+constexpr int kMaxLayers = 12;
+/// Residual-smoothing levels the lateral speckle filter is tabulated for (set per pose).
+constexpr int kResidualLevels = 16;
+
+/// One family of speckle layers at one pose: the planes of constant lattice coordinate `axis`,
+/// crossed by the elevation line of every sample. docs/simulation.md §3.
+struct LayerField {
+  int axis = 2;
+  int layers = 0;    // crossings evaluated per sample
+  int stride = 1;    // only layers k ≡ 0 (mod stride)
+  float weight = 0;  // the family's amplitude in the blend (Σ weight² = 1)
+  float e[3];        // the elevation direction, lattice units per mm
+  float inverse_e;   // 1 / e[axis]
+  float reach;       // T·|e[axis]|: the slice thickness's half-width in layers
+  uint32_t seed;     // the layers' hash seed
 };
 
 /// Everything one image needs, in the probe frame (mm) and the volume's continuous index.
@@ -66,14 +88,22 @@ struct ImageModel {
   Props outside{1.48f, 0.0022f, 0.f};  // outside the volume: water (no echo, no loss)
   // Probe point p (mm) → continuous index: A·p + a (row-major A). Set per pose.
   float A[9], a[3];
-  // Probe point p (mm) → speckle lattice coordinate, shifted by the tiles' offset so that the
+  // Probe point p (mm) → speckle lattice coordinate, shifted by lattice_offset so that the
   // volume and the slice thickness around it have coordinates in [0, lattice_count - 1): Q·p + q.
   // Set per pose from A, a and the lattice per index.
   float Q[9], q[3];
-  double lattice_per_index[3];  // lattice coordinate per index step, along each axis
-  float lattice_offset = 0;     // the shift above
-  int lattice_count = 0;        // lattice coordinates are clamped to [0, lattice_count − 2]
-  NoiseTile tiles[2];
+  double lattice_per_index[3];       // lattice coordinate per index step, along each axis
+  float lattice_offset = 0;          // the shift above
+  int lattice_count = 0;             // lattice coordinates are clamped to [0, lattice_count − 2]
+  const int16_t* speckle = nullptr;  // the speckle table (kSpeckleNodes + kSpecklePad nodes)
+  uint32_t layer_seed[3] = {0, 0, 0};  // per lattice axis: its layers' hash seed
+  // The slice thickness: the elevation profile's σ and half-width T (mm); per pose, the layer
+  // families blended (set_pose).
+  float elevation_sigma_mm = 0, elevation_reach_mm = 0;
+  int fields = 0;
+  LayerField field[kMaxFields];
+  int lateral_level = 0;           // per pose: which residual level's lateral speckle filter
+  float turn_cos[8], turn_sin[8];  // kLayerCos, kLayerSin (a copy the GPU can read)
   // Beams: curvilinear (angles about the apex) or linear (parallel, along +y).
   bool curvilinear = false;
   int beams = 0, samples = 0;
@@ -84,21 +114,19 @@ struct ImageModel {
   double beam0 = 0, beam_step = 0;        // first beam's angle (rad) or x (mm), and the step
   double start = 0;                       // first sample: radius R (curvilinear) or face y (linear)
   double apex_y = 0;                      // curvilinear
-  // Elevation samples: offsets (mm) and weights; their lattice offsets (Q's third column times
-  // the offset) are set per pose.
-  int elevations = 1;
-  float elevation_mm[kMaxElevations], elevation_weight[kMaxElevations];
-  float elevation_q[kMaxElevations][3];
   float frequency_mhz = 5;
-  double wavelength_mm = 0.308;           // λ: the lattice step
-  double sigma_lateral_speckle_mm = 0.5;  // the lateral speckle filter's σ (calibration)
-  // The PSF. Axial: one kernel for every beam, peak 1, taps −radius..radius. Lateral: per depth
-  // s, taps −kMaxLateralRadius..kMaxLateralRadius, stored [tap][s], sum 1 (zero beyond 3σ).
-  // The speckle gets what the lattice's smoothness leaves to add; interfaces the full PSF.
-  const float* axial_speckle = nullptr;
+  double wavelength_mm = 0.308;  // λ: the lattice step
+  // The PSF (docs/simulation.md §3). Specular echoes get it whole: axial taps (peak 1) and, per
+  // depth s, lateral taps −kMaxLateralRadius..kMaxLateralRadius stored [tap][s] (sum 1). The
+  // speckle gets what the layers' own in-plane smoothing leaves to add, and that depends on the
+  // pose: its axial taps are made per beam (filter_axial_speckle), its lateral taps are
+  // tabulated for kResidualLevels levels of that smoothing ([level][tap][s]) and picked per pose.
+  float axial_variance_mm2 = 0;  // the PSF's axial σ²
+  float layer_variance_mm2 = 0;  // a layer's bilinear smoothing along a lattice axis: λ²/6
   const float* axial_specular = nullptr;
-  int axial_speckle_radius = 0, axial_specular_radius = 0;
-  const float* lateral_speckle = nullptr;   // (2·kMaxLateralRadius + 1) × samples
+  int axial_specular_radius = 0;
+  const float* lateral_speckle =
+      nullptr;  // kResidualLevels × (2·kMaxLateralRadius + 1) × 2·samples
   const float* lateral_specular = nullptr;  // (2·kMaxLateralRadius + 1) × samples
   int lateral_radius = 0;                   // taps used each side (≤ kMaxLateralRadius)
   // Makes a tissue's mean speckle envelope its scatter_mean (Simulator calibrates it).
@@ -109,9 +137,14 @@ struct ImageModel {
   // lower (beam, sample) corner, the steps to the upper ones, and the weights.
   int width = 0, height = 0;
   const uint8_t* mask = nullptr;
-  const int32_t* scan_index = nullptr;  // b0·samples + s0, per pixel
-  const uint8_t* scan_steps = nullptr;  // bit 0: b1 = b0 + 1; bit 1: s1 = s0 + 1
-  const float* scan_weights = nullptr;  // (tb, ts) per pixel
+  const int32_t* scan_index = nullptr;   // b0·samples + s0, per pixel
+  const int32_t* scan_sample = nullptr;  // s0, per pixel (a division less per pixel)
+  const uint8_t* scan_steps = nullptr;   // bit 0: b1 = b0 + 1; bit 1: s1 = s0 + 1
+  const float* scan_weights = nullptr;   // (tb, ts) per pixel
+  // The pixels inside the mask in the order of their beam-buffer index (the CPU driver converts
+  // them in that order: the echo is read along the beams, not a beam per pixel).
+  const int32_t* scan_order = nullptr;
+  int64_t scan_count = 0;
 };
 
 // The functions below are compiled once per instruction set (generic, AVX2 + FMA, CUDA).
@@ -138,12 +171,9 @@ SONOSLICE_HOST_DEVICE inline Props props_at(const ImageModel& m, float cx, float
           p.scatter + w * (q.scatter - p.scatter)};
 }
 
-/// 1 / sqrt(f² + (1 − f)²) for u = f·(1 − f) ∈ [0, 1/4], i.e. 1 / sqrt(1 − 2u): a cubic
-/// (least squares on Chebyshev nodes, error below 1.3e-3, so the field's variance varies by
-/// less than 0.3 % across a cell) instead of a division and a square root, which cost a sixth
-/// of the tracing time.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float inverse_root_of_weights(float u) {
-  return 0.99913569f + u * (1.06436622f + u * (0.47053766f + u * 7.57480051f));
+/// 1 / √x (scalar; AVX2 lanes: the estimate refined by one Newton step, Avx2Lanes.h).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float inverse_sqrt(float x) {
+  return 1.0f / std::sqrt(x);
 }
 
 /// min(max(v, 0), hi) in the form compilers turn into vector min/max (the operand order of
@@ -153,23 +183,93 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float lane_clamp(float v, float hi) {
   return v < hi ? v : hi;
 }
 
-/// Lattice coordinate k (shifted) → its node along one axis of tile t, by arithmetic.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int32_t wrap_node(const NoiseTile& t, int32_t k) {
-  const int32_t r = k + t.shift;
-  return r - t.n * int32_t((float(r) + 0.5f) * t.inverse_n);
+/// A layer's nodes are rotated in its plane by one of eight angles (i + ½)·11.25°, i from its
+/// hash: the interpolation's faint periodic texture (a mean-intensity ripple of 1e-6 of the
+/// variance, at the node spacing) is then spread over eight directions with random phases, never
+/// along the image's or the volume's axes, instead of one spectral peak at 1/λ.
+constexpr float kLayerCos[8] = {0.995184727f, 0.956940336f, 0.881921264f, 0.773010453f,
+                                0.634393284f, 0.471396737f, 0.290284677f, 0.098017140f};
+constexpr float kLayerSin[8] = {0.098017140f, 0.290284677f, 0.471396737f, 0.634393284f,
+                                0.773010453f, 0.881921264f, 0.956940336f, 0.995184727f};
+
+/// Scalar forms of the lane operations layer_crossing() uses (AVX2 lanes: Avx2Lanes.h).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float abs(float a) {
+  return std::fabs(a);
+}
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float min(float a, float b) {
+  return std::fmin(a, b);
+}
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float max(float a, float b) {
+  return std::fmax(a, b);
+}
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int32_t floor_to_int(float a) {
+  return int32_t(std::floor(a));
+}
+// Integer lanes are uint32_t in scalar code (wrapping, as the AVX2 lanes), read as int32 where
+// they become floats.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE uint32_t truncate_to_int(float a) {
+  return uint32_t(int32_t(a));
+}
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float to_float(uint32_t a) {
+  return float(int32_t(a));
+}
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE uint32_t shift_right(uint32_t a, int n) {
+  return a >> n;
+}
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float lookup8(const float* table, uint32_t i) {
+  return table[i];
 }
 
-/// The float offset of the lower corner node of cell (ix, iy, iz) in tile t.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int32_t node_offset(const NoiseTile& t, int32_t ix,
-                                                           int32_t iy, int32_t iz) {
-  return 2 * wrap_node(t, ix) + t.stride_y * wrap_node(t, iy) + t.stride_z * wrap_node(t, iz);
+/// Layer k of a family (seed): a hash of k (an integer mixer: fixed in the volume, no table,
+/// the same on every backend) whose low bits are the layer's offset into the speckle table and
+/// bits 16–18 its row width. On int32 lanes (wrapping arithmetic, logical shifts).
+template <typename I>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE I layer_hash(I k, uint32_t seed) {
+  constexpr int32_t kGolden = -1640531535;  // 0x9E3779B1 as int32
+  constexpr int32_t kMurmur = -2048144789;  // 0x85EBCA6B as int32
+  I h = k * kGolden + int32_t(seed);
+  h = h ^ shift_right(h, 16);
+  h = h * kMurmur;
+  return h ^ shift_right(h, 13);
+}
+template <typename I>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE I layer_width(I h) {
+  return (shift_right(h, 16) & 7) * kRowWidthStep + kRowWidthBase;
 }
 
-/// The complex field from speckle_of_lane()'s partial sums (generic path): per tile, (re, im)
-/// of the x0 and of the x1 corners.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_sum(const float* acc, float& re, float& im) {
-  re = (acc[0] + acc[2]) + (acc[4] + acc[6]);
-  im = (acc[1] + acc[3]) + (acc[5] + acc[7]);
+/// The elevation profile at u = |t| / T (t: mm from the image plane): a Gaussian of σ = T / 1.5
+/// (exp(−1.125·u²), a quartic in u² within 1.8e-5), tapered by a smoothstep over u ∈ [0.75, 1]
+/// to zero at the slice's edge, so that a layer enters and leaves the sum without a jump.
+template <typename F>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F elevation_profile(F u) {
+  const F v = u * u;
+  const F g =
+      F(0.99998242f) +
+      v * (F(-1.12409487f) + v * (F(0.625325396f) + v * (F(-0.215178982f) + v * F(0.0386345179f))));
+  const F s = min(max((F(1.0f) - u) * F(4.0f), F(0.0f)), F(1.0f));
+  return g * (s * s * (F(3.0f) - F(2.0f) * s));
+}
+
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float exp2_of_int(int32_t n) {
+  const uint32_t bits = uint32_t(n + 127) << 23;
+  float f;
+  std::memcpy(&f, &bits, sizeof f);
+  return f;
+}
+
+/// 2^x for x ≤ 0 (the round-trip attenuation): 2^⌊x⌋ by the exponent field times a degree-5
+/// polynomial of the fraction (relative error below 2.3e-7), on float or AVX2 lanes alike, so that
+/// the generic and the AVX2 builds agree; 0 below 2^−126.
+template <typename F>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F attenuation_exp2(F x) {
+  x = max(x, F(-126.0f));
+  const auto n = floor_to_int(x);
+  const F f = x - to_float(n);
+  const F p = F(0.999999771f) +
+              f * (F(0.693156756f) +
+                   f * (F(0.240131774f) +
+                        f * (F(0.0558764407f) + f * (F(0.00894062992f) + f * F(0.00189438727f)))));
+  return p * exp2_of_int(n);
 }
 
 /// Coupling: along a beam, samples below this impedance (MRayl) before the first one above it are
@@ -203,8 +303,44 @@ SONOSLICE_HOST_DEVICE inline void beam_line(const ImageModel& m, int b, float* o
   }
 }
 
+/// The in-plane variance (mm²) that the layers' bilinear interpolation adds along the in-plane
+/// direction (dx, dy) of the probe: a layer's nodes are λ apart (variance 1/6 in lattice units²
+/// along any in-layer direction), and an in-plane step moves the elevation line's crossing with
+/// the layer by v = Q·u − (Q·u)ₐ/eₐ · e (lattice units per mm), at least |Q·u| and at most √3
+/// times it (cube diagonal). Blended families add their variances by weight².
+SONOSLICE_HOST_DEVICE inline float residual_variance(const ImageModel& m, float dx, float dy) {
+  float r = 0;
+  for (int f = 0; f < m.fields; ++f) {
+    const LayerField& L = m.field[f];
+    float qu[3];
+    for (int k = 0; k < 3; ++k) qu[k] = m.Q[3 * k] * dx + m.Q[3 * k + 1] * dy;
+    const float along = qu[L.axis] * L.inverse_e;
+    float v2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      const float v = qu[k] - along * L.e[k];
+      v2 += v * v;
+    }
+    r += L.weight * L.weight / (6.0f * v2);
+  }
+  return r;
+}
+
+/// Which of the kResidualLevels levels (residual / layer variance from 1/3 to 1) is nearest.
+SONOSLICE_HOST_DEVICE inline int residual_level(const ImageModel& m, float residual) {
+  const float g = residual / m.layer_variance_mm2;
+  const int level = int((g - 1.0f / 3.0f) * 1.5f * float(kResidualLevels - 1) + 0.5f);
+  return level < 0 ? 0 : (level >= kResidualLevels ? kResidualLevels - 1 : level);
+}
+inline double residual_of_level(int level) {
+  return 1.0 / 3.0 + (2.0 / 3.0) * level / double(kResidualLevels - 1);
+}
+
 /// Sets the pose-dependent part of an image model: probe mm → index (A, a), → shifted lattice
-/// coordinate (Q, q), and the elevation points' lattice offsets.
+/// coordinate (Q, q), the layer families of the slice thickness and the lateral speckle filter's
+/// level. docs/simulation.md §3: the layers are the lattice planes normal to the axis most
+/// aligned with the elevation direction; where a second (or third) axis is nearly as aligned
+/// (|eₓ| > 0.9·max), its family is blended in, its weight rising smoothly from 0 to equal at the
+/// switch, so that the image changes continuously with the pose.
 inline void set_pose(ImageModel& im, const IndexMap& map) {
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) {
@@ -214,9 +350,53 @@ inline void set_pose(ImageModel& im, const IndexMap& map) {
     im.a[r] = float(map.a[r]);
     im.q[r] = float(map.a[r] * im.lattice_per_index[r] + im.lattice_offset);
   }
-  for (int e = 0; e < im.elevations; ++e)
-    for (int r = 0; r < 3; ++r)
-      im.elevation_q[e][r] = float(map.A[r][2] * im.lattice_per_index[r]) * im.elevation_mm[e];
+  double e[3], top = 0;
+  for (int r = 0; r < 3; ++r) {
+    e[r] = map.A[r][2] * im.lattice_per_index[r];
+    top = std::fmax(top, std::fabs(e[r]));
+  }
+  constexpr double kBlendFrom = 0.9;
+  double w[3], sum = 0;
+  for (int r = 0; r < 3; ++r) {
+    const double x =
+        std::fmin(std::fmax((std::fabs(e[r]) / top - kBlendFrom) / (1 - kBlendFrom), 0.0), 1.0);
+    w[r] = x * x * (3 - 2 * x);
+    sum += w[r] * w[r];
+  }
+  im.fields = 0;
+  for (int r = 0; r < 3; ++r) {
+    if (w[r] <= 0) continue;
+    LayerField& L = im.field[im.fields++];
+    L.axis = r;
+    L.weight = float(w[r] / std::sqrt(sum));
+    for (int k = 0; k < 3; ++k) L.e[k] = float(e[k]);
+    L.inverse_e = float(1 / e[r]);
+    const double reach = im.elevation_reach_mm * std::fabs(e[r]);
+    L.stride = int(std::floor(2 * reach / kMaxLayers)) + 1;
+    L.layers = int(std::floor(2 * reach / L.stride)) + 1;
+    L.reach = float(reach);
+    L.seed = im.layer_seed[r];
+  }
+  // The lateral speckle filter: for the centre beam's lateral direction (probe x).
+  im.lateral_level = residual_level(im, residual_variance(im, 1, 0));
+}
+
+/// A label volume's voxels read as their impedance (for the interface normals below).
+struct LabelImpedance {
+  const uint16_t* labels;
+  const Props* props;
+  SONOSLICE_HOST_DEVICE float operator()(int64_t i) const { return props[labels[i]].z; }
+};
+
+/// The impedance at continuous index c, trilinear for labels as for a CT: the interface normal
+/// comes from differences of it, and a label volume's nearest voxels would give a staircase
+/// whose differences jump from beam to beam on an oblique surface (the cos⁸ directivity would
+/// turn that into a speckle of bright and dark beams along it).
+SONOSLICE_HOST_DEVICE inline float smooth_impedance(const ImageModel& m, float cx, float cy,
+                                                    float cz) {
+  if (!m.labels || !geometry::inside(m.grid, cx, cy, cz)) return props_at(m, cx, cy, cz).z;
+  return geometry::sample_linear<float>(LabelImpedance{m.labels, m.label_props}, m.grid, cx, cy,
+                                        cz);
 }
 
 /// |cos θ| between beam direction d and the impedance gradient at probe point (px, py, 0), from
@@ -231,13 +411,13 @@ SONOSLICE_HOST_DEVICE inline float interface_cosine(const ImageModel& m, float p
   float cp[3], cm[3], g[3];
   index_of(px + h, py, 0, cp);
   index_of(px - h, py, 0, cm);
-  g[0] = props_at(m, cp[0], cp[1], cp[2]).z - props_at(m, cm[0], cm[1], cm[2]).z;
+  g[0] = smooth_impedance(m, cp[0], cp[1], cp[2]) - smooth_impedance(m, cm[0], cm[1], cm[2]);
   index_of(px, py + h, 0, cp);
   index_of(px, py - h, 0, cm);
-  g[1] = props_at(m, cp[0], cp[1], cp[2]).z - props_at(m, cm[0], cm[1], cm[2]).z;
+  g[1] = smooth_impedance(m, cp[0], cp[1], cp[2]) - smooth_impedance(m, cm[0], cm[1], cm[2]);
   index_of(px, py, h, cp);
   index_of(px, py, -h, cm);
-  g[2] = props_at(m, cp[0], cp[1], cp[2]).z - props_at(m, cm[0], cm[1], cm[2]).z;
+  g[2] = smooth_impedance(m, cp[0], cp[1], cp[2]) - smooth_impedance(m, cm[0], cm[1], cm[2]);
   const float gn = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
   return gn > 0 ? std::fabs(g[0] * d[0] + g[1] * d[1]) / gn : 1.0f;
 }
@@ -247,30 +427,34 @@ SONOSLICE_HOST_DEVICE inline float interface_cosine(const ImageModel& m, float p
 /// every sample, kept apart because they get different filters (§3), and the round-trip
 /// attenuation in dB met down to it (for TGC). Buffers are beam-major: sample s of beam b at
 /// b·samples + s. docs/simulation.md §2.
+/// The tissue is traced at every other sample (twice the speckle's step: properties,
+/// interfaces and losses change over millimetres, the speckle over λ): the weights and losses
+/// of the samples between are the mean of their neighbours', and each traced echo is spread
+/// over its sample (½) and the two beside it (¼ each), which keeps the coherent sum of a ramp's
+/// echoes.
 SONOSLICE_HOST_DEVICE inline void trace_beam(const ImageModel& m, int b, float* echo,
                                              float* specular_echo, float* loss_db) {
   float o[2], d[2];
   beam_line(m, b, o, d);
-  echo += 2 * int64_t(b) * m.samples;
-  specular_echo += int64_t(b) * m.samples;
-  loss_db += int64_t(b) * m.samples;
-  const auto index_of = [&](float px, float py, float pz, float* c) {
-    for (int k = 0; k < 3; ++k)
-      c[k] = m.A[3 * k] * px + m.A[3 * k + 1] * py + m.A[3 * k + 2] * pz + m.a[k];
-  };
+  const int S = m.samples;
+  echo += 2 * int64_t(b) * S;
+  specular_echo += int64_t(b) * S;
+  loss_db += int64_t(b) * S;
+  for (int s = 0; s < S; ++s) specular_echo[s] = 0;
   float transmitted = 1;  // intensity transmission down to here (interfaces)
   float att_db = 0;       // one-way attenuation down to here
   float z_before = -1;
   bool in_tissue = false;
   float cosine = 1;       // the last interface sample's normal against the beam ...
-  int normal_at = -1;     // ... taken at this sample
-  int interface_at = -2;  // the last sample that was an interface
-  const float att_per_alpha = m.frequency_mhz * m.step_mm / 10;  // dB per (dB/cm/MHz), one step
-  for (int s = 0; s < m.samples; ++s) {
+  int normal_at = -1;     // ... taken at this (traced) sample
+  int interface_at = -2;  // the last traced sample that was an interface
+  const float step = 2 * m.step_mm;
+  const float att_per_alpha = m.frequency_mhz * step / 10;  // dB per (dB/cm/MHz), one step
+  for (int j = 0, s = 0; s < S; ++j, s += 2) {
     const float depth = (float(s) + 0.5f) * m.step_mm;
     const float px = o[0] + depth * d[0], py = o[1] + depth * d[1];
     float c[3];
-    index_of(px, py, 0, c);
+    for (int k = 0; k < 3; ++k) c[k] = m.A[3 * k] * px + m.A[3 * k + 1] * py + m.a[k];
     Props p = props_at(m, c[0], c[1], c[2]);
     // Coupling: gas (and the skin's part-air voxels) between the face and the first tissue
     // along the beam is gel (the probe is pressed on; a face that only partly touches a curved
@@ -289,101 +473,366 @@ SONOSLICE_HOST_DEVICE inline void trace_beam(const ImageModel& m, int b, float* 
     const float r = ratio * ratio;
     // Round trip: the intensity transmission both ways is transmitted², an amplitude factor of
     // transmitted; the attenuation both ways is 2·att_db.
-    const float amplitude = transmitted * std::exp2(-2 * kDbToLog2 * att_db);
+    const float amplitude = transmitted * attenuation_exp2(-2 * kDbToLog2 * att_db);
     if (r > m.min_reflection) {
       // The interface's normal from the impedance gradient (central differences over
       // ±gradient_mm around the sample); the echo that returns falls as cos^8 of the angle
       // between the normal and the beam (docs/simulation.md §2). Differences over ±h change
       // little within h/2: the samples of one interface ramp reuse its normal that far.
-      if (interface_at != s - 1 || s - normal_at > m.gradient_reuse) {
+      if (interface_at != j - 1 || j - normal_at > m.gradient_reuse) {
         cosine = interface_cosine(m, px, py, d);
-        normal_at = s;
+        normal_at = j;
       }
-      interface_at = s;
+      interface_at = j;
       specular = std::sqrt(r) * directivity(cosine);
       transmitted *= 1 - r;  // for the samples below; CT noise (r ≤ min_reflection) neither
                              // echoes nor dims
     }
     // Diffuse scattering: its weight here; add_speckle() multiplies in the speckle field.
-    echo[2 * s] = amplitude * p.scatter * m.speckle_gain;
+    const float weight = amplitude * p.scatter * m.speckle_gain, loss = 2 * att_db;
+    echo[2 * s] = weight;
     echo[2 * s + 1] = 0;
-    specular_echo[s] = amplitude * specular;
-    loss_db[s] = 2 * att_db;
+    loss_db[s] = loss;
+    specular = amplitude * specular;
+    specular_echo[s] += 0.5f * specular;
+    if (s > 0) {  // the sample between the last traced one and this one
+      echo[2 * s - 2] = 0.5f * (echo[2 * s - 4] + weight);
+      loss_db[s - 1] = 0.5f * (loss_db[s - 2] + loss);
+      specular_echo[s - 1] += 0.25f * specular;
+    }
+    if (s + 1 < S) {
+      specular_echo[s + 1] += 0.25f * specular;
+      echo[2 * s + 2] = weight;  // the last sample's, unless a traced one follows
+      echo[2 * s + 3] = 0;
+      loss_db[s + 1] = loss;
+    }
     z_before = p.z;
   }
 }
 
-/// Samples of a beam whose speckle add_speckle() computes together: the cell and weight
-/// arithmetic of every elevation point runs over them as one loop (SIMD lanes on the CPU).
+#if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
+/// props_at() for eight points whose cells lie wholly inside the volume (0 ≤ c < n − 1 on each
+/// axis, checked by the caller; voxel offsets fit in int32): the same sampling rule, with
+/// gathers. CT: trilinear HU (a NaN voxel: outside), then the knots' table; labels: nearest.
+inline void props_lanes(const ImageModel& m, backend::Vec8f cx, backend::Vec8f cy,
+                        backend::Vec8f cz, backend::Vec8f& z, backend::Vec8f& alpha,
+                        backend::Vec8f& scatter) {
+  using backend::Vec8f;
+  using backend::Vec8i;
+  const int32_t sy = int32_t(m.grid.stride_y), sz = int32_t(m.grid.stride_z);
+  const float* table;
+  Vec8i entry;
+  Vec8f w(0.f);
+  if (m.labels) {
+    const Vec8i nx = backend::floor_to_int(cx + Vec8f(0.5f)),
+                ny = backend::floor_to_int(cy + Vec8f(0.5f)),
+                nz = backend::floor_to_int(cz + Vec8f(0.5f));
+    entry = backend::gather_value(m.labels, backend::offsets(nx, ny, nz, sy, sz)) * 3;
+    table = &m.label_props[0].z;
+  } else {
+    const Vec8i ix = backend::floor_to_int(cx), iy = backend::floor_to_int(cy),
+                iz = backend::floor_to_int(cz);
+    const Vec8f fx = cx - backend::to_float(ix), fy = cy - backend::to_float(iy),
+                fz = cz - backend::to_float(iz);
+    const Vec8i r00 = backend::offsets(ix, iy, iz, sy, sz);
+    Vec8f v[8];
+    const auto pairs = [&](const auto* voxels) {
+      backend::gather_pair(voxels, r00, v[0], v[1]);
+      backend::gather_pair(voxels, r00 + sy, v[2], v[3]);
+      backend::gather_pair(voxels, r00 + sz, v[4], v[5]);
+      backend::gather_pair(voxels, r00 + (sy + sz), v[6], v[7]);
+    };
+    if (m.hu16)
+      pairs(m.hu16);
+    else
+      pairs(m.hu);
+    Vec8f hu = geometry::trilinear(fx, fy, fz, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]);
+    const Vec8f nan = _mm256_cmp_ps(hu.v, hu.v, _CMP_UNORD_Q);
+    hu = backend::select(nan, Vec8f(float(m.hu_min)), hu);  // replaced by `outside` below
+    const Vec8f k = backend::min(backend::max(hu - Vec8f(float(m.hu_min)), Vec8f(0.f)),
+                                 Vec8f(float(m.hu_count) - 1.0001f));
+    const Vec8i i = backend::truncate_to_int(k);
+    w = k - backend::to_float(i);
+    entry = i * 3;
+    table = &m.hu_table[0].z;
+    const auto at = [&](int field, int next) {
+      const Vec8f lo = backend::gather_float(table + field, entry);
+      const Vec8f hi = backend::gather_float(table + field + 3 * next, entry);
+      return backend::select(nan, Vec8f((&m.outside.z)[field]), lo + w * (hi - lo));
+    };
+    z = at(0, 1);
+    alpha = at(1, 1);
+    scatter = at(2, 1);
+    return;
+  }
+  z = backend::gather_float(table, entry);
+  alpha = backend::gather_float(table + 1, entry);
+  scatter = backend::gather_float(table + 2, entry);
+}
+
+/// trace_beam() for beams b0 .. b0 + 7 at once (AVX2 lanes, one beam each): the same steps and
+/// formulas, with the volume read by props_lanes() where all eight cells lie inside the volume
+/// (props_at() lane by lane elsewhere) and interfaces, which are rare, handled lane by lane.
+inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specular_echo,
+                         float* loss_db) {
+  using backend::Vec8f;
+  constexpr int N = 8;
+  const int S = m.samples;
+  float ox[N], oy[N], dx[N], dy[N];
+  for (int l = 0; l < N; ++l) {
+    float o[2], d[2];
+    beam_line(m, b0 + l, o, d);
+    ox[l] = o[0];
+    oy[l] = o[1];
+    dx[l] = d[0];
+    dy[l] = d[1];
+    for (int s = 0; s < S; ++s) specular_echo[int64_t(b0 + l) * S + s] = 0;
+  }
+  const Vec8f Ox = backend::load_as_float(ox), Oy = backend::load_as_float(oy),
+              Dx = backend::load_as_float(dx), Dy = backend::load_as_float(dy);
+  const bool fits_int32 = m.grid.stride_z * m.grid.nz < (int64_t(1) << 31) - 4;
+  Vec8f transmitted(1.f), att_db(0.f), z_before(0.f), in_tissue(0.f);
+  float cosine[N], transmitted_lane[N];
+  int normal_at[N], interface_at[N];
+  for (int l = 0; l < N; ++l) {
+    cosine[l] = 1;
+    normal_at[l] = -1;
+    interface_at[l] = -2;
+  }
+  const float step = 2 * m.step_mm;
+  const float att_per_alpha = m.frequency_mhz * step / 10;
+  // Cells wholly inside, and a voxel to spare (a 32-bit gather of a uint16 label reads two bytes
+  // past it).
+  const float hi[3] = {float(m.grid.nx - 2), float(m.grid.ny - 2), float(m.grid.nz - 2)};
+  for (int j = 0, s = 0; s < S; ++j, s += 2) {
+    const float depth = (float(s) + 0.5f) * m.step_mm;
+    const Vec8f px = Ox + Vec8f(depth) * Dx, py = Oy + Vec8f(depth) * Dy;
+    Vec8f c[3];
+    for (int k = 0; k < 3; ++k)
+      c[k] = Vec8f(m.A[3 * k]) * px + Vec8f(m.A[3 * k + 1]) * py + Vec8f(m.a[k]);
+    Vec8f z, alpha, scatter;
+    int interior = 0xff;
+    for (int k = 0; k < 3; ++k) interior &= backend::lanes_in_range(c[k], 0.f, hi[k]);
+    if (interior == 0xff && fits_int32) {
+      props_lanes(m, c[0], c[1], c[2], z, alpha, scatter);
+    } else {
+      float cl[3][N], zl[N], al[N], sl[N];
+      for (int k = 0; k < 3; ++k) c[k].store(cl[k]);
+      for (int l = 0; l < N; ++l) {
+        const Props p = props_at(m, cl[0][l], cl[1][l], cl[2][l]);
+        zl[l] = p.z;
+        al[l] = p.alpha;
+        sl[l] = p.scatter;
+      }
+      z = backend::load_as_float(zl);
+      alpha = backend::load_as_float(al);
+      scatter = backend::load_as_float(sl);
+    }
+    // Coupling (trace_beam): gas before the first tissue along the beam is gel.
+    const Vec8f below = z < Vec8f(kCouplingImpedance);
+    const Vec8f gel = backend::and_not(in_tissue, below);
+    z = backend::select(gel, Vec8f(m.outside.z), z);
+    alpha = backend::select(gel, Vec8f(m.outside.alpha), alpha);
+    scatter = backend::select(gel, Vec8f(m.outside.scatter), scatter);
+    in_tissue =
+        in_tissue | backend::and_not(below, Vec8f(_mm256_castsi256_ps(_mm256_set1_epi32(-1))));
+    if (j == 0) z_before = z;
+    att_db = att_db + alpha * Vec8f(att_per_alpha);
+    const Vec8f ratio = (z - z_before) / (z + z_before);
+    const Vec8f r = ratio * ratio;
+    const Vec8f amplitude = transmitted * attenuation_exp2(Vec8f(-2 * kDbToLog2) * att_db);
+    float specular[N] = {0, 0, 0, 0, 0, 0, 0, 0};
+    const int interfaces = backend::lanes_of(r > Vec8f(m.min_reflection));
+    if (interfaces) {
+      float rl[N];
+      r.store(rl);
+      transmitted.store(transmitted_lane);
+      float pxl[N], pyl[N];
+      px.store(pxl);
+      py.store(pyl);
+      for (int l = 0; l < N; ++l) {
+        if (!(interfaces >> l & 1)) continue;
+        if (interface_at[l] != j - 1 || j - normal_at[l] > m.gradient_reuse) {
+          const float d[2] = {dx[l], dy[l]};
+          cosine[l] = interface_cosine(m, pxl[l], pyl[l], d);
+          normal_at[l] = j;
+        }
+        interface_at[l] = j;
+        specular[l] = std::sqrt(rl[l]) * directivity(cosine[l]);
+        transmitted_lane[l] *= 1 - rl[l];
+      }
+      transmitted = backend::load_as_float(transmitted_lane);
+    }
+    float weight[N], loss[N], amp[N];
+    (amplitude * scatter * Vec8f(m.speckle_gain)).store(weight);
+    (Vec8f(2.f) * att_db).store(loss);
+    amplitude.store(amp);
+    for (int l = 0; l < N; ++l) {
+      const int64_t row = int64_t(b0 + l) * S;
+      float* e = echo + 2 * row;
+      float* sp = specular_echo + row;
+      float* lo = loss_db + row;
+      const float spec = amp[l] * specular[l];
+      e[2 * s] = weight[l];
+      e[2 * s + 1] = 0;
+      lo[s] = loss[l];
+      sp[s] += 0.5f * spec;
+      if (s > 0) {
+        e[2 * s - 2] = 0.5f * (e[2 * s - 4] + weight[l]);
+        lo[s - 1] = 0.5f * (lo[s - 2] + loss[l]);
+        sp[s - 1] += 0.25f * spec;
+      }
+      if (s + 1 < S) {
+        sp[s + 1] += 0.25f * spec;
+        e[2 * s + 2] = weight[l];
+        e[2 * s + 3] = 0;
+        lo[s + 1] = loss[l];
+      }
+    }
+    z_before = z;
+  }
+}
+#endif
+
+/// Samples of a beam whose speckle add_speckle() computes together: the crossing, cell and
+/// weight arithmetic runs over them as one loop (SIMD lanes on the CPU).
 constexpr int kSpeckleLanes = 8;
 
-/// add_speckle()'s cells and weights for kSpeckleLanes samples at every elevation point
-/// ([elevation][lane]): the x weights (norm and elevation weight folded in), the four (y, z)
-/// weights and each tile's lower-corner node offset.
+/// add_speckle()'s cells for kSpeckleLanes samples at each crossing ([crossing][lane]): the
+/// in-layer x weights (profile weight and norm folded in), the y weights, and the table index of
+/// the cell's lower row and of its upper row.
 struct SpeckleCells {
-  float xw0[kMaxElevations][kSpeckleLanes], xw1[kMaxElevations][kSpeckleLanes];
-  float w00[kMaxElevations][kSpeckleLanes], w10[kMaxElevations][kSpeckleLanes];
-  float w01[kMaxElevations][kSpeckleLanes], w11[kMaxElevations][kSpeckleLanes];
-  int32_t off0[kMaxElevations][kSpeckleLanes], off1[kMaxElevations][kSpeckleLanes];
+  float x0[kMaxLayers][kSpeckleLanes], x1[kMaxLayers][kSpeckleLanes];
+  float y0[kMaxLayers][kSpeckleLanes], y1[kMaxLayers][kSpeckleLanes];
+  uint32_t row0[kMaxLayers][kSpeckleLanes], row1[kMaxLayers][kSpeckleLanes];
+  float scale[kSpeckleLanes];  // the family's weight / the root sum of squared profile weights
 };
 
-/// The speckle field of lane l from its cells: the weighted node sums over both tiles and every
-/// elevation point.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_of_lane(const ImageModel& m,
-                                                            const SpeckleCells& c, int l, float& re,
-                                                            float& im) {
-  const NoiseTile& t0 = m.tiles[0];
-  const NoiseTile& t1 = m.tiles[1];
+/// Crossing j of family L by the elevation lines of samples at lattice coordinates (pa, pb, pc)
+/// (the family's axis first), on lanes F (float, or eight AVX2 floats) and I (int32 likewise):
+/// layer k = (first + j)·stride lies at t = (k − pₐ)/eₐ mm from the sample; its weight is the
+/// elevation profile there, times the bilinear norm (interpolated white noise is up to 4 times
+/// weaker mid-cell than at a node: divided by the weights' root sum of squares, exactly, its
+/// variance is the same everywhere, and no trace of the lattice's period is left in the
+/// intensity's spectrum). Writes the cell's weights and rows; returns the profile weight.
+template <typename F, typename I>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE F layer_crossing(const ImageModel& m, const LayerField& L,
+                                                        F pa, F pb, F pc, I first, int j, float hi,
+                                                        float inverse_reach, F& x0, F& x1, F& y0,
+                                                        F& y1, I& row0, I& row1) {
+  const int a = L.axis, ab = a == 2 ? 0 : a + 1, ac = a == 0 ? 2 : a - 1;
+  const I k = (first + j) * L.stride;
+  const F t = (to_float(k) - pa) * F(L.inverse_e);
+  const F w = elevation_profile(abs(t) * F(inverse_reach));
+  const F yb = min(max(pb + t * F(L.e[ab]), F(0.f)), F(hi));
+  const F yc = min(max(pc + t * F(L.e[ac]), F(0.f)), F(hi));
+  const I h = layer_hash(k, L.seed);
+  const I width = layer_width(h);
+  // The layer's own node axes (rotated, shifted by hi so that the coordinates stay positive).
+  const I turn = shift_right(h, 19) & 7;
+  const F cs = lookup8(m.turn_cos, turn), sn = lookup8(m.turn_sin, turn);
+  const F xb = cs * yb - sn * yc + F(hi), xc = sn * yb + cs * yc;
+  const I ib = truncate_to_int(xb), ic = truncate_to_int(xc);
+  const F fb = xb - to_float(ib), fc = xc - to_float(ic);
+  const F gb = F(1.f) - fb, gc = F(1.f) - fc;
+  const F norm = w * inverse_sqrt((fb * fb + gb * gb) * (fc * fc + gc * gc));
+  row0 = (ib + width * ic + h) & kSpeckleMask;
+  row1 = row0 + width;
+  x0 = gb * norm;
+  x1 = fb * norm;
+  y0 = gc;
+  y1 = fc;
+  return w;
+}
+
+/// add_speckle()'s cells of family L for kSpeckleLanes samples at lattice coordinates p[axis]
+/// [lane]: every crossing's cell (layer_crossing), and the scale that divides the sum by the root
+/// sum of the squared profile weights, so that every sample has unit variance.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_cells(const ImageModel& m, const LayerField& L,
+                                                        const float* const* p, SpeckleCells& c) {
+  const float hi = float(m.lattice_count - 2);
+  const float inverse_reach = 1.0f / m.elevation_reach_mm;
+  const int a = L.axis, ab = a == 2 ? 0 : a + 1, ac = a == 0 ? 2 : a - 1;
+  const float inverse_stride = 1.0f / float(L.stride);
 #if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
-  // Eight floats at once: the x0 and x1 corners' (re, im) of two (y, z) rows per load pair.
   using backend::Vec8f;
-  Vec8f acc0(0.f), acc1(0.f);
-  for (int e = 0; e < m.elevations; ++e) {
-    const Vec8f xw = backend::blend<0xCC>(Vec8f(c.xw0[e][l]), Vec8f(c.xw1[e][l]));
-    const Vec8f wy0 = xw * backend::halves(&c.w00[e][l], &c.w10[e][l]);
-    const Vec8f wy1 = xw * backend::halves(&c.w01[e][l], &c.w11[e][l]);
-    const float* a0 = t0.nodes + c.off0[e][l];
-    const float* a1 = t1.nodes + c.off1[e][l];
-    acc0 = backend::fmadd(backend::quads(a0, a0 + t0.stride_y), wy0, acc0);
-    acc0 =
-        backend::fmadd(backend::quads(a0 + t0.stride_z, a0 + t0.stride_z + t0.stride_y), wy1, acc0);
-    acc1 = backend::fmadd(backend::quads(a1, a1 + t1.stride_y), wy0, acc1);
-    acc1 =
-        backend::fmadd(backend::quads(a1 + t1.stride_z, a1 + t1.stride_z + t1.stride_y), wy1, acc1);
+  using backend::Vec8i;
+  const Vec8f pa = backend::load_as_float(p[a]), pb = backend::load_as_float(p[ab]),
+              pc = backend::load_as_float(p[ac]);
+  const Vec8i first = backend::floor_to_int((pa - Vec8f(L.reach)) * Vec8f(inverse_stride)) + 1;
+  Vec8f sum(0.f);
+  for (int j = 0; j < L.layers; ++j) {
+    Vec8f x0, x1, y0, y1;
+    Vec8i row0, row1;
+    const Vec8f w =
+        layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, x0, x1, y0, y1, row0, row1);
+    x0.store(c.x0[j]);
+    x1.store(c.x1[j]);
+    y0.store(c.y0[j]);
+    y1.store(c.y1[j]);
+    row0.store(reinterpret_cast<int32_t*>(c.row0[j]));
+    row1.store(reinterpret_cast<int32_t*>(c.row1[j]));
+    sum = backend::fmadd(w, w, sum);
   }
-  backend::sum_even_odd(acc0 + acc1, re, im);
+  const Vec8f scale =
+      Vec8f(L.weight / kSpeckleScale) / backend::sqrt(backend::max(sum, Vec8f(1e-30f)));
+  scale.store(c.scale);
 #else
-  float acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-  for (int e = 0; e < m.elevations; ++e) {
-    const float xw[4] = {c.xw0[e][l], c.xw0[e][l], c.xw1[e][l], c.xw1[e][l]};
-    const float* a0 = t0.nodes + c.off0[e][l];
-    const float* a1 = t1.nodes + c.off1[e][l];
-    for (int k = 0; k < 4; ++k) {
-      acc[k] +=
-          xw[k] *
-          ((c.w00[e][l] * a0[k] + c.w10[e][l] * a0[t0.stride_y + k]) +
-           (c.w01[e][l] * a0[t0.stride_z + k] + c.w11[e][l] * a0[t0.stride_z + t0.stride_y + k]));
-      acc[4 + k] +=
-          xw[k] *
-          ((c.w00[e][l] * a1[k] + c.w10[e][l] * a1[t1.stride_y + k]) +
-           (c.w01[e][l] * a1[t1.stride_z + k] + c.w11[e][l] * a1[t1.stride_z + t1.stride_y + k]));
+  for (int l = 0; l < kSpeckleLanes; ++l) {
+    const float pa = p[a][l], pb = p[ab][l], pc = p[ac][l];
+    const uint32_t first = uint32_t(floor_to_int((pa - L.reach) * inverse_stride) + 1);
+    float sum = 0;
+    for (int j = 0; j < L.layers; ++j) {
+      const float w =
+          layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, c.x0[j][l], c.x1[j][l],
+                         c.y0[j][l], c.y1[j][l], c.row0[j][l], c.row1[j][l]);
+      sum += w * w;
     }
+    c.scale[l] = L.weight / (kSpeckleScale * std::sqrt(std::fmax(sum, 1e-30f)));
   }
-  speckle_sum(acc, re, im);
 #endif
 }
 
+/// Lane l's field of one family from its cells: the weighted sum of each crossing's four nodes.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const LayerField& L,
+                                                      const SpeckleCells& c, int l, float& re,
+                                                      float& im) {
+  const int16_t* nodes = m.speckle;
+#if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
+  // One crossing's four nodes are two rows of two (re, im) int16 pairs: one 16-byte vector,
+  // widened to eight floats, times (x0 x0 x1 x1 | x0 x0 x1 x1)·(y0 ×4 | y1 ×4).
+  __m256 acc = _mm256_setzero_ps();
+  for (int j = 0; j < L.layers; ++j) {
+    const __m128i lo = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(nodes + 2 * c.row0[j][l]));
+    const __m128i both = _mm_castpd_si128(_mm_loadh_pd(
+        _mm_castsi128_pd(lo), reinterpret_cast<const double*>(nodes + 2 * c.row1[j][l])));
+    const __m256 v = _mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(both));
+    const __m256 xw = _mm256_blend_ps(_mm256_set1_ps(c.x0[j][l]), _mm256_set1_ps(c.x1[j][l]), 0xCC);
+    const __m256 yw = _mm256_blend_ps(_mm256_set1_ps(c.y0[j][l]), _mm256_set1_ps(c.y1[j][l]), 0xF0);
+    acc = _mm256_fmadd_ps(v, _mm256_mul_ps(xw, yw), acc);
+  }
+  backend::sum_even_odd(backend::Vec8f(acc), re, im);
+#else
+  float acc[4] = {0, 0, 0, 0};
+  for (int j = 0; j < L.layers; ++j) {
+    const int16_t* n0 = nodes + 2 * c.row0[j][l];
+    const int16_t* n1 = nodes + 2 * c.row1[j][l];
+    for (int k = 0; k < 4; ++k) {
+      const float x = k < 2 ? c.x0[j][l] : c.x1[j][l];
+      acc[k] += x * (c.y0[j][l] * float(n0[k]) + c.y1[j][l] * float(n1[k]));
+    }
+  }
+  re = acc[0] + acc[2];
+  im = acc[1] + acc[3];
+#endif
+  re *= c.scale[l];
+  im *= c.scale[l];
+}
+
 /// Stage 1b, beam b: the diffuse echo weights trace_beam() left in echo's real parts times the
-/// speckle field summed across the slice thickness. The field at a lattice coordinate is the sum
-/// of two tiles of co-prime size (so the pattern repeats only after n1·n2 lattice steps), each
-/// trilinear between its nodes and divided by the weights' root sum of squares: interpolated
-/// white noise is 8 times weaker mid-cell than at a node, which a beam running along a lattice
-/// axis would show as streaks; normalised, its variance is the same everywhere. Both tiles share
-/// the cell and its weights (the same lattice), only the nodes differ. The cells, weights and
-/// node offsets of kSpeckleLanes samples are computed together, then the node loads follow
-/// sample by sample (speckle_of_lane).
-/// Beam b's line in lattice coordinates: the sample at depth t lies at q0 + t·dq (before the
-/// elevation offsets).
+/// speckle field: per sample, the elevation profile's weighted sum of the speckle layers its
+/// elevation line crosses (docs/simulation.md §3), over the families of this pose.
+/// Beam b's line in lattice coordinates: the sample at depth t lies at q0 + t·dq.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_line(const ImageModel& m, int b, float* q0,
                                                          float* dq) {
   float o[2], d[2];
@@ -399,43 +848,36 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void speckle_line(const ImageModel& m, in
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void add_speckle_group(const ImageModel& m, const float* q0,
                                                               const float* dq, int first,
                                                               float* echo) {
-  const float hi = float(m.lattice_count - 2);
-  constexpr int L = kSpeckleLanes;
-  const int n = m.samples - first < L ? m.samples - first : L;
+  constexpr int N = kSpeckleLanes;
+  const int n = m.samples - first < N ? m.samples - first : N;
   bool any = false;
   for (int l = 0; l < n; ++l) any = any || echo[2 * (first + l)] != 0;
   if (!any) return;  // water, gas, outside the volume: no speckle
+  float px[N], py[N], pz[N];
+  for (int l = 0; l < N; ++l) {
+    const float depth = (float(first + l) + 0.5f) * m.step_mm;
+    px[l] = q0[0] + depth * dq[0];
+    py[l] = q0[1] + depth * dq[1];
+    pz[l] = q0[2] + depth * dq[2];
+  }
+  const float* p[3] = {px, py, pz};
+  float re[N], im[N];
+  for (int l = 0; l < N; ++l) re[l] = im[l] = 0;
   SpeckleCells c;
-  for (int e = 0; e < m.elevations; ++e)
-    for (int l = 0; l < L; ++l) {
-      const float depth = (float(first + l) + 0.5f) * m.step_mm;
-      const float x = lane_clamp(q0[0] + depth * dq[0] + m.elevation_q[e][0], hi);
-      const float y = lane_clamp(q0[1] + depth * dq[1] + m.elevation_q[e][1], hi);
-      const float z = lane_clamp(q0[2] + depth * dq[2] + m.elevation_q[e][2], hi);
-      const int ix = int(x), iy = int(y), iz = int(z);
-      const float fx = x - float(ix), fy = y - float(iy), fz = z - float(iz);
-      const float gx = 1 - fx, gy = 1 - fy, gz = 1 - fz;
-      const float norm = m.elevation_weight[e] * inverse_root_of_weights(fx * gx) *
-                         inverse_root_of_weights(fy * gy) * inverse_root_of_weights(fz * gz);
-      c.xw0[e][l] = gx * norm;
-      c.xw1[e][l] = fx * norm;
-      c.w00[e][l] = gy * gz;
-      c.w10[e][l] = fy * gz;
-      c.w01[e][l] = gy * fz;
-      c.w11[e][l] = fy * fz;
-      c.off0[e][l] = node_offset(m.tiles[0], ix, iy, iz);
-      c.off1[e][l] = node_offset(m.tiles[1], ix, iy, iz);
+  for (int f = 0; f < m.fields; ++f) {
+    layer_cells(m, m.field[f], p, c);
+    for (int l = 0; l < n; ++l) {
+      if (echo[2 * (first + l)] == 0) continue;
+      float r, i;
+      layer_sum(m, m.field[f], c, l, r, i);
+      re[l] += r;
+      im[l] += i;
     }
+  }
   for (int l = 0; l < n; ++l) {
     const float weight = echo[2 * (first + l)];
-    if (weight == 0) {
-      echo[2 * (first + l) + 1] = 0;
-      continue;
-    }
-    float re, im;
-    speckle_of_lane(m, c, l, re, im);
-    echo[2 * (first + l)] = weight * re;
-    echo[2 * (first + l) + 1] = weight * im;
+    echo[2 * (first + l)] = weight * re[l];
+    echo[2 * (first + l) + 1] = weight * im[l];
   }
 }
 
@@ -454,8 +896,14 @@ SONOSLICE_HOST_DEVICE inline void add_speckle(const ImageModel& m, int b, float*
 SONOSLICE_HOST_DEVICE inline void filter_axial(float* data, int n, int channels,
                                                const float* kernel, int radius, float* tmp) {
   if (radius == 0) return;
-  for (int i = 0; i < n * channels; ++i) tmp[i] = data[i];
+  const int q = n * channels;
+  bool any = false;
+  for (int i = 0; i < q; ++i) any = any || data[i] != 0;
+  if (!any) return;  // a beam without echoes (most beams' specular echo)
+  for (int i = 0; i < q; ++i) tmp[i] = data[i];
+  // The first and last `radius` samples, whose taps reach past the ends (clamped) ...
   for (int i = 0; i < n; ++i) {
+    if (i == radius && n > 2 * radius) i = n - radius;
     float acc[2] = {0, 0};
     for (int k = -radius; k <= radius; ++k) {
       int j = i + k;
@@ -464,30 +912,84 @@ SONOSLICE_HOST_DEVICE inline void filter_axial(float* data, int n, int channels,
     }
     for (int c = 0; c < channels; ++c) data[i * channels + c] = acc[c];
   }
+  // ... and the others, tap by tap over contiguous values (vectorises).
+  if (n <= 2 * radius) return;
+  float* d = data + radius * channels;
+  const int inner = (n - 2 * radius) * channels;
+  for (int i = 0; i < inner; ++i) d[i] = 0;
+  for (int k = -radius; k <= radius; ++k) {
+    const float w = kernel[k + radius];
+    const float* src = tmp + (radius + k) * channels;
+    for (int i = 0; i < inner; ++i) d[i] += w * src[i];
+  }
+}
+/// Axial taps each side: at most this many.
+constexpr int kMaxAxialRadius = 48;
+
+/// The speckle filter that brings a field already smoothed with variance `residual` (mm², the
+/// layers' own interpolation along this direction) to the PSF's variance `variance`: a Gaussian
+/// of σ² = variance − residual in steps of `step` mm (none below 0.3 steps), sum 1, times the
+/// amplitude that keeps the field's variance: smoothing white noise to a total variance V leaves
+/// it √(residual / V) as strong as the unfiltered field (Gaussian kernels), so the taps are scaled
+/// by (V / residual)^¼. Returns the radius; `taps` holds 2·kMaxAxialRadius + 1 at most.
+SONOSLICE_HOST_DEVICE inline int speckle_taps(float variance, float residual, float step,
+                                              int max_radius, float* taps) {
+  const float extra = variance - residual;
+  const float sigma = extra > 0 ? std::sqrt(extra) / step : 0.f;
+  if (!(sigma > 0.3f)) {
+    taps[0] = 1;
+    return 0;
+  }
+  int r = int(std::ceil(3 * sigma));
+  r = r < max_radius ? r : max_radius;
+  float sum = 0;
+  for (int k = -r; k <= r; ++k)
+    sum += taps[k + r] = std::exp(-0.5f * float(k * k) / (sigma * sigma));
+  const float gain = std::sqrt(std::sqrt(variance / residual)) / sum;
+  for (int k = 0; k <= 2 * r; ++k) taps[k] *= gain;
+  return r;
+}
+
+/// Stage 2, along beam b: the complex echo's speckle filter for this beam's direction (the
+/// layers' residual smoothing depends on it, residual_variance). `data`: that beam's buffer;
+/// `tmp`: 2 × samples floats.
+SONOSLICE_HOST_DEVICE inline void filter_axial_speckle(const ImageModel& m, int b, float* data,
+                                                       float* tmp) {
+  float o[2], d[2];
+  beam_line(m, b, o, d);
+  float taps[2 * kMaxAxialRadius + 1];
+  const int radius = speckle_taps(m.axial_variance_mm2, residual_variance(m, d[0], d[1]), m.step_mm,
+                                  kMaxAxialRadius, taps);
+  if (radius == 0 && taps[0] == 1) return;
+  filter_axial(data, m.samples, 2, taps, radius, tmp);
 }
 
 /// Stage 2, across the beams: output beam b of `out` from beams b ± r of `in` (both B × S ×
-/// channels, beam-major), with the per-depth kernel `kernel` ([tap][s], taps −kMax..kMax of
-/// which −radius..radius are used), edges clamped. Vectorises along s.
+/// channels, beam-major), with the per-depth kernel `kernel` ([tap][s × channels]: each depth's
+/// weight repeated for its channels; taps −kMax..kMax of which −radius..radius are used), edges
+/// clamped; `nonzero` (optional, per beam): beams known to be all zero are skipped. Vectorises
+/// along s.
 SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* out, int beams,
                                                  int samples, int channels, const float* kernel,
-                                                 int radius, int b) {
+                                                 int radius, int b,
+                                                 const uint8_t* nonzero = nullptr) {
   const int64_t row = int64_t(samples) * channels;
   float* o = out + b * row;
   for (int64_t i = 0; i < row; ++i) o[i] = 0;
   for (int k = -radius; k <= radius; ++k) {
     int j = b + k;
     j = j < 0 ? 0 : (j >= beams ? beams - 1 : j);
+    if (nonzero && !nonzero[j]) continue;  // a beam without echoes adds nothing
     const float* src = in + j * row;
-    const float* w = kernel + int64_t(k + kMaxLateralRadius) * samples;
-    if (channels == 2)
-      for (int s = 0; s < samples; ++s) {
-        o[2 * s] += w[s] * src[2 * s];
-        o[2 * s + 1] += w[s] * src[2 * s + 1];
-      }
-    else
-      for (int s = 0; s < samples; ++s) o[s] += w[s] * src[s];
+    const float* w = kernel + int64_t(k + kMaxLateralRadius) * row;
+    for (int64_t i = 0; i < row; ++i) o[i] += w[i] * src[i];
   }
+}
+
+/// The lateral speckle filter of this pose's level ([tap][s]).
+SONOSLICE_HOST_DEVICE inline const float* lateral_speckle_taps(const ImageModel& m) {
+  return m.lateral_speckle +
+         int64_t(m.lateral_level) * (2 * kMaxLateralRadius + 1) * 2 * int64_t(m.samples);
 }
 
 /// Stage 2 → 4: sample i's specular echo added to its complex echo's real part (both
@@ -560,6 +1062,29 @@ SONOSLICE_HOST_DEVICE inline float tgc_level(const ImageModel& m, const float* k
   return before + (after - before) * float(s - s0) / float(s1 - s0);
 }
 
+/// log2(x) for a normal x > 0: the exponent plus a degree-6 polynomial in the mantissa (error
+/// below 2.1e-6, a thousandth of a grey level at 60 dB), not the math library's call, which cost
+/// a fifth of scan conversion. The GPU's own log2 is as fast.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float fast_log2(float x) {
+#if defined(__CUDACC__)
+  return log2f(x);
+#else
+  uint32_t bits;
+  std::memcpy(&bits, &x, sizeof bits);
+  const float exponent = float(int32_t(bits >> 23) - 127);
+  bits = (bits & 0x007FFFFFu) | 0x3F800000u;
+  float m;
+  std::memcpy(&m, &bits, sizeof m);
+  const float f = m - 1.0f;
+  return exponent +
+         (2.09796667e-06f +
+          f * (1.44247595f +
+               f * (-0.717562253f +
+                    f * (0.455539722f +
+                         f * (-0.274640336f + f * (0.119308718f + f * -0.0251254486f))))));
+#endif
+}
+
 /// Stage 4, pixel i: the complex echo (speckle + specular, summed into `echo`) bilinear in
 /// (beam, sample) — interpolating the complex signal keeps the speckle's statistics; an envelope
 /// would be smoothed — then the envelope and, for B-mode, TGC (`level`: dB per sample) and log
@@ -582,10 +1107,10 @@ SONOSLICE_HOST_DEVICE inline void scan_pixel(const ImageModel& m, const float* e
       static_cast<float*>(out)[i] = std::sqrt(power);
       return;
     }
-    const int s0 = int(j % m.samples);
+    const int s0 = m.scan_sample[i];
     const float gain_db = level[s0] + ts * (level[s0 + ds] - level[s0]);
     // 20·log10(env) = 10·log10(power) = (10 / log2(10))·log2(power).
-    const float db = power > 0 ? 3.0102999566398120f * std::log2(power) + gain_db : -1e9f;
+    const float db = power > 0 ? 3.0102999566398120f * fast_log2(power) + gain_db : -1e9f;
     const float grey = clampf(255.0f * (1.0f + db / m.dynamic_range_db), 0.0f, 255.0f);
     static_cast<uint8_t*>(out)[i] = uint8_t(std::floor(grey + 0.5f));
     return;

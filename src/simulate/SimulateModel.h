@@ -21,9 +21,9 @@ struct Model {
   std::vector<uint8_t> mask;
   std::vector<Props> label_props;  // label source: 65536 entries
   std::vector<Props> hu_table;
-  std::vector<float> tiles[2];  // padded (n+1)³ complex
-  std::vector<float> axial_speckle, axial_specular, lateral_speckle, lateral_specular;
-  std::vector<int32_t> scan_index;
+  std::vector<int16_t> speckle;  // the speckle table
+  std::vector<float> axial_specular, lateral_speckle, lateral_specular;
+  std::vector<int32_t> scan_index, scan_sample, scan_order;
   std::vector<uint8_t> scan_steps;
   std::vector<float> scan_weights;
   ImageModel base;                          // everything but the pose

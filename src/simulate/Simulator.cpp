@@ -21,42 +21,24 @@ constexpr double kFwhmToSigma = 0.42466090014400953;  // 1 / (2·sqrt(2·ln 2))
 
 namespace {
 
-constexpr int kTileSizes[2] = {37, 41};
-
-/// n³ complex nodes, each re and im standard normal / sqrt(2) (Box–Muller), from the seed,
-/// stored padded to (n+1)³: node n along an axis repeats node 0.
-std::vector<float> noise_tile(int n, uint64_t seed) {
-  std::vector<float> t(size_t(n) * n * n * 2);
+/// The speckle table: kSpeckleNodes complex nodes, re and im standard normal / sqrt(2)
+/// (Box–Muller) from the seed, as int16 at kSpeckleScale per unit, followed by its first
+/// kSpecklePad nodes again (SimulateImpl.h).
+std::vector<int16_t> speckle_table(uint64_t seed) {
+  std::vector<int16_t> t(size_t(kSpeckleNodes + kSpecklePad) * 2);
   SplitMix64 rng(seed);
   constexpr double kTwoPi = 6.283185307179586;
-  for (size_t i = 0; i < t.size(); i += 2) {
+  const auto quantised = [](double v) {
+    return int16_t(std::lround(std::fmin(std::fmax(v * kSpeckleScale, -32767.0), 32767.0)));
+  };
+  for (size_t i = 0; i < size_t(kSpeckleNodes) * 2; i += 2) {
     const double u1 = rng.uniform_nonzero();
     const double u2 = rng.uniform();
     const double radius = std::sqrt(-std::log(u1));  // sqrt(-2 ln u1) / sqrt(2)
-    t[i] = float(radius * std::cos(kTwoPi * u2));
-    t[i + 1] = float(radius * std::sin(kTwoPi * u2));
+    t[i] = quantised(radius * std::cos(kTwoPi * u2));
+    t[i + 1] = quantised(radius * std::sin(kTwoPi * u2));
   }
-  const int p = n + 1;
-  std::vector<float> padded(size_t(p) * p * p * 2);
-  for (int z = 0; z < p; ++z)
-    for (int y = 0; y < p; ++y)
-      for (int x = 0; x < p; ++x)
-        for (int c = 0; c < 2; ++c)
-          padded[((size_t(z) * p + y) * p + x) * 2 + c] =
-              t[((size_t(z % n) * n + y % n) * n + x % n) * 2 + c];
-  return padded;
-}
-
-/// Tile nodes (padded, n + 1 per axis) seen from lattice coordinates shifted by `offset`.
-simulate_impl::NoiseTile tile_view(const std::vector<float>& nodes, int n, int offset) {
-  const int p = n + 1;
-  simulate_impl::NoiseTile t;
-  t.nodes = nodes.data();
-  t.stride_y = 2 * p;
-  t.stride_z = 2 * p * p;
-  t.n = n;
-  t.shift = (n - offset % n) % n;
-  t.inverse_n = 1.0f / float(n);
+  std::copy(t.begin(), t.begin() + 2 * kSpecklePad, t.begin() + 2 * size_t(kSpeckleNodes));
   return t;
 }
 
@@ -77,23 +59,43 @@ std::vector<float> gauss_taps(double sigma, bool unit_sum, int max_radius) {
   return out;
 }
 
-/// The lateral kernels of every depth as a [tap][s] table (taps −kMaxLateralRadius..), sum 1,
-/// for σ (mm) over the beam spacing at each depth; returns the largest radius used.
-int lateral_table(const ImageModel& m, double sigma_mm, std::vector<float>& table) {
-  const int taps = 2 * simulate_impl::kMaxLateralRadius + 1;
-  table.assign(size_t(taps) * size_t(m.samples), 0.f);
+/// The lateral kernels of every depth as a [tap][s × channels] table (taps −kMaxLateralRadius..;
+/// each depth's weight repeated for its channels) appended to `table`: `taps(spacing_mm, out)`
+/// fills the taps for beams spacing_mm apart and returns the radius; returns the largest radius
+/// used.
+template <typename Taps>
+int lateral_table(const ImageModel& m, int channels, std::vector<float>& table, Taps taps) {
+  const int width = 2 * simulate_impl::kMaxLateralRadius + 1;
+  const size_t start = table.size(), row = size_t(m.samples) * size_t(channels);
+  table.resize(start + size_t(width) * row, 0.f);
+  float* t = table.data() + start;
   int radius = 0;
+  float w[2 * simulate_impl::kMaxLateralRadius + 1];
   for (int s = 0; s < m.samples; ++s) {
     // Beams are beam_step apart: in mm at this depth for a fan, as given for a linear probe.
     const double spacing_mm =
         m.curvilinear ? (m.start + (s + 0.5) * m.step_mm) * m.beam_step : m.beam_step;
-    const std::vector<float> w =
-        gauss_taps(sigma_mm / spacing_mm, true, simulate_impl::kMaxLateralRadius);
-    const int r = int(w.size() / 2);
+    const int r = taps(spacing_mm, w);
     radius = std::max(radius, r);
     for (int k = -r; k <= r; ++k)
-      table[size_t(k + simulate_impl::kMaxLateralRadius) * size_t(m.samples) + size_t(s)] =
-          w[size_t(k + r)];
+      for (int c = 0; c < channels; ++c)
+        t[size_t(k + simulate_impl::kMaxLateralRadius) * row + size_t(s) * size_t(channels) +
+          size_t(c)] = w[k + r];
+  }
+  return radius;
+}
+
+/// The lateral speckle filters of every residual level (kResidualLevels tables): the PSF's
+/// lateral variance `variance` (mm²) less the level's residual smoothing.
+int lateral_speckle_tables(const ImageModel& m, double variance, std::vector<float>& table) {
+  table.clear();
+  int radius = 0;
+  for (int level = 0; level < kResidualLevels; ++level) {
+    const float residual = float(residual_of_level(level) * m.layer_variance_mm2);
+    radius = std::max(radius, lateral_table(m, 2, table, [&](double spacing_mm, float* w) {
+                        return speckle_taps(float(variance), residual, float(spacing_mm),
+                                            kMaxLateralRadius, w);
+                      }));
   }
   return radius;
 }
@@ -105,7 +107,7 @@ int lateral_table(const ImageModel& m, double sigma_mm, std::vector<float>& tabl
 /// 96 beams × 384 samples along an oblique line (the image's own add_speckle and filters), with a
 /// fixed seed, interpolated as scan conversion does. The same for every image
 /// of a simulator, so images stay comparable.
-double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2]) {
+double speckle_gain(const ImageModel& model, double lateral_variance_mm2) {
   ImageModel m = model;
   const int B = 96, S = 384;
   // A rotation, so the patch is oblique to the lattice; probe mm → lattice: rotation / λ.
@@ -113,12 +115,9 @@ double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2
   const double lateral_step =
       m.curvilinear ? (m.start + 0.5 * m.samples * m.step_mm) * m.beam_step : m.beam_step;
   // The patch's reach in lattice steps (one per wavelength), with the slice thickness.
-  double reach = 4;
-  for (int e = 0; e < m.elevations; ++e)
-    reach = std::max(reach, 4 + std::fabs(double(m.elevation_mm[e])) / m.wavelength_mm);
+  const double reach = 4 + m.elevation_reach_mm / m.wavelength_mm;
   const double extent = (B * lateral_step + S * double(m.step_mm)) / m.wavelength_mm;
   const int offset = int(std::ceil(reach)) + 2, count = int(std::ceil(2 * extent)) + 2 * offset + 4;
-  for (int t = 0; t < 2; ++t) m.tiles[t] = tile_view(tiles[t], kTileSizes[t], offset);
   m.lattice_count = count;
   // Probe mm → lattice coordinates directly (index = lattice here).
   IndexMap map;
@@ -139,16 +138,17 @@ double speckle_gain(const ImageModel& model, const std::vector<float> (&tiles)[2
   m.beam_step = lateral_step;
   m.start = 0;
   std::vector<float> lateral;
-  const int radius = lateral_table(m, m.sigma_lateral_speckle_mm, lateral);
+  const int radius = lateral_speckle_tables(m, lateral_variance_mm2, lateral);
+  m.lateral_speckle = lateral.data();
   std::vector<float> field(size_t(B) * S * 2, 0.f), out(size_t(B) * S * 2), tmp(size_t(S) * 2);
   for (size_t i = 0; i < field.size(); i += 2) field[i] = 1;
   for (int b = 0; b < B; ++b) {
     simulate_impl::add_speckle(m, b, field.data());
-    simulate_impl::filter_axial(field.data() + 2 * size_t(b) * S, S, 2, m.axial_speckle,
-                                m.axial_speckle_radius, tmp.data());
+    simulate_impl::filter_axial_speckle(m, b, field.data() + 2 * size_t(b) * S, tmp.data());
   }
   for (int b = 0; b < B; ++b)
-    simulate_impl::filter_lateral(field.data(), out.data(), B, S, 2, lateral.data(), radius, b);
+    simulate_impl::filter_lateral(field.data(), out.data(), B, S, 2, lateral_speckle_taps(m),
+                                  radius, b);
   // The mean envelope where the image's pixels fall: anywhere between samples and beams, where
   // scan conversion interpolates the complex echo (a little below the samples' own mean).
   double sum = 0;
@@ -183,13 +183,7 @@ struct Psf {
         axial(settings.axial_fwhm_mm > 0 ? settings.axial_fwhm_mm : lambda),
         lateral(settings.lateral_fwhm_mm > 0 ? settings.lateral_fwhm_mm : 2 * lambda),
         elevation(settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda) {}
-  /// The speckle field is already smooth at the lattice's scale: trilinear interpolation between
-  /// nodes λ apart is a triangle kernel of variance λ²/6 along any direction. The speckle's
-  /// filters add what is missing, so that the speckle's size is the PSF's (validation 2).
-  double speckle_filter_sigma(double fwhm) const {
-    const double s = fwhm * kFwhmToSigma;
-    return std::sqrt(std::max(s * s - lambda * lambda / 6, 0.0));
-  }
+  static double variance(double fwhm) { return fwhm * kFwhmToSigma * fwhm * kFwhmToSigma; }
   double sigma_elevation() const { return elevation * kFwhmToSigma; }
 };
 
@@ -257,53 +251,44 @@ void set_sampling(ImageModel& b, const VolumeGrid& grid, const ImageGrid& img, d
   // when the image's rows are finer.
   b.step_mm = float(std::min(lambda / 2, std::max(lambda / 4, img.spacing_mm[1] / 2)));
   // Interface normals from impedance differences over a millimetre-scale neighbourhood: at
-  // least two voxels, so that a voxelised oblique surface shows its slope, not its stairs.
+  // least three voxels, so that a voxelised oblique surface shows its slope, not its stairs (two
+  // left a 30° tilt 4 dB below flat at an oblique orientation; cos⁸ says 10 dB).
   b.gradient_mm =
       float(std::max(double(b.step_mm),
-                     2 * std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]})));
-  b.gradient_reuse = int(b.gradient_mm / (2 * b.step_mm));
+                     3 * std::max({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]})));
+  // trace_beam() traces every other sample: its step is 2Δ.
+  b.gradient_reuse = int(b.gradient_mm / (4 * b.step_mm));
   const double quarter_steps = b.step_mm / (lambda / 4);
   b.min_reflection = float(kMinReflection * quarter_steps * quarter_steps);
 }
 
-/// The slice thickness: elevation samples about a lattice step apart over ±1.5σ, Gaussian
-/// weights (a quadrature of the beam's elevation profile, so that a small elevational move
-/// changes the sum smoothly), normalised to unit variance for independent samples.
+/// The slice thickness (docs/simulation.md §3): the elevation profile's σ from its FWHM and its
+/// half-width T = 1.5σ.
 void set_slice_thickness(ImageModel& b, const Psf& psf) {
-  const double sigma_el = psf.sigma_elevation(), lambda = psf.lambda;
-  const int half = std::min(kMaxElevations / 2 - 1, int(std::ceil(1.5 * sigma_el / lambda)));
-  b.elevations = 2 * half + 1;
-  double wsum = 0;
-  double weights[kMaxElevations];
-  for (int e = 0; e < b.elevations; ++e) {
-    const double offset = (e - half) * (1.5 * sigma_el / std::max(half, 1));
-    b.elevation_mm[e] = float(offset);
-    weights[e] = std::exp(-0.5 * offset * offset / (sigma_el * sigma_el));
-    wsum += weights[e] * weights[e];
-  }
-  for (int e = 0; e < b.elevations; ++e)
-    b.elevation_weight[e] = float(weights[e] / std::sqrt(wsum));
+  b.elevation_sigma_mm = float(psf.sigma_elevation());
+  b.elevation_reach_mm = float(1.5 * psf.sigma_elevation());
 }
 
-/// The speckle lattice: one node per wavelength in the volume frame, two co-prime tiles drawn
-/// from the seed, covering the volume and the slice thickness around it.
+/// The speckle lattice: one node per wavelength in the volume frame, the table and the layer
+/// seeds drawn from the seed, lattice coordinates covering the volume and the slice thickness
+/// around it.
 void set_speckle_lattice(Model& m, const VolumeGrid& grid, const Psf& psf, uint64_t seed) {
   ImageModel& b = m.base;
   const double lambda = psf.lambda;
   for (int k = 0; k < 3; ++k) b.lattice_per_index[k] = grid.spacing_mm[k] / lambda;
-  // Lattice coordinates met: the volume (noise is drawn only inside it) and the slice thickness
-  // around it, plus a margin.
-  const double reach = 1.5 * psf.sigma_elevation() / lambda + 4;
+  const double reach = b.elevation_reach_mm / lambda + 4;
   int extent = 0;
   for (int k = 0; k < 3; ++k)
     extent = std::max(extent, int(std::ceil(double(grid.dims[k]) * b.lattice_per_index[k])));
   const int offset = int(std::ceil(reach)), count = extent + 2 * offset + 2;
   b.lattice_offset = float(offset);
   b.lattice_count = count;
-  for (int t = 0; t < 2; ++t) {
-    m.tiles[t] = noise_tile(kTileSizes[t], seed * 2 + uint64_t(t) + 1);
-    b.tiles[t] = tile_view(m.tiles[t], kTileSizes[t], offset);
-  }
+  m.speckle = speckle_table(seed * 2 + 1);
+  b.speckle = m.speckle.data();
+  SplitMix64 rng(seed * 2 + 2);
+  for (uint32_t& s : b.layer_seed) s = uint32_t(rng.next() >> 32);
+  std::copy(kLayerCos, kLayerCos + 8, b.turn_cos);
+  std::copy(kLayerSin, kLayerSin + 8, b.turn_sin);
 }
 
 /// Beams: one per image column, over the probe's shape (angles about the apex for a fan,
@@ -336,18 +321,26 @@ void set_beams(ImageModel& b, const ProbeGeometry& probe) {
 
 /// The point-spread function as filters: axial in samples (peak 1: an echo keeps the pulse's
 /// amplitude), lateral per depth in beams (sum 1: a plane reflector across the beams keeps its
-/// amplitude); the speckle's filters add only what the lattice's smoothness lacks.
+/// amplitude); the speckle's filters add only what the layers' smoothing lacks (per beam axially,
+/// per residual level laterally).
 void set_filters(Model& m, const Psf& psf) {
   ImageModel& b = m.base;
-  b.sigma_lateral_speckle_mm = psf.speckle_filter_sigma(psf.lateral);
-  m.axial_speckle = gauss_taps(psf.speckle_filter_sigma(psf.axial) / b.step_mm, false, 48);
-  m.axial_specular = gauss_taps(psf.axial * kFwhmToSigma / b.step_mm, false, 48);
-  b.axial_speckle = m.axial_speckle.data();
-  b.axial_speckle_radius = int(m.axial_speckle.size() / 2);
+  b.axial_variance_mm2 = float(Psf::variance(psf.axial));
+  b.layer_variance_mm2 = float(psf.lambda * psf.lambda / 6);
+  m.axial_specular = gauss_taps(psf.axial * kFwhmToSigma / b.step_mm, false, kMaxAxialRadius);
   b.axial_specular = m.axial_specular.data();
   b.axial_specular_radius = int(m.axial_specular.size() / 2);
-  b.lateral_radius = std::max(lateral_table(b, b.sigma_lateral_speckle_mm, m.lateral_speckle),
-                              lateral_table(b, psf.lateral * kFwhmToSigma, m.lateral_specular));
+  const int speckle_radius =
+      lateral_speckle_tables(b, Psf::variance(psf.lateral), m.lateral_speckle);
+  m.lateral_specular.clear();
+  const int specular_radius =
+      lateral_table(b, 1, m.lateral_specular, [&](double spacing_mm, float* w) {
+        const std::vector<float> taps =
+            gauss_taps(psf.lateral * kFwhmToSigma / spacing_mm, true, kMaxLateralRadius);
+        std::copy(taps.begin(), taps.end(), w);
+        return int(taps.size() / 2);
+      });
+  b.lateral_radius = std::max(speckle_radius, specular_radius);
   b.lateral_speckle = m.lateral_speckle.data();
   b.lateral_specular = m.lateral_specular.data();
 }
@@ -357,6 +350,7 @@ void set_scan_conversion(Model& m, const ImageGrid& img) {
   ImageModel& b = m.base;
   const int64_t pixels = int64_t(img.width) * img.height;
   m.scan_index.assign(size_t(pixels), 0);
+  m.scan_sample.assign(size_t(pixels), 0);
   m.scan_steps.assign(size_t(pixels), 0);
   m.scan_weights.assign(size_t(pixels) * 2, 0.f);
   for (int v = 0; v < img.height; ++v)
@@ -378,14 +372,24 @@ void set_scan_conversion(Model& m, const ImageGrid& img) {
       fs = std::min(std::max(fs, 0.0), double(b.samples - 1));
       const int b0 = int(fb), s0 = int(fs);
       m.scan_index[i] = b0 * b.samples + s0;
+      m.scan_sample[i] = s0;
       m.scan_steps[i] = uint8_t((b0 + 1 < b.beams ? 1 : 0) | (s0 + 1 < b.samples ? 2 : 0));
       m.scan_weights[2 * i] = float(fb - b0);
       m.scan_weights[2 * i + 1] = float(fs - s0);
     }
   b.mask = m.mask.data();
   b.scan_index = m.scan_index.data();
+  b.scan_sample = m.scan_sample.data();
   b.scan_steps = m.scan_steps.data();
   b.scan_weights = m.scan_weights.data();
+  m.scan_order.clear();
+  for (int64_t i = 0; i < pixels; ++i)
+    if (m.mask[size_t(i)]) m.scan_order.push_back(int32_t(i));
+  std::stable_sort(m.scan_order.begin(), m.scan_order.end(), [&](int32_t x, int32_t y) {
+    return m.scan_index[size_t(x)] < m.scan_index[size_t(y)];
+  });
+  b.scan_order = m.scan_order.data();
+  b.scan_count = int64_t(m.scan_order.size());
 }
 
 }  // namespace
@@ -430,7 +434,7 @@ Simulator::Simulator(Volume volume, SimulationSource source,
   set_beams(b, probe);
   set_filters(m, psf);
   set_scan_conversion(m, probe.image);
-  b.speckle_gain = float(speckle_gain(b, m.tiles));
+  b.speckle_gain = float(speckle_gain(b, Psf::variance(psf.lateral)));
   b.tgc_auto = settings.tgc_auto;
   b.bmode = settings.output == SimulationOutput::BMode;
   b.dynamic_range_db = float(settings.dynamic_range_db);

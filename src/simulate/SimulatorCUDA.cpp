@@ -18,8 +18,8 @@ namespace simulate_impl {
 struct CudaSimulateState : cuda::Owner {
   explicit CudaSimulateState(int device) : cuda::Owner(device) {}
   ImageModel base;  // the model with device pointers
-  cuda::DeviceBuffer volume, label_props, hu_table, tiles[2], axial_speckle, axial_specular,
-      lateral_speckle, lateral_specular, mask, scan_index, scan_steps, scan_weights;
+  cuda::DeviceBuffer volume, label_props, hu_table, speckle, axial_specular, lateral_speckle,
+      lateral_specular, mask, scan_index, scan_sample, scan_steps, scan_weights;
   cuda::DeviceBuffer models, work, out;  // one batch's poses, stage buffers and images
   cuda::PinnedBuffer staging;            // the batch's images on their way to the caller
   std::unique_ptr<cuda::Stream> stream;
@@ -71,14 +71,13 @@ std::shared_ptr<CudaSimulateState> cuda_prepare(const Model& m, int device) {
   b.labels = m.base.labels ? reinterpret_cast<const uint16_t*>(volume) : nullptr;
   b.label_props = upload(*st, st->label_props, m.label_props, "the label table");
   b.hu_table = upload(*st, st->hu_table, m.hu_table, "the HU table");
-  for (int t = 0; t < 2; ++t)
-    b.tiles[t].nodes = upload(*st, st->tiles[t], m.tiles[t], "a speckle tile");
-  b.axial_speckle = upload(*st, st->axial_speckle, m.axial_speckle, "the axial filters");
+  b.speckle = upload(*st, st->speckle, m.speckle, "the speckle table");
   b.axial_specular = upload(*st, st->axial_specular, m.axial_specular, "the axial filters");
   b.lateral_speckle = upload(*st, st->lateral_speckle, m.lateral_speckle, "the lateral filters");
   b.lateral_specular = upload(*st, st->lateral_specular, m.lateral_specular, "the lateral filters");
   b.mask = upload(*st, st->mask, m.mask, "the probe mask");
   b.scan_index = upload(*st, st->scan_index, m.scan_index, "the scan conversion");
+  b.scan_sample = upload(*st, st->scan_sample, m.scan_sample, "the scan conversion");
   b.scan_steps = upload(*st, st->scan_steps, m.scan_steps, "the scan conversion");
   b.scan_weights = upload(*st, st->scan_weights, m.scan_weights, "the scan conversion");
   st->stream->synchronize(st->name + ": uploading the simulator's tables");

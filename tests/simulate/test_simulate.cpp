@@ -1,5 +1,10 @@
 // Ultrasound simulation: the analytic checks of the model, docs/simulation.md §5.
-// Phantoms are label volumes built here; the probe is a linear probe looking down world +y.
+// Phantoms are label volumes built here; the probe is a linear probe looking down +y of the
+// phantom's frame. Each physics check runs at three orientations of the probe to the volume's
+// axes (Aligned, Oblique30, CubeDiagonal; SimulateTestUtil.h): the phantom is voxelised in the
+// probe-relative frame, label(world) = f(Rᵀ(world − c) + c), and every pose is rotated by the same
+// R about c, so the anatomy in the image, its rows and columns and the thresholds are the same
+// while the speckle lattice (along the volume's axes) is crossed obliquely.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -12,6 +17,7 @@
 #include <vector>
 
 #include "../common/TestUtil.h"
+#include "SimulateTestUtil.h"
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/simulate/Simulator.h"
@@ -19,102 +25,67 @@
 namespace sonoslice {
 namespace {
 
-constexpr double kVoxel = 0.5;  // mm
-constexpr int kN = 100;         // 50 mm cube
+using simtest::correlation;
+using simtest::envelope;
+using simtest::envelope_settings;
+using simtest::linear_probe;
+using simtest::mean;
+using simtest::phantom;
+using simtest::pose_at;
+using simtest::region;
+using simtest::stdev;
+using simtest::tissue;
 
-/// A uint8 label volume of kN³ voxels at 0.5 mm (world = index · 0.5), label(x, y, z) in mm.
-Volume phantom(const std::function<int(double, double, double)>& label) {
-  VolumeGrid g;
-  g.dims = {kN, kN, kN};
-  g.spacing_mm = {kVoxel, kVoxel, kVoxel};
-  Volume v = Volume::allocate(PixelType::UInt8, g);
-  uint8_t* p = v.data_as<uint8_t>();
-  for (int z = 0; z < kN; ++z)
-    for (int y = 0; y < kN; ++y)
-      for (int x = 0; x < kN; ++x)
-        p[(int64_t(z) * kN + y) * kN + x] = uint8_t(label(x * kVoxel, y * kVoxel, z * kVoxel));
-  return v;
-}
-
-/// 100 × 130 pixels at 0.3 mm: 30 mm wide, 39 mm deep, face at y = 0.
-ProbeGeometry linear_probe() {
-  ProbeGeometry p;
-  p.type = ProbeType::Linear;
-  p.image.width = 100;
-  p.image.height = 130;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = 0.3;
-  p.image.set_default_origin();
-  return p;
-}
-
-/// The probe face centred at (25, y0, z) mm, beams along world +y, lateral along world x.
-Pose pose_at(double z, double y0 = 2.0) {
-  Pose p = Pose::identity();
-  p.m[0][3] = 25;
-  p.m[1][3] = y0;
-  p.m[2][3] = z;
-  return p;
-}
-
-Tissue tissue(int label, double z, double alpha, double scatter) {
-  Tissue t;
-  t.name = "t" + std::to_string(label);
-  t.label = label;
-  t.impedance_mrayl = z;
-  t.attenuation_db_cm_mhz = alpha;
-  t.scatter_mean = scatter;
-  return t;
-}
-
-std::vector<float> envelope(const Simulator& s, const std::vector<Pose>& poses) {
-  std::vector<float> out(poses.size() * size_t(s.width()) * size_t(s.height()));
-  s.simulate(poses.data(), poses.size(), out.data());
-  return out;
-}
-
-SimulationSettings envelope_settings(double f = 5.0) {
-  SimulationSettings st;
-  st.frequency_mhz = f;
-  st.output = SimulationOutput::Envelope;
-  st.tgc_auto = false;
-  st.seed = 3;
-  return st;
-}
-
-/// Rows [r0, r1) and columns [c0, c1) of image k.
-std::vector<double> region(const std::vector<float>& img, int w, int h, int k, int r0, int r1,
-                           int c0, int c1) {
-  std::vector<double> v;
-  for (int r = r0; r < r1; ++r)
-    for (int c = c0; c < c1; ++c) v.push_back(img[(size_t(k) * h + r) * w + c]);
-  return v;
-}
-double mean(const std::vector<double>& v) {
-  return std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
-}
-double stdev(const std::vector<double>& v) {
-  const double m = mean(v);
-  double s = 0;
-  for (double x : v) s += (x - m) * (x - m);
-  return std::sqrt(s / double(v.size()));
-}
-double correlation(const std::vector<double>& a, const std::vector<double>& b) {
-  const double ma = mean(a), mb = mean(b);
-  double sab = 0, saa = 0, sbb = 0;
-  for (size_t i = 0; i < a.size(); ++i) {
-    sab += (a[i] - ma) * (b[i] - mb);
-    saa += (a[i] - ma) * (a[i] - ma);
-    sbb += (b[i] - mb) * (b[i] - mb);
+/// The physics checks, once per orientation: phantom() and pose_at() give today's phantom and
+/// poses rotated together by the orientation's R about simtest::kCentre.
+class Oriented : public ::testing::TestWithParam<simtest::Orientation> {
+ protected:
+  const char* name() const { return GetParam().name.c_str(); }
+  Volume phantom(const simtest::LabelFn& label) const {
+    return simtest::oriented_phantom(label, GetParam());
   }
-  return sab / std::sqrt(saa * sbb);
+  Pose pose_at(double z, double y0 = 2.0) const {
+    return simtest::rotated_about(simtest::pose_at(z, y0), GetParam().rotation);
+  }
+  /// Fails the test when an image (grown by 2 mm: the slice thickness, the gradient's reach)
+  /// would leave the volume: the rotated phantoms are sized for these images.
+  void expect_inside(const Volume& v, const ProbeGeometry& probe,
+                     const std::vector<Pose>& poses) const {
+    for (const Pose& p : poses)
+      EXPECT_TRUE(simtest::image_inside(v, probe, p, 2.0)) << "an image leaves the phantom";
+  }
+};
+
+INSTANTIATE_TEST_SUITE_P(Simulate, Oriented, ::testing::ValuesIn(simtest::orientations()),
+                         simtest::OrientationName());
+
+// The orientations are what their names say.
+TEST(Simulate, OrientationsCrossTheVolumeAxes) {
+  for (const auto& o : simtest::orientations()) {
+    const Vec3 x = o.rotation.column(0), y = o.rotation.column(1), z = o.rotation.column(2);
+    std::printf(
+        "[ orientation %s ] from the nearest volume axis: lateral %.1f deg, beam %.1f deg, "
+        "elevation %.1f deg; elevation to the cube diagonal %.1f deg\n",
+        o.name.c_str(), simtest::angle_to_nearest_axis(x), simtest::angle_to_nearest_axis(y),
+        simtest::angle_to_nearest_axis(z), simtest::angle_deg(z, {1, 1, 1}));
+    EXPECT_NEAR(o.rotation.determinant(), 1.0, 1e-12);
+    EXPECT_NEAR(dot(x, y), 0.0, 1e-12);
+  }
+  EXPECT_NEAR(simtest::angle_to_nearest_axis(simtest::oblique30().rotation.column(2)), 30.0, 1e-9);
+  for (int k = 0; k < 3; ++k)
+    EXPECT_GT(simtest::angle_to_nearest_axis(simtest::oblique30().rotation.column(k)), 25.0);
+  EXPECT_NEAR(simtest::angle_deg(simtest::cube_diagonal().rotation.column(2), {1, 1, 1}), 0.0,
+              1e-6);
 }
 
 // 1. Fully developed speckle, homogeneous scatterer, no attenuation: Rayleigh statistics.
-TEST(Simulate, FullyDevelopedSpeckleIsRayleigh) {
-  const Simulator sim(phantom([](double, double, double) { return 1; }), SimulationSource::Labels,
-                      linear_probe(), {tissue(1, 1.6, 0.0, 0.02)}, envelope_settings());
+TEST_P(Oriented, FullyDevelopedSpeckleIsRayleigh) {
+  const Volume v = phantom([](double, double, double) { return 1; });
+  const Simulator sim(v, SimulationSource::Labels, linear_probe(), {tissue(1, 1.6, 0.0, 0.02)},
+                      envelope_settings());
   std::vector<Pose> poses;
   for (int k = 0; k < 6; ++k) poses.push_back(pose_at(10 + 5 * k));
+  expect_inside(v, sim.probe(), poses);
   const auto img = envelope(sim, poses);
   std::vector<double> env, logs;
   for (int k = 0; k < 6; ++k)
@@ -123,79 +94,52 @@ TEST(Simulate, FullyDevelopedSpeckleIsRayleigh) {
       logs.push_back(20 * std::log10(e));
     }
   const double snr = mean(env) / stdev(env), log_sd = stdev(logs);
-  std::printf("[ speckle ] SNR %.3f (Rayleigh 1.913), log-envelope sd %.3f dB (5.57)\n", snr,
-              log_sd);
+  std::printf("[ speckle %s ] SNR %.3f (Rayleigh 1.913), log-envelope sd %.3f dB (5.57)\n", name(),
+              snr, log_sd);
   // Calibration: a tissue's mean speckle envelope is its scatter_mean.
-  std::printf("[ speckle ] mean envelope %.4f (scatter_mean 0.02)\n", mean(env));
+  std::printf("[ speckle %s ] mean envelope %.4f (scatter_mean 0.02)\n", name(), mean(env));
   EXPECT_NEAR(mean(env), 0.02, 0.1 * 0.02);
   EXPECT_NEAR(snr, 1.913, 0.05 * 1.913);
   EXPECT_NEAR(log_sd, 5.57, 0.05 * 5.57);
 }
 
-/// Full width at half maximum (in pixels, linear between lags) of the autocorrelation of the
-/// envelope's fluctuation along rows (dx = 1) or columns (dy = 1) of a w × h image.
-double acf_fwhm(const std::vector<float>& img, int w, int h, int dx, int dy) {
-  double mean = 0;
-  for (float v : img) mean += v;
-  mean /= double(img.size());
-  std::vector<double> acf;
-  for (int lag = 0; lag < 40; ++lag) {
-    double s = 0;
-    int n = 0;
-    for (int y = 0; y + lag * dy < h; ++y)
-      for (int x = 0; x + lag * dx < w; ++x) {
-        s +=
-            (img[size_t(y) * w + x] - mean) * (img[size_t(y + lag * dy) * w + x + lag * dx] - mean);
-        ++n;
-      }
-    acf.push_back(s / n);
-  }
-  for (int lag = 1; lag < 40; ++lag)
-    if (acf[size_t(lag)] < 0.5 * acf[0]) {
-      const double a = acf[size_t(lag - 1)] / acf[0], b = acf[size_t(lag)] / acf[0];
-      return 2 * (lag - 1 + (a - 0.5) / (a - b));
-    }
-  return 80;
-}
-
 // 2. Speckle size: the envelope intensity's autocorrelation has the PSF's widths (for a Gaussian
 // PSF of amplitude FWHM F, fully developed speckle's intensity autocorrelation has FWHM F).
-TEST(Simulate, SpeckleSizeIsThePsf) {
-  ProbeGeometry probe;
-  probe.type = ProbeType::Linear;
-  probe.image.width = probe.image.height = 300;
-  probe.image.spacing_mm[0] = probe.image.spacing_mm[1] = 0.03;
-  probe.image.set_default_origin();
+TEST_P(Oriented, SpeckleSizeIsThePsf) {
+  const ProbeGeometry probe = linear_probe(300, 300, 0.03);
   SimulationSettings st = envelope_settings();
   st.axial_fwhm_mm = 0.4;
   st.lateral_fwhm_mm = 0.8;
-  const Simulator sim(phantom([](double, double, double) { return 1; }), SimulationSource::Labels,
-                      probe, {tissue(1, 1.6, 0.0, 0.02)}, st);
+  const Volume v = phantom([](double, double, double) { return 1; });
+  const Simulator sim(v, SimulationSource::Labels, probe, {tissue(1, 1.6, 0.0, 0.02)}, st);
   double axial = 0, lateral = 0;
   for (int k = 0; k < 4; ++k) {
-    const auto env = envelope(sim, {pose_at(15 + 5 * k, 10)});
+    const Pose pose = pose_at(15 + 5 * k, 10);
+    expect_inside(v, probe, {pose});
+    const auto env = envelope(sim, {pose});
     std::vector<float> intensity(env.size());
     for (size_t i = 0; i < env.size(); ++i) intensity[i] = env[i] * env[i];
-    axial += 0.25 * 0.03 * acf_fwhm(intensity, 300, 300, 0, 1);
-    lateral += 0.25 * 0.03 * acf_fwhm(intensity, 300, 300, 1, 0);
+    axial += 0.25 * 0.03 * simtest::acf_fwhm(intensity, 300, 300, 0, 1);
+    lateral += 0.25 * 0.03 * simtest::acf_fwhm(intensity, 300, 300, 1, 0);
   }
   std::printf(
-      "[ speckle size ] intensity autocorrelation FWHM: axial %.3f mm (PSF 0.4), lateral "
+      "[ speckle size %s ] intensity autocorrelation FWHM: axial %.3f mm (PSF 0.4), lateral "
       "%.3f mm (PSF 0.8)\n",
-      axial, lateral);
+      name(), axial, lateral);
   EXPECT_NEAR(axial, 0.4, 0.15 * 0.4);
   EXPECT_NEAR(lateral, 0.8, 0.15 * 0.8);
 }
 
 // 3. Attenuation: with TGC off the mean log envelope falls 2·α·f dB per cm; with auto TGC the
 // B-mode image is flat.
-TEST(Simulate, AttenuationSlopeAndAutoTgc) {
+TEST_P(Oriented, AttenuationSlopeAndAutoTgc) {
   const double alpha = 0.5, f = 3.5;
   const Volume v = phantom([](double, double, double) { return 1; });
   const std::vector<Tissue> t = {tissue(1, 1.6, alpha, 0.02)};
   const Simulator sim(v, SimulationSource::Labels, linear_probe(), t, envelope_settings(f));
   std::vector<Pose> poses;
   for (int k = 0; k < 6; ++k) poses.push_back(pose_at(10 + 5 * k));
+  expect_inside(v, sim.probe(), poses);
   const auto img = envelope(sim, poses);
   // Mean log envelope per row, rows 10..120 (3 mm .. 36 mm), least-squares slope.
   std::vector<double> depth, level;
@@ -217,15 +161,14 @@ TEST(Simulate, AttenuationSlopeAndAutoTgc) {
     sxx += (depth[i] - md) * (depth[i] - md);
   }
   const double slope = sxy / sxx;
-  std::printf("[ attenuation ] %.3f dB/cm (expected %.3f)\n", slope, -2 * alpha * f);
+  std::printf("[ attenuation %s ] %.3f dB/cm (expected %.3f)\n", name(), slope, -2 * alpha * f);
   EXPECT_NEAR(slope, -2 * alpha * f, 0.1 * 2 * alpha * f);
 
   SimulationSettings st = envelope_settings(f);
   st.output = SimulationOutput::BMode;
   st.tgc_auto = true;
   const Simulator bmode(v, SimulationSource::Labels, linear_probe(), t, st);
-  std::vector<uint8_t> b(poses.size() * size_t(bmode.width()) * size_t(bmode.height()));
-  bmode.simulate(poses.data(), poses.size(), b.data());
+  const auto b = simtest::bmode(bmode, poses);
   // Mean pixel value in 5 mm bands: within 1 dB (255/60 levels per dB) of each other.
   std::vector<double> bands;
   for (int r0 = 10; r0 + 16 <= 122; r0 += 16) {
@@ -241,20 +184,21 @@ TEST(Simulate, AttenuationSlopeAndAutoTgc) {
   }
   const double spread =
       *std::max_element(bands.begin(), bands.end()) - *std::min_element(bands.begin(), bands.end());
-  std::printf("[ auto TGC ] band means spread %.2f grey levels (1 dB = %.2f)\n", spread,
+  std::printf("[ auto TGC %s ] band means spread %.2f grey levels (1 dB = %.2f)\n", name(), spread,
               255.0 / 60);
   EXPECT_LT(spread, 255.0 / 60);
 }
 
 // 4. A bone plate: bright echo, then at least 40 dB less behind it; gas: nothing behind it;
 // tilting the plate lowers the echo.
-TEST(Simulate, BoneAndGasShadow) {
+TEST_P(Oriented, BoneAndGasShadow) {
   for (int shadow : {2, 3}) {  // 2 bone, 3 gas
     const std::vector<Tissue> t = {tissue(1, 1.63, 0.54, 0.02), tissue(2, 7.8, 20.0, 0.05),
                                    tissue(3, 0.0004, 12.0, 0.0)};
-    const Simulator sim(
-        phantom([&](double, double y, double) { return y >= 17 && y < 21 ? shadow : 1; }),
-        SimulationSource::Labels, linear_probe(), t, envelope_settings());
+    const Volume v =
+        phantom([&](double, double y, double) { return y >= 17 && y < 21 ? shadow : 1; });
+    const Simulator sim(v, SimulationSource::Labels, linear_probe(), t, envelope_settings());
+    expect_inside(v, sim.probe(), {pose_at(25)});
     const auto img = envelope(sim, {pose_at(25)});
     const int w = sim.width(), h = sim.height();
     // Rows: 0.3 mm from y = 2: the plate's top at y = 17 is row 50.
@@ -263,8 +207,9 @@ TEST(Simulate, BoneAndGasShadow) {
     for (double e : region(img, w, h, 0, 45, 56, 10, 90)) peak = std::max(peak, e);
     const double behind = mean(region(img, w, h, 0, 75, 125, 10, 90));
     const double drop_db = 20 * std::log10(above / std::max(behind, 1e-30));
-    std::printf("[ %s plate ] peak/above %.1f dB, behind: %.1f dB below the tissue above\n",
-                shadow == 2 ? "bone" : "gas", 20 * std::log10(peak / above), drop_db);
+    std::printf(
+        "[ %s plate %s ] peak %.4f, peak/above %.1f dB, behind: %.1f dB below the tissue above\n",
+        shadow == 2 ? "bone" : "gas", name(), peak, 20 * std::log10(peak / above), drop_db);
     EXPECT_GT(peak, 5 * above);
     EXPECT_GT(drop_db, shadow == 2 ? 40.0 : 100.0);
   }
@@ -283,16 +228,17 @@ TEST(Simulate, BoneAndGasShadow) {
       peak = std::max(peak, e);
     peaks[tilted] = peak;
   }
-  std::printf("[ tilt ] 30 deg: %.1f dB\n", 20 * std::log10(peaks[1] / peaks[0]));
+  std::printf("[ tilt %s ] flat %.4f, 30 deg %.4f: %.1f dB\n", name(), peaks[0], peaks[1],
+              20 * std::log10(peaks[1] / peaks[0]));
   EXPECT_LT(peaks[1], 0.5 * peaks[0]);
 }
 
 // 5. Interface strengths follow R = ((Z2 − Z1)/(Z2 + Z1))² (the echo amplitude is √R).
-TEST(Simulate, InterfaceEchoesFollowTheReflectionCoefficient) {
-  const auto echo = [](double z1, double z2) {
+TEST_P(Oriented, InterfaceEchoesFollowTheReflectionCoefficient) {
+  const Volume v = phantom([](double, double y, double) { return y >= 17 ? 2 : 1; });
+  const auto echo = [&](double z1, double z2) {
     const std::vector<Tissue> t = {tissue(1, z1, 0.0, 0.0), tissue(2, z2, 0.0, 0.0)};
-    const Simulator sim(phantom([](double, double y, double) { return y >= 17 ? 2 : 1; }),
-                        SimulationSource::Labels, linear_probe(), t, envelope_settings());
+    const Simulator sim(v, SimulationSource::Labels, linear_probe(), t, envelope_settings());
     const auto img = envelope(sim, {pose_at(25)});
     double peak = 0;
     for (double e : region(img, sim.width(), sim.height(), 0, 40, 60, 30, 70))
@@ -302,8 +248,16 @@ TEST(Simulate, InterfaceEchoesFollowTheReflectionCoefficient) {
   const auto r = [](double z1, double z2) { return (z2 - z1) / (z2 + z1); };
   const double fat_liver = echo(1.38, 1.65), liver_blood = echo(1.65, 1.61),
                soft_bone = echo(1.63, 7.8);
-  std::printf("[ interfaces ] fat/liver %.4g, liver/blood %.4g, soft tissue/bone %.4g\n", fat_liver,
-              liver_blood, soft_bone);
+  std::printf(
+      "[ interfaces %s ] fat/liver %.4g, liver/blood %.4g, soft tissue/bone %.4g (|r|: %.4g, "
+      "%.4g, %.4g)\n",
+      name(), fat_liver, liver_blood, soft_bone, std::fabs(r(1.38, 1.65)), std::fabs(r(1.65, 1.61)),
+      std::fabs(r(1.63, 7.8)));
+  std::printf(
+      "[ interfaces %s ] ratios fat-liver/soft-bone %.4f (expected %.4f), liver-blood/fat-liver "
+      "%.4f (expected %.4f)\n",
+      name(), fat_liver / soft_bone, std::fabs(r(1.38, 1.65) / r(1.63, 7.8)),
+      liver_blood / fat_liver, std::fabs(r(1.65, 1.61) / r(1.38, 1.65)));
   EXPECT_NEAR(fat_liver / soft_bone, std::fabs(r(1.38, 1.65) / r(1.63, 7.8)),
               0.05 * fat_liver / soft_bone);
   EXPECT_NEAR(liver_blood / fat_liver, std::fabs(r(1.65, 1.61) / r(1.38, 1.65)),
@@ -311,7 +265,7 @@ TEST(Simulate, InterfaceEchoesFollowTheReflectionCoefficient) {
 }
 
 // 6. A water cyst: anechoic inside, brighter behind it than beside it.
-TEST(Simulate, CystIsAnechoicWithPosteriorEnhancement) {
+TEST_P(Oriented, CystIsAnechoicWithPosteriorEnhancement) {
   const std::vector<Tissue> t = {tissue(1, 1.63, 0.7, 0.02), tissue(2, 1.48, 0.0022, 0.0)};
   const Simulator sim(
       phantom([](double x, double y, double z) {
@@ -326,14 +280,14 @@ TEST(Simulate, CystIsAnechoicWithPosteriorEnhancement) {
   const double around = mean(region(img, w, h, 0, 38, 48, 5, 20));
   const double behind = mean(region(img, w, h, 0, 70, 110, 45, 55));
   const double beside = mean(region(img, w, h, 0, 70, 110, 5, 20));
-  std::printf("[ cyst ] inside/around %.1f dB, behind/beside %+.1f dB\n",
+  std::printf("[ cyst %s ] inside/around %.1f dB, behind/beside %+.1f dB\n", name(),
               20 * std::log10(inside / around), 20 * std::log10(behind / beside));
   EXPECT_LT(inside, 0.1 * around);
   EXPECT_GT(behind, 1.2 * beside);
 }
 
 // 7. Determinism and a speckle field fixed in the volume.
-TEST(Simulate, SameSeedSameBytesOnAnyThreadCount) {
+TEST_P(Oriented, SameSeedSameBytesOnAnyThreadCount) {
   const test::ScopedCpuSettings restore;
   const Volume v = phantom([](double, double y, double z) { return y > 20 && z > 20 ? 2 : 1; });
   const std::vector<Tissue> t = {tissue(1, 1.63, 0.54, 0.02), tissue(2, 1.65, 0.5, 0.03)};
@@ -344,19 +298,16 @@ TEST(Simulate, SameSeedSameBytesOnAnyThreadCount) {
   for (int threads : {1, 2, 5}) {
     set_cpu_threads(threads);
     const Simulator sim(v, SimulationSource::Labels, linear_probe(), t, st);
-    runs.emplace_back(poses.size() * sim.image_bytes());
-    sim.simulate(poses.data(), poses.size(), runs.back().data());
+    runs.push_back(simtest::bmode(sim, poses));
   }
   EXPECT_EQ(runs[0], runs[1]);
   EXPECT_EQ(runs[0], runs[2]);
   st.seed = 12;
   const Simulator other(v, SimulationSource::Labels, linear_probe(), t, st);
-  std::vector<uint8_t> b(poses.size() * other.image_bytes());
-  other.simulate(poses.data(), poses.size(), b.data());
-  EXPECT_NE(runs[0], b);
+  EXPECT_NE(runs[0], simtest::bmode(other, poses));
 }
 
-TEST(Simulate, SpeckleDecorrelatesWithElevationalShift) {
+TEST_P(Oriented, SpeckleDecorrelatesWithElevationalShift) {
   const Simulator sim(phantom([](double, double, double) { return 1; }), SimulationSource::Labels,
                       linear_probe(), {tissue(1, 1.6, 0.0, 0.02)}, envelope_settings());
   const auto img = envelope(sim, {pose_at(25), pose_at(25.1), pose_at(30)});
@@ -364,13 +315,13 @@ TEST(Simulate, SpeckleDecorrelatesWithElevationalShift) {
   const auto a = region(img, w, h, 0, 10, 120, 10, 90);
   const double near = correlation(a, region(img, w, h, 1, 10, 120, 10, 90));
   const double far = correlation(a, region(img, w, h, 2, 10, 120, 10, 90));
-  std::printf("[ elevation ] correlation at 0.1 mm %.3f, at 5 mm %.3f\n", near, far);
+  std::printf("[ elevation %s ] correlation at 0.1 mm %.3f, at 5 mm %.3f\n", name(), near, far);
   EXPECT_GT(near, 0.8);
   EXPECT_LT(far, 0.2);
 }
 
 // 8. CT mode and label mode agree where the CT holds the table's HU.
-TEST(Simulate, CtAndLabelsAgree) {
+TEST_P(Oriented, CtAndLabelsAgree) {
   // Water (0 HU, label 1) above liver (60 HU, label 4): the knots give the default table's
   // water and liver there.
   const Volume labels = phantom([](double, double y, double) { return y >= 15 ? 4 : 1; });
@@ -384,8 +335,8 @@ TEST(Simulate, CtAndLabelsAgree) {
   const int w = a.width(), h = a.height();
   // Deep in the liver (rows 60..120): the same speckle, the same attenuation.
   const auto ra = region(ia, w, h, 0, 60, 120, 10, 90), rb = region(ib, w, h, 0, 60, 120, 10, 90);
-  std::printf("[ CT vs labels ] liver mean %.4g vs %.4g, correlation %.3f\n", mean(ra), mean(rb),
-              correlation(ra, rb));
+  std::printf("[ CT vs labels %s ] liver mean %.4g vs %.4g, correlation %.3f\n", name(), mean(ra),
+              mean(rb), correlation(ra, rb));
   EXPECT_NEAR(mean(rb), mean(ra), 0.02 * mean(ra));
   EXPECT_GT(correlation(ra, rb), 0.99);
 }
