@@ -218,6 +218,13 @@ inline Vec8i operator*(Vec8i a, Vec8i b) {
 inline Vec8i operator*(Vec8i a, int32_t b) {
   return {_mm256_mullo_epi32(a.v, _mm256_set1_epi32(b))};
 }
+/// Wrapping (mod 2^32) product and sum with an unsigned constant (hashes).
+inline Vec8i operator*(Vec8i a, uint32_t b) {
+  return {_mm256_mullo_epi32(a.v, _mm256_set1_epi32(int32_t(b)))};
+}
+inline Vec8i operator+(Vec8i a, uint32_t b) {
+  return {_mm256_add_epi32(a.v, _mm256_set1_epi32(int32_t(b)))};
+}
 inline Vec8i operator^(Vec8i a, Vec8i b) {
   return {_mm256_xor_si256(a.v, b.v)};
 }

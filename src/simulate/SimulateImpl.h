@@ -225,11 +225,9 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float lookup8(const float* table, uint32_
 /// bits 16–18 its row width. On int32 lanes (wrapping arithmetic, logical shifts).
 template <typename I>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE I layer_hash(I k, uint32_t seed) {
-  constexpr int32_t kGolden = -1640531535;  // 0x9E3779B1 as int32
-  constexpr int32_t kMurmur = -2048144789;  // 0x85EBCA6B as int32
-  I h = k * kGolden + int32_t(seed);
+  I h = k * 0x9E3779B1u + seed;
   h = h ^ shift_right(h, 16);
-  h = h * kMurmur;
+  h = h * 0x85EBCA6Bu;
   return h ^ shift_right(h, 13);
 }
 template <typename I>
