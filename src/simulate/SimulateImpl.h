@@ -696,12 +696,11 @@ inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specul
 /// weight arithmetic runs over them as one loop (SIMD lanes on the CPU).
 constexpr int kSpeckleLanes = 8;
 
-/// add_speckle()'s cells for kSpeckleLanes samples at each crossing ([crossing][lane]): the
-/// in-layer x weights (profile weight and norm folded in), the y weights, and the table index of
-/// the cell's lower row and of its upper row.
+/// add_speckle()'s cells for kSpeckleLanes samples at each crossing ([crossing][lane]): the four
+/// node weights (x0·y0, x1·y0, x0·y1, x1·y1; profile weight and norm folded in) and the table
+/// index of the cell's lower row and of its upper row.
 struct SpeckleCells {
-  float x0[kMaxLayers][kSpeckleLanes], x1[kMaxLayers][kSpeckleLanes];
-  float y0[kMaxLayers][kSpeckleLanes], y1[kMaxLayers][kSpeckleLanes];
+  float w[kMaxLayers][kSpeckleLanes][4];
   uint32_t row0[kMaxLayers][kSpeckleLanes], row1[kMaxLayers][kSpeckleLanes];
   float scale[kSpeckleLanes];  // the family's weight / the root sum of squared profile weights
 };
@@ -764,10 +763,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_cells(const ImageModel& m, con
     Vec8i row0, row1;
     const Vec8f w =
         layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, x0, x1, y0, y1, row0, row1);
-    x0.store(c.x0[j]);
-    x1.store(c.x1[j]);
-    y0.store(c.y0[j]);
-    y1.store(c.y1[j]);
+    backend::store_quads(x0 * y0, x1 * y0, x0 * y1, x1 * y1, &c.w[j][0][0]);
     row0.store(reinterpret_cast<int32_t*>(c.row0[j]));
     row1.store(reinterpret_cast<int32_t*>(c.row1[j]));
     sum = backend::fmadd(w, w, sum);
@@ -781,9 +777,13 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_cells(const ImageModel& m, con
     const uint32_t first = uint32_t(floor_to_int((pa - L.reach) * inverse_stride) + 1);
     float sum = 0;
     for (int j = 0; j < L.layers; ++j) {
-      const float w =
-          layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, c.x0[j][l], c.x1[j][l],
-                         c.y0[j][l], c.y1[j][l], c.row0[j][l], c.row1[j][l]);
+      float x0, x1, y0, y1;
+      const float w = layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, x0, x1, y0,
+                                     y1, c.row0[j][l], c.row1[j][l]);
+      c.w[j][l][0] = x0 * y0;
+      c.w[j][l][1] = x1 * y0;
+      c.w[j][l][2] = x0 * y1;
+      c.w[j][l][3] = x1 * y1;
       sum += w * w;
     }
     c.scale[l] = L.weight / (kSpeckleScale * std::sqrt(std::fmax(sum, 1e-30f)));
@@ -798,16 +798,17 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const
   const int16_t* nodes = m.speckle;
 #if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
   // One crossing's four nodes are two rows of two (re, im) int16 pairs: one 16-byte vector,
-  // widened to eight floats, times (x0 x0 x1 x1 | x0 x0 x1 x1)·(y0 ×4 | y1 ×4).
+  // widened to eight floats, times the four weights each repeated for (re, im).
+  const __m256i pairs = _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3);
   __m256 acc = _mm256_setzero_ps();
   for (int j = 0; j < L.layers; ++j) {
     const __m128i lo = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(nodes + 2 * c.row0[j][l]));
     const __m128i both = _mm_castpd_si128(_mm_loadh_pd(
         _mm_castsi128_pd(lo), reinterpret_cast<const double*>(nodes + 2 * c.row1[j][l])));
     const __m256 v = _mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(both));
-    const __m256 xw = _mm256_blend_ps(_mm256_set1_ps(c.x0[j][l]), _mm256_set1_ps(c.x1[j][l]), 0xCC);
-    const __m256 yw = _mm256_blend_ps(_mm256_set1_ps(c.y0[j][l]), _mm256_set1_ps(c.y1[j][l]), 0xF0);
-    acc = _mm256_fmadd_ps(v, _mm256_mul_ps(xw, yw), acc);
+    const __m256 w =
+        _mm256_permutevar8x32_ps(_mm256_castps128_ps256(_mm_loadu_ps(c.w[j][l])), pairs);
+    acc = _mm256_fmadd_ps(v, w, acc);
   }
   backend::sum_even_odd(backend::Vec8f(acc), re, im);
 #else
@@ -815,10 +816,8 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const
   for (int j = 0; j < L.layers; ++j) {
     const int16_t* n0 = nodes + 2 * c.row0[j][l];
     const int16_t* n1 = nodes + 2 * c.row1[j][l];
-    for (int k = 0; k < 4; ++k) {
-      const float x = k < 2 ? c.x0[j][l] : c.x1[j][l];
-      acc[k] += x * (c.y0[j][l] * float(n0[k]) + c.y1[j][l] * float(n1[k]));
-    }
+    for (int k = 0; k < 4; ++k)
+      acc[k] += c.w[j][l][k / 2] * float(n0[k]) + c.w[j][l][2 + k / 2] * float(n1[k]);
   }
   re = acc[0] + acc[2];
   im = acc[1] + acc[3];
