@@ -15,8 +15,7 @@ inline namespace SONOSLICE_KERNEL_ISA {
 
 /// One thread's buffers for one image at a time (beam-major, sample s of beam b at b·S + s).
 struct Scratch {
-  std::vector<float> echo, echo_filtered, specular, specular_filtered, loss, tmp, level, across,
-      knots;
+  std::vector<float> echo, echo_filtered, specular, loss, tmp, level, across, knots;
   std::vector<uint8_t> has_specular;  // per beam: any specular echo
 };
 
@@ -29,7 +28,6 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   w.echo.resize(2 * n);
   w.echo_filtered.resize(2 * n);
   w.specular.resize(n);
-  w.specular_filtered.resize(n);
   w.loss.resize(n);
   w.tmp.resize(2 * size_t(S));
   w.level.resize(size_t(S));
@@ -51,17 +49,17 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   for (int b = 0; b < B; ++b) add_speckle(m, b, w.echo.data());
   for (int b = 0; b < B; ++b) {
     filter_axial_speckle(m, b, w.echo.data() + 2 * size_t(b) * S, w.tmp.data());
-    filter_axial(w.specular.data() + size_t(b) * S, S, 1, m.axial_specular, m.axial_specular_radius,
-                 w.tmp.data());
+    if (w.has_specular[size_t(b)])
+      filter_axial(w.specular.data() + size_t(b) * S, S, 1, m.axial_specular,
+                   m.axial_specular_radius, w.tmp.data());
   }
+  // Across the beams: the speckle's filter, then the specular echoes' added to the real parts.
   for (int b = 0; b < B; ++b) {
     filter_lateral(w.echo.data(), w.echo_filtered.data(), B, S, 2, lateral_speckle_taps(m),
-                   m.lateral_radius, b);
-    filter_lateral(w.specular.data(), w.specular_filtered.data(), B, S, 1, m.lateral_specular,
-                   m.lateral_radius, b, w.has_specular.data());
+                   lateral_speckle_ranges(m), m.lateral_radius, b);
+    add_lateral_real(w.specular.data(), w.echo_filtered.data(), B, S, m.lateral_specular,
+                     m.lateral_specular_range, m.lateral_radius, b, w.has_specular.data());
   }
-  for (size_t i = 0; i < n; ++i)
-    add_specular(w.echo_filtered.data(), w.specular_filtered.data(), int64_t(i));
   if (m.tgc_auto) {
     const int knots = tgc_knot_count(S);
     w.knots.resize(size_t(knots));
@@ -71,8 +69,11 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   for (int s = 0; s < S; ++s) w.level[size_t(s)] = tgc_level(m, w.knots.data(), s);
   const int64_t pixels = int64_t(m.width) * m.height;
   std::memset(out, 0, size_t(pixels) * (m.bmode ? 1 : sizeof(float)));
-  for (int64_t k = 0; k < m.scan_count; ++k)
-    scan_pixel(m, w.echo_filtered.data(), w.level.data(), m.scan_order[k], out);
+  for (int64_t k = 0; k < m.scan_count; ++k) {
+    const ScanEntry& e = m.scan_order[k];
+    scan_value(m, w.echo_filtered.data(), w.level.data(), e.index, e.sample, e.steps, e.tb, e.ts,
+               e.pixel, out);
+  }
 }
 
 /// `count` images, pose n's map maps[n], into out (image n at n·image_bytes).

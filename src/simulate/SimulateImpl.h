@@ -75,6 +75,15 @@ struct LayerField {
   uint32_t seed;     // the layers' hash seed
 };
 
+/// One pixel's place in the (beam, sample) grid: the beam-buffer index of its lower corner,
+/// its sample, the steps to the upper corners (bit 0: next beam, bit 1: next sample) and the
+/// weights, and the pixel. The CPU driver reads them in beam order from one array.
+struct ScanEntry {
+  int32_t pixel, index, sample;
+  float tb, ts;
+  uint8_t steps;
+};
+
 /// Everything one image needs, in the probe frame (mm) and the volume's continuous index.
 struct ImageModel {
   // Volume: HU (float, trilinear) or labels (uint16, nearest) → Props.
@@ -128,7 +137,10 @@ struct ImageModel {
   const float* lateral_speckle =
       nullptr;  // kResidualLevels × (2·kMaxLateralRadius + 1) × 2·samples
   const float* lateral_specular = nullptr;  // (2·kMaxLateralRadius + 1) × samples
-  int lateral_radius = 0;                   // taps used each side (≤ kMaxLateralRadius)
+  // Per table and tap: the samples [first, last) where its weight is not zero.
+  const int32_t* lateral_speckle_range = nullptr;   // kResidualLevels × taps × 2
+  const int32_t* lateral_specular_range = nullptr;  // taps × 2
+  int lateral_radius = 0;                           // taps used each side (≤ kMaxLateralRadius)
   // Makes a tissue's mean speckle envelope its scatter_mean (Simulator calibrates it).
   float speckle_gain = 1;
   bool tgc_auto = true, bmode = true;
@@ -141,9 +153,10 @@ struct ImageModel {
   const int32_t* scan_sample = nullptr;  // s0, per pixel (a division less per pixel)
   const uint8_t* scan_steps = nullptr;   // bit 0: b1 = b0 + 1; bit 1: s1 = s0 + 1
   const float* scan_weights = nullptr;   // (tb, ts) per pixel
-  // The pixels inside the mask in the order of their beam-buffer index (the CPU driver converts
-  // them in that order: the echo is read along the beams, not a beam per pixel).
-  const int32_t* scan_order = nullptr;
+  // The pixels inside the mask in the order of their beam-buffer index, with their scan
+  // conversion (the CPU driver converts them in that order: the echo is read along the beams,
+  // not a beam per pixel, and the entries from one array).
+  const ScanEntry* scan_order = nullptr;
   int64_t scan_count = 0;
 };
 
@@ -778,8 +791,8 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_cells(const ImageModel& m, con
     float sum = 0;
     for (int j = 0; j < L.layers; ++j) {
       float x0, x1, y0, y1;
-      const float w = layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, x0, x1, y0,
-                                     y1, c.row0[j][l], c.row1[j][l]);
+      const float w = layer_crossing(m, L, pa, pb, pc, first, j, hi, inverse_reach, x0, x1, y0, y1,
+                                     c.row0[j][l], c.row1[j][l]);
       c.w[j][l][0] = x0 * y0;
       c.w[j][l][1] = x1 * y0;
       c.w[j][l][2] = x0 * y1;
@@ -968,7 +981,7 @@ SONOSLICE_HOST_DEVICE inline void filter_axial_speckle(const ImageModel& m, int 
 /// along s.
 SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* out, int beams,
                                                  int samples, int channels, const float* kernel,
-                                                 int radius, int b,
+                                                 const int32_t* ranges, int radius, int b,
                                                  const uint8_t* nonzero = nullptr) {
   const int64_t row = int64_t(samples) * channels;
   float* o = out + b * row;
@@ -978,15 +991,42 @@ SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* out, in
     j = j < 0 ? 0 : (j >= beams ? beams - 1 : j);
     if (nonzero && !nonzero[j]) continue;  // a beam without echoes adds nothing
     const float* src = in + j * row;
-    const float* w = kernel + int64_t(k + kMaxLateralRadius) * row;
-    for (int64_t i = 0; i < row; ++i) o[i] += w[i] * src[i];
+    const int64_t tap = k + kMaxLateralRadius;
+    const float* w = kernel + tap * row;
+    // Only the samples where this tap's weight is not zero (a fan's beams spread with depth,
+    // and its outer taps end there).
+    const int64_t first = int64_t(ranges[2 * tap]) * channels,
+                  last = int64_t(ranges[2 * tap + 1]) * channels;
+    for (int64_t i = first; i < last; ++i) o[i] += w[i] * src[i];
   }
 }
 
-/// The lateral speckle filter of this pose's level ([tap][s]).
+/// filter_lateral() of a one-channel signal (the specular echo) added to the real parts of a
+/// two-channel output (the complex echo, already filtered): the CPU driver's form, which needs
+/// no buffer of its own.
+SONOSLICE_HOST_DEVICE inline void add_lateral_real(const float* in, float* out, int beams,
+                                                   int samples, const float* kernel,
+                                                   const int32_t* ranges, int radius, int b,
+                                                   const uint8_t* nonzero) {
+  float* o = out + 2 * int64_t(b) * samples;
+  for (int k = -radius; k <= radius; ++k) {
+    int j = b + k;
+    j = j < 0 ? 0 : (j >= beams ? beams - 1 : j);
+    if (!nonzero[j]) continue;
+    const float* src = in + int64_t(j) * samples;
+    const int64_t tap = k + kMaxLateralRadius;
+    const float* w = kernel + tap * samples;
+    for (int64_t s = ranges[2 * tap]; s < ranges[2 * tap + 1]; ++s) o[2 * s] += w[s] * src[s];
+  }
+}
+
+/// The lateral speckle filter of this pose's level ([tap][s]) and its taps' sample ranges.
 SONOSLICE_HOST_DEVICE inline const float* lateral_speckle_taps(const ImageModel& m) {
   return m.lateral_speckle +
          int64_t(m.lateral_level) * (2 * kMaxLateralRadius + 1) * 2 * int64_t(m.samples);
+}
+SONOSLICE_HOST_DEVICE inline const int32_t* lateral_speckle_ranges(const ImageModel& m) {
+  return m.lateral_speckle_range + int64_t(m.lateral_level) * (2 * kMaxLateralRadius + 1) * 2;
 }
 
 /// Stage 2 → 4: sample i's specular echo added to its complex echo's real part (both
@@ -1082,34 +1122,40 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float fast_log2(float x) {
 #endif
 }
 
-/// Stage 4, pixel i: the complex echo (speckle + specular, summed into `echo`) bilinear in
-/// (beam, sample) — interpolating the complex signal keeps the speckle's statistics; an envelope
-/// would be smoothed — then the envelope and, for B-mode, TGC (`level`: dB per sample) and log
-/// compression.
+/// Stage 4 for one pixel from its ScanEntry fields: the complex echo (speckle + specular, summed
+/// into `echo`) bilinear in (beam, sample) — interpolating the complex signal keeps the
+/// speckle's statistics; an envelope would be smoothed — then the envelope and, for B-mode, TGC
+/// (`level`: dB per sample) and log compression.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void scan_value(const ImageModel& m, const float* echo,
+                                                       const float* level, int64_t j, int s0,
+                                                       uint8_t steps, float tb, float ts, int64_t i,
+                                                       void* out) {
+  const int64_t step_b = steps & 1 ? m.samples : 0, ds = steps & 2 ? 1 : 0;
+  float c[2];
+  for (int k = 0; k < 2; ++k) {
+    const float* e = echo + k;
+    const float lo = e[2 * j] + ts * (e[2 * (j + ds)] - e[2 * j]);
+    const float hi = e[2 * (j + step_b)] + ts * (e[2 * (j + step_b + ds)] - e[2 * (j + step_b)]);
+    c[k] = lo + tb * (hi - lo);
+  }
+  const float power = c[0] * c[0] + c[1] * c[1];
+  if (!m.bmode) {
+    static_cast<float*>(out)[i] = std::sqrt(power);
+    return;
+  }
+  const float gain_db = level[s0] + ts * (level[s0 + ds] - level[s0]);
+  // 20·log10(env) = 10·log10(power) = (10 / log2(10))·log2(power).
+  const float db = power > 0 ? 3.0102999566398120f * fast_log2(power) + gain_db : -1e9f;
+  const float grey = clampf(255.0f * (1.0f + db / m.dynamic_range_db), 0.0f, 255.0f);
+  static_cast<uint8_t*>(out)[i] = uint8_t(std::floor(grey + 0.5f));
+}
+
+/// Stage 4, pixel i (scan_value), or 0 outside the mask.
 SONOSLICE_HOST_DEVICE inline void scan_pixel(const ImageModel& m, const float* echo,
                                              const float* level, int64_t i, void* out) {
   if (m.mask[i]) {
-    const int64_t j = m.scan_index[i];
-    const int64_t step_b = m.scan_steps[i] & 1 ? m.samples : 0, ds = m.scan_steps[i] & 2 ? 1 : 0;
-    const float tb = m.scan_weights[2 * i], ts = m.scan_weights[2 * i + 1];
-    float c[2];
-    for (int k = 0; k < 2; ++k) {
-      const float* e = echo + k;
-      const float lo = e[2 * j] + ts * (e[2 * (j + ds)] - e[2 * j]);
-      const float hi = e[2 * (j + step_b)] + ts * (e[2 * (j + step_b + ds)] - e[2 * (j + step_b)]);
-      c[k] = lo + tb * (hi - lo);
-    }
-    const float power = c[0] * c[0] + c[1] * c[1];
-    if (!m.bmode) {
-      static_cast<float*>(out)[i] = std::sqrt(power);
-      return;
-    }
-    const int s0 = m.scan_sample[i];
-    const float gain_db = level[s0] + ts * (level[s0 + ds] - level[s0]);
-    // 20·log10(env) = 10·log10(power) = (10 / log2(10))·log2(power).
-    const float db = power > 0 ? 3.0102999566398120f * fast_log2(power) + gain_db : -1e9f;
-    const float grey = clampf(255.0f * (1.0f + db / m.dynamic_range_db), 0.0f, 255.0f);
-    static_cast<uint8_t*>(out)[i] = uint8_t(std::floor(grey + 0.5f));
+    scan_value(m, echo, level, m.scan_index[i], m.scan_sample[i], m.scan_steps[i],
+               m.scan_weights[2 * i], m.scan_weights[2 * i + 1], i, out);
     return;
   }
   if (!m.bmode)

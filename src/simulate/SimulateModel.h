@@ -23,7 +23,9 @@ struct Model {
   std::vector<Props> hu_table;
   std::vector<int16_t> speckle;  // the speckle table
   std::vector<float> axial_specular, lateral_speckle, lateral_specular;
-  std::vector<int32_t> scan_index, scan_sample, scan_order;
+  std::vector<int32_t> lateral_speckle_range, lateral_specular_range;
+  std::vector<int32_t> scan_index, scan_sample;
+  std::vector<ScanEntry> scan_order;
   std::vector<uint8_t> scan_steps;
   std::vector<float> scan_weights;
   ImageModel base;                          // everything but the pose

@@ -64,10 +64,16 @@ std::vector<float> gauss_taps(double sigma, bool unit_sum, int max_radius) {
 /// fills the taps for beams spacing_mm apart and returns the radius; returns the largest radius
 /// used.
 template <typename Taps>
-int lateral_table(const ImageModel& m, int channels, std::vector<float>& table, Taps taps) {
+int lateral_table(const ImageModel& m, int channels, std::vector<float>& table,
+                  std::vector<int32_t>& ranges, Taps taps) {
   const int width = 2 * simulate_impl::kMaxLateralRadius + 1;
   const size_t start = table.size(), row = size_t(m.samples) * size_t(channels);
   table.resize(start + size_t(width) * row, 0.f);
+  const size_t first_range = ranges.size();
+  for (int k = 0; k < width; ++k) {  // empty until a depth uses the tap
+    ranges.push_back(m.samples);
+    ranges.push_back(0);
+  }
   float* t = table.data() + start;
   int radius = 0;
   float w[2 * simulate_impl::kMaxLateralRadius + 1];
@@ -77,22 +83,28 @@ int lateral_table(const ImageModel& m, int channels, std::vector<float>& table, 
         m.curvilinear ? (m.start + (s + 0.5) * m.step_mm) * m.beam_step : m.beam_step;
     const int r = taps(spacing_mm, w);
     radius = std::max(radius, r);
-    for (int k = -r; k <= r; ++k)
+    for (int k = -r; k <= r; ++k) {
+      const size_t tap = size_t(k + simulate_impl::kMaxLateralRadius);
       for (int c = 0; c < channels; ++c)
-        t[size_t(k + simulate_impl::kMaxLateralRadius) * row + size_t(s) * size_t(channels) +
-          size_t(c)] = w[k + r];
+        t[tap * row + size_t(s) * size_t(channels) + size_t(c)] = w[k + r];
+      int32_t* range = ranges.data() + first_range + 2 * tap;
+      range[0] = std::min(range[0], int32_t(s));
+      range[1] = std::max(range[1], int32_t(s + 1));
+    }
   }
   return radius;
 }
 
 /// The lateral speckle filters of every residual level (kResidualLevels tables): the PSF's
 /// lateral variance `variance` (mm²) less the level's residual smoothing.
-int lateral_speckle_tables(const ImageModel& m, double variance, std::vector<float>& table) {
+int lateral_speckle_tables(const ImageModel& m, double variance, std::vector<float>& table,
+                           std::vector<int32_t>& ranges) {
   table.clear();
+  ranges.clear();
   int radius = 0;
   for (int level = 0; level < kResidualLevels; ++level) {
     const float residual = float(residual_of_level(level) * m.layer_variance_mm2);
-    radius = std::max(radius, lateral_table(m, 2, table, [&](double spacing_mm, float* w) {
+    radius = std::max(radius, lateral_table(m, 2, table, ranges, [&](double spacing_mm, float* w) {
                         return speckle_taps(float(variance), residual, float(spacing_mm),
                                             kMaxLateralRadius, w);
                       }));
@@ -138,8 +150,10 @@ double speckle_gain(const ImageModel& model, double lateral_variance_mm2) {
   m.beam_step = lateral_step;
   m.start = 0;
   std::vector<float> lateral;
-  const int radius = lateral_speckle_tables(m, lateral_variance_mm2, lateral);
+  std::vector<int32_t> ranges;
+  const int radius = lateral_speckle_tables(m, lateral_variance_mm2, lateral, ranges);
   m.lateral_speckle = lateral.data();
+  m.lateral_speckle_range = ranges.data();
   std::vector<float> field(size_t(B) * S * 2, 0.f), out(size_t(B) * S * 2), tmp(size_t(S) * 2);
   for (size_t i = 0; i < field.size(); i += 2) field[i] = 1;
   for (int b = 0; b < B; ++b) {
@@ -148,7 +162,7 @@ double speckle_gain(const ImageModel& model, double lateral_variance_mm2) {
   }
   for (int b = 0; b < B; ++b)
     simulate_impl::filter_lateral(field.data(), out.data(), B, S, 2, lateral_speckle_taps(m),
-                                  radius, b);
+                                  lateral_speckle_ranges(m), radius, b);
   // The mean envelope where the image's pixels fall: anywhere between samples and beams, where
   // scan conversion interpolates the complex echo (a little below the samples' own mean).
   double sum = 0;
@@ -330,11 +344,12 @@ void set_filters(Model& m, const Psf& psf) {
   m.axial_specular = gauss_taps(psf.axial * kFwhmToSigma / b.step_mm, false, kMaxAxialRadius);
   b.axial_specular = m.axial_specular.data();
   b.axial_specular_radius = int(m.axial_specular.size() / 2);
-  const int speckle_radius =
-      lateral_speckle_tables(b, Psf::variance(psf.lateral), m.lateral_speckle);
+  const int speckle_radius = lateral_speckle_tables(b, Psf::variance(psf.lateral),
+                                                    m.lateral_speckle, m.lateral_speckle_range);
   m.lateral_specular.clear();
-  const int specular_radius =
-      lateral_table(b, 1, m.lateral_specular, [&](double spacing_mm, float* w) {
+  m.lateral_specular_range.clear();
+  const int specular_radius = lateral_table(
+      b, 1, m.lateral_specular, m.lateral_specular_range, [&](double spacing_mm, float* w) {
         const std::vector<float> taps =
             gauss_taps(psf.lateral * kFwhmToSigma / spacing_mm, true, kMaxLateralRadius);
         std::copy(taps.begin(), taps.end(), w);
@@ -343,6 +358,8 @@ void set_filters(Model& m, const Psf& psf) {
   b.lateral_radius = std::max(speckle_radius, specular_radius);
   b.lateral_speckle = m.lateral_speckle.data();
   b.lateral_specular = m.lateral_specular.data();
+  b.lateral_speckle_range = m.lateral_speckle_range.data();
+  b.lateral_specular_range = m.lateral_specular_range.data();
 }
 
 /// Scan conversion: each pixel's place in the (beam, sample) grid, once.
@@ -384,10 +401,12 @@ void set_scan_conversion(Model& m, const ImageGrid& img) {
   b.scan_weights = m.scan_weights.data();
   m.scan_order.clear();
   for (int64_t i = 0; i < pixels; ++i)
-    if (m.mask[size_t(i)]) m.scan_order.push_back(int32_t(i));
-  std::stable_sort(m.scan_order.begin(), m.scan_order.end(), [&](int32_t x, int32_t y) {
-    return m.scan_index[size_t(x)] < m.scan_index[size_t(y)];
-  });
+    if (m.mask[size_t(i)])
+      m.scan_order.push_back({int32_t(i), m.scan_index[size_t(i)], m.scan_sample[size_t(i)],
+                              m.scan_weights[2 * size_t(i)], m.scan_weights[2 * size_t(i) + 1],
+                              m.scan_steps[size_t(i)]});
+  std::stable_sort(m.scan_order.begin(), m.scan_order.end(),
+                   [](const ScanEntry& x, const ScanEntry& y) { return x.index < y.index; });
   b.scan_order = m.scan_order.data();
   b.scan_count = int64_t(m.scan_order.size());
 }

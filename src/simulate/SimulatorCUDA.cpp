@@ -19,7 +19,8 @@ struct CudaSimulateState : cuda::Owner {
   explicit CudaSimulateState(int device) : cuda::Owner(device) {}
   ImageModel base;  // the model with device pointers
   cuda::DeviceBuffer volume, label_props, hu_table, speckle, axial_specular, lateral_speckle,
-      lateral_specular, mask, scan_index, scan_sample, scan_steps, scan_weights;
+      lateral_specular, lateral_speckle_range, lateral_specular_range, mask, scan_index,
+      scan_sample, scan_steps, scan_weights;
   cuda::DeviceBuffer models, work, out;  // one batch's poses, stage buffers and images
   cuda::PinnedBuffer staging;            // the batch's images on their way to the caller
   std::unique_ptr<cuda::Stream> stream;
@@ -75,6 +76,10 @@ std::shared_ptr<CudaSimulateState> cuda_prepare(const Model& m, int device) {
   b.axial_specular = upload(*st, st->axial_specular, m.axial_specular, "the axial filters");
   b.lateral_speckle = upload(*st, st->lateral_speckle, m.lateral_speckle, "the lateral filters");
   b.lateral_specular = upload(*st, st->lateral_specular, m.lateral_specular, "the lateral filters");
+  b.lateral_speckle_range =
+      upload(*st, st->lateral_speckle_range, m.lateral_speckle_range, "the lateral filters");
+  b.lateral_specular_range =
+      upload(*st, st->lateral_specular_range, m.lateral_specular_range, "the lateral filters");
   b.mask = upload(*st, st->mask, m.mask, "the probe mask");
   b.scan_index = upload(*st, st->scan_index, m.scan_index, "the scan conversion");
   b.scan_sample = upload(*st, st->scan_sample, m.scan_sample, "the scan conversion");
