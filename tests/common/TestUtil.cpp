@@ -117,6 +117,16 @@ Mat3 rotation(Vec3 axis, double degrees) {
   return r;
 }
 
+ProbeGeometry linear_probe(int width, int height, double spacing_mm) {
+  ProbeGeometry p;
+  p.type = ProbeType::Linear;
+  p.image.width = width;
+  p.image.height = height;
+  p.image.spacing_mm[0] = p.image.spacing_mm[1] = spacing_mm;
+  p.image.set_default_origin();
+  return p;
+}
+
 ProbeGeometry curvilinear_probe(double radius_mm, double depth_mm, double sector_deg, int width,
                                 int height, double spacing_mm, double face_y_mm) {
   return ProbeGeometry::curvilinear(radius_mm, depth_mm, sector_deg,

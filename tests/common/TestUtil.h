@@ -120,6 +120,10 @@ Mat3 rotation(Vec3 axis, double degrees);
 ProbeGeometry curvilinear_probe(double radius_mm, double depth_mm, double sector_deg, int width,
                                 int height, double spacing_mm, double face_y_mm = 0.0);
 
+/// A linear probe with a width × height image of square pixels of `spacing_mm`, face at y = 0,
+/// centred laterally.
+ProbeGeometry linear_probe(int width, int height, double spacing_mm);
+
 /// An oblique grid: rotated axes, anisotropic spacing, non-zero origin.
 VolumeGrid oblique_grid(std::array<int64_t, 3> dims);
 

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "../common/TestUtil.h"
 #include "sonoslice/geometry/Math.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
@@ -202,13 +203,7 @@ inline Pose pose_at(double z, double y0 = 2.0) {
 
 /// A linear probe of width × height pixels of `spacing` mm, face at y = 0, centred laterally.
 inline ProbeGeometry linear_probe(int width = 100, int height = 130, double spacing = 0.3) {
-  ProbeGeometry p;
-  p.type = ProbeType::Linear;
-  p.image.width = width;
-  p.image.height = height;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = spacing;
-  p.image.set_default_origin();
-  return p;
+  return test::linear_probe(width, height, spacing);
 }
 
 /// A pose of rotation r whose image (of `probe`) is centred on the point `centre`.

@@ -25,16 +25,8 @@
 namespace sonoslice {
 namespace {
 
-using simtest::correlation;
-using simtest::envelope;
-using simtest::envelope_settings;
-using simtest::linear_probe;
-using simtest::mean;
-using simtest::phantom;
-using simtest::pose_at;
-using simtest::region;
-using simtest::stdev;
-using simtest::tissue;
+// The shared phantoms, probes, poses and statistics (SimulateTestUtil.h).
+using namespace simtest;
 
 /// The physics checks, once per orientation: phantom() and pose_at() give today's phantom and
 /// poses rotated together by the orientation's R about simtest::kCentre.

@@ -23,15 +23,8 @@
 namespace sonoslice {
 namespace {
 
-using simtest::correlation;
-using simtest::envelope;
-using simtest::envelope_settings;
-using simtest::linear_probe;
-using simtest::mean;
-using simtest::Orientation;
-using simtest::region;
-using simtest::squared;
-using simtest::tissue;
+// The shared phantoms, probes, poses and statistics (SimulateTestUtil.h).
+using namespace simtest;
 
 constexpr double kLambda5MHz = 1.54 / 5;  // mm: the speckle lattice's step at 5 MHz
 

@@ -26,13 +26,7 @@ ProbeGeometry fan_probe(int w = 96, int h = 80, double spacing = 0.35) {
 }
 
 ProbeGeometry linear_probe(int w = 64, int h = 48, double spacing = 0.3) {
-  ProbeGeometry p;
-  p.type = ProbeType::Linear;
-  p.image.width = w;
-  p.image.height = h;
-  p.image.spacing_mm[0] = p.image.spacing_mm[1] = spacing;
-  p.image.set_default_origin();
-  return p;
+  return test::linear_probe(w, h, spacing);
 }
 
 // A one-pixel probe: the pose's origin is the sample point.
