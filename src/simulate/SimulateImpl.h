@@ -1,9 +1,10 @@
 #pragma once
 /// @file The simulation kernel (docs/simulation.md): per image, four stages over independent
 /// items, each a SONOSLICE_HOST_DEVICE function of one item:
-///   1. trace_beam(b):        properties, interfaces, attenuation and the speckle along beam b;
+///   1. trace_beam(b):        properties, interfaces and attenuation along beam b;
+///      add_speckle(b):       the speckle along it (a layered line integral across the slice);
 ///   2. filter_axial(b):      the axial point-spread function along beam b;
-///      filter_lateral(s):    the lateral point-spread function across the beams at depth s;
+///      filter_lateral(b):    the lateral point-spread function across the beams, into beam b;
 ///   3. tgc_knot(k):          time-gain compensation: the median loss across the beams at
 ///      tgc_level(s):         every kTgcStride-th sample, and the level of each sample;
 ///   4. scan_pixel(i):        scan conversion, envelope and log compression of pixel i.
@@ -11,7 +12,7 @@
 /// stages of one image on one thread, in a fixed order, so the bytes do not depend on the thread
 /// count; the CUDA driver (SimulateDriverCUDA.cuh) launches each stage over (image, item).
 /// Single precision throughout: the speckle is noise with a fixed seed, and float halves the
-/// memory traffic of the tiles and the beam buffers.
+/// memory traffic of the beam buffers.
 #include <cmath>
 #include <cstdint>
 #include <cstring>

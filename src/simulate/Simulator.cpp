@@ -1,4 +1,4 @@
-// Simulator: builds the per-volume model (property tables, speckle tiles, beam layout) once,
+// Simulator: builds the per-volume model (property tables, speckle table, beam layout) once,
 // then simulates batches of poses, one image per task (SimulateImpl.h).
 #include "sonoslice/simulate/Simulator.h"
 
