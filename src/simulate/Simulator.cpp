@@ -196,7 +196,12 @@ struct Psf {
       : lambda(wavelength_mm),
         axial(settings.axial_fwhm_mm > 0 ? settings.axial_fwhm_mm : lambda),
         lateral(settings.lateral_fwhm_mm > 0 ? settings.lateral_fwhm_mm : 2 * lambda),
-        elevation(settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda) {}
+        elevation(std::max(settings.elevation_fwhm_mm > 0 ? settings.elevation_fwhm_mm : 5 * lambda,
+                           kMinElevationFwhm * lambda)) {}
+  /// The thinnest slice: its profile (±1.5σ) spans 2√3 layers λ apart, so that every sample's
+  /// elevation line crosses at least two at any orientation (one, at the cube diagonal, would
+  /// leave the speckle jumping from layer to layer as the probe moves).
+  static constexpr double kMinElevationFwhm = 2 * 1.7320508075688772 / (3 * kFwhmToSigma);
   static double variance(double fwhm) { return fwhm * kFwhmToSigma * fwhm * kFwhmToSigma; }
   double sigma_elevation() const { return elevation * kFwhmToSigma; }
 };
