@@ -42,7 +42,7 @@ struct Props {
 };
 
 /// The speckle table: kSpeckleNodes complex nodes, standard complex Gaussian, stored as int16
-/// (re, im) pairs at kSpeckleScale per unit (a quantisation step of 1.2e-4 σ: 256 KB, so it stays
+/// (re, im) pairs at kSpeckleScale per unit (a quantisation step of 1.7e-4 σ: 256 KB, so it stays
 /// in a core's L2 cache), followed by its first kSpecklePad nodes again, so that the four nodes of
 /// a cell, r, r + 1, r + W and r + W + 1, never wrap. docs/simulation.md §3.
 constexpr int kSpeckleBits = 16;
