@@ -107,9 +107,9 @@ struct ImageModel {
   int lattice_count = 0;             // lattice coordinates are clamped to [0, lattice_count − 2]
   const int16_t* speckle = nullptr;  // the speckle table (kSpeckleNodes + kSpecklePad nodes)
   uint32_t layer_seed[3] = {0, 0, 0};  // per lattice axis: its layers' hash seed
-  // The slice thickness: the elevation profile's σ and half-width T (mm); per pose, the layer
+  // The slice thickness: the elevation profile's half-width T = 1.5σ (mm); per pose, the layer
   // families blended (set_pose).
-  float elevation_sigma_mm = 0, elevation_reach_mm = 0;
+  float elevation_reach_mm = 0;
   int fields = 0;
   LayerField field[kMaxFields];
   int lateral_level = 0;           // per pose: which residual level's lateral speckle filter
@@ -188,13 +188,6 @@ SONOSLICE_HOST_DEVICE inline Props props_at(const ImageModel& m, float cx, float
 /// 1 / √x (scalar; AVX2 lanes: the estimate refined by one Newton step, Avx2Lanes.h).
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float inverse_sqrt(float x) {
   return 1.0f / std::sqrt(x);
-}
-
-/// min(max(v, 0), hi) in the form compilers turn into vector min/max (the operand order of
-/// x86's minps/maxps), so that the loops around it vectorise.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE float lane_clamp(float v, float hi) {
-  v = v > 0.f ? v : 0.f;
-  return v < hi ? v : hi;
 }
 
 /// A layer's nodes are rotated in its plane by one of eight angles (i + ½)·11.25°, i from its
@@ -434,6 +427,30 @@ SONOSLICE_HOST_DEVICE inline float interface_cosine(const ImageModel& m, float p
   return gn > 0 ? std::fabs(g[0] * d[0] + g[1] * d[1]) / gn : 1.0f;
 }
 
+/// A traced sample s (even) of one beam's buffers: its diffuse weight and loss, and the sample
+/// before it (between two traced ones) their mean; its specular echo spread ½ on it and ¼ on
+/// each neighbour. The sample after it takes its values until the next traced one replaces them
+/// (the beam's last sample keeps them).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void store_traced(float* echo, float* specular_echo,
+                                                         float* loss_db, int s, int S, float weight,
+                                                         float loss, float specular) {
+  echo[2 * s] = weight;
+  echo[2 * s + 1] = 0;
+  loss_db[s] = loss;
+  specular_echo[s] += 0.5f * specular;
+  if (s > 0) {
+    echo[2 * s - 2] = 0.5f * (echo[2 * s - 4] + weight);
+    loss_db[s - 1] = 0.5f * (loss_db[s - 2] + loss);
+    specular_echo[s - 1] += 0.25f * specular;
+  }
+  if (s + 1 < S) {
+    specular_echo[s + 1] += 0.25f * specular;
+    echo[2 * s + 2] = weight;
+    echo[2 * s + 3] = 0;
+    loss_db[s + 1] = loss;
+  }
+}
+
 /// Stage 1a, beam b: the weight of the diffuse echo (amplitude × scatter × gain, in echo's real
 /// part; add_speckle() then makes it the complex diffuse echo) and the (real) specular echo of
 /// every sample, kept apart because they get different filters (§3), and the round-trip
@@ -501,23 +518,8 @@ SONOSLICE_HOST_DEVICE inline void trace_beam(const ImageModel& m, int b, float* 
                              // echoes nor dims
     }
     // Diffuse scattering: its weight here; add_speckle() multiplies in the speckle field.
-    const float weight = amplitude * p.scatter * m.speckle_gain, loss = 2 * att_db;
-    echo[2 * s] = weight;
-    echo[2 * s + 1] = 0;
-    loss_db[s] = loss;
-    specular = amplitude * specular;
-    specular_echo[s] += 0.5f * specular;
-    if (s > 0) {  // the sample between the last traced one and this one
-      echo[2 * s - 2] = 0.5f * (echo[2 * s - 4] + weight);
-      loss_db[s - 1] = 0.5f * (loss_db[s - 2] + loss);
-      specular_echo[s - 1] += 0.25f * specular;
-    }
-    if (s + 1 < S) {
-      specular_echo[s + 1] += 0.25f * specular;
-      echo[2 * s + 2] = weight;  // the last sample's, unless a traced one follows
-      echo[2 * s + 3] = 0;
-      loss_db[s + 1] = loss;
-    }
+    store_traced(echo, specular_echo, loss_db, s, S, amplitude * p.scatter * m.speckle_gain,
+                 2 * att_db, amplitude * specular);
     z_before = p.z;
   }
 }
@@ -681,25 +683,8 @@ inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specul
     amplitude.store(amp);
     for (int l = 0; l < N; ++l) {
       const int64_t row = int64_t(b0 + l) * S;
-      float* e = echo + 2 * row;
-      float* sp = specular_echo + row;
-      float* lo = loss_db + row;
-      const float spec = amp[l] * specular[l];
-      e[2 * s] = weight[l];
-      e[2 * s + 1] = 0;
-      lo[s] = loss[l];
-      sp[s] += 0.5f * spec;
-      if (s > 0) {
-        e[2 * s - 2] = 0.5f * (e[2 * s - 4] + weight[l]);
-        lo[s - 1] = 0.5f * (lo[s - 2] + loss[l]);
-        sp[s - 1] += 0.25f * spec;
-      }
-      if (s + 1 < S) {
-        sp[s + 1] += 0.25f * spec;
-        e[2 * s + 2] = weight[l];
-        e[2 * s + 3] = 0;
-        lo[s + 1] = loss[l];
-      }
+      store_traced(echo + 2 * row, specular_echo + row, loss_db + row, s, S, weight[l], loss[l],
+                   amp[l] * specular[l]);
     }
     z_before = z;
   }

@@ -281,10 +281,9 @@ void set_sampling(ImageModel& b, const VolumeGrid& grid, const ImageGrid& img, d
   b.min_reflection = float(kMinReflection * quarter_steps * quarter_steps);
 }
 
-/// The slice thickness (docs/simulation.md §3): the elevation profile's σ from its FWHM and its
-/// half-width T = 1.5σ.
+/// The slice thickness (docs/simulation.md §3): the elevation profile's half-width T = 1.5σ, σ
+/// from its FWHM.
 void set_slice_thickness(ImageModel& b, const Psf& psf) {
-  b.elevation_sigma_mm = float(psf.sigma_elevation());
   b.elevation_reach_mm = float(1.5 * psf.sigma_elevation());
 }
 
