@@ -53,12 +53,15 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
       filter_axial(w.specular.data() + size_t(b) * S, S, 1, m.axial_specular,
                    m.axial_specular_radius, w.tmp.data());
   }
-  // Across the beams: the speckle's filter, then the specular echoes' added to the real parts.
+  // Across the beams: the speckle's filter, then the specular echoes' (into one beam's buffer,
+  // contiguous, so that it vectorises) added to the real parts.
   for (int b = 0; b < B; ++b) {
-    filter_lateral(w.echo.data(), w.echo_filtered.data(), B, S, 2, lateral_speckle_taps(m),
+    float* filtered = w.echo_filtered.data() + 2 * size_t(b) * S;
+    filter_lateral(w.echo.data(), filtered, B, S, 2, lateral_speckle_taps(m),
                    lateral_speckle_ranges(m), m.lateral_radius, b);
-    add_lateral_real(w.specular.data(), w.echo_filtered.data(), B, S, m.lateral_specular,
-                     m.lateral_specular_range, m.lateral_radius, b, w.has_specular.data());
+    filter_lateral(w.specular.data(), w.tmp.data(), B, S, 1, m.lateral_specular,
+                   m.lateral_specular_range, m.lateral_radius, b, w.has_specular.data());
+    for (int s = 0; s < S; ++s) add_specular(filtered, w.tmp.data(), s);
   }
   if (m.tgc_auto) {
     const int knots = tgc_knot_count(S);

@@ -960,17 +960,16 @@ SONOSLICE_HOST_DEVICE inline void filter_axial_speckle(const ImageModel& m, int 
   filter_axial(data, m.samples, 2, taps, radius, tmp);
 }
 
-/// Stage 2, across the beams: output beam b of `out` from beams b ± r of `in` (both B × S ×
-/// channels, beam-major), with the per-depth kernel `kernel` ([tap][s × channels]: each depth's
-/// weight repeated for its channels; taps −kMax..kMax of which −radius..radius are used), edges
-/// clamped; `nonzero` (optional, per beam): beams known to be all zero are skipped. Vectorises
-/// along s.
-SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* out, int beams,
-                                                 int samples, int channels, const float* kernel,
+/// Stage 2, across the beams: output beam b (`o`: its S × channels values) from beams b ± r of
+/// `in` (B × S × channels, beam-major), with the per-depth kernel `kernel` ([tap][s × channels]:
+/// each depth's weight repeated for its channels; taps −kMax..kMax of which −radius..radius are
+/// used), edges clamped; `nonzero` (optional, per beam): beams known to be all zero are skipped.
+/// Vectorises along s.
+SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* o, int beams, int samples,
+                                                 int channels, const float* kernel,
                                                  const int32_t* ranges, int radius, int b,
                                                  const uint8_t* nonzero = nullptr) {
   const int64_t row = int64_t(samples) * channels;
-  float* o = out + b * row;
   for (int64_t i = 0; i < row; ++i) o[i] = 0;
   for (int k = -radius; k <= radius; ++k) {
     int j = b + k;
@@ -984,25 +983,6 @@ SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* out, in
     const int64_t first = int64_t(ranges[2 * tap]) * channels,
                   last = int64_t(ranges[2 * tap + 1]) * channels;
     for (int64_t i = first; i < last; ++i) o[i] += w[i] * src[i];
-  }
-}
-
-/// filter_lateral() of a one-channel signal (the specular echo) added to the real parts of a
-/// two-channel output (the complex echo, already filtered): the CPU driver's form, which needs
-/// no buffer of its own.
-SONOSLICE_HOST_DEVICE inline void add_lateral_real(const float* in, float* out, int beams,
-                                                   int samples, const float* kernel,
-                                                   const int32_t* ranges, int radius, int b,
-                                                   const uint8_t* nonzero) {
-  float* o = out + 2 * int64_t(b) * samples;
-  for (int k = -radius; k <= radius; ++k) {
-    int j = b + k;
-    j = j < 0 ? 0 : (j >= beams ? beams - 1 : j);
-    if (!nonzero[j]) continue;
-    const float* src = in + int64_t(j) * samples;
-    const int64_t tap = k + kMaxLateralRadius;
-    const float* w = kernel + tap * samples;
-    for (int64_t s = ranges[2 * tap]; s < ranges[2 * tap + 1]; ++s) o[2 * s] += w[s] * src[s];
   }
 }
 
