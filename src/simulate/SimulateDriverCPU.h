@@ -40,12 +40,8 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
 #endif
   for (int b = traced; b < B; ++b)
     trace_beam(m, b, w.echo.data(), w.specular.data(), w.loss.data());
-  for (int b = 0; b < B; ++b) {
-    const float* spec = w.specular.data() + size_t(b) * S;
-    bool any = false;
-    for (int s = 0; s < S; ++s) any = any || spec[s] != 0;
-    w.has_specular[size_t(b)] = any;
-  }
+  for (int b = 0; b < B; ++b)
+    w.has_specular[size_t(b)] = any_nonzero(w.specular.data() + size_t(b) * S, S);
   for (int b = 0; b < B; ++b) add_speckle(m, b, w.echo.data());
   for (int b = 0; b < B; ++b) {
     filter_axial_speckle(m, b, w.echo.data() + 2 * size_t(b) * S, w.tmp.data());

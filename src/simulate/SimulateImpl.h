@@ -691,6 +691,14 @@ inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specul
 }
 #endif
 
+/// Whether any of v[0], v[stride], ..., v[(n − 1)·stride] is not zero: without an early exit, so
+/// that it vectorises (the beams it scans are mostly all echo or all zero).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool any_nonzero(const float* v, int n, int stride = 1) {
+  int found = 0;
+  for (int i = 0; i < n; ++i) found |= v[i * stride] != 0;
+  return found != 0;
+}
+
 /// Samples of a beam whose speckle add_speckle() computes together: the crossing, cell and
 /// weight arithmetic runs over them as one loop (SIMD lanes on the CPU).
 constexpr int kSpeckleLanes = 8;
@@ -846,9 +854,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void add_speckle_group(const ImageModel& 
                                                               float* echo) {
   constexpr int N = kSpeckleLanes;
   const int n = m.samples - first < N ? m.samples - first : N;
-  bool any = false;
-  for (int l = 0; l < n; ++l) any = any || echo[2 * (first + l)] != 0;
-  if (!any) return;  // water, gas, outside the volume: no speckle
+  if (!any_nonzero(echo + 2 * first, n, 2)) return;  // water, gas, outside the volume: no speckle
   float px[N], py[N], pz[N];
   for (int l = 0; l < N; ++l) {
     const float depth = (float(first + l) + 0.5f) * m.step_mm;
@@ -893,9 +899,7 @@ SONOSLICE_HOST_DEVICE inline void filter_axial(float* data, int n, int channels,
                                                const float* kernel, int radius, float* tmp) {
   if (radius == 0) return;
   const int q = n * channels;
-  bool any = false;
-  for (int i = 0; i < q; ++i) any = any || data[i] != 0;
-  if (!any) return;  // a beam without echoes (most beams' specular echo)
+  if (!any_nonzero(data, q)) return;  // a beam without echoes (most beams' specular echo)
   for (int i = 0; i < q; ++i) tmp[i] = data[i];
   // The first and last `radius` samples, whose taps reach past the ends (clamped) ...
   for (int i = 0; i < n; ++i) {
