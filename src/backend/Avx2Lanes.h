@@ -52,6 +52,13 @@ inline int lanes_in_range(Vec8f x, float lo, float hi) {
   return _mm256_movemask_ps(_mm256_and_ps(ge, lt));
 }
 
+/// The lanes of bit mask `bits` (lanes_in_range's form) as a lane mask (all bits set).
+inline Vec8f lane_mask(int bits) {
+  const __m256i lane = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+  return _mm256_castsi256_ps(
+      _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(bits), lane), lane));
+}
+
 /// Bit mask of the lanes whose mask byte is non-zero (eight bytes from p).
 inline int lanes_set(const uint8_t* p) {
   const __m128i bytes = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p));

@@ -618,6 +618,7 @@ inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specul
   // Cells wholly inside, and a voxel to spare (a 32-bit gather of a uint16 label reads two bytes
   // past it).
   const float hi[3] = {float(m.grid.nx - 2), float(m.grid.ny - 2), float(m.grid.nz - 2)};
+  const float end[3] = {float(m.grid.nx) - 0.5f, float(m.grid.ny) - 0.5f, float(m.grid.nz) - 0.5f};
   for (int j = 0, s = 0; s < S; ++j, s += 2) {
     const float depth = (float(s) + 0.5f) * m.step_mm;
     const Vec8f px = Ox + Vec8f(depth) * Dx, py = Oy + Vec8f(depth) * Dy;
@@ -625,10 +626,26 @@ inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specul
     for (int k = 0; k < 3; ++k)
       c[k] = Vec8f(m.A[3 * k]) * px + Vec8f(m.A[3 * k + 1]) * py + Vec8f(m.a[k]);
     Vec8f z, alpha, scatter;
-    int interior = 0xff;
-    for (int k = 0; k < 3; ++k) interior &= backend::lanes_in_range(c[k], 0.f, hi[k]);
-    if (interior == 0xff && fits_int32) {
-      props_lanes(m, c[0], c[1], c[2], z, alpha, scatter);
+    // Lanes whose cells lie inside, and lanes outside the volume (its inside test): where every
+    // lane is one or the other (a beam leaving the volume), the first read with gathers, the
+    // others water; lane by lane only near the volume's faces.
+    int interior = 0xff, inside = 0xff;
+    for (int k = 0; k < 3; ++k) {
+      interior &= backend::lanes_in_range(c[k], 0.f, hi[k]);
+      inside &= backend::lanes_in_range(c[k], -0.5f, end[k]);
+    }
+    if ((interior | (~inside & 0xff)) == 0xff && fits_int32) {
+      if (interior == 0xff) {
+        props_lanes(m, c[0], c[1], c[2], z, alpha, scatter);
+      } else {
+        for (int k = 0; k < 3; ++k)
+          c[k] = backend::min(backend::max(c[k], Vec8f(0.f)), Vec8f(hi[k]));
+        if (interior) props_lanes(m, c[0], c[1], c[2], z, alpha, scatter);
+        const Vec8f in = backend::lane_mask(interior);
+        z = backend::select(in, z, Vec8f(m.outside.z));
+        alpha = backend::select(in, alpha, Vec8f(m.outside.alpha));
+        scatter = backend::select(in, scatter, Vec8f(m.outside.scatter));
+      }
     } else {
       float cl[3][N], zl[N], al[N], sl[N];
       for (int k = 0; k < 3; ++k) c[k].store(cl[k]);
