@@ -59,8 +59,9 @@ inline void simulate_image(const ImageModel& m, void* out, Scratch& w) {
   // contiguous, so that it vectorises) added to the real parts.
   for (int b = 0; b < B; ++b) {
     float* filtered = w.echo_filtered.data() + 2 * size_t(b) * S;
-    filter_lateral(w.echo.data(), filtered, B, S, 2, lateral_speckle_taps(m),
-                   lateral_speckle_ranges(m), m.lateral_radius, b);
+    const int level = lateral_level(m, b);
+    filter_lateral(w.echo.data(), filtered, B, S, 2, lateral_speckle_taps(m, level),
+                   lateral_speckle_ranges(m, level), m.lateral_radius, b);
     filter_lateral(w.specular.data(), w.tmp.data(), B, S, 1, m.lateral_specular,
                    m.lateral_specular_range, m.lateral_radius, b, w.has_specular.data());
     for (int s = 0; s < S; ++s) add_specular(filtered, w.tmp.data(), s);

@@ -65,16 +65,18 @@ struct FilterLateral {
     const int64_t n = i / b.beams;
     const int beam = int(i % b.beams);
     const ImageModel& m = b.models[n];
-    if (speckle)
+    if (speckle) {
+      const int level = lateral_level(m, beam);
       filter_lateral(b.echo + n * 2 * b.beam_samples(),
                      b.echo_filtered + (n * b.beam_samples() + int64_t(beam) * b.samples) * 2,
-                     b.beams, b.samples, 2, lateral_speckle_taps(m), lateral_speckle_ranges(m),
-                     m.lateral_radius, beam);
-    else
+                     b.beams, b.samples, 2, lateral_speckle_taps(m, level),
+                     lateral_speckle_ranges(m, level), m.lateral_radius, beam);
+    } else {
       filter_lateral(b.specular + n * b.beam_samples(),
                      b.specular_filtered + n * b.beam_samples() + int64_t(beam) * b.samples,
                      b.beams, b.samples, 1, m.lateral_specular, m.lateral_specular_range,
                      m.lateral_radius, beam);
+    }
   }
 };
 

@@ -112,7 +112,6 @@ struct ImageModel {
   float elevation_reach_mm = 0;
   int fields = 0;
   LayerField field[kMaxFields];
-  int lateral_level = 0;           // per pose: which residual level's lateral speckle filter
   float turn_cos[8], turn_sin[8];  // kLayerCos, kLayerSin (a copy the GPU can read)
   // Beams: curvilinear (angles about the apex) or linear (parallel, along +y).
   bool curvilinear = false;
@@ -382,8 +381,6 @@ inline void set_pose(ImageModel& im, const IndexMap& map) {
     L.reach = float(reach);
     L.seed = im.layer_seed[r];
   }
-  // The lateral speckle filter: for the centre beam's lateral direction (probe x).
-  im.lateral_level = residual_level(im, residual_variance(im, 1, 0));
 }
 
 /// A label volume's voxels read as their impedance (for the interface normals below).
@@ -1007,13 +1004,20 @@ SONOSLICE_HOST_DEVICE inline void filter_lateral(const float* in, float* o, int 
   }
 }
 
-/// The lateral speckle filter of this pose's level ([tap][s]) and its taps' sample ranges.
-SONOSLICE_HOST_DEVICE inline const float* lateral_speckle_taps(const ImageModel& m) {
-  return m.lateral_speckle +
-         int64_t(m.lateral_level) * (2 * kMaxLateralRadius + 1) * 2 * int64_t(m.samples);
+/// Beam b's level of the lateral speckle filter: the layers' residual smoothing along the beam's
+/// lateral direction (in the image plane, across the beam: a fan's beams turn, and so does it).
+SONOSLICE_HOST_DEVICE inline int lateral_level(const ImageModel& m, int b) {
+  float o[2], d[2];
+  beam_line(m, b, o, d);
+  return residual_level(m, residual_variance(m, d[1], -d[0]));
 }
-SONOSLICE_HOST_DEVICE inline const int32_t* lateral_speckle_ranges(const ImageModel& m) {
-  return m.lateral_speckle_range + int64_t(m.lateral_level) * (2 * kMaxLateralRadius + 1) * 2;
+
+/// The lateral speckle filter of a level ([tap][s]) and its taps' sample ranges.
+SONOSLICE_HOST_DEVICE inline const float* lateral_speckle_taps(const ImageModel& m, int level) {
+  return m.lateral_speckle + int64_t(level) * (2 * kMaxLateralRadius + 1) * 2 * int64_t(m.samples);
+}
+SONOSLICE_HOST_DEVICE inline const int32_t* lateral_speckle_ranges(const ImageModel& m, int level) {
+  return m.lateral_speckle_range + int64_t(level) * (2 * kMaxLateralRadius + 1) * 2;
 }
 
 /// Stage 2 → 4: sample i's specular echo added to its complex echo's real part (both

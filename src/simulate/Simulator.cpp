@@ -162,7 +162,8 @@ double speckle_gain(const ImageModel& model, double lateral_variance_mm2) {
   }
   for (int b = 0; b < B; ++b)
     simulate_impl::filter_lateral(field.data(), out.data() + 2 * size_t(b) * S, B, S, 2,
-                                  lateral_speckle_taps(m), lateral_speckle_ranges(m), radius, b);
+                                  lateral_speckle_taps(m, lateral_level(m, b)),
+                                  lateral_speckle_ranges(m, lateral_level(m, b)), radius, b);
   // The mean envelope where the image's pixels fall: anywhere between samples and beams, where
   // scan conversion interpolates the complex echo (a little below the samples' own mean).
   double sum = 0;

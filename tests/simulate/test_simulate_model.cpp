@@ -508,5 +508,52 @@ TEST(SimulateModel, DeterministicAcrossThreadsAndInstructionSets) {
   EXPECT_LT(mean_abs, 0.05);
 }
 
+// A fan's beams turn, and with them the direction across each beam along which the layers'
+// interpolation has already smoothed the speckle (docs/simulation.md §3): each beam's lateral
+// filter follows its own direction, so the speckle is as bright at the fan's edges as at its
+// centre. A wide fan tilted 40° about its lateral axis (the layers then stretch the in-plane
+// directions unevenly: along the centre beam's lateral direction the residual smoothing is
+// λ²/6, across a beam at 50° about a third less).
+TEST(SimulateModel, SpeckleIsAsBrightAtTheFansEdgesAsAtItsCentre) {
+  const Volume v = simtest::uniform_volume(81, 1.0);
+  const double radius = 10, depth = 30, spacing = 0.1;
+  const ProbeGeometry probe = test::curvilinear_probe(radius, depth, 120, 700, 360, spacing);
+  const Simulator sim(v, SimulationSource::Labels, probe, speckle_only(), envelope_settings());
+  const Mat3 tilt = simtest::rotation_deg({1, 0, 0}, 40);
+  std::vector<Pose> poses;
+  for (int k = 0; k < 4; ++k)
+    poses.push_back(simtest::centred_pose(tilt, {40, 40, 28.0 + 8 * k}, probe));
+  for (const Pose& p : poses) ASSERT_TRUE(simtest::image_inside(v, probe, p, 2.0));
+  const auto img = envelope(sim, poses);
+  // Mean intensity between 10 and 26 mm below the face, in three sectors of beams.
+  const Mat4 to_probe = probe.pixel_to_probe();
+  const double apex_y = probe.face_y_mm - radius;
+  double sum[3] = {0, 0, 0};
+  size_t count[3] = {0, 0, 0};
+  const size_t per = size_t(sim.width()) * size_t(sim.height());
+  for (int row = 0; row < sim.height(); ++row)
+    for (int col = 0; col < sim.width(); ++col) {
+      const Vec3 p = to_probe.transform_point({double(col), double(row), 0});
+      const double r = std::hypot(p[0], p[1] - apex_y) - radius;
+      const double angle = std::atan2(p[0], p[1] - apex_y) * 180 / M_PI;
+      if (r < 10 || r > 26) continue;
+      const int sector = angle < -40 && angle > -56 ? 0 : (std::fabs(angle) < 12 ? 1 : 2);
+      if (sector == 2 && !(angle > 40 && angle < 56)) continue;
+      for (size_t k = 0; k < poses.size(); ++k) {
+        const double e = img[k * per + size_t(row) * size_t(sim.width()) + size_t(col)];
+        sum[sector] += e * e;
+        ++count[size_t(sector)];
+      }
+    }
+  const double left = sum[0] / double(count[0]), centre = sum[1] / double(count[1]),
+               right = sum[2] / double(count[2]);
+  std::printf(
+      "[ fan brightness ] mean speckle intensity 40-56 deg left / centre: %.3f, right / centre: "
+      "%.3f\n",
+      left / centre, right / centre);
+  EXPECT_NEAR(left / centre, 1.0, 0.06);
+  EXPECT_NEAR(right / centre, 1.0, 0.06);
+}
+
 }  // namespace
 }  // namespace sonoslice
