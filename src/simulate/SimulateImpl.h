@@ -940,6 +940,22 @@ SONOSLICE_HOST_DEVICE inline void filter_axial(float* data, int n, int channels,
 /// Axial taps each side: at most this many.
 constexpr int kMaxAxialRadius = 48;
 
+/// Gaussian taps −r..r of σ (in steps) with peak 1, r = ⌈3σ⌉ (at most max_radius), into `taps`;
+/// their sum in `sum`. No filter (the single tap 1, r = 0) when σ ≤ 0.3. Returns r. Every filter
+/// of the PSF is made here.
+SONOSLICE_HOST_DEVICE inline int gaussian_taps(float sigma, int max_radius, float* taps,
+                                               float& sum) {
+  sum = 1;
+  taps[0] = 1;
+  if (!(sigma > 0.3f)) return 0;
+  int r = int(std::ceil(3 * sigma));
+  r = r < max_radius ? r : max_radius;
+  sum = 0;
+  for (int k = -r; k <= r; ++k)
+    sum += taps[k + r] = std::exp(-0.5f * float(k * k) / (sigma * sigma));
+  return r;
+}
+
 /// The speckle filter that brings a field already smoothed with variance `residual` (mm², the
 /// layers' own interpolation along this direction) to the PSF's variance `variance`: a Gaussian
 /// of σ² = variance − residual in steps of `step` mm (none below 0.3 steps), sum 1, times the
@@ -949,16 +965,9 @@ constexpr int kMaxAxialRadius = 48;
 SONOSLICE_HOST_DEVICE inline int speckle_taps(float variance, float residual, float step,
                                               int max_radius, float* taps) {
   const float extra = variance - residual;
-  const float sigma = extra > 0 ? std::sqrt(extra) / step : 0.f;
-  if (!(sigma > 0.3f)) {
-    taps[0] = 1;
-    return 0;
-  }
-  int r = int(std::ceil(3 * sigma));
-  r = r < max_radius ? r : max_radius;
-  float sum = 0;
-  for (int k = -r; k <= r; ++k)
-    sum += taps[k + r] = std::exp(-0.5f * float(k * k) / (sigma * sigma));
+  float sum;
+  const int r = gaussian_taps(extra > 0 ? std::sqrt(extra) / step : 0.f, max_radius, taps, sum);
+  if (r == 0) return 0;
   const float gain = std::sqrt(std::sqrt(variance / residual)) / sum;
   for (int k = 0; k <= 2 * r; ++k) taps[k] *= gain;
   return r;

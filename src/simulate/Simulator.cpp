@@ -46,17 +46,15 @@ Props props_of(const Tissue& t) {
   return {float(t.impedance_mrayl), float(t.attenuation_db_cm_mhz), float(t.scatter_mean)};
 }
 
-/// Gaussian taps −radius..radius of σ (in samples), peak 1 or sum 1; radius 0 (no filter) when
-/// σ ≤ 0.3, at most `max_radius`.
+/// simulate_impl::gaussian_taps() of σ (in samples) as a vector, peak 1 or sum 1.
 std::vector<float> gauss_taps(double sigma, bool unit_sum, int max_radius) {
-  if (!(sigma > 0.3)) return {1.f};
-  const int r = std::min(int(std::ceil(3 * sigma)), max_radius);
-  std::vector<double> w(size_t(2 * r + 1));
-  double sum = 0;
-  for (int k = -r; k <= r; ++k) sum += w[size_t(k + r)] = std::exp(-0.5 * k * k / (sigma * sigma));
-  std::vector<float> out;
-  for (double x : w) out.push_back(float(unit_sum ? x / sum : x));
-  return out;
+  std::vector<float> taps(size_t(2 * max_radius + 1));
+  float sum;
+  const int r = simulate_impl::gaussian_taps(float(sigma), max_radius, taps.data(), sum);
+  taps.resize(size_t(2 * r + 1));
+  if (unit_sum)
+    for (float& t : taps) t /= sum;
+  return taps;
 }
 
 /// The lateral kernels of every depth as a [tap][s × channels] table (taps −kMaxLateralRadius..;
