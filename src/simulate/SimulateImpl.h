@@ -812,14 +812,14 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_cells(const ImageModel& m, con
 #endif
 }
 
-/// Lane l's field of one family from its cells: the weighted sum of each crossing's four nodes.
-SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const LayerField& L,
-                                                      const SpeckleCells& c, int l, float& re,
-                                                      float& im) {
-  const int16_t* nodes = m.speckle;
 #if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
-  // One crossing's four nodes are two rows of two (re, im) int16 pairs: one 16-byte vector,
-  // widened to eight floats, times the four weights each repeated for (re, im).
+/// Lane l's weighted nodes of one family from its cells, on AVX2: one crossing's four nodes are
+/// two rows of two (re, im) int16 pairs, one 16-byte vector widened to eight floats, times the
+/// four weights each repeated for (re, im), summed over the crossings. Its even elements sum to
+/// the field's real part, its odd ones to the imaginary (before the scale).
+inline backend::Vec8f layer_nodes(const ImageModel& m, const LayerField& L, const SpeckleCells& c,
+                                  int l) {
+  const int16_t* nodes = m.speckle;
   const __m256i pairs = _mm256_setr_epi32(0, 0, 1, 1, 2, 2, 3, 3);
   __m256 acc = _mm256_setzero_ps();
   for (int j = 0; j < L.layers; ++j) {
@@ -831,8 +831,14 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const
         _mm256_permutevar8x32_ps(_mm256_castps128_ps256(_mm_loadu_ps(c.w[j][l])), pairs);
     acc = _mm256_fmadd_ps(v, w, acc);
   }
-  backend::sum_even_odd(backend::Vec8f(acc), re, im);
+  return acc;
+}
 #else
+/// Lane l's field of one family from its cells: the weighted sum of each crossing's four nodes.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const LayerField& L,
+                                                      const SpeckleCells& c, int l, float& re,
+                                                      float& im) {
+  const int16_t* nodes = m.speckle;
   float acc[4] = {0, 0, 0, 0};
   for (int j = 0; j < L.layers; ++j) {
     const int16_t* n0 = nodes + 2 * c.row0[j][l];
@@ -840,12 +846,10 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void layer_sum(const ImageModel& m, const
     for (int k = 0; k < 4; ++k)
       acc[k] += c.w[j][l][k / 2] * float(n0[k]) + c.w[j][l][2 + k / 2] * float(n1[k]);
   }
-  re = acc[0] + acc[2];
-  im = acc[1] + acc[3];
-#endif
-  re *= c.scale[l];
-  im *= c.scale[l];
+  re = (acc[0] + acc[2]) * c.scale[l];
+  im = (acc[1] + acc[3]) * c.scale[l];
 }
+#endif
 
 /// Stage 1b, beam b: the diffuse echo weights trace_beam() left in echo's real parts times the
 /// speckle field: per sample, the elevation profile's weighted sum of the speckle layers its
@@ -878,8 +882,24 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void add_speckle_group(const ImageModel& 
   }
   const float* p[3] = {px, py, pz};
   float re[N], im[N];
-  for (int l = 0; l < N; ++l) re[l] = im[l] = 0;
   SpeckleCells c;
+#if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
+  // Every lane (a group is all tissue or all not but at a few edges), summed across lanes at once.
+  using backend::Vec8f;
+  Vec8f re8(0.f), im8(0.f);
+  for (int f = 0; f < m.fields; ++f) {
+    layer_cells(m, m.field[f], p, c);
+    Vec8f nodes[N], r, i;
+    for (int l = 0; l < N; ++l) nodes[l] = layer_nodes(m, m.field[f], c, l);
+    backend::sum_even_odd8(nodes, r, i);
+    const Vec8f scale = backend::load_as_float(c.scale);
+    re8 = re8 + r * scale;
+    im8 = im8 + i * scale;
+  }
+  re8.store(re);
+  im8.store(im);
+#else
+  for (int l = 0; l < N; ++l) re[l] = im[l] = 0;
   for (int f = 0; f < m.fields; ++f) {
     layer_cells(m, m.field[f], p, c);
     for (int l = 0; l < n; ++l) {
@@ -890,6 +910,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void add_speckle_group(const ImageModel& 
       im[l] += i;
     }
   }
+#endif
   for (int l = 0; l < n; ++l) {
     const float weight = echo[2 * (first + l)];
     echo[2 * (first + l)] = weight * re[l];
