@@ -144,7 +144,7 @@ struct ImageModel {
   // Makes a tissue's mean speckle envelope its scatter_mean (Simulator calibrates it).
   float speckle_gain = 1;
   bool tgc_auto = true, bmode = true;
-  float dynamic_range_db = 60;
+  float grey_per_db = 255.0f / 60;  // log compression: 255 / the dynamic range (dB)
   // Output grid and scan conversion: for pixel i inside the mask, the beam-buffer index of its
   // lower (beam, sample) corner, the steps to the upper ones, and the weights.
   int width = 0, height = 0;
@@ -1167,7 +1167,7 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void scan_value(const ImageModel& m, cons
   const float gain_db = level[s0] + ts * (level[s0 + ds] - level[s0]);
   // 20·log10(env) = 10·log10(power) = (10 / log2(10))·log2(power).
   const float db = power > 0 ? 3.0102999566398120f * fast_log2(power) + gain_db : -1e9f;
-  const float grey = clampf(255.0f * (1.0f + db / m.dynamic_range_db), 0.0f, 255.0f);
+  const float grey = clampf(255.0f + db * m.grey_per_db, 0.0f, 255.0f);
   static_cast<uint8_t*>(out)[i] = uint8_t(std::floor(grey + 0.5f));
 }
 

@@ -459,7 +459,7 @@ Simulator::Simulator(Volume volume, SimulationSource source,
   b.speckle_gain = float(speckle_gain(b, Psf::variance(psf.lateral)));
   b.tgc_auto = settings.tgc_auto;
   b.bmode = settings.output == SimulationOutput::BMode;
-  b.dynamic_range_db = float(settings.dynamic_range_db);
+  b.grey_per_db = float(255.0 / settings.dynamic_range_db);
   if (settings.device.type == DeviceType::CUDA) {
     require_device(settings.device);  // names the device, or says the build has no CUDA
 #ifdef SONOSLICE_HAVE_CUDA
