@@ -8,6 +8,8 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <memory>
+#include <type_traits>
 
 #include "../backend/ParallelFor.h"
 #include "../core/Random.h"
@@ -170,13 +172,14 @@ void keep_largest_component(std::vector<uint8_t>& mask, const int64_t dims[3]) {
 void fill_cavities(std::vector<uint8_t>& mask, const int64_t dims[3]) {
   const int64_t nx = dims[0], ny = dims[1], nz = dims[2];
   std::vector<int64_t> stack;
+  // The border voxels only (x == 0 or nx − 1 on every row; whole rows where y or z is at an end).
   for (int64_t z = 0; z < nz; ++z)
-    for (int64_t y = 0; y < ny; ++y)
-      for (int64_t x = 0; x < nx; ++x) {
-        const bool border = x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1;
-        const int64_t i = (z * ny + y) * nx + x;
-        if (border && mask[size_t(i)] == 0) flood(mask, dims, i, 0, 2, stack);
-      }
+    for (int64_t y = 0; y < ny; ++y) {
+      const bool whole = y == 0 || z == 0 || y == ny - 1 || z == nz - 1;
+      const int64_t row = (z * ny + y) * nx;
+      for (int64_t x = 0; x < nx; x += whole || x == nx - 1 ? 1 : nx - 1)
+        if (mask[size_t(row + x)] == 0) flood(mask, dims, row + x, 0, 2, stack);
+    }
   for (auto& m : mask) m = m == 2 ? 0 : 1;
 }
 
@@ -321,8 +324,8 @@ void PoseSampler::State::build_skin() {
   keep_largest_component(body, g.dims.data());
   fill_cavities(body, g.dims.data());  // lungs and bowel gas are inside, not skin
   // Surface voxels: in the body with a 6-neighbour (inside the volume) outside it.
-  std::vector<int64_t> surface;
-  for (int64_t z = 0; z < nz; ++z)
+  std::vector<std::vector<int64_t>> surface_of(static_cast<size_t>(nz));  // per slice, in order
+  backend::parallel_for(nz, [&](int64_t z) {
     for (int64_t y = 0; y < ny; ++y)
       for (int64_t x = 0; x < nx; ++x) {
         const int64_t i = (z * ny + y) * nx + x;
@@ -331,8 +334,12 @@ void PoseSampler::State::build_skin() {
             (x > 0 && !body[size_t(i - 1)]) || (x + 1 < nx && !body[size_t(i + 1)]) ||
             (y > 0 && !body[size_t(i - nx)]) || (y + 1 < ny && !body[size_t(i + nx)]) ||
             (z > 0 && !body[size_t(i - nx * ny)]) || (z + 1 < nz && !body[size_t(i + nx * ny)]);
-        if (edge) surface.push_back(i);
+        if (edge) surface_of[size_t(z)].push_back(i);
       }
+  });
+  std::vector<int64_t> surface;
+  for (const auto& in_slice : surface_of)
+    surface.insert(surface.end(), in_slice.begin(), in_slice.end());
   if (surface.empty())
     throw InputError("skin sampler: no body surface at threshold_hu " +
                      std::to_string(s.threshold_hu) + " (is the volume a CT in HU?)");
@@ -342,14 +349,37 @@ void PoseSampler::State::build_skin() {
   // bright objects (a table) as outside. Then the point itself: where the trilinear CT crosses
   // the threshold along that normal, within two voxels of the voxel centre.
   const double h = std::max({g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]});
-  std::vector<uint8_t> soft(static_cast<size_t>(n));  // 0..255
-  backend::parallel_for(nz, [&](int64_t z) {
-    for_slice_values(ct.volume, z, [&](int64_t j, double v) {
-      const double ramp = std::min(1.0, std::max(0.0, (v - s.threshold_hu) / 1000 + 0.5));
-      const double f =
-          body[size_t(j)] ? (v > s.threshold_hu ? ramp : 1.0) : (v > s.threshold_hu ? 0.0 : ramp);
-      soft[size_t(j)] = uint8_t(255 * f + 0.5);
-    });
+  const auto soft_of = [&](bool in_body, double v) {  // 0..255
+    const double ramp = std::min(1.0, std::max(0.0, (v - s.threshold_hu) / 1000 + 0.5));
+    const double f =
+        in_body ? (v > s.threshold_hu ? ramp : 1.0) : (v > s.threshold_hu ? 0.0 : ramp);
+    return uint8_t(255 * f + 0.5);
+  };
+  std::unique_ptr<uint8_t[]> soft(new uint8_t[size_t(n)]);  // every voxel written below
+  visit_pixel_type(ct.volume.pixel_type(), [&](auto zero) {
+    using T = decltype(zero);
+    const T* data = ct.volume.data_as<T>();
+    const int64_t slice = nx * ny;
+    if constexpr (std::is_integral_v<T> && sizeof(T) <= 2) {
+      // A CT's usual types: every value's soft mask once (the same formula), then a table
+      // lookup per voxel.
+      constexpr int64_t lo = std::numeric_limits<T>::min(),
+                        count = int64_t(std::numeric_limits<T>::max()) - lo + 1;
+      std::vector<uint8_t> table(size_t(2 * count));
+      for (int64_t k = 0; k < count; ++k) {
+        table[size_t(k)] = soft_of(false, double(lo + k));
+        table[size_t(count + k)] = soft_of(true, double(lo + k));
+      }
+      backend::parallel_for(nz, [&](int64_t z) {
+        for (int64_t j = z * slice; j < (z + 1) * slice; ++j)
+          soft[size_t(j)] = table[size_t(body[size_t(j)] * count + (int64_t(data[j]) - lo))];
+      });
+    } else {
+      backend::parallel_for(nz, [&](int64_t z) {
+        for (int64_t j = z * slice; j < (z + 1) * slice; ++j)
+          soft[size_t(j)] = soft_of(body[size_t(j)] != 0, double(data[j]));
+      });
+    }
   });
   constexpr int r = 4;  // σ = 1.5 voxels, cut at 2.7σ
   double weight[2 * r + 1];
@@ -377,7 +407,7 @@ void PoseSampler::State::build_skin() {
       const int64_t x = i % nx, y = (i / nx) % ny, z = i / (nx * ny);
       Vec3 sum{0, 0, 0};
       if (x >= r && y >= r && z >= r && x + r < nx && y + r < ny && z + r < nz) {
-        const uint8_t* around = soft.data() + i;
+        const uint8_t* around = soft.get() + i;
         for (const Tap& t : taps) sum = sum - (t.w * around[t.offset]) * t.o;
       } else {  // near the volume's border: the taps inside it
         for (const Tap& t : taps) {
