@@ -632,16 +632,20 @@ inline void trace_beams8(const ImageModel& m, int b0, float* echo, float* specul
       inside &= backend::lanes_in_range(c[k], -0.5f, end[k]);
     }
     if ((interior | (~inside & 0xff)) == 0xff && fits_int32) {
-      if (interior == 0xff) {
-        props_lanes(m, c[0], c[1], c[2], z, alpha, scatter);
-      } else {
+      z = Vec8f(m.outside.z);
+      alpha = Vec8f(m.outside.alpha);
+      scatter = Vec8f(m.outside.scatter);
+      if (interior) {
+        // Lanes outside read a cell inside (clamped; the others are left as they are), then
+        // keep the water above.
         for (int k = 0; k < 3; ++k)
           c[k] = backend::min(backend::max(c[k], Vec8f(0.f)), Vec8f(hi[k]));
-        if (interior) props_lanes(m, c[0], c[1], c[2], z, alpha, scatter);
+        Vec8f zi, ai, si;
+        props_lanes(m, c[0], c[1], c[2], zi, ai, si);
         const Vec8f in = backend::lane_mask(interior);
-        z = backend::select(in, z, Vec8f(m.outside.z));
-        alpha = backend::select(in, alpha, Vec8f(m.outside.alpha));
-        scatter = backend::select(in, scatter, Vec8f(m.outside.scatter));
+        z = backend::select(in, zi, z);
+        alpha = backend::select(in, ai, alpha);
+        scatter = backend::select(in, si, scatter);
       }
     } else {
       float cl[3][N], zl[N], al[N], sl[N];

@@ -158,10 +158,12 @@ double speckle_gain(const ImageModel& model, double lateral_variance_mm2) {
     simulate_impl::add_speckle(m, b, field.data());
     simulate_impl::filter_axial_speckle(m, b, field.data() + 2 * size_t(b) * S, tmp.data());
   }
-  for (int b = 0; b < B; ++b)
+  for (int b = 0; b < B; ++b) {
+    const int level = lateral_level(m, b);
     simulate_impl::filter_lateral(field.data(), out.data() + 2 * size_t(b) * S, B, S, 2,
-                                  lateral_speckle_taps(m, lateral_level(m, b)),
-                                  lateral_speckle_ranges(m, lateral_level(m, b)), radius, b);
+                                  lateral_speckle_taps(m, level), lateral_speckle_ranges(m, level),
+                                  radius, b);
+  }
   // The mean envelope where the image's pixels fall: anywhere between samples and beams, where
   // scan conversion interpolates the complex echo (a little below the samples' own mean).
   double sum = 0;
