@@ -168,9 +168,10 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
       make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, centre);
   L.gradients = gradients;
   PoseTerms total;
+  std::vector<double> scratch(size_t(register_impl::kRowArrays) * L.width);
   for (int v = 0; v < L.height; ++v) {
     PoseTerms row;
-    register_impl::accumulate_row(L, v, row);
+    register_impl::accumulate_row(L, v, scratch.data(), row);
     total.add(row);
   }
   return total;

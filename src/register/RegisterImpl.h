@@ -69,42 +69,97 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void for_each_row_sample(const TermsLaunc
   }
 }
 
-/// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
-/// (trilinear, 0 ≤ c ≤ n − 1 on every axis).
-SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, PoseTerms& t) {
+/// Row v's compared pixels (inside the mask and the volume), packed into `x` (kRowArrays
+/// arrays of L.width values): x[0..n) the volume's value I, x[w..w + n) the frame's F and,
+/// with L.gradients, x[(2 + r)·w ..) the derivative J_r of I by the pose increment's r-th
+/// component; returns n.
+constexpr int kRowArrays = 8;
+SONOSLICE_HOST_DEVICE inline int pack_row(const TermsLaunch& L, int v, double* x) {
+  const int w = L.width;
   const double y = L.y0 + v * L.sy;
-  for_each_row_sample(L, v, L.gradients, [&](int64_t i, double x, const CellSample& cs) {
-    const double I = cs.value;
-    const double F = L.frame[i];
-    t.n += 1;
-    t.si += I;
-    t.sf += F;
-    t.sii += I * I;
-    t.sff += F * F;
-    t.sif += I * F;
-    if (!L.gradients) return;
-    const double* gc = cs.gc;
-    double gw[3], w[3];
-    for (int k = 0; k < 3; ++k) {
-      gw[k] = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
-      w[k] = L.P[3 * k] * x + L.P[3 * k + 1] * y + L.p[k] - L.centre[k];
+  int n = 0;
+  for_each_row_sample(L, v, L.gradients, [&](int64_t i, double px, const CellSample& cs) {
+    x[n] = cs.value;
+    x[w + n] = L.frame[i];
+    if (L.gradients) {
+      const double* gc = cs.gc;
+      double gw[3], r[3];
+      for (int k = 0; k < 3; ++k) {
+        gw[k] = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
+        r[k] = L.P[3 * k] * px + L.P[3 * k + 1] * y + L.p[k] - L.centre[k];
+      }
+      // J = (∇I, r × ∇I), r = w − c: a translation v moves the sample by v, a rotation ω
+      // about the centre by ω × r, and ∇I·(ω × r) = ω·(r × ∇I).
+      double* J = x + 2 * w + n;
+      J[0] = gw[0];
+      J[w] = gw[1];
+      J[2 * w] = gw[2];
+      J[3 * w] = r[1] * gw[2] - r[2] * gw[1];
+      J[4 * w] = r[2] * gw[0] - r[0] * gw[2];
+      J[5 * w] = r[0] * gw[1] - r[1] * gw[0];
     }
-    // J = (∇I, (w − c) × ∇I): a translation v moves the sample by v, a rotation ω about the
-    // centre by ω × (w − c), and ∇I·(ω × r) = ω·(r × ∇I).
-    const double J[6] = {gw[0],
-                         gw[1],
-                         gw[2],
-                         w[1] * gw[2] - w[2] * gw[1],
-                         w[2] * gw[0] - w[0] * gw[2],
-                         w[0] * gw[1] - w[1] * gw[0]};
-    int e = 0;
-    for (int r = 0; r < 6; ++r) {
-      t.sj[r] += J[r];
-      t.sij[r] += I * J[r];
-      t.sfj[r] += F * J[r];
-      for (int k = r; k < 6; ++k) t.sjj[e++] += J[r] * J[k];
-    }
+    ++n;
   });
+  return n;
+}
+
+/// out[m] += Σ_i a_i·b_m,i for m < M over n values (a = nullptr: Σ_i b_m,i), each as four
+/// interleaved partial sums added in a fixed order: one pass over the row for M sums, whose
+/// partial sums the compiler keeps in vector registers; the result does not depend on the
+/// machine.
+template <int M>
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void row_dots(const double* a, const double* const* b, int n,
+                                                     double* out) {
+  double s[M][4] = {};
+  int i = 0;
+  for (; i + 4 <= n; i += 4)
+    for (int m = 0; m < M; ++m)
+      for (int l = 0; l < 4; ++l) s[m][l] += (a ? a[i + l] : 1.0) * b[m][i + l];
+  for (int l = 0; i < n; ++i, ++l)
+    for (int m = 0; m < M; ++m) s[m][l] += (a ? a[i] : 1.0) * b[m][i];
+  for (int m = 0; m < M; ++m) out[m] += (s[m][0] + s[m][1]) + (s[m][2] + s[m][3]);
+}
+
+/// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
+/// (trilinear, 0 ≤ c ≤ n − 1 on every axis). `scratch`: kRowArrays · L.width doubles. The row is
+/// packed first and its sums taken a few at a time over the packed arrays, as vector operations.
+SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, double* scratch,
+                                                 PoseTerms& t) {
+  const int w = L.width;
+  const int n = pack_row(L, v, scratch);
+  if (n == 0) return;
+  const double* x[kRowArrays];  // I, F, J0..J5
+  for (int k = 0; k < kRowArrays; ++k) x[k] = scratch + size_t(k) * w;
+  t.n += n;
+  double plain[5] = {0, 0, 0, 0, 0};  // Σ I, Σ F, Σ I², Σ I·F, Σ F²
+  row_dots<2>(nullptr, x, n, plain);
+  row_dots<2>(x[0], x, n, plain + 2);
+  row_dots<1>(x[1], x + 1, n, plain + 4);
+  t.si += plain[0];
+  t.sf += plain[1];
+  t.sii += plain[2];
+  t.sif += plain[3];
+  t.sff += plain[4];
+  if (!L.gradients) return;
+  const double* const* J = x + 2;
+  double sums[3][6] = {};  // Σ J, Σ I·J, Σ F·J
+  row_dots<6>(nullptr, J, n, sums[0]);
+  row_dots<6>(x[0], J, n, sums[1]);
+  row_dots<6>(x[1], J, n, sums[2]);
+  for (int r = 0; r < 6; ++r) {
+    t.sj[r] += sums[0][r];
+    t.sij[r] += sums[1][r];
+    t.sfj[r] += sums[2][r];
+  }
+  // Σ J·Jᵀ, upper triangle row by row: row r is J_r against J_r..J_5.
+  double jj[21] = {};
+  row_dots<6>(J[0], J, n, jj);
+  row_dots<5>(J[1], J + 1, n, jj + 6);
+  row_dots<4>(J[2], J + 2, n, jj + 11);
+  row_dots<3>(J[3], J + 3, n, jj + 15);
+  row_dots<2>(J[4], J + 4, n, jj + 18);
+  row_dots<1>(J[5], J + 5, n, jj + 20);
+  for (int e = 0; e < 21; ++e) t.sjj[e] += jj[e];
 }
 
 /// Bins of the mutual information's joint histogram per axis.
