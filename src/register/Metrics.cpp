@@ -5,6 +5,7 @@
 #include <limits>
 #include <vector>
 
+#include "RegisterBackends.h"
 #include "RegisterImpl.h"
 #include "RegistrationState.h"
 
@@ -168,12 +169,7 @@ PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, co
       make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, centre);
   L.gradients = gradients;
   PoseTerms total;
-  std::vector<double> scratch(size_t(register_impl::kRowArrays) * L.width);
-  for (int v = 0; v < L.height; ++v) {
-    PoseTerms row;
-    register_impl::accumulate_row(L, v, scratch.data(), row);
-    total.add(row);
-  }
+  register_impl::terms_cpu(cpu_kernel_isa(), L, total);
   return total;
 }
 

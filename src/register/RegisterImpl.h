@@ -5,8 +5,13 @@
 /// does not depend on the thread count.
 #include <cmath>
 #include <cstdint>
+#include <vector>
 
 #include "../geometry/Sampling.h"
+#if !defined(__CUDACC__) && defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#define SONOSLICE_REGISTER_AVX2 1
+#endif
 #include "sonoslice/backend/HostDevice.h"
 #include "sonoslice/geometry/VolumeGrid.h"
 #include "sonoslice/register/Registration.h"
@@ -42,6 +47,20 @@ constexpr int kLc2Sums = 10;
 struct CellSample {
   double value = 0, gc[3] = {0, 0, 0};
 };
+
+/// The packed arrays of a row (pack_row): kRowArrays of them, each the row's width plus four
+/// (a four-lane store may reach past the last packed pixel).
+constexpr int kRowArrays = 8;
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE int row_stride(int width) {
+  return width + 4;
+}
+
+/// Bins of the mutual information's joint histogram per axis.
+constexpr int kMiBins = 32;
+
+// The functions below are compiled once per instruction set (RegisterCPU.cpp,
+// RegisterCPUAvx2.cpp), like geometry/Sampling.h's.
+inline namespace SONOSLICE_KERNEL_ISA {
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool sample_cell(const TermsLaunch& L, double x, double y,
                                                         bool gradient, CellSample& out) {
   using geometry::EdgeRule;
@@ -69,37 +88,169 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void for_each_row_sample(const TermsLaunc
   }
 }
 
-/// Row v's compared pixels (inside the mask and the volume), packed into `x` (kRowArrays
-/// arrays of L.width values): x[0..n) the volume's value I, x[w..w + n) the frame's F and,
-/// with L.gradients, x[(2 + r)·w ..) the derivative J_r of I by the pose increment's r-th
-/// component; returns n.
-constexpr int kRowArrays = 8;
-SONOSLICE_HOST_DEVICE inline int pack_row(const TermsLaunch& L, int v, double* x) {
-  const int w = L.width;
+/// Pixel i (probe x = px, row y) with its sample cs, written at place n of the packed arrays
+/// `x` (stride w): I, F and, with L.gradients, the derivatives J_r of I by the pose
+/// increment's components.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void pack_pixel(const TermsLaunch& L, int64_t i, double px,
+                                                       double y, const CellSample& cs, double* x,
+                                                       int w, int n) {
+  x[n] = cs.value;
+  x[w + n] = L.frame[i];
+  if (!L.gradients) return;
+  const double* gc = cs.gc;
+  double gw[3], r[3];
+  for (int k = 0; k < 3; ++k) {
+    gw[k] = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
+    r[k] = L.P[3 * k] * px + L.P[3 * k + 1] * y + L.p[k] - L.centre[k];
+  }
+  // J = (∇I, r × ∇I), r = w − c: a translation v moves the sample by v, a rotation ω about the
+  // centre by ω × r, and ∇I·(ω × r) = ω·(r × ∇I).
+  double* J = x + 2 * w + n;
+  J[0] = gw[0];
+  J[w] = gw[1];
+  J[2 * w] = gw[2];
+  J[3 * w] = r[1] * gw[2] - r[2] * gw[1];
+  J[4 * w] = r[2] * gw[0] - r[0] * gw[2];
+  J[5 * w] = r[0] * gw[1] - r[1] * gw[0];
+}
+
+#if SONOSLICE_REGISTER_AVX2
+/// Writes the lanes of `valid` (a 4-bit mask) of each of `arrays` vectors, left-packed in lane
+/// order, at x[k·w + n ..] (k = 0: *value, 1: *frame, then rest[k − 2]); returns their count.
+SONOSLICE_INLINE int left_pack(int valid, const __m256d* value, const __m256d* frame, int arrays,
+                               double* x, int w, int n, const __m256d* rest = nullptr) {
+  // Per mask, the permutation of the eight 32-bit halves that moves the valid lanes first.
+  alignas(32) static const int32_t kPack[16][8] = {
+      {0, 1, 0, 1, 0, 1, 0, 1}, {0, 1, 0, 1, 0, 1, 0, 1}, {2, 3, 0, 1, 0, 1, 0, 1},
+      {0, 1, 2, 3, 0, 1, 0, 1}, {4, 5, 0, 1, 0, 1, 0, 1}, {0, 1, 4, 5, 0, 1, 0, 1},
+      {2, 3, 4, 5, 0, 1, 0, 1}, {0, 1, 2, 3, 4, 5, 0, 1}, {6, 7, 0, 1, 0, 1, 0, 1},
+      {0, 1, 6, 7, 0, 1, 0, 1}, {2, 3, 6, 7, 0, 1, 0, 1}, {0, 1, 2, 3, 6, 7, 0, 1},
+      {4, 5, 6, 7, 0, 1, 0, 1}, {0, 1, 4, 5, 6, 7, 0, 1}, {2, 3, 4, 5, 6, 7, 0, 1},
+      {0, 1, 2, 3, 4, 5, 6, 7}};
+  const __m256i perm = _mm256_load_si256(reinterpret_cast<const __m256i*>(kPack[valid]));
+  for (int k = 0; k < arrays; ++k) {
+    const __m256d v = k == 0 ? *value : (k == 1 ? *frame : rest[k - 2]);
+    _mm256_storeu_pd(x + size_t(k) * w + n,
+                     _mm256_castps_pd(_mm256_permutevar8x32_ps(_mm256_castpd_ps(v), perm)));
+  }
+  return __builtin_popcount(unsigned(valid));
+}
+
+/// Pixels u .. u + 3 of row v (with derivatives when L.gradients), four double lanes: the same
+/// operations in the same order as sample_cell and pack_pixel (this file is built without FMA
+/// contraction), so the packed values are bit for bit the scalar ones; the corners come by gathers.
+/// Packs the pixels inside the mask and the volume at x[n ..] (left-packed, in order); returns how
+/// many. Needs a volume of fewer than 2^31 voxels (32-bit gather offsets).
+SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, int w, int n) {
   const double y = L.y0 + v * L.sy;
-  int n = 0;
-  for_each_row_sample(L, v, L.gradients, [&](int64_t i, double px, const CellSample& cs) {
-    x[n] = cs.value;
-    x[w + n] = L.frame[i];
-    if (L.gradients) {
-      const double* gc = cs.gc;
-      double gw[3], r[3];
-      for (int k = 0; k < 3; ++k) {
-        gw[k] = L.G[3 * k] * gc[0] + L.G[3 * k + 1] * gc[1] + L.G[3 * k + 2] * gc[2];
-        r[k] = L.P[3 * k] * px + L.P[3 * k + 1] * y + L.p[k] - L.centre[k];
-      }
-      // J = (∇I, r × ∇I), r = w − c: a translation v moves the sample by v, a rotation ω
-      // about the centre by ω × r, and ∇I·(ω × r) = ω·(r × ∇I).
-      double* J = x + 2 * w + n;
-      J[0] = gw[0];
-      J[w] = gw[1];
-      J[2 * w] = gw[2];
-      J[3 * w] = r[1] * gw[2] - r[2] * gw[1];
-      J[4 * w] = r[2] * gw[0] - r[0] * gw[2];
-      J[5 * w] = r[0] * gw[1] - r[1] * gw[0];
-    }
-    ++n;
-  });
+  const int64_t i = int64_t(v) * L.width + u;
+  int32_t word;
+  __builtin_memcpy(&word, L.mask + i, 4);
+  const int in_mask =
+      ~_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_cvtsi32_si128(word), _mm_setzero_si128())) & 0xf;
+  const geometry::VolumeView& g = L.grid;
+  if (!in_mask || g.nx < 2 || g.ny < 2 || g.nz < 2) return 0;
+  const __m256d px = _mm256_add_pd(
+      _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(double(u)), _mm256_setr_pd(0, 1, 2, 3)),
+                    _mm256_set1_pd(L.sx)),
+      _mm256_set1_pd(L.x0));
+  // c = A·(x, y, 0) + a, as IndexMap::apply rounds it.
+  __m256d c[3];
+  const int n_axis[3] = {g.nx, g.ny, g.nz};
+  __m256d inside = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+  for (int k = 0; k < 3; ++k) {
+    const IndexMap& m = L.probe_to_index;
+    c[k] = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(m.A[k][0]), px),
+                                                     _mm256_set1_pd(m.A[k][1] * y)),
+                                       _mm256_set1_pd(m.A[k][2] * 0.0)),
+                         _mm256_set1_pd(m.a[k]));
+    inside = _mm256_and_pd(inside, _mm256_cmp_pd(c[k], _mm256_setzero_pd(), _CMP_GE_OQ));
+    inside = _mm256_and_pd(inside,
+                           _mm256_cmp_pd(c[k], _mm256_set1_pd(double(n_axis[k] - 1)), _CMP_LE_OQ));
+  }
+  const int valid = in_mask & _mm256_movemask_pd(inside);
+  if (!valid) return 0;
+  // The cell: int(c), or n − 2 at c = n − 1; lanes outside read voxel 0.
+  __m128i cell[3];
+  __m256d f[3];
+  for (int k = 0; k < 3; ++k) {
+    const __m256d last = _mm256_set1_pd(double(n_axis[k] - 1));
+    const __m256d ck = _mm256_and_pd(c[k], inside);  // 0 in the lanes outside
+    const __m128i below = _mm256_cvttpd_epi32(ck);
+    const __m128i at_end = _mm256_castsi256_si128(
+        _mm256_permutevar8x32_epi32(_mm256_castpd_si256(_mm256_cmp_pd(ck, last, _CMP_LT_OQ)),
+                                    _mm256_setr_epi32(0, 2, 4, 6, 0, 0, 0, 0)));
+    cell[k] = _mm_blendv_epi8(_mm_set1_epi32(n_axis[k] - 2), below, at_end);
+    f[k] = _mm256_sub_pd(ck, _mm256_cvtepi32_pd(cell[k]));
+  }
+  const __m128i sy = _mm_set1_epi32(int32_t(g.stride_y)), sz = _mm_set1_epi32(int32_t(g.stride_z));
+  const __m128i r00 = _mm_add_epi32(_mm_mullo_epi32(cell[2], sz), _mm_mullo_epi32(cell[1], sy));
+  const __m128i o000 = _mm_add_epi32(r00, cell[0]);
+  const __m128i o010 = _mm_add_epi32(o000, sy), o001 = _mm_add_epi32(o000, sz);
+  const __m128i o011 = _mm_add_epi32(o001, sy);
+  const auto voxels = [&](__m128i o) { return _mm256_cvtps_pd(_mm_i32gather_ps(L.volume, o, 4)); };
+  const auto next = [&](__m128i o) {
+    return _mm256_cvtps_pd(_mm_i32gather_ps(L.volume + 1, o, 4));
+  };
+  const __m256d v000 = voxels(o000), v100 = next(o000), v010 = voxels(o010), v110 = next(o010);
+  const __m256d v001 = voxels(o001), v101 = next(o001), v011 = voxels(o011), v111 = next(o011);
+  const auto lerp = [](__m256d a, __m256d b, __m256d t) {
+    return _mm256_add_pd(a, _mm256_mul_pd(t, _mm256_sub_pd(b, a)));
+  };
+  // geometry::linear_value and linear_value_gradient (the same lerps), lane by lane.
+  const __m256d a00 = lerp(v000, v100, f[0]), a10 = lerp(v010, v110, f[0]);
+  const __m256d a01 = lerp(v001, v101, f[0]), a11 = lerp(v011, v111, f[0]);
+  const __m256d b0 = lerp(a00, a10, f[1]), b1 = lerp(a01, a11, f[1]);
+  const __m256d value = lerp(b0, b1, f[2]);
+  const __m256d frame = _mm256_cvtps_pd(_mm_loadu_ps(L.frame + i));
+  if (!L.gradients) return left_pack(valid, &value, &frame, 2, x, w, n);
+  const __m256d dx00 = _mm256_sub_pd(v100, v000), dx10 = _mm256_sub_pd(v110, v010);
+  const __m256d dx01 = _mm256_sub_pd(v101, v001), dx11 = _mm256_sub_pd(v111, v011);
+  const __m256d gc[3] = {lerp(lerp(dx00, dx10, f[1]), lerp(dx01, dx11, f[1]), f[2]),
+                         lerp(_mm256_sub_pd(a10, a00), _mm256_sub_pd(a11, a01), f[2]),
+                         _mm256_sub_pd(b1, b0)};
+  // pack_pixel, lane by lane.
+  const auto mul = [](double s, __m256d a) { return _mm256_mul_pd(_mm256_set1_pd(s), a); };
+  __m256d gw[3], r[3];
+  for (int k = 0; k < 3; ++k) {
+    gw[k] = _mm256_add_pd(_mm256_add_pd(mul(L.G[3 * k], gc[0]), mul(L.G[3 * k + 1], gc[1])),
+                          mul(L.G[3 * k + 2], gc[2]));
+    r[k] = _mm256_sub_pd(
+        _mm256_add_pd(_mm256_add_pd(mul(L.P[3 * k], px), _mm256_set1_pd(L.P[3 * k + 1] * y)),
+                      _mm256_set1_pd(L.p[k])),
+        _mm256_set1_pd(L.centre[k]));
+  }
+  const auto cross = [](__m256d a, __m256d b, __m256d c, __m256d d) {
+    return _mm256_sub_pd(_mm256_mul_pd(a, b), _mm256_mul_pd(c, d));
+  };
+  const __m256d out[kRowArrays - 2] = {gw[0],
+                                       gw[1],
+                                       gw[2],
+                                       cross(r[1], gw[2], r[2], gw[1]),
+                                       cross(r[2], gw[0], r[0], gw[2]),
+                                       cross(r[0], gw[1], r[1], gw[0])};
+  return left_pack(valid, &value, &frame, kRowArrays, x, w, n, out);
+}
+#endif
+
+/// Row v's compared pixels (inside the mask and the volume), packed into `x` (kRowArrays
+/// arrays, row_stride(L.width) apart): I, F and, with L.gradients, the six derivatives J_r, in
+/// pixel order; returns how many.
+SONOSLICE_HOST_DEVICE inline int pack_row(const TermsLaunch& L, int v, double* x) {
+  const int w = row_stride(L.width);
+  const double y = L.y0 + v * L.sy;
+  int n = 0, u = 0;
+#if SONOSLICE_REGISTER_AVX2
+  if (int64_t(L.grid.nx) * L.grid.ny * L.grid.nz < (int64_t(1) << 31))
+    for (; u + 4 <= L.width; u += 4) n += pack_four(L, v, u, x, w, n);
+#endif
+  for (; u < L.width; ++u) {
+    const int64_t i = int64_t(v) * L.width + u;
+    if (!L.mask[i]) continue;
+    const double px = L.x0 + u * L.sx;
+    CellSample cs;
+    if (sample_cell(L, px, y, L.gradients, cs)) pack_pixel(L, i, px, y, cs, x, w, n++);
+  }
   return n;
 }
 
@@ -121,11 +272,12 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void row_dots(const double* a, const doub
 }
 
 /// Adds row v's pixels to `t`: each pixel inside the mask whose sample lies inside the volume
-/// (trilinear, 0 ≤ c ≤ n − 1 on every axis). `scratch`: kRowArrays · L.width doubles. The row is
-/// packed first and its sums taken a few at a time over the packed arrays, as vector operations.
+/// (trilinear, 0 ≤ c ≤ n − 1 on every axis). `scratch`: kRowArrays · row_stride(L.width)
+/// doubles. The row is packed first and its sums taken a few at a time over the packed arrays, as
+/// vector operations.
 SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, double* scratch,
                                                  PoseTerms& t) {
-  const int w = L.width;
+  const int w = row_stride(L.width);
   const int n = pack_row(L, v, scratch);
   if (n == 0) return;
   const double* x[kRowArrays];  // I, F, J0..J5
@@ -162,8 +314,16 @@ SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, do
   for (int e = 0; e < 21; ++e) t.sjj[e] += jj[e];
 }
 
-/// Bins of the mutual information's joint histogram per axis.
-constexpr int kMiBins = 32;
+/// Adds the rows of L, in order, to `total`: the terms of one frame at one pose (host code:
+/// one scratch row buffer per call).
+inline void accumulate_rows(const TermsLaunch& L, PoseTerms& total) {
+  std::vector<double> scratch(size_t(kRowArrays) * size_t(row_stride(L.width)));
+  for (int v = 0; v < L.height; ++v) {
+    PoseTerms row;
+    accumulate_row(L, v, scratch.data(), row);
+    total.add(row);
+  }
+}
 
 /// Mutual information, row v: each pixel inside the mask and the volume adds 1 to the joint
 /// histogram (volume × frame, kMiBins²) split over the 2 × 2 bins around its (clipped, scaled)
@@ -230,5 +390,6 @@ SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, dou
   });
 }
 
+}  // namespace SONOSLICE_KERNEL_ISA
 }  // namespace register_impl
 }  // namespace sonoslice

@@ -1,0 +1,11 @@
+// The registration row kernel for any x86-64 (or other) CPU: RegisterImpl.h with scalar
+// sampling.
+#include "RegisterBackends.h"
+
+namespace sonoslice {
+namespace register_impl {
+void terms_cpu_generic(const TermsLaunch& L, PoseTerms& total) {
+  accumulate_rows(L, total);
+}
+}  // namespace register_impl
+}  // namespace sonoslice
