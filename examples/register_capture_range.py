@@ -11,7 +11,7 @@ Each perturbation moves the fan's centre by E mm in a random direction and turns
 E degrees about a random axis through that centre (seeded). The registration runs through the
 CLI exactly as a user would call it (W1: fan-slicer's LUS config at --downsampling 2). The table
 goes to stdout (markdown); --plot writes the curves as an SVG. `--starts auto` leaves the
-choice to the command (its default: starts until two agree). The table also says how many frames
+choice to the command (its default: starts until three agree). The table also says how many frames
 the report calls converged, and how many of the frames that missed were called converged anyway
 (the silent failures the convergence check is there to prevent). Instead of CT fans: --simulated
 registers `sonoslice simulate --preset lus` B-mode frames; --independent B-mode frames of another

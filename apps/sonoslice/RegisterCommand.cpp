@@ -317,9 +317,9 @@ void add_register_command(CLI::App& app) {
                   "lm, gn, bobyqa or nelder-mead (default: " + chosen + ")");
   cmd->add_option("--starts", flags->starts,
                   "Optimisations per frame (per sweep) from spread points (default: automatic, "
-                  "until two reach the same pose, at most " +
-                      std::to_string(kAutoMaxStarts) +
-                      "; a sweep's shared correction: three, at most " +
+                  "until " +
+                      std::to_string(kAgreeingStarts) + " reach the same pose, at most " +
+                      std::to_string(kAutoMaxStarts) + "; a sweep's shared correction: at most " +
                       std::to_string(kAutoMaxSweepStarts) + ")");
   cmd->add_option(
       "--search-rot-deg", flags->search_rot_deg,

@@ -86,9 +86,9 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     uncertainty_mm, uncertainty_deg),
     "converged_frames", "correction" (the sweep modes' and calibration's shared 4×4 correction),
     "evaluations" and "seconds". A frame is converged when its best pose was
-    reached from at least two starts; a registration with frames that are not warns
-    (``UserWarning``, one message). ``starts``: None (default) runs starts until two agree, at
-    most 8 (a sweep's shared correction: until three agree, at most 16).
+    reached from at least three starts; a registration with frames that are not warns
+    (``UserWarning``, one message). ``starts``: None (default) runs starts until three agree,
+    at most 12 (a sweep's shared correction: at most 16).
 
     The settings are :class:`RegistrationSettings`' (give one as ``settings``, or its keywords;
     unset ones take the library's defaults, ``RegistrationSettings()``). ``optimizer``: by default

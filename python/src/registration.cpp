@@ -131,7 +131,7 @@ void bind_registration(nb::module_& m) {
           "max_iterations"_a = settings.max_iterations, "tolerance_mm"_a = settings.tolerance_mm,
           "tolerance_deg"_a = settings.tolerance_deg,
           "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer). "
-          "starts: None (default) runs starts until two reach the same pose, at most "
+          "starts: None (default) runs starts until three reach the same pose, at most "
           "kAutoMaxStarts. pyramid: None (default) is the metric's (default_pyramid).")
       .def_ro("metric", &RegistrationSettings::metric)
       .def_ro("optimizer", &RegistrationSettings::optimizer,
@@ -184,7 +184,7 @@ void bind_registration(nb::module_& m) {
       .def_ro("uncertainty_deg", &FrameReport::uncertainty_deg,
               "standard deviation of the rotation, degrees (ssd, ncc; NaN otherwise)")
       .def_ro("converged", &FrameReport::converged,
-              "the best pose was reached from at least two starts");
+              "the best pose was reached from at least three starts");
   nb::class_<RegistrationReport>(m, "RegistrationReport", "What a registration used and did.")
       .def_ro("settings", &RegistrationReport::settings, "the settings as resolved")
       .def_ro("frames", &RegistrationReport::frames)

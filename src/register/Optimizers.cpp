@@ -271,7 +271,6 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
                     const Vec3& centre) {
   const bool automatic = !s.starts;
   const int most = !automatic ? *s.starts : (p.shared ? kAutoMaxSweepStarts : kAutoMaxStarts);
-  const int enough = p.shared ? 3 : 2;  // agreeing starts that end the automatic starts
   int64_t evaluations = 0, iterations = 0;
   std::vector<std::pair<double, Pose>> candidates;
   const int draws = most == 1 ? 1 : most * kCandidatesPerStart;
@@ -326,7 +325,7 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
     iterations += o.iterations;
     ends.push_back(o.correction);
     if (ends.size() == 1 || o.cost < best.cost) best = o;
-    if (automatic && std::isfinite(best.cost) && agreeing() >= enough) break;
+    if (automatic && std::isfinite(best.cost) && agreeing() >= kAgreeingStarts) break;
   }
   best.evaluations = evaluations;
   best.iterations = iterations;

@@ -87,7 +87,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     if (settings.mode == RegistrationMode::PerFrame)
       std::tie(r.uncertainty_mm, r.uncertainty_deg) = register_impl::pose_uncertainty(
           settings.metric, terms(k, refined[k], 1, centre(k, refined[k]), true));
-    r.converged = o.agreeing_starts >= 2 && std::isfinite(r.metric);
+    r.converged = o.agreeing_starts >= kAgreeingStarts && std::isfinite(r.metric);
   };
   if (settings.mode == RegistrationMode::PerFrame) {
     backend::parallel_for(int64_t(s.count), [&](int64_t k) {
@@ -212,7 +212,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
                                                       : "; they do not steer the sweep"));
   if (unconverged > 0)
     warn("registration: " + std::to_string(unconverged) + " of " + std::to_string(frames.size()) +
-         " frames not converged (their best pose was reached from fewer than two of the starts; "
+         " frames not converged (their best pose was reached from fewer than " +
+         std::to_string(kAgreeingStarts) +
+         " of the starts; "
          "the report's converged and agreeing_starts say which): more starts, a wider search, or "
          "a better initial pose may help");
   if (report) {

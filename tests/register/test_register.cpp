@@ -273,7 +273,7 @@ TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
   EXPECT_LT(worst_mm, 0.5);
   EXPECT_LT(worst_deg, 0.5);
   for (const FrameReport& r : report.frames) EXPECT_TRUE(r.converged);
-  EXPECT_GE(report.frames[0].agreeing_starts, 2);
+  EXPECT_GE(report.frames[0].agreeing_starts, kAgreeingStarts);
 
   // One start: whatever it finds, it cannot confirm it.
   settings.starts = 1;

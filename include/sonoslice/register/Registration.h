@@ -101,9 +101,9 @@ struct RegistrationSettings {
   /// of many points drawn around the initial pose (the initial pose among them; rotation up to
   /// search_rot_deg about a random axis through the frame's centre, translation uniform in a
   /// ball of search_trans_mm); the best end wins. Unset (the default): automatic, one start after
-  /// another until the best end has been reached from two starts (kAgreementMm and
-  /// kAgreementDeg apart at most), at most kAutoMaxStarts; in the sweep modes and calibration
-  /// mode from three, at most kAutoMaxSweepStarts. A number: exactly that many.
+  /// another until the best end has been reached from kAgreeingStarts starts (kAgreementMm
+  /// and kAgreementDeg apart at most), at most kAutoMaxStarts; in the sweep modes and
+  /// calibration mode at most kAutoMaxSweepStarts. A number: exactly that many.
   std::optional<int> starts;
   double search_rot_deg = 10, search_trans_mm = 10;
   uint64_t seed = 0;  ///< the multi-start draws
@@ -132,13 +132,17 @@ struct RegistrationSettings {
   void validate(const ParameterNames& names = {}) const;
 };
 
+/// Starts that must reach the best end for a frame (a sweep) to be called converged, and for
+/// automatic starts to stop. Two starts sometimes agree on a wrong pose (a local minimum with a
+/// wide basin, or a symmetric structure): on 40 CT fans 10 mm and 10° off, two agreeing starts
+/// called 4 of 10 misses converged, three 1 of 8; on 40 sweeps, two once agreed on a local
+/// minimum that a later start would have left.
+constexpr int kAgreeingStarts = 3;
 /// Automatic starts (RegistrationSettings::starts unset): at most this many.
-constexpr int kAutoMaxStarts = 8;
+constexpr int kAutoMaxStarts = 12;
 /// Automatic starts for one correction shared by a whole sweep (rigid-sweep, smooth-sweep's
-/// first stage, calibration): the best end must be reached from three starts, at most this
-/// many. One wrong sweep moves every frame, and a sweep's optimisation costs about as much as
-/// its frames' would, so it gets more evidence: on 40 sweeps up to 10 mm and 10° off, two
-/// starts once agreed on a local minimum that a later start would have left.
+/// first stage, calibration): at most this many. One wrong sweep moves every frame, and a
+/// sweep's optimisation costs about as much as its frames' would, so it may try more.
 constexpr int kAutoMaxSweepStarts = 16;
 /// Two optimisations reached the same end when their results move the frame's (or the sweep's)
 /// centre at most this far apart and turn at most this much apart.
@@ -153,8 +157,9 @@ struct FrameReport {
   double translation_change_mm = 0, rotation_change_deg = 0;  ///< refined against initial
   int starts = 0;                                             ///< optimisations run
   int agreeing_starts = 0;  ///< of them, those that ended at the best end (itself included)
-  /// The best end was reached from at least two starts and its cost is finite. One optimisation
-  /// alone cannot tell its optimum from a local minimum, so a single start is never converged.
+  /// The best end was reached from at least kAgreeingStarts starts and its cost is finite. One
+  /// optimisation alone cannot tell its optimum from a local minimum, and two sometimes agree
+  /// on a wrong one, so fewer starts are never converged.
   bool converged = false;
   /// The result's standard deviation (ssd and ncc; NaN for the other metrics): of the frame's
   /// (the sweep's) centre, mm, and of its rotation, degrees, each the root of the trace of its
