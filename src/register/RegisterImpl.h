@@ -1,8 +1,9 @@
 #pragma once
 /// @file The registration kernel (docs/registration.md §2): one image row of one frame at one
 /// pose → the metric's sums and their pose derivatives, without materialising the slice. Plain
-/// structs and pointers; the CPU driver (Registration.cpp) sums the rows in order, so the result
-/// does not depend on the thread count.
+/// structs and pointers; accumulate_rows sums a frame's rows in order (one frame per thread), so
+/// the result does not depend on the thread count, nor, since the AVX2 build rounds as the
+/// generic one does, on the CPU.
 #include <cmath>
 #include <cstdint>
 #include <vector>
