@@ -74,13 +74,14 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool sample_cell(const TermsLaunch& L, do
   return true;
 }
 
-/// f(i, x, cs) for each pixel i of row v inside the mask whose sample lies inside the volume
-/// (x: its probe x; cs: its sample, with derivatives when `gradient`).
+/// f(i, x, cs) for each pixel i of row v (from column `first` on) inside the mask whose sample lies
+/// inside the volume (x: its probe x; cs: its sample, with derivatives when `gradient`).
 template <typename F>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void for_each_row_sample(const TermsLaunch& L, int v,
-                                                                bool gradient, const F& f) {
+                                                                bool gradient, const F& f,
+                                                                int first = 0) {
   const double y = L.y0 + v * L.sy;
-  for (int u = 0; u < L.width; ++u) {
+  for (int u = first; u < L.width; ++u) {
     const int64_t i = int64_t(v) * L.width + u;
     if (!L.mask[i]) continue;
     const double x = L.x0 + u * L.sx;
@@ -245,13 +246,10 @@ SONOSLICE_HOST_DEVICE inline int pack_row(const TermsLaunch& L, int v, double* x
   if (int64_t(L.grid.nx) * L.grid.ny * L.grid.nz < (int64_t(1) << 31))
     for (; u + 4 <= L.width; u += 4) n += pack_four(L, v, u, x, w, n);
 #endif
-  for (; u < L.width; ++u) {
-    const int64_t i = int64_t(v) * L.width + u;
-    if (!L.mask[i]) continue;
-    const double px = L.x0 + u * L.sx;
-    CellSample cs;
-    if (sample_cell(L, px, y, L.gradients, cs)) pack_pixel(L, i, px, y, cs, x, w, n++);
-  }
+  for_each_row_sample(
+      L, v, L.gradients,
+      [&](int64_t i, double px, const CellSample& cs) { pack_pixel(L, i, px, y, cs, x, w, n++); },
+      u);
   return n;
 }
 
