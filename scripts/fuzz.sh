@@ -7,7 +7,7 @@
 # A crash (sanitizer report, deadly signal, foreign exception, leak, out-of-memory, timeout) is
 # copied into fuzz/regressions/<parser>/ and the script fails. Commit the new input with the fix.
 #   scripts/fuzz.sh [seconds-per-target] [parser...]     default: 20 s, every parser
-#   JOBS=N            build jobs (default: nproc)
+#   JOBS=N            build jobs, and parsers fuzzed at once (default: nproc)
 #   FUZZ_FORK=N       run N fuzzing processes per parser that carry on after a crash (long runs
 #                     that collect several crashes); default 0: stop at the first crash
 #   FUZZ_FOREIGN=log  an exception that is not a sonoslice::Error is saved (one input per kind)
@@ -58,26 +58,26 @@ targets=("$@")
 export ASAN_OPTIONS="detect_leaks=1:halt_on_error=1:strict_string_checks=1"
 export LSAN_OPTIONS="suppressions=$root/scripts/lsan.supp:print_suppressions=0"
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
-export TMPDIR=$build/tmp
 # One input may take this long / this much memory before it counts as a finding. The memory
 # limit is what a header may make sonoslice allocate when the file does not hold the data.
 limits=(-timeout=30 -rss_limit_mb=3072 -malloc_limit_mb=2048)
 
-failed=()
-summary=()
-for t in "${targets[@]}"; do
+# One parser: replay its regression inputs, then fuzz it. Its summary line goes to
+# logs/<parser>.summary; the status says whether it failed.
+fuzz_one() {
+  local t=$1
   exe=$build/bin/fuzz_$t
-  [[ -x $exe ]] || { echo "fuzz: no harness '$t' (have: ${all[*]})" >&2; exit 2; }
   seeds=$root/fuzz/corpus/$t
   regressions=$root/fuzz/regressions/$t
   corpus=$build/corpus/$t
   artifacts=$build/artifacts/$t
+  export TMPDIR=$build/tmp/$t  # each parser's own: parsers run side by side
   rm -rf "$TMPDIR" "$artifacts"
   unset SONOSLICE_FUZZ_FOREIGN_DIR  # replays stop at a foreign exception
   mkdir -p "$TMPDIR" "$corpus" "$artifacts" "$regressions"
   log=$build/logs/$t.log
-  mkdir -p "$(dirname "$log")"
   : >"$log"
+  local failed=0
 
   # 1. The regression corpus, every input once.
   bad=0
@@ -92,11 +92,14 @@ for t in "${targets[@]}"; do
   done
   shopt -u nullglob
   if [[ $bad -gt 0 ]]; then
-    failed+=("$t")
-    summary+=("$t: $bad of $total regression inputs FAIL")
+    failed=1
+    echo "$t: $bad of $total regression inputs FAIL" >"$build/logs/$t.summary"
     grep -E '^(==[0-9]+==ERROR|SUMMARY|FOREIGN EXCEPTION|    #[0-9] )' "$log" | head -40 >&2 || true
   fi
-  [[ ${FUZZ_REPLAY_ONLY:-0} == 1 ]] && { summary+=("$t: $total regression inputs replayed"); continue; }
+  if [[ ${FUZZ_REPLAY_ONLY:-0} == 1 ]]; then
+    [[ $failed -eq 1 ]] || echo "$t: $total regression inputs replayed" >"$build/logs/$t.summary"
+    return $failed
+  fi
 
   # 2. Fuzz for a bounded time.
   extra=()
@@ -113,8 +116,8 @@ for t in "${targets[@]}"; do
     mkdir -p "$foreign"
     export SONOSLICE_FUZZ_FOREIGN_DIR=$foreign
   fi
+  local t0 rc=0
   t0=$(date +%s)
-  rc=0
   "$exe" "${limits[@]}" "${extra[@]}" -max_total_time="$seconds" -print_final_stats=1 \
     -artifact_prefix="$artifacts/" "${dirs[@]}" >>"$log" 2>&1 || rc=$?
   runs=$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | tail -1 | grep -oE '[0-9]+$' || echo "?")
@@ -136,14 +139,41 @@ for t in "${targets[@]}"; do
   shopt -u nullglob
   line="$t: $(($(date +%s) - t0)) s, $runs runs, corpus $(find "$corpus" -type f | wc -l) inputs"
   if [[ $rc -ne 0 || ${#found[@]} -gt 0 ]]; then
-    [[ " ${failed[*]} " == *" $t "* ]] || failed+=("$t")
+    failed=1
     line+=", FINDINGS: ${found[*]:-exit $rc, no input saved}"
     grep -E '^(==[0-9]+==ERROR|SUMMARY|FOREIGN EXCEPTION|    #[0-9] )' "$log" | head -40 >&2 || true
   fi
-  summary+=("$line")
+  [[ $bad -gt 0 ]] && line="$(cat "$build/logs/$t.summary"); $line"
+  echo "$line" >"$build/logs/$t.summary"
   echo "fuzz: $line (log: ${log#"$root"/})"
+  rm -rf "$TMPDIR"
+  return $failed
+}
+
+for t in "${targets[@]}"; do
+  [[ -x $build/bin/fuzz_$t ]] || { echo "fuzz: no harness '$t' (have: ${all[*]})" >&2; exit 2; }
 done
-rm -rf "$TMPDIR"
+mkdir -p "$build/logs"
+# The parsers are fuzzed side by side, one per core (a libFuzzer process uses one): the same time
+# per parser in a fraction of the wall time. With FUZZ_FORK each parser has its own processes.
+parallel=$jobs
+[[ $fork -gt 0 ]] && parallel=1
+for t in "${targets[@]}"; do
+  while [[ $(jobs -rp | wc -l) -ge $parallel ]]; do wait -n || true; done
+  rm -f "$build/logs/$t.summary" "$build/logs/$t.status"
+  (
+    rc=0
+    fuzz_one "$t" || rc=$?
+    echo "$rc" >"$build/logs/$t.status"
+  ) &
+done
+wait
+failed=()
+summary=()
+for t in "${targets[@]}"; do
+  [[ $(cat "$build/logs/$t.status" 2>/dev/null) == 0 ]] || failed+=("$t")
+  summary+=("$(cat "$build/logs/$t.summary" 2>/dev/null || echo "$t: no result")")
+done
 
 echo "fuzz: summary after $(($(date +%s) - start)) s:"
 printf '  %s\n' "${summary[@]}"
