@@ -6,7 +6,6 @@
 #include <vector>
 
 #include "RegisterBackends.h"
-#include "RegisterImpl.h"
 #include "RegistrationState.h"
 
 namespace sonoslice {
@@ -126,37 +125,65 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeG
 /// covers more of the frame where the frame is smoother (a wider basin, docs/registration.md §1).
 constexpr int kPatchHalf = 5;
 
-/// `out` = the sums of `in` (K values a pixel, W × H pixels, row-major) over the (2·half + 1)²
-/// window around each pixel, pixels outside the image counting 0: running sums along the rows,
-/// then along the columns a whole row at a time, so a pixel costs O(K) whatever the window.
-template <int K>
-void box_sums(const std::vector<double>& in, std::vector<double>& out, int W, int H, int half) {
-  std::vector<double> rows(in.size());
-  for (int v = 0; v < H; ++v) {
-    const double* a = in.data() + size_t(v) * W * K;
-    double* b = rows.data() + size_t(v) * W * K;
-    double run[K] = {};
+/// The sums of the per-pixel terms (K values a pixel, W × H pixels) over the (2·half + 1)² window
+/// around each pixel, pixels outside the image counting 0, streamed row by row: row v's terms are
+/// made by `make_row(v, row)` (W·K values, zeroed beforehand), summed along the row (running
+/// sums), and the window's column sums kept as a running sum of those row sums, so a pixel costs
+/// O(K) whatever the window, and only 2·half + 2 rows of row sums are held (a few hundred KB at
+/// full W1 resolution, in cache; the whole frame's terms would be tens of MB an evaluation).
+/// `use(v, sums, centre)`: row v's window sums (W·K values) and whether each pixel itself was
+/// compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread buffers, reused across calls.
+template <int K, typename MakeRow, typename Use>
+void window_sums(int W, int H, int half, const MakeRow& make_row, const Use& use) {
+  const int rows_held = 2 * half + 2;  // rows v − half − 1 .. v + half
+  const size_t line = size_t(W) * K;
+  thread_local std::vector<double> row, row_sums, run;
+  thread_local std::vector<uint8_t> centres;
+  row.resize(line);
+  row_sums.resize(line * rows_held);
+  run.assign(line, 0.0);
+  centres.resize(size_t(W) * rows_held);
+  // Row v's terms into its slot of the ring: the running sums along the row, and its centres.
+  const auto add_row = [&](int v) {
+    std::fill(row.begin(), row.end(), 0.0);
+    make_row(v, row.data());
+    const int slot = v % rows_held;
+    double* b = row_sums.data() + size_t(slot) * line;
+    uint8_t* c = centres.data() + size_t(slot) * W;
+    const double* a = row.data();
+    double sum[K] = {};
     for (int u = 0; u < std::min(half, W); ++u)
-      for (int c = 0; c < K; ++c) run[c] += a[u * K + c];
+      for (int k = 0; k < K; ++k) sum[k] += a[u * K + k];
     for (int u = 0; u < W; ++u) {
       if (u + half < W)
-        for (int c = 0; c < K; ++c) run[c] += a[(u + half) * K + c];
+        for (int k = 0; k < K; ++k) sum[k] += a[(u + half) * K + k];
       if (u - half - 1 >= 0)
-        for (int c = 0; c < K; ++c) run[c] -= a[(u - half - 1) * K + c];
-      for (int c = 0; c < K; ++c) b[u * K + c] = run[c];
+        for (int k = 0; k < K; ++k) sum[k] -= a[(u - half - 1) * K + k];
+      for (int k = 0; k < K; ++k) b[u * K + k] = sum[k];
+      c[u] = a[u * K] != 0;
     }
+  };
+  const auto sums_of = [&](int v) { return row_sums.data() + size_t(v % rows_held) * line; };
+  for (int v = 0; v < std::min(half, H); ++v) {
+    add_row(v);
+    const double* r = sums_of(v);
+    for (size_t j = 0; j < line; ++j) run[j] += r[j];
   }
-  const size_t line = size_t(W) * K;
-  std::vector<double> run(line, 0.0);
-  for (int v = 0; v < std::min(half, H); ++v)
-    for (size_t j = 0; j < line; ++j) run[j] += rows[v * line + j];
-  out.resize(in.size());
   for (int v = 0; v < H; ++v) {
-    if (v + half < H)
-      for (size_t j = 0; j < line; ++j) run[j] += rows[(v + half) * line + j];
-    if (v - half - 1 >= 0)
-      for (size_t j = 0; j < line; ++j) run[j] -= rows[(v - half - 1) * line + j];
-    std::copy(run.begin(), run.end(), out.begin() + v * line);
+    // The row entering the window is added and the row leaving it taken away in one pass (each
+    // element as (run + in) − out, the order two passes would take).
+    const bool enters = v + half < H, leaves = v - half - 1 >= 0;
+    if (enters) add_row(v + half);
+    const double* in = enters ? sums_of(v + half) : nullptr;
+    const double* out = leaves ? sums_of(v - half - 1) : nullptr;
+    if (in && out)
+      for (size_t j = 0; j < line; ++j) run[j] = (run[j] + in[j]) - out[j];
+    else if (in)
+      for (size_t j = 0; j < line; ++j) run[j] += in[j];
+    else if (out)
+      for (size_t j = 0; j < line; ++j) run[j] -= out[j];
+    use(v, static_cast<const double*>(run.data()),
+        static_cast<const uint8_t*>(centres.data() + size_t(v % rows_held) * W));
   }
 }
 
@@ -180,54 +207,58 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
       make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, Vec3{0, 0, 0});
   constexpr int K = register_impl::kLc2Sums;
   const int W = L.width, H = L.height, half = kPatchHalf;
-  const size_t plane = size_t(W) * H;
-  // Each pixel's terms, then their sums over the patch around each pixel (Wein's LC2 is a
-  // patch per pixel: a patch grid would make the cost jump as structures cross its lines).
-  std::vector<double> q(plane * K, 0.0), sums;
-  for (int v = 0; v < H; ++v) register_impl::lc2_row_terms(L, v, q.data());
-  box_sums<K>(q, sums, W, H, half);
   // A patch counts when at least half its window is compared (the fan's edge and the volume's
   // border leave fits of a few pixels that would be noise).
   const double least = std::max(8.0, 0.5 * (2 * half + 1) * (2 * half + 1));
   double weighted = 0, weight = 0;
-  for (size_t i = 0; i < plane; ++i) {
-    if (q[i * K] == 0) continue;  // the patch's own centre is not compared
-    const double* t = &sums[i * K];
-    const double n = t[0];
-    if (n < least) continue;
-    // Variances from running sums carry their round-off (about 1e-16 of the mean square, times
-    // the steps they ran): a variance below 1e-10 of the mean square is a flat patch, and its
-    // covariances are round-off too.
-    const auto spread = [n](double sum, double sum_sq) {
-      const double mean = sum / n, v = sum_sq / n - mean * mean;
-      return v > 1e-10 * (sum_sq / n) + 1e-300 ? v : 0.0;
-    };
-    const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
-    const double vu = spread(t[1], t[4]);
-    if (!(vu > 0)) continue;  // flat frame patch: nothing to explain
-    double cpp = spread(t[2], t[5]), cgg = spread(t[3], t[6]);
-    const double bup = cpp > 0 ? t[7] / n - mu * mp : 0;
-    if (metric == RegistrationMetric::LNCC) {
-      // The patch's NCC of frame and volume, every patch alike; a flat volume patch scores 0.
-      if (cpp > 0) weighted += bup / std::sqrt(vu * cpp);
-      weight += 1;
-      continue;
+  // Each pixel's terms, summed over the patch around each pixel (Wein's LC2 is a patch per
+  // pixel: a patch grid would make the cost jump as structures cross its lines).
+  const CpuIsa isa = cpu_kernel_isa();
+  const auto make_row = [&](int v, double* row) {
+    register_impl::lc2_row_terms_cpu(isa, L, v, row);
+  };
+  const auto use = [&](int, const double* sums, const uint8_t* centre) {
+    for (int u = 0; u < W; ++u) {
+      if (!centre[u]) continue;  // the patch's own centre is not compared
+      const double* t = sums + size_t(u) * K;
+      const double n = t[0];
+      if (n < least) continue;
+      // Variances from running sums carry their round-off (about 1e-16 of the mean square,
+      // times the steps they ran): a variance below 1e-10 of the mean square is a flat patch,
+      // and its covariances are round-off too.
+      const auto spread = [n](double sum, double sum_sq) {
+        const double mean = sum / n, v = sum_sq / n - mean * mean;
+        return v > 1e-10 * (sum_sq / n) + 1e-300 ? v : 0.0;
+      };
+      const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
+      const double vu = spread(t[1], t[4]);
+      if (!(vu > 0)) continue;  // flat frame patch: nothing to explain
+      double cpp = spread(t[2], t[5]), cgg = spread(t[3], t[6]);
+      const double bup = cpp > 0 ? t[7] / n - mu * mp : 0;
+      if (metric == RegistrationMetric::LNCC) {
+        // The patch's NCC of frame and volume, every patch alike; a flat volume patch scores 0.
+        if (cpp > 0) weighted += bup / std::sqrt(vu * cpp);
+        weight += 1;
+        continue;
+      }
+      // LC2: the least-squares fit U ≈ α·p + β·g + γ, R² = bᵀ·C⁻¹·b / var U with C the
+      // covariance of (p, g) and b their covariances with U (a small ridge keeps a flat p or g
+      // solvable).
+      const double cpg = cpp > 0 && cgg > 0 ? t[9] / n - mp * mg : 0;
+      const double bug = cgg > 0 ? t[8] / n - mu * mg : 0;
+      const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
+      cpp += ridge;
+      cgg += ridge;
+      const double det = cpp * cgg - cpg * cpg;
+      double r2 =
+          det > 0 ? (bup * (cgg * bup - cpg * bug) + bug * (cpp * bug - cpg * bup)) / det / vu : 0;
+      r2 = std::min(1.0, std::max(0.0, r2));
+      const double sigma = std::sqrt(vu);
+      weighted += sigma * r2;
+      weight += sigma;
     }
-    // LC2: the least-squares fit U ≈ α·p + β·g + γ, R² = bᵀ·C⁻¹·b / var U with C the covariance
-    // of (p, g) and b their covariances with U (a small ridge keeps a flat p or g solvable).
-    const double cpg = cpp > 0 && cgg > 0 ? t[9] / n - mp * mg : 0;
-    const double bug = cgg > 0 ? t[8] / n - mu * mg : 0;
-    const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
-    cpp += ridge;
-    cgg += ridge;
-    const double det = cpp * cgg - cpg * cpg;
-    double r2 =
-        det > 0 ? (bup * (cgg * bup - cpg * bug) + bug * (cpp * bug - cpg * bup)) / det / vu : 0;
-    r2 = std::min(1.0, std::max(0.0, r2));
-    const double sigma = std::sqrt(vu);
-    weighted += sigma * r2;
-    weight += sigma;
-  }
+  };
+  window_sums<K>(W, H, half, make_row, use);
   return {weighted, weight};
 }
 

@@ -1,6 +1,6 @@
 #pragma once
-/// @file How registration's metrics (Metrics.cpp) reach the row kernel (RegisterImpl.h) in each
-/// of its builds: one entry point per CPU instruction set (RegisterCPU.cpp,
+/// @file How registration's metrics (Metrics.cpp) reach the row kernels (RegisterImpl.h) in each
+/// of their builds: one entry point per CPU instruction set (RegisterCPU.cpp,
 /// RegisterCPUAvx2.cpp) chosen by CpuIsa, as every kernel folder wires its backends
 /// (docs/architecture.md). Both give the same terms bit for bit.
 #include "RegisterImpl.h"
@@ -18,6 +18,18 @@ inline void terms_cpu(CpuIsa isa, const TermsLaunch& L, PoseTerms& total) {
       return terms_cpu_avx2(L, total);
     case CpuIsa::Generic:
       return terms_cpu_generic(L, total);
+  }
+}
+
+/// LC2's per-pixel terms of row v (lc2_row_terms) into the row's `q`.
+void lc2_row_terms_generic(const TermsLaunch& L, int v, double* q);
+void lc2_row_terms_avx2(const TermsLaunch& L, int v, double* q);
+inline void lc2_row_terms_cpu(CpuIsa isa, const TermsLaunch& L, int v, double* q) {
+  switch (isa) {
+    case CpuIsa::Avx2:
+      return lc2_row_terms_avx2(L, v, q);
+    case CpuIsa::Generic:
+      return lc2_row_terms_generic(L, v, q);
   }
 }
 

@@ -138,12 +138,20 @@ SONOSLICE_INLINE int left_pack(int valid, const __m256d* value, const __m256d* f
   return __builtin_popcount(unsigned(valid));
 }
 
-/// Pixels u .. u + 3 of row v (with derivatives when L.gradients), four double lanes: the same
-/// operations in the same order as sample_cell and pack_pixel (this file is built without FMA
-/// contraction), so the packed values are bit for bit the scalar ones; the corners come by gathers.
-/// Packs the pixels inside the mask and the volume at x[n ..] (left-packed, in order); returns how
-/// many. Needs a volume of fewer than 2^31 voxels (32-bit gather offsets).
-SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, int w, int n) {
+/// Pixels u .. u + 3 of row v, four double lanes: the same operations in the same order as
+/// sample_cell (this file is built without FMA contraction), so each lane is bit for bit the
+/// scalar sample; the corners come by gathers. Needs a volume of fewer than 2^31 voxels (32-bit
+/// gather offsets).
+struct FourSamples {
+  int valid = 0;  // 4-bit mask: the lanes inside the mask and the volume
+  __m256d px;     // the pixels' probe x
+  __m256d value;  // the volume's trilinear value
+  __m256d gc[3];  // its derivatives along the index axes (when asked for)
+  __m256d frame;  // the frame's pixels
+};
+
+SONOSLICE_INLINE bool sample_four(const TermsLaunch& L, int v, int u, bool gradient,
+                                  FourSamples& out) {
   const double y = L.y0 + v * L.sy;
   const int64_t i = int64_t(v) * L.width + u;
   int32_t word;
@@ -151,7 +159,7 @@ SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, in
   const int in_mask =
       ~_mm_movemask_epi8(_mm_cmpeq_epi8(_mm_cvtsi32_si128(word), _mm_setzero_si128())) & 0xf;
   const geometry::VolumeView& g = L.grid;
-  if (!in_mask || g.nx < 2 || g.ny < 2 || g.nz < 2) return 0;
+  if (!in_mask || g.nx < 2 || g.ny < 2 || g.nz < 2) return false;
   const __m256d px = _mm256_add_pd(
       _mm256_mul_pd(_mm256_add_pd(_mm256_set1_pd(double(u)), _mm256_setr_pd(0, 1, 2, 3)),
                     _mm256_set1_pd(L.sx)),
@@ -170,8 +178,9 @@ SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, in
     inside = _mm256_and_pd(inside,
                            _mm256_cmp_pd(c[k], _mm256_set1_pd(double(n_axis[k] - 1)), _CMP_LE_OQ));
   }
-  const int valid = in_mask & _mm256_movemask_pd(inside);
-  if (!valid) return 0;
+  out.valid = in_mask & _mm256_movemask_pd(inside);
+  if (!out.valid) return false;
+  out.px = px;
   // The cell: int(c), or n − 2 at c = n − 1; lanes outside read voxel 0.
   __m128i cell[3];
   __m256d f[3];
@@ -203,25 +212,42 @@ SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, in
   const __m256d a00 = lerp(v000, v100, f[0]), a10 = lerp(v010, v110, f[0]);
   const __m256d a01 = lerp(v001, v101, f[0]), a11 = lerp(v011, v111, f[0]);
   const __m256d b0 = lerp(a00, a10, f[1]), b1 = lerp(a01, a11, f[1]);
-  const __m256d value = lerp(b0, b1, f[2]);
-  const __m256d frame = _mm256_cvtps_pd(_mm_loadu_ps(L.frame + i));
-  if (!L.gradients) return left_pack(valid, &value, &frame, 2, x, w, n);
+  out.value = lerp(b0, b1, f[2]);
+  out.frame = _mm256_cvtps_pd(_mm_loadu_ps(L.frame + i));
+  if (!gradient) return true;
   const __m256d dx00 = _mm256_sub_pd(v100, v000), dx10 = _mm256_sub_pd(v110, v010);
   const __m256d dx01 = _mm256_sub_pd(v101, v001), dx11 = _mm256_sub_pd(v111, v011);
-  const __m256d gc[3] = {lerp(lerp(dx00, dx10, f[1]), lerp(dx01, dx11, f[1]), f[2]),
-                         lerp(_mm256_sub_pd(a10, a00), _mm256_sub_pd(a11, a01), f[2]),
-                         _mm256_sub_pd(b1, b0)};
-  // pack_pixel, lane by lane.
+  out.gc[0] = lerp(lerp(dx00, dx10, f[1]), lerp(dx01, dx11, f[1]), f[2]);
+  out.gc[1] = lerp(_mm256_sub_pd(a10, a00), _mm256_sub_pd(a11, a01), f[2]);
+  out.gc[2] = _mm256_sub_pd(b1, b0);
+  return true;
+}
+
+/// The world gradient G·∇_c I of four samples, lane by lane as the scalar code sums it.
+SONOSLICE_INLINE void world_gradient_four(const TermsLaunch& L, const __m256d gc[3],
+                                          __m256d gw[3]) {
   const auto mul = [](double s, __m256d a) { return _mm256_mul_pd(_mm256_set1_pd(s), a); };
-  __m256d gw[3], r[3];
-  for (int k = 0; k < 3; ++k) {
+  for (int k = 0; k < 3; ++k)
     gw[k] = _mm256_add_pd(_mm256_add_pd(mul(L.G[3 * k], gc[0]), mul(L.G[3 * k + 1], gc[1])),
                           mul(L.G[3 * k + 2], gc[2]));
+}
+
+/// pack_pixel for pixels u .. u + 3 of row v (with derivatives when L.gradients), bit for bit:
+/// packs the pixels inside the mask and the volume at x[n ..] (left-packed, in order); returns how
+/// many.
+SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, int w, int n) {
+  FourSamples s;
+  if (!sample_four(L, v, u, L.gradients, s)) return 0;
+  if (!L.gradients) return left_pack(s.valid, &s.value, &s.frame, 2, x, w, n);
+  const double y = L.y0 + v * L.sy;
+  const auto mul = [](double c, __m256d a) { return _mm256_mul_pd(_mm256_set1_pd(c), a); };
+  __m256d gw[3], r[3];
+  world_gradient_four(L, s.gc, gw);
+  for (int k = 0; k < 3; ++k)
     r[k] = _mm256_sub_pd(
-        _mm256_add_pd(_mm256_add_pd(mul(L.P[3 * k], px), _mm256_set1_pd(L.P[3 * k + 1] * y)),
+        _mm256_add_pd(_mm256_add_pd(mul(L.P[3 * k], s.px), _mm256_set1_pd(L.P[3 * k + 1] * y)),
                       _mm256_set1_pd(L.p[k])),
         _mm256_set1_pd(L.centre[k]));
-  }
   const auto cross = [](__m256d a, __m256d b, __m256d c, __m256d d) {
     return _mm256_sub_pd(_mm256_mul_pd(a, b), _mm256_mul_pd(c, d));
   };
@@ -231,7 +257,49 @@ SONOSLICE_INLINE int pack_four(const TermsLaunch& L, int v, int u, double* x, in
                                        cross(r[1], gw[2], r[2], gw[1]),
                                        cross(r[2], gw[0], r[0], gw[2]),
                                        cross(r[0], gw[1], r[1], gw[0])};
-  return left_pack(valid, &value, &frame, kRowArrays, x, w, n, out);
+  return left_pack(s.valid, &s.value, &s.frame, kRowArrays, x, w, n, out);
+}
+
+/// lc2_row_terms for pixels u .. u + 3 of row v, lane by lane as the scalar code computes them.
+SONOSLICE_INLINE void lc2_four(const TermsLaunch& L, int v, int u, double* q) {
+  FourSamples s;
+  if (!sample_four(L, v, u, true, s)) return;
+  const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0);
+  __m256d bx = zero, by = one;
+  if (L.curvilinear) {
+    const __m256d dy = _mm256_set1_pd(L.y0 + v * L.sy - L.apex_y);
+    const __m256d r =
+        _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(s.px, s.px), _mm256_mul_pd(dy, dy)));
+    const __m256d positive = _mm256_cmp_pd(r, zero, _CMP_GT_OQ);
+    bx = _mm256_blendv_pd(zero, _mm256_div_pd(s.px, r), positive);
+    by = _mm256_blendv_pd(one, _mm256_div_pd(dy, r), positive);
+  }
+  __m256d gw[3];
+  world_gradient_four(L, s.gc, gw);
+  __m256d g = zero;
+  for (int k = 0; k < 3; ++k)
+    g = _mm256_add_pd(
+        g, _mm256_mul_pd(gw[k], _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(L.P[3 * k]), bx),
+                                              _mm256_mul_pd(_mm256_set1_pd(L.P[3 * k + 1]), by))));
+  g = _mm256_blendv_pd(g, _mm256_sub_pd(zero, g), _mm256_cmp_pd(g, zero, _CMP_LT_OQ));
+  const __m256d U = s.frame, p = s.value;
+  alignas(32) double t[kLc2Sums][4];
+  const __m256d terms[kLc2Sums] = {one,
+                                   U,
+                                   p,
+                                   g,
+                                   _mm256_mul_pd(U, U),
+                                   _mm256_mul_pd(p, p),
+                                   _mm256_mul_pd(g, g),
+                                   _mm256_mul_pd(U, p),
+                                   _mm256_mul_pd(U, g),
+                                   _mm256_mul_pd(p, g)};
+  for (int k = 0; k < kLc2Sums; ++k) _mm256_store_pd(t[k], terms[k]);
+  for (int l = 0; l < 4; ++l) {
+    if (!(s.valid >> l & 1)) continue;
+    double* out = q + kLc2Sums * (u + l);
+    for (int k = 0; k < kLc2Sums; ++k) out[k] = t[k][l];
+  }
 }
 #endif
 
@@ -354,11 +422,17 @@ SONOSLICE_HOST_DEVICE inline void accumulate_mi_row(const TermsLaunch& L, int v,
 
 /// LC2 (Wein et al. 2008), row v: for each pixel inside the mask and the volume, the frame's
 /// value U, the volume's p and its gradient magnitude along the beam g = |∇I · beam|, written at
-/// the pixel's place in `q` (kLc2Sums values a pixel: 1, U, p, g, U², p², g², Up, Ug, pg; the
-/// other pixels are left as they are), the terms whose sums over a patch make the patch's fit.
+/// the pixel's place u in the row's `q` (kLc2Sums values a pixel: 1, U, p, g, U², p², g², Up, Ug,
+/// pg; the other pixels are left as they are), the terms whose sums over a patch make the
+/// patch's fit.
 SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, double* q) {
   const double y = L.y0 + v * L.sy;
-  for_each_row_sample(L, v, true, [&](int64_t i, double x, const CellSample& cs) {
+  int first = 0;
+#if SONOSLICE_REGISTER_AVX2
+  if (int64_t(L.grid.nx) * L.grid.ny * L.grid.nz < (int64_t(1) << 31))
+    for (; first + 4 <= L.width; first += 4) lc2_four(L, v, first, q);
+#endif
+  const auto pixel = [&](int64_t i, double x, const CellSample& cs) {
     const double p = cs.value;
     const double* gc = cs.gc;
     // The beam through this pixel, in the probe frame, then in world.
@@ -375,7 +449,7 @@ SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, dou
     }
     g = g < 0 ? -g : g;
     const double U = L.frame[i];
-    double* t = q + kLc2Sums * i;
+    double* t = q + kLc2Sums * (i - int64_t(v) * L.width);
     t[0] = 1;
     t[1] = U;
     t[2] = p;
@@ -386,7 +460,8 @@ SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, dou
     t[7] = U * p;
     t[8] = U * g;
     t[9] = p * g;
-  });
+  };
+  for_each_row_sample(L, v, true, pixel, first);
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

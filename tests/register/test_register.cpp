@@ -139,7 +139,8 @@ TEST(Register, AnalyticGradientsMatchFiniteDifferences) {
 // bit for bit, with and without derivatives, at two levels, on fans inside the volume and on a
 // fan that leaves it (whose lanes straddle the border), at widths that leave a scalar tail, in
 // the phantom's axis-aligned grid and in an oblique, anisotropic copy of it (where every index
-// axis mixes into every world axis, so that a sum taken in another order would show).
+// axis mixes into every world axis, so that a sum taken in another order would show); and LC2's
+// and local NCC's patch scores, built on the same samples, equal bit for bit too.
 TEST(Register, Avx2AndGenericKernelsGiveTheSameTermsBitForBit) {
   if (!cpu_kernel_isa_available(CpuIsa::Avx2)) GTEST_SKIP() << "no AVX2 + FMA kernels here";
   std::vector<Pose> poses = phantom_random_poses(4, 11);
@@ -173,6 +174,19 @@ TEST(Register, Avx2AndGenericKernelsGiveTheSameTermsBitForBit) {
                 << (gradients ? ", with derivatives" : "") << ": n " << a.n << " / " << b.n
                 << ", ΣJ·Jᵀ[20] " << a.sjj[20] << " / " << b.sjj[20];
             compared += a.n;
+          }
+        // LC2's and local NCC's per-pixel terms (beam gradients: curvilinear and linear beams).
+        for (int level : {1, 2})
+          for (RegistrationMetric metric : {RegistrationMetric::LC2, RegistrationMetric::LNCC}) {
+            set_cpu_kernel_isa(CpuIsa::Generic);
+            const std::pair<double, double> a = reg.patch_score(k, at, level, metric);
+            set_cpu_kernel_isa(CpuIsa::Avx2);
+            const std::pair<double, double> b = reg.patch_score(k, at, level, metric);
+            set_cpu_kernel_isa("auto");
+            EXPECT_EQ(0, std::memcmp(&a, &b, sizeof a))
+                << to_string(metric) << ", width " << p.image.width << ", pose " << k << ", level "
+                << level << ": " << a.first << " / " << b.first;
+            EXPECT_GT(a.second, 0);
           }
       }
       EXPECT_GT(compared, 1000);
