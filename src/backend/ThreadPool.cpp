@@ -183,6 +183,10 @@ int available_cpus() {
   return std::max(1, int(std::thread::hardware_concurrency()));
 }
 
+int parallel_width() {
+  return t_in_chunk ? 1 : cpu_threads();
+}
+
 void run_parallel(int64_t n, int64_t grain, RangeBody body, const void* context) {
   if (n <= 0) return;
   grain = std::max<int64_t>(1, grain);

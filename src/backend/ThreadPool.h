@@ -27,6 +27,11 @@ constexpr int kSpinMicroseconds = 50;
 using RangeBody = void (*)(const void* context, int64_t begin, int64_t end);
 void run_parallel(int64_t n, int64_t grain, RangeBody body, const void* context);
 
+/// How many threads a parallel loop started here would run on: 1 inside a chunk (nested loops
+/// run serially), else cpu_threads(). For work that is split only when it has the threads to
+/// itself.
+int parallel_width();
+
 /// The number of CPUs this process may run on (its affinity mask), at least 1.
 int available_cpus();
 

@@ -6,6 +6,7 @@
 #include <utility>
 #include <vector>
 
+#include "../backend/ParallelFor.h"
 #include "../core/Random.h"
 #include "Optimizers.h"
 
@@ -272,18 +273,21 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   const bool automatic = !s.starts;
   const int most = !automatic ? *s.starts : (p.shared ? kAutoMaxSweepStarts : kAutoMaxStarts);
   int64_t evaluations = 0, iterations = 0;
-  std::vector<std::pair<double, Pose>> candidates;
   const int draws = most == 1 ? 1 : most * kCandidatesPerStart;
+  std::vector<std::pair<double, Pose>> candidates(size_t(draws), {0.0, Pose::identity()});
   for (int k = 0; k < draws; ++k) {
     double xi[6];
     start_increment(s, item, k, xi);
-    const Pose X = apply_increment(Pose::identity(), xi, centre);
-    double cost = 0;
-    if (draws > 1) {
-      cost = p.cost(X, s.pyramid->front());
-      evaluations += p.frames_per_evaluation;
-    }
-    candidates.emplace_back(std::isfinite(cost) ? cost : std::numeric_limits<double>::max(), X);
+    candidates[size_t(k)].second = apply_increment(Pose::identity(), xi, centre);
+  }
+  if (draws > 1) {
+    // The draws are independent: ranked on every thread when this problem has them to itself
+    // (one frame, or a sweep); inside a per-frame loop they run on the frame's thread.
+    backend::parallel_for(draws, [&](int64_t k) {
+      const double cost = p.cost(candidates[size_t(k)].second, s.pyramid->front());
+      candidates[size_t(k)].first = std::isfinite(cost) ? cost : std::numeric_limits<double>::max();
+    });
+    evaluations += int64_t(draws) * p.frames_per_evaluation;
   }
   // Stable: equal costs keep their draw order (the initial pose first).
   std::stable_sort(candidates.begin(), candidates.end(),
@@ -311,21 +315,42 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
     std::stable_partition(candidates.begin(), candidates.end(), [&](const auto& c) {
       return !apart(c.second, Pose::identity(), 1e-9, 1e-9);
     });
-  for (size_t k = 0; k < candidates.size() && int(ends.size()) < most; ++k) {
-    const Pose& from = candidates[k].second;
-    if (automatic) {
-      bool far = true;
-      for (const Pose& b : begun)
-        far = far && apart(from, b, s.search_trans_mm / 2, s.search_rot_deg / 2);
-      if (!far) continue;
+  // A frame that has the threads to itself optimises its next starts side by side, as many as
+  // there are threads; the ends are then taken in start order, as one thread would take them,
+  // and those past the stopping point are dropped (not counted): the same result, evaluations
+  // and report on any thread count. A sweep's evaluations are already spread over its frames.
+  const int width = p.shared ? 1 : backend::parallel_width();
+  size_t next = 0;
+  bool stop = false;
+  while (!stop && int(ends.size()) < most) {
+    std::vector<Pose> batch;
+    while (next < candidates.size() && int(ends.size() + batch.size()) < most &&
+           int(batch.size()) < width) {
+      const Pose& from = candidates[next++].second;
+      if (automatic) {
+        bool far = true;
+        for (const Pose& b : begun)
+          far = far && apart(from, b, s.search_trans_mm / 2, s.search_rot_deg / 2);
+        if (!far) continue;
+      }
+      begun.push_back(from);
+      batch.push_back(from);
     }
-    begun.push_back(from);
-    const Outcome o = optimise(p, s, from, centre);
-    evaluations += o.evaluations;
-    iterations += o.iterations;
-    ends.push_back(o.correction);
-    if (ends.size() == 1 || o.cost < best.cost) best = o;
-    if (automatic && std::isfinite(best.cost) && agreeing() >= kAgreeingStarts) break;
+    if (batch.empty()) break;
+    std::vector<Outcome> outcomes(batch.size());
+    backend::parallel_for(int64_t(batch.size()), [&](int64_t b) {
+      outcomes[size_t(b)] = optimise(p, s, batch[size_t(b)], centre);
+    });
+    for (const Outcome& o : outcomes) {
+      evaluations += o.evaluations;
+      iterations += o.iterations;
+      ends.push_back(o.correction);
+      if (ends.size() == 1 || o.cost < best.cost) best = o;
+      if (automatic && std::isfinite(best.cost) && agreeing() >= kAgreeingStarts) {
+        stop = true;
+        break;
+      }
+    }
   }
   best.evaluations = evaluations;
   best.iterations = iterations;
