@@ -66,6 +66,7 @@ void BM_NccTerms(benchmark::State& state) {
 }
 
 void BM_Lc2(benchmark::State& state) {
+  set_cpu_kernel_isa(state.range(0) ? "generic" : "auto");
   const Setup& s = setup();
   const FrameRegistration reg(s.ct, s.probe, s.frames.data(), s.truth.size());
   reg.prepare_level(2);
@@ -73,13 +74,15 @@ void BM_Lc2(benchmark::State& state) {
     for (size_t k = 0; k < s.moved.size(); ++k)
       benchmark::DoNotOptimize(reg.cost(k / kSteps, s.moved[k], 2, RegistrationMetric::LC2));
   state.SetItemsProcessed(int64_t(state.iterations()) * int64_t(s.moved.size()));
+  state.SetLabel(to_string(cpu_kernel_isa()));
+  set_cpu_kernel_isa("auto");
 }
 
 }  // namespace
 
-// NCC's kernel in its AVX2 (where the CPU has it) and generic builds.
+// The kernels in their AVX2 (where the CPU has it) and generic builds.
 BENCHMARK(BM_NccTerms)->ArgName("generic")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_Lc2)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Lc2)->ArgName("generic")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 }  // namespace sonoslice
 

@@ -10,6 +10,12 @@ sonoslice's figure is `sonoslice register --pyramid 1 -v` on frames 2 mm and 2 d
 (evaluations / registration seconds: every evaluation of the optimiser, with or without
 derivatives, plus the optimiser's own arithmetic). The peer runs in Debian's Python
 (/usr/bin/python3, torch 1.13) on the volume and masked pixel coordinates this script exports.
+
+Then what an ultrasound user waits for: `--ultrasound N` simulated W1 B-mode frames (`sonoslice
+simulate --preset lus` at the true poses) registered from 2 mm and 2 degrees off at the defaults
+(LC2, automatic starts): one frame alone, and the N frames together (seconds a frame). No
+published tool registers B-mode to CT with LC2 to compare with; `--baseline OTHER/sonoslice`
+runs another build on the same frames in the same run (and says whether the poses agree).
 """
 import argparse
 import json
@@ -67,6 +73,9 @@ def main():
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--peer-python", default="/usr/bin/python3")
+    ap.add_argument("--ultrasound", type=int, default=4,
+                    help="simulated B-mode frames registered at the defaults (LC2); 0: skip")
+    ap.add_argument("--baseline", help="another sonoslice CLI for the ultrasound frames")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         ct_path = full_phantom_ct(args.phantom, tmp)
@@ -113,6 +122,7 @@ def main():
             if peer.returncode != 0:
                 sys.exit(peer.stderr)
             rates[batch] = float(peer.stdout.strip().splitlines()[-1])
+        ultrasound = ultrasound_frames(args, tmp, ct_path, truth, init) if args.ultrasound else []
     print(f"\nW1 (334x272 fan, {len(pts)} pixels), NCC, full resolution, {args.threads} threads\n")
     print("| | pose evaluations/s | sonoslice ratio |")
     print("|---|---|---|")
@@ -120,6 +130,46 @@ def main():
     for batch, rate in rates.items():
         print(f"| torch grid_sample + autograd, batch {batch} (value, gradient) | {rate:.0f} | {ours / rate:.1f}x |")
     print("\ntarget: >= 10,000 pose evaluations/s")
+    if ultrasound:
+        n = min(args.ultrasound, len(truth))
+        print(f"\nSimulated W1 B-mode frames, 2 mm and 2 deg off, defaults (LC2, automatic starts), "
+              f"{args.threads} threads\n")
+        print(f"| build | one frame alone (s) | {n} frames (s a frame) | same poses as the first |")
+        print("|---|---|---|---|")
+        for name, one, each, same in ultrasound:
+            print(f"| {name} | {one:.2f} | {each:.2f} | {same} |")
+        print("\ntarget: <= 0.5 s a frame")
+
+
+def ultrasound_frames(args, tmp, ct_path, truth, init):
+    """(build, seconds for one frame, seconds a frame for N, same poses) for this CLI, then the
+    baseline."""
+    n = min(args.ultrasound, len(truth))
+    np.save(os.path.join(tmp, "us_truth.npy"), truth[:n])
+    subprocess.run([CLI, "simulate", "--volume", ct_path, "--preset", "lus", "--poses",
+                    os.path.join(tmp, "us_truth.npy"), "--out", os.path.join(tmp, "us.npy"),
+                    "--output", "bmode", "-q"], check=True)
+    frames = np.load(os.path.join(tmp, "us.npy")).astype(np.float32)
+    for count in (1, n):
+        np.save(os.path.join(tmp, f"us_{count}.npy"), frames[:count])
+        np.save(os.path.join(tmp, f"us_init_{count}.npy"), init[:count])
+    clis = [("this build", CLI)] + ([("baseline", args.baseline)] if args.baseline else [])
+    rows = []
+    for name, cli in clis:
+        seconds = []
+        for count in (1, n):
+            out = os.path.join(tmp, f"us_out_{name[0]}_{count}.npy")
+            run = subprocess.run([cli, "register", "--volume", ct_path, "--probe", W1, "--downsampling", "2",
+                                  "--frames", os.path.join(tmp, f"us_{count}.npy"), "--poses",
+                                  os.path.join(tmp, f"us_init_{count}.npy"), "--metric", "lc2", "--out", out,
+                                  "--threads", str(args.threads), "-v"], capture_output=True, text=True)
+            if run.returncode != 0:
+                sys.exit(run.stderr)
+            seconds.append(float(re.search(r"register ([0-9.]+) s", run.stderr).group(1)) / count)
+        first = np.load(os.path.join(tmp, f"us_out_t_{n}.npy"))
+        same = bool(np.array_equal(first, np.load(out)))
+        rows.append((name, seconds[0], seconds[1], "yes" if same else "no"))
+    return rows
 
 
 if __name__ == "__main__":
