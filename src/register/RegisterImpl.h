@@ -381,10 +381,11 @@ SONOSLICE_HOST_DEVICE inline void accumulate_row(const TermsLaunch& L, int v, do
   for (int e = 0; e < 21; ++e) t.sjj[e] += jj[e];
 }
 
-/// Adds the rows of L, in order, to `total`: the terms of one frame at one pose (host code:
-/// one scratch row buffer per call).
+/// Adds the rows of L, in order, to `total`: the terms of one frame at one pose (host code: one
+/// scratch row buffer per thread, kept from call to call).
 inline void accumulate_rows(const TermsLaunch& L, PoseTerms& total) {
-  std::vector<double> scratch(size_t(kRowArrays) * size_t(row_stride(L.width)));
+  thread_local std::vector<double> scratch;
+  scratch.resize(size_t(kRowArrays) * size_t(row_stride(L.width)));
   for (int v = 0; v < L.height; ++v) {
     PoseTerms row;
     accumulate_row(L, v, scratch.data(), row);
