@@ -217,46 +217,9 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
   const auto make_row = [&](int v, double* row) {
     register_impl::lc2_row_terms_cpu(isa, L, v, row);
   };
+  const bool lncc = metric == RegistrationMetric::LNCC;
   const auto use = [&](int, const double* sums, const uint8_t* centre) {
-    for (int u = 0; u < W; ++u) {
-      if (!centre[u]) continue;  // the patch's own centre is not compared
-      const double* t = sums + size_t(u) * K;
-      const double n = t[0];
-      if (n < least) continue;
-      // Variances from running sums carry their round-off (about 1e-16 of the mean square,
-      // times the steps they ran): a variance below 1e-10 of the mean square is a flat patch,
-      // and its covariances are round-off too.
-      const auto spread = [n](double sum, double sum_sq) {
-        const double mean = sum / n, v = sum_sq / n - mean * mean;
-        return v > 1e-10 * (sum_sq / n) + 1e-300 ? v : 0.0;
-      };
-      const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
-      const double vu = spread(t[1], t[4]);
-      if (!(vu > 0)) continue;  // flat frame patch: nothing to explain
-      double cpp = spread(t[2], t[5]), cgg = spread(t[3], t[6]);
-      const double bup = cpp > 0 ? t[7] / n - mu * mp : 0;
-      if (metric == RegistrationMetric::LNCC) {
-        // The patch's NCC of frame and volume, every patch alike; a flat volume patch scores 0.
-        if (cpp > 0) weighted += bup / std::sqrt(vu * cpp);
-        weight += 1;
-        continue;
-      }
-      // LC2: the least-squares fit U ≈ α·p + β·g + γ, R² = bᵀ·C⁻¹·b / var U with C the
-      // covariance of (p, g) and b their covariances with U (a small ridge keeps a flat p or g
-      // solvable).
-      const double cpg = cpp > 0 && cgg > 0 ? t[9] / n - mp * mg : 0;
-      const double bug = cgg > 0 ? t[8] / n - mu * mg : 0;
-      const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
-      cpp += ridge;
-      cgg += ridge;
-      const double det = cpp * cgg - cpg * cpg;
-      double r2 =
-          det > 0 ? (bup * (cgg * bup - cpg * bug) + bug * (cpp * bug - cpg * bup)) / det / vu : 0;
-      r2 = std::min(1.0, std::max(0.0, r2));
-      const double sigma = std::sqrt(vu);
-      weighted += sigma * r2;
-      weight += sigma;
-    }
+    register_impl::score_patch_row_cpu(isa, sums, centre, W, least, lncc, weighted, weight);
   };
   window_sums<K>(W, H, half, make_row, use);
   return {weighted, weight};

@@ -33,5 +33,20 @@ inline void lc2_row_terms_cpu(CpuIsa isa, const TermsLaunch& L, int v, double* q
   }
 }
 
+/// LC2's (local NCC's) patches of one row (score_patch_row).
+void score_patch_row_generic(const double* sums, const uint8_t* centre, int W, double least,
+                             bool lncc, double& weighted, double& weight);
+void score_patch_row_avx2(const double* sums, const uint8_t* centre, int W, double least, bool lncc,
+                          double& weighted, double& weight);
+inline void score_patch_row_cpu(CpuIsa isa, const double* sums, const uint8_t* centre, int W,
+                                double least, bool lncc, double& weighted, double& weight) {
+  switch (isa) {
+    case CpuIsa::Avx2:
+      return score_patch_row_avx2(sums, centre, W, least, lncc, weighted, weight);
+    case CpuIsa::Generic:
+      return score_patch_row_generic(sums, centre, W, least, lncc, weighted, weight);
+  }
+}
+
 }  // namespace register_impl
 }  // namespace sonoslice

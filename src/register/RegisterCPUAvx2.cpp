@@ -12,5 +12,9 @@ void terms_cpu_avx2(const TermsLaunch& L, PoseTerms& total) {
 void lc2_row_terms_avx2(const TermsLaunch& L, int v, double* q) {
   lc2_row_terms(L, v, q);
 }
+void score_patch_row_avx2(const double* sums, const uint8_t* centre, int W, double least, bool lncc,
+                          double& weighted, double& weight) {
+  score_patch_row(sums, centre, W, least, lncc, weighted, weight);
+}
 }  // namespace register_impl
 }  // namespace sonoslice

@@ -465,6 +465,138 @@ SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, dou
   for_each_row_sample(L, v, true, pixel, first);
 }
 
+/// One patch's score from its window sums t (kLc2Sums values; n = t[0] compared pixels), when it
+/// counts (at least `least` pixels, and a frame patch that is not flat): LC2's fit R² weighted by
+/// the frame patch's σ (contribution σ·R², weight σ), or local NCC (its correlation, weight 1).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool score_patch(const double* t, double least, bool lncc,
+                                                        double* contribution, double* weight) {
+  const double n = t[0];
+  if (n < least) return false;
+  // Variances from running sums carry their round-off (about 1e-16 of the mean square, times the
+  // steps they ran): a variance below 1e-10 of the mean square is a flat patch, and its
+  // covariances are round-off too.
+  const auto spread = [n](double sum, double sum_sq) {
+    const double mean = sum / n, v = sum_sq / n - mean * mean;
+    return v > 1e-10 * (sum_sq / n) + 1e-300 ? v : 0.0;
+  };
+  const double mu = t[1] / n, mp = t[2] / n, mg = t[3] / n;
+  const double vu = spread(t[1], t[4]);
+  if (!(vu > 0)) return false;  // flat frame patch: nothing to explain
+  double cpp = spread(t[2], t[5]), cgg = spread(t[3], t[6]);
+  const double bup = cpp > 0 ? t[7] / n - mu * mp : 0;
+  if (lncc) {
+    // The patch's NCC of frame and volume, every patch alike; a flat volume patch scores 0.
+    *contribution = cpp > 0 ? bup / std::sqrt(vu * cpp) : 0;
+    *weight = 1;
+    return true;
+  }
+  // LC2: the least-squares fit U ≈ α·p + β·g + γ, R² = bᵀ·C⁻¹·b / var U with C the covariance
+  // of (p, g) and b their covariances with U (a small ridge keeps a flat p or g solvable).
+  const double cpg = cpp > 0 && cgg > 0 ? t[9] / n - mp * mg : 0;
+  const double bug = cgg > 0 ? t[8] / n - mu * mg : 0;
+  const double ridge = 1e-9 * (cpp + cgg) + 1e-12;
+  cpp += ridge;
+  cgg += ridge;
+  const double det = cpp * cgg - cpg * cpg;
+  double r2 =
+      det > 0 ? (bup * (cgg * bup - cpg * bug) + bug * (cpp * bug - cpg * bup)) / det / vu : 0;
+  r2 = r2 > 0 ? r2 : 0;  // also a NaN fit
+  r2 = r2 < 1 ? r2 : 1;
+  const double sigma = std::sqrt(vu);
+  *contribution = sigma * r2;
+  *weight = sigma;
+  return true;
+}
+
+#if SONOSLICE_REGISTER_AVX2
+/// score_patch for the patches of pixels u .. u + 3 (window sums at t, kLc2Sums apart), lane by
+/// lane with the same operations (IEEE division and square root round as the scalar ones do);
+/// returns the 4-bit mask of the patches that count.
+SONOSLICE_INLINE int score_four(const double* t, double least, bool lncc, double* contribution,
+                                double* weight) {
+  const auto at = [t](int k) {
+    return _mm256_setr_pd(t[k], t[kLc2Sums + k], t[2 * kLc2Sums + k], t[3 * kLc2Sums + k]);
+  };
+  const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0);
+  const __m256d n = at(0);
+  __m256d counts = _mm256_cmp_pd(n, _mm256_set1_pd(least), _CMP_NLT_UQ);
+  if (!_mm256_movemask_pd(counts)) return 0;
+  const auto spread = [&](__m256d sum, __m256d sum_sq) {
+    const __m256d mean = _mm256_div_pd(sum, n), square = _mm256_div_pd(sum_sq, n);
+    const __m256d v = _mm256_sub_pd(square, _mm256_mul_pd(mean, mean));
+    const __m256d floor =
+        _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(1e-10), square), _mm256_set1_pd(1e-300));
+    return _mm256_and_pd(v, _mm256_cmp_pd(v, floor, _CMP_GT_OQ));
+  };
+  const __m256d s1 = at(1), s2 = at(2), s3 = at(3);
+  const __m256d mu = _mm256_div_pd(s1, n), mp = _mm256_div_pd(s2, n), mg = _mm256_div_pd(s3, n);
+  const __m256d vu = spread(s1, at(4));
+  counts = _mm256_and_pd(counts, _mm256_cmp_pd(vu, zero, _CMP_GT_OQ));
+  const int mask = _mm256_movemask_pd(counts);
+  if (!mask) return 0;
+  __m256d cpp = spread(s2, at(5)), cgg = spread(s3, at(6));
+  const __m256d p_varies = _mm256_cmp_pd(cpp, zero, _CMP_GT_OQ);
+  const __m256d g_varies = _mm256_cmp_pd(cgg, zero, _CMP_GT_OQ);
+  const auto cov = [&](int k, __m256d a, __m256d b) {
+    return _mm256_sub_pd(_mm256_div_pd(at(k), n), _mm256_mul_pd(a, b));
+  };
+  const __m256d bup = _mm256_and_pd(cov(7, mu, mp), p_varies);
+  if (lncc) {
+    const __m256d r = _mm256_div_pd(bup, _mm256_sqrt_pd(_mm256_mul_pd(vu, cpp)));
+    _mm256_storeu_pd(contribution, _mm256_and_pd(r, p_varies));
+    _mm256_storeu_pd(weight, one);
+    return mask;
+  }
+  const __m256d cpg = _mm256_and_pd(cov(9, mp, mg), _mm256_and_pd(p_varies, g_varies));
+  const __m256d bug = _mm256_and_pd(cov(8, mu, mg), g_varies);
+  const __m256d ridge = _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(1e-9), _mm256_add_pd(cpp, cgg)),
+                                      _mm256_set1_pd(1e-12));
+  cpp = _mm256_add_pd(cpp, ridge);
+  cgg = _mm256_add_pd(cgg, ridge);
+  const __m256d det = _mm256_sub_pd(_mm256_mul_pd(cpp, cgg), _mm256_mul_pd(cpg, cpg));
+  const __m256d num = _mm256_add_pd(
+      _mm256_mul_pd(bup, _mm256_sub_pd(_mm256_mul_pd(cgg, bup), _mm256_mul_pd(cpg, bug))),
+      _mm256_mul_pd(bug, _mm256_sub_pd(_mm256_mul_pd(cpp, bug), _mm256_mul_pd(cpg, bup))));
+  __m256d r2 = _mm256_div_pd(_mm256_div_pd(num, det), vu);
+  r2 = _mm256_and_pd(r2, _mm256_cmp_pd(det, zero, _CMP_GT_OQ));
+  r2 = _mm256_and_pd(r2, _mm256_cmp_pd(r2, zero, _CMP_GT_OQ));  // also a NaN fit
+  r2 = _mm256_blendv_pd(one, r2, _mm256_cmp_pd(r2, one, _CMP_LT_OQ));
+  const __m256d sigma = _mm256_sqrt_pd(vu);
+  _mm256_storeu_pd(contribution, _mm256_mul_pd(sigma, r2));
+  _mm256_storeu_pd(weight, sigma);
+  return mask;
+}
+#endif
+
+/// Adds the patches of one row (window sums `sums`, kLc2Sums a pixel; centre[u]: whether pixel
+/// u itself is compared) to `weighted` and `weight`, in pixel order (score_patch).
+SONOSLICE_HOST_DEVICE inline void score_patch_row(const double* sums, const uint8_t* centre, int W,
+                                                  double least, bool lncc, double& weighted,
+                                                  double& weight) {
+  int u = 0;
+#if SONOSLICE_REGISTER_AVX2
+  for (; u + 4 <= W; u += 4) {
+    int32_t word;
+    __builtin_memcpy(&word, centre + u, 4);
+    if (!word) continue;  // no compared centre among the four
+    double c[4], w[4];
+    const int counts = score_four(sums + size_t(u) * kLc2Sums, least, lncc, c, w);
+    for (int l = 0; l < 4; ++l)
+      if (centre[u + l] && (counts >> l & 1)) {
+        weighted += c[l];
+        weight += w[l];
+      }
+  }
+#endif
+  for (; u < W; ++u) {
+    double c, w;
+    if (centre[u] && score_patch(sums + size_t(u) * kLc2Sums, least, lncc, &c, &w)) {
+      weighted += c;
+      weight += w;
+    }
+  }
+}
+
 }  // namespace SONOSLICE_KERNEL_ISA
 }  // namespace register_impl
 }  // namespace sonoslice
