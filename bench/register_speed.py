@@ -155,10 +155,11 @@ def ultrasound_frames(args, tmp, ct_path, truth, init):
         np.save(os.path.join(tmp, f"us_init_{count}.npy"), init[:count])
     clis = [("this build", CLI)] + ([("baseline", args.baseline)] if args.baseline else [])
     rows = []
+    first = None  # this build's poses for the N frames
     for name, cli in clis:
         seconds = []
         for count in (1, n):
-            out = os.path.join(tmp, f"us_out_{name[0]}_{count}.npy")
+            out = os.path.join(tmp, f"us_out_{count}.npy")
             run = subprocess.run([cli, "register", "--volume", ct_path, "--probe", W1, "--downsampling", "2",
                                   "--frames", os.path.join(tmp, f"us_{count}.npy"), "--poses",
                                   os.path.join(tmp, f"us_init_{count}.npy"), "--metric", "lc2", "--out", out,
@@ -166,8 +167,9 @@ def ultrasound_frames(args, tmp, ct_path, truth, init):
             if run.returncode != 0:
                 sys.exit(run.stderr)
             seconds.append(float(re.search(r"register ([0-9.]+) s", run.stderr).group(1)) / count)
-        first = np.load(os.path.join(tmp, f"us_out_t_{n}.npy"))
-        same = bool(np.array_equal(first, np.load(out)))
+        poses = np.load(out)
+        first = poses if first is None else first
+        same = bool(np.array_equal(first, poses))
         rows.append((name, seconds[0], seconds[1], "yes" if same else "no"))
     return rows
 

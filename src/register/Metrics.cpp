@@ -131,8 +131,9 @@ constexpr int kPatchHalf = 5;
 /// sums), and the window's column sums kept as a running sum of those row sums, so a pixel costs
 /// O(K) whatever the window, and only 2·half + 2 rows of row sums are held (a few hundred KB at
 /// full W1 resolution, in cache; the whole frame's terms would be tens of MB an evaluation).
-/// `use(v, sums, centre)`: row v's window sums (W·K values) and whether each pixel itself was
-/// compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread buffers, reused across calls.
+/// `use(sums, centre)`, row by row in order: the row's window sums (W·K values) and whether each
+/// pixel itself was compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread buffers, reused
+/// across calls.
 template <int K, typename MakeRow, typename Use>
 void window_sums(int W, int H, int half, const MakeRow& make_row, const Use& use) {
   const int rows_held = 2 * half + 2;  // rows v − half − 1 .. v + half
@@ -182,7 +183,7 @@ void window_sums(int W, int H, int half, const MakeRow& make_row, const Use& use
       for (size_t j = 0; j < line; ++j) run[j] += in[j];
     else if (out)
       for (size_t j = 0; j < line; ++j) run[j] -= out[j];
-    use(v, static_cast<const double*>(run.data()),
+    use(static_cast<const double*>(run.data()),
         static_cast<const uint8_t*>(centres.data() + size_t(v % rows_held) * W));
   }
 }
@@ -218,7 +219,7 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
     register_impl::lc2_row_terms_cpu(isa, L, v, row);
   };
   const bool lncc = metric == RegistrationMetric::LNCC;
-  const auto use = [&](int, const double* sums, const uint8_t* centre) {
+  const auto use = [&](const double* sums, const uint8_t* centre) {
     register_impl::score_patch_row_cpu(isa, sums, centre, W, least, lncc, weighted, weight);
   };
   window_sums<K>(W, H, half, make_row, use);

@@ -117,6 +117,11 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void pack_pixel(const TermsLaunch& L, int
 }
 
 #if SONOSLICE_REGISTER_AVX2
+/// Whether the level's volume is small enough for the four-pixel paths' 32-bit gather offsets.
+SONOSLICE_INLINE bool gathers_reach(const TermsLaunch& L) {
+  return int64_t(L.grid.nx) * L.grid.ny * L.grid.nz < (int64_t(1) << 31);
+}
+
 /// Writes the lanes of `valid` (a 4-bit mask) of each of `arrays` vectors, left-packed in lane
 /// order, at x[k·w + n ..] (k = 0: *value, 1: *frame, then rest[k − 2]); returns their count.
 SONOSLICE_INLINE int left_pack(int valid, const __m256d* value, const __m256d* frame, int arrays,
@@ -311,7 +316,7 @@ SONOSLICE_HOST_DEVICE inline int pack_row(const TermsLaunch& L, int v, double* x
   const double y = L.y0 + v * L.sy;
   int n = 0, u = 0;
 #if SONOSLICE_REGISTER_AVX2
-  if (int64_t(L.grid.nx) * L.grid.ny * L.grid.nz < (int64_t(1) << 31))
+  if (gathers_reach(L))
     for (; u + 4 <= L.width; u += 4) n += pack_four(L, v, u, x, w, n);
 #endif
   for_each_row_sample(
@@ -430,7 +435,7 @@ SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, dou
   const double y = L.y0 + v * L.sy;
   int first = 0;
 #if SONOSLICE_REGISTER_AVX2
-  if (int64_t(L.grid.nx) * L.grid.ny * L.grid.nz < (int64_t(1) << 31))
+  if (gathers_reach(L))
     for (; first + 4 <= L.width; first += 4) lc2_four(L, v, first, q);
 #endif
   const auto pixel = [&](int64_t i, double x, const CellSample& cs) {
