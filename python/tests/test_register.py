@@ -373,3 +373,20 @@ def test_constant_frames_keep_their_pose_and_say_why(cli, case, tmp_path):
     refined = np.load(case / "const_refined.npy")
     np.testing.assert_array_equal(refined[1], np.load(case / "init.npy")[1])
     assert report["frames"][0]["starts"] >= 1
+
+
+@pytest.mark.parametrize("mode,metric", [("rigid-sweep", "mi"), ("rigid-sweep", "ncc"), ("calibration", "lc2")])
+def test_a_sweep_without_contrast_keeps_its_poses(cli, case, tmp_path, mode, metric):
+    # Nothing steers a sweep whose every frame is constant: its cost is flat, and a search would
+    # wander on round-off (it moved such a sweep by 9.6 mm before).
+    frames = np.full_like(np.load(case / "frames.npy"), 7.0)
+    np.save(tmp_path / "frames.npy", frames)
+    args = base_args(case, "flat_refined.npy")
+    args[args.index("--frames") + 1] = str(tmp_path / "frames.npy")
+    r = run(cli, *args, "--mode", mode, "--metric", metric, "--report", str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr
+    assert "constant over the compared pixels: nothing to register against; poses left as given" in r.stderr
+    assert "not converged" not in r.stderr, r.stderr
+    np.testing.assert_array_equal(np.load(case / "flat_refined.npy"), np.load(case / "init.npy"))
+    report = json.load(open(tmp_path / "r.json"))
+    assert all((f["starts"], f["converged"], f["metric"]) == (0, False, None) for f in report["frames"])

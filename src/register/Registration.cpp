@@ -89,12 +89,20 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
           settings.metric, terms(k, refined[k], 1, centre(k, refined[k]), true));
     r.converged = o.agreeing_starts >= kAgreeingStarts && std::isfinite(r.metric);
   };
-  if (settings.mode == RegistrationMode::PerFrame) {
+  // A frame without contrast keeps its pose; so does every frame of a sweep none of whose frames
+  // has any (its cost is the same everywhere: the search would wander on round-off).
+  const auto keep = [&](size_t k) {
+    Outcome none;
+    none.starts = none.agreeing_starts = 0;
+    describe(k, none, 0, std::numeric_limits<double>::infinity());
+  };
+  const bool nothing_steers = std::all_of(flat.begin(), flat.end(), [](bool f) { return f; });
+  if (settings.mode != RegistrationMode::PerFrame && nothing_steers) {
+    for (size_t k = 0; k < s.count; ++k) keep(k);
+  } else if (settings.mode == RegistrationMode::PerFrame) {
     backend::parallel_for(int64_t(s.count), [&](int64_t k) {
       if (flat[size_t(k)]) {
-        Outcome none;
-        none.starts = none.agreeing_starts = 0;
-        describe(size_t(k), none, 0, std::numeric_limits<double>::infinity());
+        keep(size_t(k));
         return;
       }
       Problem p;
@@ -208,8 +216,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     warn("registration: frame" + std::string(flat_count > 1 ? "s " : " ") + flat_list + " (" +
          std::to_string(flat_count) + " of " + std::to_string(s.count) +
          ") constant over the compared pixels: nothing to register against" +
-         (settings.mode == RegistrationMode::PerFrame ? "; poses left as given"
-                                                      : "; they do not steer the sweep"));
+         (settings.mode == RegistrationMode::PerFrame || nothing_steers
+              ? "; poses left as given"
+              : "; they do not steer the sweep"));
   if (unconverged > 0)
     warn("registration: " + std::to_string(unconverged) + " of " + std::to_string(frames.size()) +
          " frames not converged (their best pose was reached from fewer than " +
