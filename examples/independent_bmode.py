@@ -31,6 +31,7 @@ insonified echo 28 dB below white.
 
 Time: 6-8 s a W1 frame on this 2-core machine, ~95 % of it in pymust.simus; the first frame also
 builds the DAS matrix (~2 s). Progress goes to stderr.
+Needs `pip install "pymust<0.1.9"` where numpy is 1.x (Debian's 1.24): 0.1.9 calls numpy 2's np.concat.
 """
 import os
 

@@ -15,7 +15,7 @@ choice to the command (its default: starts until three agree). The table also sa
 the report calls converged, and how many of the frames that missed were called converged anyway
 (the silent failures the convergence check is there to prevent). Instead of CT fans: --simulated
 registers `sonoslice simulate --preset lus` B-mode frames; --independent B-mode frames of another
-simulator (MUST's pymust, examples/independent_bmode.py; `pip install pymust`), so that the figure
+simulator (MUST's pymust, examples/independent_bmode.py; `pip install "pymust<0.1.9"` with numpy 1.x), so that the figure
 is not our simulator agreeing with itself.
 """
 import argparse

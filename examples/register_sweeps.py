@@ -6,19 +6,24 @@ frame ends within 0.5 mm and 0.5 degrees of the truth, and whether the report ca
 not converged (the silent failures the convergence check is there to prevent).
 
   build/venv/bin/python examples/register_sweeps.py [--phantom DIR] [--sweeps 10] [--frames 30]
-      [--max-error 10] [--noise 20] [--threads 2]
+      [--spacing 1] [--max-error 10] [--noise 20] [--simulated | --independent] [--metric lc2]
+      [--probes W1 W2] [--directions along across] [--threads 2]
 
 For each probe (W1, fan-slicer's curvilinear LUS fan at downsampling 2, and W2, its linear probe
 at half resolution: 200 x 250 pixels of 0.247 mm) and each direction (along: the probe moves
 through its image plane, the usual freehand sweep; across: it slides along its own lateral
 axis), --sweeps sweeps of --frames CT fans 1 mm apart with Gaussian noise (HU), centred on
-random poses inside the body. The shared error turns the sweep by up to --max-error degrees
+random poses inside the body (--simulated: B-mode frames of `sonoslice.Simulator` at the same
+poses, W1 at the lus preset's 6.5 MHz, W2 at the simulator's default, registered with --metric,
+for example lc2 or mi; --independent: B-mode frames of another simulator, MUST's pymust through
+examples/independent_bmode.py, W1 only). The shared error turns the sweep by up to --max-error degrees
 about a random axis through the sweep's centre and moves it by up to --max-error mm in a random
 direction (both uniform in magnitude, seeded).
 """
 import argparse
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -46,35 +51,68 @@ def fan_centre(probe):
                      image["origin_mm"][1] + v.mean() * image["spacing_mm"][1], 0.0])
 
 
+def mean_cost(report):
+    """The mean of a report's frame costs (+inf, null in the report, where a frame has none)."""
+    return float(np.mean([np.inf if f["metric"] is None else f["metric"] for f in report["frames"]]))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--phantom", help="a folder from `sonoslice phantom DIR --size full` (default: written)")
     ap.add_argument("--sweeps", type=int, default=10, help="sweeps per probe and direction (10)")
-    ap.add_argument("--frames", type=int, default=30, help="frames a sweep, 1 mm apart (30)")
+    ap.add_argument("--frames", type=int, default=30, help="frames a sweep (30)")
+    ap.add_argument("--spacing", type=float, default=1, help="distance between frames, mm (1)")
     ap.add_argument("--max-error", type=float, default=10, help="largest shared error, mm and degrees (10)")
     ap.add_argument("--noise", type=float, default=20, help="Gaussian noise on the fans, HU (20)")
+    ap.add_argument("--simulated", action="store_true", help="simulated B-mode frames instead of CT fans")
+    ap.add_argument("--independent", action="store_true",
+                    help="B-mode frames of pymust (examples/independent_bmode.py; W1 only)")
+    ap.add_argument("--probes", nargs="+", default=["W1", "W2"], choices=["W1", "W2"])
+    ap.add_argument("--directions", nargs="+", default=["along", "across"], choices=["along", "across"])
+    ap.add_argument("--metric", help="register's metric (default: the library's, ncc)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     sonoslice.set_threads(args.threads)
-    with tempfile.TemporaryDirectory() as tmp:
-        ct = sonoslice.Volume.from_file(phantom_file(phantom_folder(args.phantom, tmp), "ct."))
-        bases = body_poses(tmp, args.sweeps)
+    tmp_dir = tempfile.TemporaryDirectory()
+    tmp = tmp_dir.name
+    phantom = phantom_folder(args.phantom, tmp)
+    ct = sonoslice.Volume.from_file(phantom_file(phantom, "ct."))
+    bases = body_poses(tmp, args.sweeps)
+
+    def independent_frames(truth):
+        np.save(os.path.join(tmp, "truth.npy"), truth)
+        subprocess.run([sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                                      "independent_bmode.py"),
+                        "--labels", phantom_file(phantom, "labels."), "--tissues",
+                        os.path.join(phantom, "tissues.json"), "--poses", os.path.join(tmp, "truth.npy"),
+                        "--out", os.path.join(tmp, "frames.npy"), "--threads", str(args.threads)], check=True)
+        return np.load(os.path.join(tmp, "frames.npy")).astype(np.float32)
     rng = np.random.default_rng(7)
     rows = []
-    print("| probe | sweep | within 0.5 mm and 0.5 deg | median worst frame | called converged "
-          "| missed but called converged | seconds a sweep |")
-    print("|---|---|---|---|---|---|---|")
+    print("| probe | sweep | within 0.5 mm and 0.5 deg | within 1 mm and 1 deg | median worst frame "
+          "| called converged | missed but called converged | seconds a sweep |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, probe in probes().items():
+        if name.split()[0] not in args.probes or (args.independent and not name.startswith("W1")):
+            continue
         centre = fan_centre(probe)
         slicer = sonoslice.Slicer(ct, probe)
+        simulator = sonoslice.Simulator(ct, probe, frequency=6.5 if name.startswith("W1") else None)
         for direction, axis in (("along", 2), ("across", 0)):
-            ok, worst_mm, worst_deg, conv, seconds = [], [], [], [], []
+            if direction not in args.directions:
+                continue
+            ok, near, worst_mm, worst_deg, conv, seconds = [], [], [], [], [], []
             for k, base in enumerate(bases):
-                steps = (np.arange(args.frames) - (args.frames - 1) / 2)
+                steps = (np.arange(args.frames) - (args.frames - 1) / 2) * args.spacing
                 truth = np.repeat(base[None], args.frames, 0)
-                truth[:, :3, 3] += steps[:, None] * base[:3, axis]  # 1 mm along the probe's axis
-                frames = slicer.slice(truth).astype(np.float32)
-                frames += rng.normal(0, args.noise, frames.shape).astype(np.float32)
+                truth[:, :3, 3] += steps[:, None] * base[:3, axis]  # along the probe's axis
+                if args.independent:
+                    frames = independent_frames(truth)
+                elif args.simulated:
+                    frames = simulator.simulate(truth).astype(np.float32)
+                else:
+                    frames = slicer.slice(truth).astype(np.float32)
+                    frames += rng.normal(0, args.noise, frames.shape).astype(np.float32)
                 # One shared world-frame error X about the sweep's centre: init_i = X . truth_i.
                 c = base[:3, :3] @ centre + base[:3, 3]
                 d = rng.normal(size=3)
@@ -86,28 +124,34 @@ def main():
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # the report's converged flag is what is counted
                     t0 = time.perf_counter()
-                    refined, report = sonoslice.register(ct, probe, frames, init, mode="rigid-sweep")
+                    refined, report = sonoslice.register(ct, probe, frames, init, mode="rigid-sweep",
+                                                         metric=args.metric)
                     seconds.append(time.perf_counter() - t0)
                 mm, deg = errors(refined, truth, centre)
                 worst_mm.append(mm.max())
                 worst_deg.append(deg.max())
                 ok.append(mm.max() < 0.5 and deg.max() < 0.5)
+                near.append(mm.max() < 1 and deg.max() < 1)
                 conv.append(report["frames"][0]["converged"])
                 if not ok[-1]:
                     # Which failed, the search or the metric: the optimum next to the truth (one
-                    # start from it) against the result.
+                    # start from it) against the result, by the mean of the frames' own costs (the
+                    # report's; MI's sweep cost is that mean, NCC and LC2 pool pixels and patches).
                     f = report["frames"][0]
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        _, at_truth = sonoslice.register(ct, probe, frames, truth, mode="rigid-sweep", starts=1)
+                        _, at_truth = sonoslice.register(ct, probe, frames, truth, mode="rigid-sweep", starts=1,
+                                                        metric=args.metric)
                     start_mm, start_deg = errors(init, truth, centre)
                     print(f"  {name} {direction} sweep {k}: from {start_mm.max():.1f} mm {start_deg.max():.1f} deg "
                           f"to {mm.max():.2f} mm {deg.max():.2f} deg, {f['agreeing_starts']} of {f['starts']} starts "
-                          f"agree, {'called converged' if f['converged'] else 'not converged'}; cost {f['metric']:.5f}, "
-                          f"at the optimum next to the truth {at_truth['frames'][0]['metric']:.5f}", file=sys.stderr)
+                          f"agree, {'called converged' if f['converged'] else 'not converged'}; mean frame cost "
+                          f"{mean_cost(report):.5f}, at the optimum next to the truth {mean_cost(at_truth):.5f}",
+                          file=sys.stderr)
             ok, conv = np.array(ok), np.array(conv)
             rows.append((ok.sum(), len(ok), (conv & ~ok).sum()))
-            print(f"| {name} | {direction} | {ok.sum()} of {len(ok)} | {np.median(worst_mm):.3f} mm, "
+            print(f"| {name} | {direction} | {ok.sum()} of {len(ok)} | {sum(near)} of {len(ok)} "
+                  f"| {np.median(worst_mm):.3f} mm, "
                   f"{np.median(worst_deg):.3f} deg | {conv.sum()} of {len(ok)} | {(conv & ~ok).sum()} of "
                   f"{(~ok).sum()} | {np.mean(seconds):.1f} |", flush=True)
     good, total, silent = (sum(r[i] for r in rows) for i in range(3))
