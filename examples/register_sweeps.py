@@ -51,9 +51,9 @@ def fan_centre(probe):
                      image["origin_mm"][1] + v.mean() * image["spacing_mm"][1], 0.0])
 
 
-def mean_cost(report):
-    """The mean of a report's frame costs (+inf, null in the report, where a frame has none)."""
-    return float(np.mean([np.inf if f["metric"] is None else f["metric"] for f in report["frames"]]))
+def sweep_cost(report):
+    """The sweep's own cost in a report (+inf where it has none)."""
+    return np.inf if report.get("sweep_metric") is None else report["sweep_metric"]
 
 
 def main():
@@ -134,9 +134,8 @@ def main():
                 near.append(mm.max() < 1 and deg.max() < 1)
                 conv.append(report["frames"][0]["converged"])
                 if not ok[-1]:
-                    # Which failed, the search or the metric: the optimum next to the truth (one
-                    # start from it) against the result, by the mean of the frames' own costs (the
-                    # report's; MI's sweep cost is that mean, NCC and LC2 pool pixels and patches).
+                    # Which failed, the search or the metric: the sweep's cost at the optimum next
+                    # to the truth (one start from it) against its cost at the result.
                     f = report["frames"][0]
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
@@ -145,8 +144,8 @@ def main():
                     start_mm, start_deg = errors(init, truth, centre)
                     print(f"  {name} {direction} sweep {k}: from {start_mm.max():.1f} mm {start_deg.max():.1f} deg "
                           f"to {mm.max():.2f} mm {deg.max():.2f} deg, {f['agreeing_starts']} of {f['starts']} starts "
-                          f"agree, {'called converged' if f['converged'] else 'not converged'}; mean frame cost "
-                          f"{mean_cost(report):.5f}, at the optimum next to the truth {mean_cost(at_truth):.5f}",
+                          f"agree, {'called converged' if f['converged'] else 'not converged'}; sweep cost "
+                          f"{sweep_cost(report):.5f}, at the optimum next to the truth {sweep_cost(at_truth):.5f}",
                           file=sys.stderr)
             ok, conv = np.array(ok), np.array(conv)
             rows.append((ok.sum(), len(ok), (conv & ~ok).sum()))

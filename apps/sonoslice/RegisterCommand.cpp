@@ -246,6 +246,7 @@ void run_register(const RegisterFlags& f) {
     for (const FrameReport& r : report.frames) converged += r.converged;
     j["converged_frames"] = converged;
     if (report.correction) j["correction"] = matrix_json(*report.correction);
+    if (report.sweep_metric) j["sweep_metric"] = *report.sweep_metric;  // +inf: null
     if (in.plus) {
       j["sequence"] = f.sequence;
       j["sequence_frames"] = in.plus->frames;

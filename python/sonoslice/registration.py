@@ -52,6 +52,8 @@ def _report(report) -> dict:
     out["converged_frames"] = sum(f.converged for f in report.frames)
     if report.correction is not None:  # rigid-sweep and smooth-sweep: world side; calibration: probe side
         out["correction"] = report.correction[0].tolist()
+    if report.sweep_metric is not None:
+        out["sweep_metric"] = report.sweep_metric
     out.update(evaluations=int(report.evaluations), seconds=float(report.seconds))
     return out
 
@@ -85,6 +87,7 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     translation_change_mm, rotation_change_deg, starts, agreeing_starts, confidence, converged,
     uncertainty_mm, uncertainty_deg),
     "converged_frames", "correction" (the sweep modes' and calibration's shared 4×4 correction),
+    "sweep_metric" (their cost over the whole sweep at that correction),
     "evaluations" and "seconds". A frame is converged when its best pose was
     reached from at least three starts; a registration with frames that are not warns
     (``UserWarning``, one message). ``starts``: None (default) runs starts until three agree,

@@ -196,7 +196,9 @@ void bind_registration(nb::module_& m) {
             if (!r.correction) return nb::none();
             return nb::cast(matrices_to_numpy({*r.correction}));
           },
-          "the sweep modes' and calibration's shared correction, (1, 4, 4); None per frame");
+          "the sweep modes' and calibration's shared correction, (1, 4, 4); None per frame")
+      .def_ro("sweep_metric", &RegistrationReport::sweep_metric,
+              "the sweep's own cost at the shared correction, full resolution; None per frame");
 
   m.def(
       "registration_costs",

@@ -118,6 +118,24 @@ def test_rigid_sweep_applies_one_correction(cli, case):
         np.testing.assert_allclose(X[k], X[0], atol=1e-9)
 
 
+@pytest.mark.parametrize("metric", ["ssd", "mi"])
+def test_a_sweep_reports_its_own_cost(cli, case, tmp_path, metric):
+    # The sweep's cost at the shared correction: MI's is the mean of the frames' own costs; SSD's
+    # pools every frame's pixels, the frames' own costs weighted by their pixel counts, so it lies
+    # between their least and greatest.
+    r = run(cli, *base_args(case, "sweep_cost.npy"), "--mode", "rigid-sweep", "--metric", metric, "--starts", "2",
+            "--report", str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr
+    report = json.load(open(tmp_path / "r.json"))
+    own = [f["metric"] for f in report["frames"]]
+    if metric == "mi":
+        assert report["sweep_metric"] == pytest.approx(np.mean(own), rel=1e-12, abs=1e-12)
+    else:
+        assert min(own) <= report["sweep_metric"] <= max(own) and min(own) < max(own)
+    r = run(cli, *base_args(case, "frame_cost.npy"), "--starts", "1", "--report", str(tmp_path / "f.json"))
+    assert "sweep_metric" not in json.load(open(tmp_path / "f.json"))
+
+
 def test_smooth_sweep_reports_and_its_weight_spans_per_frame_to_rigid(cli, case):
     truth, init = np.load(case / "truth.npy"), np.load(case / "init.npy")
     # Weight 0: every frame free (from the rigid-sweep correction), so each finds its own pose.

@@ -169,6 +169,8 @@ def test_calibration_mode_reports_its_probe_side_correction(phantom, poses):
     assert report["mode"] == "calibration" and np.asarray(report["correction"]).shape == (4, 4)
     np.testing.assert_allclose(np.asarray(report["correction"])[:3, 3], X0[:3, 3], atol=0.1)
     np.testing.assert_allclose(refined[:, :3, 3], truth[:, :3, 3], atol=0.1)
+    # The sweep's own cost: NCC over every frame's pixels at once, near 0 on noise-free frames.
+    assert 0 <= report["sweep_metric"] < 1e-3
 
 
 @pytest.mark.parametrize("make", [

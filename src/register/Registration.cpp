@@ -68,6 +68,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
   std::vector<Pose> refined(s.count);
   std::vector<FrameReport> frames(s.count);
   std::optional<Pose> correction;  // the sweep modes' shared one
+  std::optional<double> sweep_metric;
   // `metric`: the frame's own final cost (per frame: the optimisation's; a sweep's is shared).
   // `pose`: the refined pose, when not the world-side correction's o.correction · initial.
   const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations,
@@ -172,6 +173,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     };
     const Outcome o = multi_start(p, settings, 0, mean);
     correction = o.correction;
+    sweep_metric = p.cost(o.correction, 1);
     // The shared correction's uncertainty, from the sweep's summed terms.
     const auto [sweep_mm, sweep_deg] =
         metric_has_derivatives(settings.metric)
@@ -230,6 +232,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     report->settings = settings;
     report->frames = frames;
     report->correction = correction;
+    report->sweep_metric = sweep_metric;
     report->evaluations = 0;
     for (const FrameReport& r : frames) report->evaluations += r.evaluations;
     report->seconds =

@@ -182,6 +182,10 @@ struct RegistrationReport {
   /// The shared correction: rigid-sweep's and smooth-sweep's first stage X (world side, refined
   /// poses X · T_i), calibration's X (probe side, T_i · X); unset per frame.
   std::optional<Pose> correction;
+  /// The sweep's own cost at the shared correction, full resolution: the cost the sweep modes and
+  /// calibration minimise (all frames' pixels or patches together; MI the mean of the frames');
+  /// for smooth-sweep, its rigid first stage's. Unset per frame and for a sweep without contrast.
+  std::optional<double> sweep_metric;
   int64_t evaluations = 0;
   double seconds = 0;
 };
