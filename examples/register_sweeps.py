@@ -64,9 +64,10 @@ def main():
     ap.add_argument("--spacing", type=float, default=1, help="distance between frames, mm (1)")
     ap.add_argument("--max-error", type=float, default=10, help="largest shared error, mm and degrees (10)")
     ap.add_argument("--noise", type=float, default=20, help="Gaussian noise on the fans, HU (20)")
-    ap.add_argument("--simulated", action="store_true", help="simulated B-mode frames instead of CT fans")
-    ap.add_argument("--independent", action="store_true",
-                    help="B-mode frames of pymust (examples/independent_bmode.py; W1 only)")
+    kind = ap.add_mutually_exclusive_group()
+    kind.add_argument("--simulated", action="store_true", help="simulated B-mode frames instead of CT fans")
+    kind.add_argument("--independent", action="store_true",
+                      help="B-mode frames of pymust (examples/independent_bmode.py; W1 only)")
     ap.add_argument("--probes", nargs="+", default=["W1", "W2"], choices=["W1", "W2"])
     ap.add_argument("--directions", nargs="+", default=["along", "across"], choices=["along", "across"])
     ap.add_argument("--metric", help="register's metric (default: the library's, ncc)")
@@ -97,7 +98,8 @@ def main():
             continue
         centre = fan_centre(probe)
         slicer = sonoslice.Slicer(ct, probe)
-        simulator = sonoslice.Simulator(ct, probe, frequency=6.5 if name.startswith("W1") else None)
+        simulator = (sonoslice.Simulator(ct, probe, frequency=6.5 if name.startswith("W1") else None)
+                     if args.simulated else None)
         for direction, axis in (("along", 2), ("across", 0)):
             if direction not in args.directions:
                 continue
