@@ -98,9 +98,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     describe(k, none, 0, std::numeric_limits<double>::infinity());
   };
   const bool nothing_steers = std::all_of(flat.begin(), flat.end(), [](bool f) { return f; });
-  if (settings.mode != RegistrationMode::PerFrame && nothing_steers) {
-    for (size_t k = 0; k < s.count; ++k) keep(k);
-  } else if (settings.mode == RegistrationMode::PerFrame) {
+  if (settings.mode == RegistrationMode::PerFrame) {
     backend::parallel_for(int64_t(s.count), [&](int64_t k) {
       if (flat[size_t(k)]) {
         keep(size_t(k));
@@ -116,6 +114,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       const Outcome o = multi_start(p, settings, size_t(k), centre(size_t(k), initial[size_t(k)]));
       describe(size_t(k), o, o.evaluations, o.cost);
     });
+  } else if (nothing_steers) {
+    for (size_t k = 0; k < s.count; ++k) keep(k);
   } else {
     // One correction X for the sweep. rigid-sweep and smooth-sweep's first stage: world side,
     // poses X·T_k, turning about the mean of the frames' centres. calibration: probe side, poses
