@@ -5,7 +5,8 @@ error; the success rate (within 1 mm and 1 degree at the fan's centre) against t
 
   build/venv/bin/python examples/register_capture_range.py [--phantom DIR] [--poses 40]
       [--noise 20] [--errors 2 4 6 8 10] [--starts auto 1 8] [--metric ncc] [--plot capture.svg]
-      [--simulated | --independent | --frames FRAMES.npy]
+      [--simulated [--simulate-from ct|labels] | --independent | --frames FRAMES.npy]
+      [--pose-source body|skin|liver]
 
 Each perturbation moves the fan's centre by E mm in a random direction and turns the probe by
 E degrees about a random axis through that centre (seeded). The registration runs through the
@@ -16,7 +17,9 @@ the report calls converged, and how many of the frames that missed were called c
 (the silent failures the convergence check is there to prevent). Instead of CT fans: --simulated
 registers `sonoslice simulate --preset lus` B-mode frames; --independent B-mode frames of another
 simulator (MUST's pymust, examples/independent_bmode.py; `pip install "pymust<0.1.9"` with numpy 1.x), so that the figure
-is not our simulator agreeing with itself.
+is not our simulator agreeing with itself. The true poses are at random inside the body (the
+benchmarks' poses, default), or with --pose-source where a probe lies: on the skin looking in, or
+on the liver's surface looking into it (laparoscopic).
 """
 import argparse
 import json
@@ -52,6 +55,23 @@ def body_poses(tmp, n):
     same every time)."""
     subprocess.run([CLI, "phantom", os.path.join(tmp, "p"), "--size", "small", "--poses", str(n), "-q"], check=True)
     return np.load(os.path.join(tmp, "p", "poses.npy"))[:n]
+
+
+def sampled_poses(source, ct, labels, probe, n):
+    """n poses of a pose sampler (docs/datasets.md §2), seeds 0..n-1 of base seed 7: "skin", the probe on
+    the body surface looking in (transabdominal; the dataset example's tilts and rejection rules), or
+    "liver", the probe's face on the liver's surface looking into it (laparoscopic: the skin sampler on a
+    volume that is -1000 outside the liver's label and 100 inside)."""
+    config = {"type": "skin", "rotation_deg": [0, 360], "tilt_deg": [-15, 15], "heel_toe_deg": [-10, 10],
+              "reject": {"min_inside": 0.9, "min_body": 0.6}}
+    volume = ct
+    if source == "liver":
+        liver = sonoslice.PHANTOM_LABELS.index("liver")
+        mask = np.where(labels.array == liver, 100, -1000).astype(np.int16)
+        volume = sonoslice.Volume(mask, spacing=ct.spacing, origin=ct.origin, direction=ct.direction)
+    else:
+        config["reject"]["no_gas"] = True
+    return sonoslice.PoseSampler(config, probe, volume).sample(sonoslice.sample_seeds(7, 0, 0, n))
 
 
 def rotation(axis, angle):
@@ -125,11 +145,17 @@ def main():
     ap.add_argument("--pyramid", help="the command's --pyramid (default: the metric's default)")
     ap.add_argument("--simulated", action="store_true",
                     help="frames from `sonoslice simulate --preset lus` (B-mode) instead of CT fans with noise")
+    ap.add_argument("--simulate-from", choices=["ct", "labels"], default="ct",
+                    help="--simulated: from the CT (default; the phantom's contrast-filled vessels scatter like "
+                         "liver there) or from the labels and tissues.json (vessels anechoic, as ultrasound shows them)")
     ap.add_argument("--independent", action="store_true",
                     help="frames from an independent simulator (MUST's pymust: examples/independent_bmode.py, "
                          "from the phantom's labels and tissues) instead of CT fans with noise")
     ap.add_argument("--frames", help="frames at the true poses made elsewhere (.npy, (N, H, W) on W1's grid, at the "
                                      "first --poses poses of `sonoslice phantom DIR --size small --poses N`)")
+    ap.add_argument("--pose-source", choices=["body", "skin", "liver"], default="body",
+                    help="where the true poses are: at random inside the body (default), on the skin looking in, "
+                         "or on the liver's surface looking into it (pose samplers, seeded)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--plot", help="write the capture-range curves here (.svg)")
     args = ap.parse_args()
@@ -137,9 +163,13 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         phantom = phantom_folder(args.phantom, tmp)
         ct_path = phantom_file(phantom, "ct.")
-        truth = body_poses(tmp, args.poses)
         ct = sonoslice.Volume.from_file(ct_path)
         probe = sonoslice.Probe.from_fanslicer(W1, downsampling=2)
+        if args.pose_source == "body":
+            truth = body_poses(tmp, args.poses)
+        else:
+            labels = sonoslice.Volume.from_file(phantom_file(phantom, "labels.")) if args.pose_source == "liver" else None
+            truth = sampled_poses(args.pose_source, ct, labels, probe, args.poses)
         geometry = json.loads(probe.to_json())
         mask = probe.mask
         v, u = np.nonzero(mask)
@@ -156,7 +186,9 @@ def main():
                             "--poses", os.path.join(tmp, "truth.npy"), "--out", frames_path], check=True)
         elif args.simulated:  # the lus preset's probe is W1
             np.save(os.path.join(tmp, "truth.npy"), truth)
-            subprocess.run([CLI, "simulate", "--volume", ct_path, "--preset", "lus", "--poses",
+            source = (["--volume", ct_path] if args.simulate_from == "ct" else
+                      ["--labels", phantom_file(phantom, "labels."), "--tissues", os.path.join(phantom, "tissues.json")])
+            subprocess.run([CLI, "simulate", *source, "--preset", "lus", "--poses",
                             os.path.join(tmp, "truth.npy"), "--out", frames_path, "-q"], check=True)
         else:
             frames = sonoslice.Slicer(ct, probe).slice(truth).astype(np.float32)
@@ -208,8 +240,8 @@ def main():
             curves[f"{args.metric}, {starts} start{'' if starts == '1' else 's'}"] = rates
     kind = ("frames of " + args.frames if args.frames else
             "independent B-mode frames (pymust)" if args.independent else
-            "simulated B-mode frames (lus preset)" if args.simulated else f"CT fans with {args.noise:g} HU noise")
-    print(f"\n{args.poses} W1 {kind} of the full phantom, metric {args.metric}, default optimizer, "
+            f"simulated B-mode frames (lus preset, from the {args.simulate_from})" if args.simulated else f"CT fans with {args.noise:g} HU noise")
+    print(f"\n{args.poses} W1 {kind} of the full phantom at poses {args.pose_source}, metric {args.metric}, default optimizer, "
           f"pyramid {args.pyramid or 'default'}, {args.threads} threads\n")
     print("| starts | initial error (mm and deg) | within 1 mm and 1 deg | median error after | called converged "
           "| missed but called converged | pose evaluations | seconds |")

@@ -7,14 +7,17 @@ not converged (the silent failures the convergence check is there to prevent).
 
   build/venv/bin/python examples/register_sweeps.py [--phantom DIR] [--sweeps 10] [--frames 30]
       [--spacing 1] [--max-error 10] [--noise 20] [--simulated | --independent] [--metric lc2]
-      [--probes W1 W2] [--directions along across] [--threads 2]
+      [--probes W1 W2] [--directions along across] [--pose-source body|skin|liver]
+      [--simulate-from ct|labels] [--threads 2]
 
 For each probe (W1, fan-slicer's curvilinear LUS fan at downsampling 2, and W2, its linear probe
 at half resolution: 200 x 250 pixels of 0.247 mm) and each direction (along: the probe moves
 through its image plane, the usual freehand sweep; across: it slides along its own lateral
 axis), --sweeps sweeps of --frames CT fans 1 mm apart with Gaussian noise (HU), centred on
-random poses inside the body (--simulated: B-mode frames of `sonoslice.Simulator` at the same
-poses, W1 at the lus preset's 6.5 MHz, W2 at the simulator's default, registered with --metric,
+random poses inside the body (--pose-source skin: probes on the skin looking in; liver: on the
+liver's surface looking into it, as a laparoscopic probe lies) (--simulated: B-mode frames of `sonoslice.Simulator` at the same
+poses, W1 at the lus preset's 6.5 MHz, W2 at the simulator's default, from the CT or with
+--simulate-from labels from the labels and tissues.json, registered with --metric,
 for example lc2 or mi; --independent: B-mode frames of another simulator, MUST's pymust through
 examples/independent_bmode.py, W1 only). The shared error turns the sweep by up to --max-error degrees
 about a random axis through the sweep's centre and moves it by up to --max-error mm in a random
@@ -34,7 +37,8 @@ import numpy as np
 import sonoslice
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from register_capture_range import body_poses, errors, phantom_file, phantom_folder, rotation  # noqa: E402
+from register_capture_range import (body_poses, errors, phantom_file, phantom_folder, rotation,  # noqa: E402
+                                    sampled_poses)
 
 
 def probes():
@@ -71,6 +75,12 @@ def main():
     ap.add_argument("--probes", nargs="+", default=["W1", "W2"], choices=["W1", "W2"])
     ap.add_argument("--directions", nargs="+", default=["along", "across"], choices=["along", "across"])
     ap.add_argument("--metric", help="register's metric (default: the library's, ncc)")
+    ap.add_argument("--pose-source", choices=["body", "skin", "liver"], default="body",
+                    help="where the sweeps' centres are: at random inside the body (default), on the skin looking "
+                         "in, or on the liver's surface looking into it (pose samplers, seeded)")
+    ap.add_argument("--simulate-from", choices=["ct", "labels"], default="ct",
+                    help="--simulated: from the CT (default; the phantom's contrast-filled vessels scatter like "
+                         "liver there) or from the labels and tissues.json (vessels anechoic)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     sonoslice.set_threads(args.threads)
@@ -78,7 +88,8 @@ def main():
     tmp = tmp_dir.name
     phantom = phantom_folder(args.phantom, tmp)
     ct = sonoslice.Volume.from_file(phantom_file(phantom, "ct."))
-    bases = body_poses(tmp, args.sweeps)
+    labels = sonoslice.Volume.from_file(phantom_file(phantom, "labels."))
+    bases = body_poses(tmp, args.sweeps) if args.pose_source == "body" else None
 
     def independent_frames(truth):
         np.save(os.path.join(tmp, "truth.npy"), truth)
@@ -98,8 +109,14 @@ def main():
             continue
         centre = fan_centre(probe)
         slicer = sonoslice.Slicer(ct, probe)
-        simulator = (sonoslice.Simulator(ct, probe, frequency=6.5 if name.startswith("W1") else None)
-                     if args.simulated else None)
+        simulator = None
+        if args.simulated:
+            frequency = 6.5 if name.startswith("W1") else None
+            simulator = (sonoslice.Simulator(ct, probe, frequency=frequency) if args.simulate_from == "ct" else
+                         sonoslice.Simulator(labels, probe, tissues=os.path.join(phantom, "tissues.json"),
+                                             frequency=frequency))
+        if args.pose_source != "body":
+            bases = sampled_poses(args.pose_source, ct, labels, probe, args.sweeps)
         for direction, axis in (("along", 2), ("across", 0)):
             if direction not in args.directions:
                 continue
