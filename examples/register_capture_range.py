@@ -74,6 +74,17 @@ def sampled_poses(source, ct, labels, probe, n):
     return sonoslice.PoseSampler(config, probe, volume).sample(sonoslice.sample_seeds(7, 0, 0, n))
 
 
+def independent_frames(phantom, truth, tmp, out, threads=None):
+    """B-mode frames of another simulator (MUST's pymust, examples/independent_bmode.py) at the poses
+    `truth`, from the phantom's labels and tissues.json, written to `out` (.npy)."""
+    poses = os.path.join(tmp, "truth.npy")
+    np.save(poses, truth)
+    cmd = [sys.executable, os.path.join(ROOT, "examples", "independent_bmode.py"), "--labels",
+           phantom_file(phantom, "labels."), "--tissues", os.path.join(phantom, "tissues.json"), "--poses", poses,
+           "--out", out]
+    subprocess.run(cmd + (["--threads", str(threads)] if threads else []), check=True)
+
+
 def rotation(axis, angle):
     axis = axis / np.linalg.norm(axis)
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
@@ -180,10 +191,7 @@ def main():
         if args.frames:
             np.save(frames_path, np.load(args.frames)[: args.poses].astype(np.float32))
         elif args.independent:
-            np.save(os.path.join(tmp, "truth.npy"), truth)
-            subprocess.run([sys.executable, os.path.join(ROOT, "examples", "independent_bmode.py"), "--labels",
-                            phantom_file(phantom, "labels."), "--tissues", os.path.join(phantom, "tissues.json"),
-                            "--poses", os.path.join(tmp, "truth.npy"), "--out", frames_path], check=True)
+            independent_frames(phantom, truth, tmp, frames_path)
         elif args.simulated:  # the lus preset's probe is W1
             np.save(os.path.join(tmp, "truth.npy"), truth)
             source = (["--volume", ct_path] if args.simulate_from == "ct" else

@@ -26,7 +26,6 @@ direction (both uniform in magnitude, seeded).
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,8 +36,8 @@ import numpy as np
 import sonoslice
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from register_capture_range import (body_poses, errors, phantom_file, phantom_folder, rotation,  # noqa: E402
-                                    sampled_poses)
+from register_capture_range import (body_poses, errors, independent_frames, phantom_file,  # noqa: E402
+                                    phantom_folder, rotation, sampled_poses)
 
 
 def probes():
@@ -88,17 +87,9 @@ def main():
     tmp = tmp_dir.name
     phantom = phantom_folder(args.phantom, tmp)
     ct = sonoslice.Volume.from_file(phantom_file(phantom, "ct."))
-    labels = sonoslice.Volume.from_file(phantom_file(phantom, "labels."))
+    needs_labels = args.pose_source == "liver" or (args.simulated and args.simulate_from == "labels")
+    labels = sonoslice.Volume.from_file(phantom_file(phantom, "labels.")) if needs_labels else None
     bases = body_poses(tmp, args.sweeps) if args.pose_source == "body" else None
-
-    def independent_frames(truth):
-        np.save(os.path.join(tmp, "truth.npy"), truth)
-        subprocess.run([sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)),
-                                                      "independent_bmode.py"),
-                        "--labels", phantom_file(phantom, "labels."), "--tissues",
-                        os.path.join(phantom, "tissues.json"), "--poses", os.path.join(tmp, "truth.npy"),
-                        "--out", os.path.join(tmp, "frames.npy"), "--threads", str(args.threads)], check=True)
-        return np.load(os.path.join(tmp, "frames.npy")).astype(np.float32)
     rng = np.random.default_rng(7)
     rows = []
     print("| probe | sweep | within 0.5 mm and 0.5 deg | within 1 mm and 1 deg | median worst frame "
@@ -126,7 +117,8 @@ def main():
                 truth = np.repeat(base[None], args.frames, 0)
                 truth[:, :3, 3] += steps[:, None] * base[:3, axis]  # along the probe's axis
                 if args.independent:
-                    frames = independent_frames(truth)
+                    independent_frames(phantom, truth, tmp, os.path.join(tmp, "frames.npy"), args.threads)
+                    frames = np.load(os.path.join(tmp, "frames.npy")).astype(np.float32)
                 elif args.simulated:
                     frames = simulator.simulate(truth).astype(np.float32)
                 else:

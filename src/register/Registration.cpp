@@ -173,7 +173,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     };
     const Outcome o = multi_start(p, settings, 0, mean);
     correction = o.correction;
-    sweep_metric = p.cost(o.correction, 1);
+    sweep_metric = o.cost;  // every optimisation ends with p.cost(X, 1), the full-resolution cost
     // The shared correction's uncertainty, from the sweep's summed terms.
     const auto [sweep_mm, sweep_deg] =
         metric_has_derivatives(settings.metric)
