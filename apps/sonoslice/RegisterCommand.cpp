@@ -247,6 +247,7 @@ void run_register(const RegisterFlags& f) {
     j["converged_frames"] = converged;
     if (report.correction) j["correction"] = matrix_json(*report.correction);
     if (report.sweep_metric) j["sweep_metric"] = *report.sweep_metric;  // +inf: null
+    if (report.halves_mm) j["halves_mm"] = *report.halves_mm;
     if (in.plus) {
       j["sequence"] = f.sequence;
       j["sequence_frames"] = in.plus->frames;

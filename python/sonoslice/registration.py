@@ -54,6 +54,8 @@ def _report(report) -> dict:
         out["correction"] = report.correction[0].tolist()
     if report.sweep_metric is not None:
         out["sweep_metric"] = report.sweep_metric
+    if report.halves_mm is not None:
+        out["halves_mm"] = report.halves_mm
     out.update(evaluations=int(report.evaluations), seconds=float(report.seconds))
     return out
 
@@ -87,9 +89,11 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     translation_change_mm, rotation_change_deg, starts, agreeing_starts, confidence, converged,
     uncertainty_mm, uncertainty_deg),
     "converged_frames", "correction" (the sweep modes' and calibration's shared 4×4 correction),
-    "sweep_metric" (their cost over the whole sweep at that correction),
+    "sweep_metric" (their cost over the whole sweep at that correction), "halves_mm" (how far
+    apart the sweep's first and second halves end, each refined alone from that correction),
     "evaluations" and "seconds". A frame is converged when its best pose was
-    reached from at least three starts; a registration with frames that are not warns
+    reached from at least three starts (and, in rigid-sweep and calibration mode, the halves end
+    at most 0.5 mm apart); a registration with frames that are not warns
     (``UserWarning``, one message). ``starts``: None (default) runs starts until three agree,
     at most 12 (a sweep's shared correction: at most 16).
 

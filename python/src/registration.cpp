@@ -198,7 +198,9 @@ void bind_registration(nb::module_& m) {
           },
           "the sweep modes' and calibration's shared correction, (1, 4, 4); None per frame")
       .def_ro("sweep_metric", &RegistrationReport::sweep_metric,
-              "the sweep's own cost at the shared correction, full resolution; None per frame");
+              "the sweep's own cost at the shared correction, full resolution; None per frame")
+      .def_ro("halves_mm", &RegistrationReport::halves_mm,
+              "how far apart the sweep's halves, each refined alone, end (mm); None per frame");
 
   m.def(
       "registration_costs",

@@ -132,8 +132,10 @@ def test_a_sweep_reports_its_own_cost(cli, case, tmp_path, metric):
         assert report["sweep_metric"] == pytest.approx(np.mean(own), rel=1e-12, abs=1e-12)
     else:
         assert min(own) <= report["sweep_metric"] <= max(own) and min(own) < max(own)
+    assert report["halves_mm"] >= 0  # the halves check ran (4 frames: two halves of two)
     r = run(cli, *base_args(case, "frame_cost.npy"), "--starts", "1", "--report", str(tmp_path / "f.json"))
-    assert "sweep_metric" not in json.load(open(tmp_path / "f.json"))
+    per_frame = json.load(open(tmp_path / "f.json"))
+    assert "sweep_metric" not in per_frame and "halves_mm" not in per_frame
 
 
 def test_smooth_sweep_reports_and_its_weight_spans_per_frame_to_rigid(cli, case):

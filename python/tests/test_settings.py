@@ -171,6 +171,9 @@ def test_calibration_mode_reports_its_probe_side_correction(phantom, poses):
     np.testing.assert_allclose(refined[:, :3, 3], truth[:, :3, 3], atol=0.1)
     # The sweep's own cost: NCC over every frame's pixels at once, near 0 on noise-free frames.
     assert 0 <= report["sweep_metric"] < 1e-3
+    # The halves check (calibration's halves, each refined alone on the probe side): one
+    # calibration error explains both halves.
+    assert 0 <= report["halves_mm"] < 0.1
 
 
 @pytest.mark.parametrize("make", [

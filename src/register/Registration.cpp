@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <optional>
 #include <tuple>
@@ -69,6 +70,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
   std::vector<FrameReport> frames(s.count);
   std::optional<Pose> correction;  // the sweep modes' shared one
   std::optional<double> sweep_metric;
+  std::optional<double> halves_mm;  // the sweep modes' halves check (kHalvesAgreementMm)
   // `metric`: the frame's own final cost (per frame: the optimisation's; a sweep's is shared).
   // `pose`: the refined pose, when not the world-side correction's o.correction · initial.
   const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations,
@@ -88,7 +90,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     if (settings.mode == RegistrationMode::PerFrame)
       std::tie(r.uncertainty_mm, r.uncertainty_deg) = register_impl::pose_uncertainty(
           settings.metric, terms(k, refined[k], 1, centre(k, refined[k]), true));
-    r.converged = o.agreeing_starts >= kAgreeingStarts && std::isfinite(r.metric);
+    r.converged = o.agreeing_starts >= kAgreeingStarts && std::isfinite(r.metric) &&
+                  !(halves_mm && *halves_mm > kHalvesAgreementMm);
   };
   // A frame without contrast keeps its pose; so does every frame of a sweep none of whose frames
   // has any (its cost is the same everywhere: the search would wander on round-off).
@@ -121,59 +124,114 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     // poses X·T_k, turning about the mean of the frames' centres. calibration: probe side, poses
     // T_k·X, turning about the mean of the frames' centres in probe mm; an increment ξ of X there
     // is frame k's world increment R_k·ξ about T_k·c (R_k: T_k's rotation), so each frame's
-    // derivatives are turned into the probe frame before they are summed. Each evaluation sums
-    // every frame's terms (in parallel, then in frame order).
+    // derivatives are turned into the probe frame before they are summed.
     const bool probe_side = settings.mode == RegistrationMode::Calibration;
-    const auto pose_of = [&](const Pose& X, size_t k) {
-      return probe_side ? initial[k] * X : X * initial[k];
-    };
-    Vec3 mean = {0, 0, 0};
-    for (size_t k = 0; k < s.count; ++k) {
-      const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, initial[k]);
-      for (int i = 0; i < 3; ++i) mean[i] += c[i] / double(s.count);
-    }
-    Problem p;
-    p.frames_per_evaluation = int64_t(s.count);
-    p.shared = true;
-    p.terms = [&](const Pose& X, int f, const Vec3& c, bool g) {
-      std::vector<PoseTerms> each(s.count);
-      backend::parallel_for(int64_t(s.count), [&](int64_t k) {
-        const Pose& T = initial[size_t(k)];
-        if (!probe_side) {
-          each[size_t(k)] = terms(size_t(k), X * T, f, c, g);
-          return;
+    // The sweep's problem over the frames `members` at the poses `base`: each evaluation sums
+    // those frames' terms (in parallel, then in frame order), turning about `mean`.
+    const auto pose_of = [&](const Pose& X, const Pose& T) { return probe_side ? T * X : X * T; };
+    const auto sweep_problem = [&](const std::vector<Pose>& base,
+                                   const std::vector<size_t>& members, const Vec3& mean) {
+      Problem p;
+      p.frames_per_evaluation = int64_t(members.size());
+      p.shared = true;
+      p.terms = [&, probe_side](const Pose& X, int f, const Vec3& c, bool g) {
+        std::vector<PoseTerms> each(members.size());
+        backend::parallel_for(int64_t(members.size()), [&](int64_t i) {
+          const size_t k = members[size_t(i)];
+          const Pose& T = base[k];
+          if (!probe_side) {
+            each[size_t(i)] = terms(k, X * T, f, c, g);
+            return;
+          }
+          each[size_t(i)] = terms(k, T * X, f, T.transform_point(c), g);
+          if (g) each[size_t(i)] = register_impl::turned_into(each[size_t(i)], T.linear());
+        });
+        PoseTerms sum;
+        for (const PoseTerms& t : each) sum.add(t);
+        return sum;
+      };
+      // The sweep's cost: SSD and NCC over all its pixels together; LC2 and LNCC over all its
+      // patches; MI the mean of the frames' (each frame has its own intensity range).
+      p.cost = [&, terms_of = p.terms](const Pose& X, int f) {
+        if (settings.metric == RegistrationMetric::SSD ||
+            settings.metric == RegistrationMetric::NCC)
+          return metric_cost(settings.metric, terms_of(X, f, mean, false));
+        std::vector<std::pair<double, double>> each(members.size());
+        backend::parallel_for(int64_t(members.size()), [&](int64_t i) {
+          const size_t k = members[size_t(i)];
+          const Pose pose = pose_of(X, base[k]);
+          if (settings.metric == RegistrationMetric::MI)
+            each[size_t(i)] = {cost(k, pose, f, settings.metric), 1.0};
+          else
+            each[size_t(i)] = patch_score(k, pose, f, settings.metric);
+        });
+        double weighted = 0, weight = 0;
+        for (const auto& [a, b] : each) {
+          weighted += a;
+          weight += b;
         }
-        each[size_t(k)] = terms(size_t(k), T * X, f, T.transform_point(c), g);
-        if (g) each[size_t(k)] = register_impl::turned_into(each[size_t(k)], T.linear());
-      });
-      PoseTerms sum;
-      for (const PoseTerms& t : each) sum.add(t);
-      return sum;
+        if (!(weight > 0)) return std::numeric_limits<double>::infinity();
+        return settings.metric == RegistrationMetric::MI ? weighted / weight
+                                                         : 1 - weighted / weight;
+      };
+      return p;
     };
-    // The sweep's cost: SSD and NCC over all its pixels together; LC2 and LNCC over all its
-    // patches; MI the mean of the frames' (each frame has its own intensity range).
-    p.cost = [&](const Pose& X, int f) {
-      if (settings.metric == RegistrationMetric::SSD || settings.metric == RegistrationMetric::NCC)
-        return metric_cost(settings.metric, p.terms(X, f, mean, false));
-      std::vector<std::pair<double, double>> each(s.count);
-      backend::parallel_for(int64_t(s.count), [&](int64_t k) {
-        const Pose pose = pose_of(X, size_t(k));
-        if (settings.metric == RegistrationMetric::MI)
-          each[size_t(k)] = {cost(size_t(k), pose, f, settings.metric), 1.0};
-        else
-          each[size_t(k)] = patch_score(size_t(k), pose, f, settings.metric);
-      });
-      double weighted = 0, weight = 0;
-      for (const auto& [a, b] : each) {
-        weighted += a;
-        weight += b;
+    // The frames' mean centre (probe side: in probe mm), which the sweep turns about.
+    const auto mean_centre = [&](const std::vector<Pose>& base,
+                                 const std::vector<size_t>& members) {
+      Vec3 mean = {0, 0, 0};
+      for (size_t k : members) {
+        const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, base[k]);
+        for (int i = 0; i < 3; ++i) mean[i] += c[i] / double(members.size());
       }
-      if (!(weight > 0)) return std::numeric_limits<double>::infinity();
-      return settings.metric == RegistrationMetric::MI ? weighted / weight : 1 - weighted / weight;
+      return mean;
     };
-    const Outcome o = multi_start(p, settings, 0, mean);
+    std::vector<size_t> all(s.count);
+    for (size_t k = 0; k < s.count; ++k) all[k] = k;
+    const Vec3 mean = mean_centre(initial, all);
+    const Problem p = sweep_problem(initial, all, mean);
+    Outcome o = multi_start(p, settings, 0, mean);
     correction = o.correction;
     sweep_metric = o.cost;  // every optimisation ends with p.cost(X, 1), the full-resolution cost
+    // What agreeing starts cannot see: a wrong optimum that every start reaches. The sweep's
+    // first and second halves (of its frames with contrast), each refined alone from the
+    // sweep's result, must end within kHalvesAgreementMm of each other at every frame's centre:
+    // a right answer fits both halves, a wrong one that the whole sweep prefers usually pulls
+    // its halves apart, since each half sees other tissue.
+    std::vector<size_t> steering;
+    for (size_t k = 0; k < s.count; ++k)
+      if (!flat[k]) steering.push_back(k);
+    // Not in smooth-sweep mode, whose frames need not share one correction.
+    if (settings.mode != RegistrationMode::SmoothSweep && steering.size() >= 4 &&
+        std::isfinite(o.cost)) {
+      std::vector<Pose> at_result(s.count);
+      for (size_t k = 0; k < s.count; ++k) at_result[k] = pose_of(o.correction, initial[k]);
+      RegistrationSettings local = settings;
+      local.starts = 1;
+      local.pyramid = std::vector<int>{1};
+      local.tolerance_mm = std::max(local.tolerance_mm, 0.01);
+      local.tolerance_deg = std::max(local.tolerance_deg, 0.01);
+      const size_t half = steering.size() / 2;
+      const std::vector<size_t> halves[2] = {
+          {steering.begin(), steering.begin() + std::ptrdiff_t(half)},
+          {steering.begin() + std::ptrdiff_t(half), steering.end()}};
+      Pose ends[2];
+      for (int h = 0; h < 2; ++h) {
+        const Vec3 c = mean_centre(at_result, halves[h]);
+        const Outcome e = multi_start(sweep_problem(at_result, halves[h], c), local, 0, c);
+        ends[h] = e.correction;
+        o.evaluations += e.evaluations;
+      }
+      double apart = 0;
+      for (size_t k : steering) {
+        const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, at_result[k]);
+        const Vec3 a = ends[0].transform_point(c), b = ends[1].transform_point(c);
+        apart = std::max(apart,
+                         std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+                                   (a[2] - b[2]) * (a[2] - b[2])));
+      }
+      halves_mm = apart;
+    }
     // The shared correction's uncertainty, from the sweep's summed terms.
     const auto [sweep_mm, sweep_deg] =
         metric_has_derivatives(settings.metric)
@@ -184,7 +242,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
                                         std::numeric_limits<double>::quiet_NaN()};
     if (settings.mode != RegistrationMode::SmoothSweep) {
       for (size_t k = 0; k < s.count; ++k) {
-        describe(k, o, o.evaluations / int64_t(s.count), std::nullopt, pose_of(o.correction, k));
+        describe(k, o, o.evaluations / int64_t(s.count), std::nullopt,
+                 pose_of(o.correction, initial[k]));
         frames[k].uncertainty_mm = sweep_mm;
         frames[k].uncertainty_deg = sweep_deg;
       }
@@ -208,7 +267,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
   size_t flat_count = 0, unconverged = 0;
   for (size_t k = 0; k < s.count; ++k) {
     if (!flat[k]) {
-      unconverged += !frames[k].converged;
+      unconverged +=
+          frames[k].agreeing_starts < kAgreeingStarts || !std::isfinite(frames[k].metric);
       continue;
     }
     if (++flat_count <= 10) flat_list += (flat_list.empty() ? "" : ", ") + std::to_string(k);
@@ -228,11 +288,22 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
          " of the starts; "
          "the report's converged and agreeing_starts say which): more starts, a wider search, or "
          "a better initial pose may help");
+  if (halves_mm && *halves_mm > kHalvesAgreementMm) {
+    char apart[96];
+    std::snprintf(apart, sizeof(apart), "%.2f mm apart (more than %g mm", *halves_mm,
+                  kHalvesAgreementMm);
+    warn(std::string("registration: the sweep is not converged: its first and second halves, "
+                     "each refined alone from its result, end ") +
+         apart +
+         "; the report's halves_mm): a wrong optimum of the whole sweep, or frames that do "
+         "not share one correction (a tracking jump; a drift: smooth-sweep)");
+  }
   if (report) {
     report->settings = settings;
     report->frames = frames;
     report->correction = correction;
     report->sweep_metric = sweep_metric;
+    report->halves_mm = halves_mm;
     report->evaluations = 0;
     for (const FrameReport& r : frames) report->evaluations += r.evaluations;
     report->seconds =

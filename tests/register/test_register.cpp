@@ -289,6 +289,10 @@ TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
   EXPECT_LT(worst_deg, 0.5);
   for (const FrameReport& r : report.frames) EXPECT_TRUE(r.converged);
   EXPECT_GE(report.frames[0].agreeing_starts, kAgreeingStarts);
+  // The halves check: a right answer fits both halves of the sweep.
+  ASSERT_TRUE(report.halves_mm.has_value());
+  std::printf("[ rigid sweep, defaults ] halves %.4f mm apart\n", *report.halves_mm);
+  EXPECT_LT(*report.halves_mm, 0.1);
 
   // One start: whatever it finds, it cannot confirm it.
   settings.starts = 1;
@@ -301,6 +305,44 @@ TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
   ASSERT_EQ(warnings.messages().size(), 1u);
   EXPECT_EQ(warnings.messages()[0].rfind("registration: 30 of 30 frames not converged", 0), 0u)
       << warnings.messages()[0];
+}
+
+// A tracking jump: the second half of a sweep was recorded 3 mm to the side of where it was
+// taken. No one correction fits the whole sweep, whatever the starts agree on; refined alone,
+// its halves end about 3 mm apart, so the sweep is not converged and the warning says why.
+TEST(Register, RigidSweepWhoseHalvesDisagreeIsNotConverged) {
+  const Pose base = phantom_random_poses(4, 3)[2];
+  const ProbeGeometry probe = linear_probe();
+  const std::vector<Pose> truth = straight_sweep(base, 20, 1.0);
+  const std::vector<float> frames = Slicer(phantom().ct, probe).slice<float>(truth);
+  const FrameRegistration reg(phantom().ct, probe, frames.data(), truth.size());
+  std::vector<Pose> recorded = truth;
+  for (size_t k = 10; k < recorded.size(); ++k)
+    for (int i = 0; i < 3; ++i) recorded[k].m[i][3] += 3 * base.m[i][0];  // the probe's lateral
+  RegistrationSettings settings;
+  settings.mode = RegistrationMode::RigidSweep;
+  RegistrationReport report;
+  const test::CapturedWarnings warnings;
+  reg.run(recorded, settings, &report);
+  ASSERT_TRUE(report.halves_mm.has_value());
+  std::printf("[ rigid sweep, tracking jump ] halves %.3f mm apart; %d of %d starts agree\n",
+              *report.halves_mm, report.frames[0].agreeing_starts, report.frames[0].starts);
+  EXPECT_GT(*report.halves_mm, 2.0);
+  EXPECT_LT(*report.halves_mm, 4.0);
+  for (const FrameReport& r : report.frames) EXPECT_FALSE(r.converged);
+  bool said = false;
+  for (const std::string& m : warnings.messages())
+    said = said || m.rfind(
+                       "registration: the sweep is not converged: its first and second "
+                       "halves",
+                       0) == 0;
+  EXPECT_TRUE(said) << (warnings.messages().empty() ? "" : warnings.messages()[0]);
+
+  // Per frame, no halves: each frame finds its own pose.
+  settings.mode = RegistrationMode::PerFrame;
+  settings.starts = 1;
+  reg.run(recorded, settings, &report);
+  EXPECT_FALSE(report.halves_mm.has_value());
 }
 
 // A probe calibration error: every frame's pose is off by the same probe-side X0 (T_i·X0⁻¹ given
