@@ -1,6 +1,7 @@
 #pragma once
 // What the viewer's parts share inside src/view: the box of a grid, the clock, and the live feed's
 // state (the server reads it under its mutex).
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <condition_variable>
@@ -38,6 +39,7 @@ struct LiveFeed::Impl {
   // request waits for one.
   std::function<Volume()> snapshot;
   double min_interval = 0.07;
+  static constexpr double kSnapshotSpacing = 4;
   std::thread refresher;
   bool stopping = false;
   // Snapshots are taken only while a page polls: no page, no cost (a snapshot holds the
@@ -50,9 +52,13 @@ struct LiveFeed::Impl {
 
   void refresh_loop() {
     std::unique_lock<std::mutex> lock(mutex);
-    double last = -1e9;
+    double last = -1e9, took = 0;
     while (!stopping) {
-      const double wait = min_interval - (view_detail::now_seconds() - last);
+      // A snapshot holds the compounder (and on two cores both cores) for its length: snapshots
+      // start at least kSnapshotSpacing times their length apart, so that they take at most a
+      // quarter of the time and the frames keep up whatever the volume's size.
+      const double gap = std::max(min_interval, kSnapshotSpacing * took);
+      const double wait = gap - (view_detail::now_seconds() - last);
       if (seq == frames_at_snapshot || !wanted || wait > 0) {
         // Woken by a new frame, by a page taking the last snapshot, or when the interval ends.
         wake.wait_for(lock, std::chrono::duration<double>(std::max(wait, 0.005)));
@@ -67,6 +73,7 @@ struct LiveFeed::Impl {
       } catch (const std::exception&) {
         // nothing compounded yet (every frame so far rejected): no volume to show
       }
+      took = view_detail::now_seconds() - last;
       lock.lock();
       frames_at_snapshot = at;
       if (v && v->grid().voxel_count() > 0 && running) {
