@@ -209,6 +209,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       RegistrationSettings local = settings;
       local.starts = 1;
       local.pyramid = std::vector<int>{1};
+      // Compared at half a millimetre: steps of 0.01 mm and 0.01° are fine enough, and fewer.
       local.tolerance_mm = std::max(local.tolerance_mm, 0.01);
       local.tolerance_deg = std::max(local.tolerance_deg, 0.01);
       const size_t half = steering.size() / 2;

@@ -153,9 +153,9 @@ constexpr double kAgreementMm = 1, kAgreementDeg = 1;
 /// this far apart at every frame's centre. Agreeing starts cannot catch a wrong optimum that every
 /// start reaches; the halves see other tissue and usually pull apart there. The bound is the
 /// accuracy a sweep is judged by in docs/registration.md §5: there the recovered sweeps' halves
-/// ended at most 0.26 mm apart (49 B-mode sweeps on the liver's surface) and 0.01 mm (39 CT
-/// sweeps), while the misses through the plane that three starts had agreed on ended 0.88–24 mm
-/// apart.
+/// ended at most 0.26 mm apart (49 MI B-mode sweeps on the liver's surface; 0.36 mm for LC2's
+/// 11) and 0.01 mm (39 CT sweeps), while MI's misses through the plane that three starts had
+/// agreed on ended 0.88–24 mm apart.
 constexpr double kHalvesAgreementMm = 0.5;
 
 /// One frame's outcome (JSON report fields, docs/registration.md §4). In the sweep modes the
