@@ -22,14 +22,6 @@ constexpr double kNoticeShearDeg = 0.1;
 // one, and the tracker's poses are rigid.
 constexpr double kSpacingTolerance = 1e-2;
 
-double length(const Vec3& v) {
-  return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-}
-Vec3 unit(const Vec3& v) {
-  const double n = length(v);
-  return {v[0] / n, v[1] / n, v[2] / n};
-}
-
 }  // namespace
 
 PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
@@ -47,8 +39,8 @@ PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
     const std::string where =
         sequence.path + ": frame " + std::to_string(sel.frames[n]) + "'s " + transform + " ";
     const Vec3 column[2] = {{m.m[0][0], m.m[1][0], m.m[2][0]}, {m.m[0][1], m.m[1][1], m.m[2][1]}};
-    const Vec3 x = unit(column[0]), y = unit(column[1]);
-    const double cosine = x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    const Vec3 x = normalized(column[0]), y = normalized(column[1]);
+    const double cosine = dot(x, y);
     const double shear_deg = std::fabs(90 - std::acos(cosine) * 180 / kPi);
     if (shear_deg > kMaxShearDeg)
       throw InputError(where + "shears the image: its pixel axes are " +
@@ -57,7 +49,7 @@ PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
                        "spacing)");
     worst_shear_deg = std::max(worst_shear_deg, shear_deg);
     for (int c = 0; c < 2; ++c) {
-      const double l = length(column[c]);
+      const double l = norm(column[c]);
       if (n == 0)
         spacing[c] = l;
       else if (std::fabs(l - spacing[c]) > kSpacingTolerance * spacing[c])
@@ -69,13 +61,9 @@ PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
     // Perpendicular axes, the shear split evenly between them (about their bisector), and a
     // right-handed third axis: a 2D image has no extent along it, so a calibration that mirrors
     // the image (negative determinant) still gives a rotation.
-    const Vec3 b = unit({x[0] + y[0], x[1] + y[1], x[2] + y[2]});
-    const Vec3 d = unit({x[0] - y[0], x[1] - y[1], x[2] - y[2]});
+    const Vec3 b = normalized(x + y), d = normalized(x - y);
     const double h = std::sqrt(0.5);
-    const Vec3 px = {h * (b[0] + d[0]), h * (b[1] + d[1]), h * (b[2] + d[2])};
-    const Vec3 py = {h * (b[0] - d[0]), h * (b[1] - d[1]), h * (b[2] - d[2])};
-    const Vec3 pz = {px[1] * py[2] - px[2] * py[1], px[2] * py[0] - px[0] * py[2],
-                     px[0] * py[1] - px[1] * py[0]};
+    const Vec3 px = h * (b + d), py = h * (b - d), pz = cross(px, py);
     Pose pose;
     for (int r = 0; r < 3; ++r) {
       pose.m[r][0] = px[r];

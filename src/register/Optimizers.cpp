@@ -295,10 +295,8 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   // How many ends reached the best one: its centre moved by at most kAgreementMm from theirs,
   // its rotation at most kAgreementDeg from theirs.
   const auto apart = [&](const Pose& a, const Pose& b, double mm, double deg) {
-    const Vec3 pa = a.transform_point(centre), pb = b.transform_point(centre);
-    double d = 0;
-    for (int i = 0; i < 3; ++i) d += (pa[i] - pb[i]) * (pa[i] - pb[i]);
-    return std::sqrt(d) > mm || rotation_angle_deg(a.linear(), b.linear()) > deg;
+    return norm(a.transform_point(centre) - b.transform_point(centre)) > mm ||
+           rotation_angle_deg(a.linear(), b.linear()) > deg;
   };
   std::vector<Pose> ends, begun;
   Outcome best;

@@ -226,10 +226,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       double apart = 0;
       for (size_t k : steering) {
         const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, at_result[k]);
-        const Vec3 a = ends[0].transform_point(c), b = ends[1].transform_point(c);
-        apart = std::max(apart,
-                         std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
-                                   (a[2] - b[2]) * (a[2] - b[2])));
+        apart = std::max(apart, norm(ends[0].transform_point(c) - ends[1].transform_point(c)));
       }
       halves_mm = apart;
     }
