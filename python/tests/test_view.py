@@ -333,6 +333,14 @@ def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(viewer.url + bad, timeout=10)
             assert e.value.code in (400, 404), bad
+        # A page of another site that re-points its name at 127.0.0.1 (DNS rebinding) is refused;
+        # the loopback names are answered.
+        for host, code in (("attacker.example:80", 403), ("localhost", 200), ("127.0.0.1", 200)):
+            request = urllib.request.Request(viewer.url + "api/scene", headers={"Host": host})
+            try:
+                assert urllib.request.urlopen(request, timeout=10).status == code, host
+            except urllib.error.HTTPError as e:
+                assert e.code == code, host
         body = urllib.request.urlopen(viewer.url + "api/image?pose=0", timeout=10).read()
         assert len(body) == 4 * 334 * 272
     finally:

@@ -101,6 +101,17 @@ void send_floats(httplib::Response& res, std::vector<float> values) {
                   "application/octet-stream");
 }
 
+// "localhost", 127.x.x.x or ::1 (with or without brackets).
+bool is_loopback_name(const std::string& h) {
+  return h == "localhost" || h == "::1" || h == "[::1]" || h.rfind("127.", 0) == 0;
+}
+
+// "name:port" or "[v6]:port" to the name.
+std::string host_without_port(const std::string& h) {
+  if (!h.empty() && h[0] == '[') return h.substr(0, h.find(']') + 1);
+  return h.substr(0, h.find(':'));
+}
+
 }  // namespace
 
 // ------------------------------------------------------------------------------------ server --
@@ -374,6 +385,17 @@ struct ViewServer::Impl {
   void routes() {
     // Every answer is for this machine's page only: no caching of data that changes live.
     http.set_default_headers({{"Cache-Control", "no-store"}});
+    // Served on loopback, a page of any web site could still reach it by DNS rebinding (its own
+    // name re-pointed at 127.0.0.1); its requests carry that name as Host, and are refused.
+    if (is_loopback_name(host))
+      http.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
+        const std::string h = req.get_header_value("Host");
+        if (h.empty() || is_loopback_name(host_without_port(h)))
+          return httplib::Server::HandlerResponse::Unhandled;
+        res.status = 403;
+        res.set_content("view: served on loopback; Host " + h + " refused", "text/plain");
+        return httplib::Server::HandlerResponse::Handled;
+      });
     http.Get("/", [](const httplib::Request&, httplib::Response& res) {
       const WebAsset* a = find_web_asset("index.html");
       res.set_content(a->data, a->size, a->mime);
