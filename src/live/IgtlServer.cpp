@@ -53,7 +53,8 @@ struct Connection {
   int id = 0;
   bool connected = true;  // false while a client's connect() is in progress
   bool sent_anything = false;
-  std::vector<uint8_t> in;  // the message being read: header, then header + body
+  std::vector<uint8_t> in;             // the message being read: header, then header + body
+  std::optional<igtl::Header> header;  // its header, parsed and checked once complete
   std::deque<std::vector<uint8_t>> out;
   size_t out_offset = 0, out_bytes = 0;
 };
@@ -179,12 +180,7 @@ bool IgtlEndpoint::Impl::read_from(size_t k, const MessageHandler& on_message, s
     Connection& c = connections[k];
     // Read exactly up to the end of the current header or body, so a message never mixes
     // with the next and `in` never holds more than one message.
-    size_t want = igtl::kHeaderBytes;
-    igtl::Header h;
-    if (c.in.size() >= igtl::kHeaderBytes) {
-      h = igtl::parse_header(c.in.data());
-      want = igtl::kHeaderBytes + size_t(h.body_bytes);
-    }
+    const size_t want = igtl::kHeaderBytes + (c.header ? size_t(c.header->body_bytes) : size_t(0));
     const size_t n = std::min(sizeof(buffer), want - c.in.size());
     const ssize_t got = ::recv(c.fd, buffer, n, 0);
     if (got == 0) return false;  // the peer closed (mid-message or not: nothing is half-used)
@@ -192,26 +188,25 @@ bool IgtlEndpoint::Impl::read_from(size_t k, const MessageHandler& on_message, s
     c.sent_anything = true;
     counts["bytes"] += got;
     c.in.insert(c.in.end(), buffer, buffer + got);
-    if (c.in.size() == igtl::kHeaderBytes) {
-      h = igtl::parse_header(c.in.data());
+    if (!c.header && c.in.size() == igtl::kHeaderBytes) {
+      const igtl::Header h = igtl::parse_header(c.in.data());
       why = igtl::header_problem(h);
       if (!why.empty()) return false;  // the stream cannot be resynchronised after a bad header
+      c.header = h;
       c.in.reserve(igtl::kHeaderBytes + size_t(h.body_bytes));
     }
-    if (c.in.size() >= igtl::kHeaderBytes) {
-      h = igtl::parse_header(c.in.data());
-      if (c.in.size() == igtl::kHeaderBytes + h.body_bytes) {
-        igtl::Message m;
-        const std::string problem =
-            igtl::parse_body(h, c.in.data() + igtl::kHeaderBytes, size_t(h.body_bytes), m);
-        const int id = c.id;
-        c.in.clear();
-        if (!problem.empty())
-          count_reject(problem);
-        else
-          on_message(id, std::move(m), now_seconds());
-        return true;  // one message per round, so the caller can apply back-pressure
-      }
+    if (c.header && c.in.size() == igtl::kHeaderBytes + c.header->body_bytes) {
+      igtl::Message m;
+      const std::string problem = igtl::parse_body(*c.header, c.in.data() + igtl::kHeaderBytes,
+                                                   size_t(c.header->body_bytes), m);
+      const int id = c.id;
+      c.in.clear();
+      c.header.reset();
+      if (!problem.empty())
+        count_reject(problem);
+      else
+        on_message(id, std::move(m), now_seconds());
+      return true;  // one message per round, so the caller can apply back-pressure
     }
   }
   return true;
