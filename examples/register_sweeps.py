@@ -54,6 +54,14 @@ def fan_centre(probe):
                      image["origin_mm"][1] + v.mean() * image["spacing_mm"][1], 0.0])
 
 
+def apart(values):
+    """The largest of these distances (mm), "-" where none was measured (the sides of a sweep
+    through its image plane are not compared)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    return f"{values.max():.2f} mm" if values.size else "-"
+
+
 def sweep_cost(report):
     """The sweep's own cost in a report (+inf where it has none)."""
     return np.inf if report.get("sweep_metric") is None else report["sweep_metric"]
@@ -93,7 +101,7 @@ def main():
     rng = np.random.default_rng(7)
     rows = []
     print("| probe | sweep | within 0.5 mm and 0.5 deg | within 1 mm and 1 deg | median worst frame "
-          "| called converged | missed but called converged | halves apart, recovered (largest) | seconds a sweep |")
+          "| called converged | missed but called converged | halves; sides apart, recovered (largest) | seconds a sweep |")
     print("|---|---|---|---|---|---|---|---|---|")
     for name, probe in probes().items():
         if name.split()[0] not in args.probes or (args.independent and not name.startswith("W1")):
@@ -111,7 +119,7 @@ def main():
         for direction, axis in (("along", 2), ("across", 0)):
             if direction not in args.directions:
                 continue
-            ok, near, worst_mm, worst_deg, conv, halves, seconds = [], [], [], [], [], [], []
+            ok, near, worst_mm, worst_deg, conv, halves, sides, seconds = [], [], [], [], [], [], [], []
             for k, base in enumerate(bases):
                 steps = (np.arange(args.frames) - (args.frames - 1) / 2) * args.spacing
                 truth = np.repeat(base[None], args.frames, 0)
@@ -145,6 +153,12 @@ def main():
                 near.append(mm.max() < 1 and deg.max() < 1)
                 conv.append(report["frames"][0]["converged"])
                 halves.append(report.get("halves_mm", np.nan))
+                sides.append(report.get("sides_mm", np.nan))
+                if ok[-1] and not conv[-1]:
+                    f = report["frames"][0]
+                    print(f"  {name} {direction} sweep {k}: recovered ({mm.max():.2f} mm {deg.max():.2f} deg) but "
+                          f"not called converged: {f['agreeing_starts']} of {f['starts']} starts agree, halves "
+                          f"{apart(halves[-1:])} and sides {apart(sides[-1:])} apart", file=sys.stderr)
                 if not ok[-1]:
                     # Which failed, the search or the metric: the sweep's cost at the optimum next
                     # to the truth (one start from it) against its cost at the result.
@@ -156,7 +170,7 @@ def main():
                     start_mm, start_deg = errors(init, truth, centre)
                     print(f"  {name} {direction} sweep {k}: from {start_mm.max():.1f} mm {start_deg.max():.1f} deg "
                           f"to {mm.max():.2f} mm {deg.max():.2f} deg, {f['agreeing_starts']} of {f['starts']} starts "
-                          f"agree, halves {halves[-1]:.2f} mm apart, {'called converged' if f['converged'] else 'not converged'}; sweep cost "
+                          f"agree, halves {apart(halves[-1:])} and sides {apart(sides[-1:])} apart, {'called converged' if f['converged'] else 'not converged'}; sweep cost "
                           f"{sweep_cost(report):.5f}, at the optimum next to the truth {sweep_cost(at_truth):.5f}",
                           file=sys.stderr)
             ok, conv = np.array(ok), np.array(conv)
@@ -164,7 +178,7 @@ def main():
             print(f"| {name} | {direction} | {ok.sum()} of {len(ok)} | {sum(near)} of {len(ok)} "
                   f"| {np.median(worst_mm):.3f} mm, "
                   f"{np.median(worst_deg):.3f} deg | {conv.sum()} of {len(ok)} | {(conv & ~ok).sum()} of "
-                  f"{(~ok).sum()} | {np.max(np.array(halves)[ok], initial=0):.2f} mm | {np.mean(seconds):.1f} |", flush=True)
+                  f"{(~ok).sum()} | {apart(np.array(halves)[ok])}; {apart(np.array(sides)[ok])} | {np.mean(seconds):.1f} |", flush=True)
     good, total, silent = (sum(r[i] for r in rows) for i in range(3))
     print(f"\nAll: {good} of {total} sweeps ({100 * good / total:.0f} %) within 0.5 mm and 0.5 deg; "
           f"{silent} missed sweeps called converged.")

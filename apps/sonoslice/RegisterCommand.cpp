@@ -248,6 +248,7 @@ void run_register(const RegisterFlags& f) {
     if (report.correction) j["correction"] = matrix_json(*report.correction);
     if (report.sweep_metric) j["sweep_metric"] = *report.sweep_metric;  // +inf: null
     if (report.halves_mm) j["halves_mm"] = *report.halves_mm;
+    if (report.sides_mm) j["sides_mm"] = *report.sides_mm;
     if (in.plus) {
       j["sequence"] = f.sequence;
       j["sequence_frames"] = in.plus->frames;

@@ -56,6 +56,8 @@ def _report(report) -> dict:
         out["sweep_metric"] = report.sweep_metric
     if report.halves_mm is not None:
         out["halves_mm"] = report.halves_mm
+    if report.sides_mm is not None:
+        out["sides_mm"] = report.sides_mm
     out.update(evaluations=int(report.evaluations), seconds=float(report.seconds))
     return out
 
@@ -91,8 +93,9 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     "converged_frames", "correction" (the sweep modes' and calibration's shared 4×4 correction),
     "sweep_metric" (their cost over the whole sweep at that correction), "halves_mm" (how far
     apart the sweep's first and second halves end, each refined alone from that correction),
+    "sides_mm" (the same for the left and right halves of its frames' pixels),
     "evaluations" and "seconds". A frame is converged when its best pose was
-    reached from at least three starts (and, in rigid-sweep and calibration mode, the halves end
+    reached from at least three starts (and, in rigid-sweep and calibration mode, both splits end
     at most 0.5 mm apart); a registration with frames that are not warns
     (``UserWarning``, one message). ``starts``: None (default) runs starts until three agree,
     at most 12 (a sweep's shared correction: at most 16).

@@ -200,7 +200,10 @@ void bind_registration(nb::module_& m) {
       .def_ro("sweep_metric", &RegistrationReport::sweep_metric,
               "the sweep's own cost at the shared correction, full resolution; None per frame")
       .def_ro("halves_mm", &RegistrationReport::halves_mm,
-              "how far apart the sweep's halves, each refined alone, end (mm); None per frame");
+              "how far apart the sweep's halves, each refined alone, end (mm); None per frame")
+      .def_ro("sides_mm", &RegistrationReport::sides_mm,
+              "how far apart the left and right halves of the sweep's frames, each refined alone, "
+              "end (mm); None per frame");
 
   m.def(
       "registration_costs",

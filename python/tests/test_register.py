@@ -118,6 +118,35 @@ def test_rigid_sweep_applies_one_correction(cli, case):
         np.testing.assert_allclose(X[k], X[0], atol=1e-9)
 
 
+@pytest.mark.parametrize("axis, sides", [(0, True), (2, False)])
+def test_a_sweep_within_its_plane_is_also_split_by_sides(cli, case, tmp_path, axis, sides):
+    # Six fans 2 mm apart along the probe's lateral axis (within the image plane: its frames'
+    # halves see the same tissue, so the left and right halves of its frames are compared too)
+    # or its normal (through the plane: the frames' halves alone).
+    base = np.load(case / "truth.npy")[0]
+    truth = np.repeat(base[None], 6, 0)
+    truth[:, :3, 3] += (np.arange(6) - 2.5)[:, None] * 2 * base[:3, axis]
+    np.save(tmp_path / "truth.npy", truth)
+    r = run(cli, "slice", "--volume", str(case / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
+            "--poses", str(tmp_path / "truth.npy"), "--out", str(tmp_path / "frames.npy"), "-q")
+    assert r.returncode == 0, r.stderr
+    init = truth.copy()
+    init[:, :3, 3] += 1
+    np.save(tmp_path / "init.npy", init)
+    r = run(cli, "register", "--volume", str(case / "ph" / "ct.nii.gz"), "--probe", W1, "--downsampling", "4",
+            "--frames", str(tmp_path / "frames.npy"), "--poses", str(tmp_path / "init.npy"), "--mode", "rigid-sweep",
+            "--out", str(tmp_path / "refined.npy"), "--report", str(tmp_path / "r.json"))
+    assert r.returncode == 0, r.stderr
+    report = json.load(open(tmp_path / "r.json"))
+    assert 0 <= report["halves_mm"] < 0.1
+    assert ("sides_mm" in report) == sides
+    if sides:
+        assert 0 <= report["sides_mm"] < 0.1
+    assert report["converged_frames"] == 6 and "warning" not in r.stderr
+    mm, deg = errors(np.load(tmp_path / "refined.npy"), truth)
+    assert np.all(mm < 0.1) and np.all(deg < 0.1), (mm, deg)
+
+
 @pytest.mark.parametrize("metric", ["ssd", "mi"])
 def test_a_sweep_reports_its_own_cost(cli, case, tmp_path, metric):
     # The sweep's cost at the shared correction: MI's is the mean of the frames' own costs; SSD's

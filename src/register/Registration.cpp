@@ -10,6 +10,8 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <memory>
+#include <numeric>
 #include <optional>
 #include <tuple>
 #include <utility>
@@ -48,6 +50,43 @@ std::vector<bool> flat_frames(const register_impl::Level& l, size_t count) {
   }
   return flat;
 }
+
+/// How far a sweep's frames move through their image planes and within them (mm): the largest
+/// distance of a frame's centre from another frame's plane, and the largest distance between two
+/// centres along another frame's plane.
+std::pair<double, double> sweep_extent(const std::vector<Vec3>& centres,
+                                       const std::vector<Vec3>& normals) {
+  double through = 0, within = 0;
+  for (size_t j = 0; j < centres.size(); ++j)
+    for (size_t k = 0; k < centres.size(); ++k) {
+      const Vec3 d = centres[k] - centres[j];
+      const double off = std::fabs(dot(normals[j], d));
+      through = std::max(through, off);
+      within = std::max(within, std::sqrt(std::max(0.0, dot(d, d) - off * off)));
+    }
+  return {through, within};
+}
+
+/// The frames of level 1 with only the compared pixels left (`left`) or right of the median
+/// column of the `steering` frames' compared pixels; NaN (not compared) elsewhere.
+std::vector<float> side_frames(const register_impl::Level& full,
+                               const std::vector<size_t>& steering, size_t count, bool left) {
+  const size_t width = size_t(full.width), plane = width * size_t(full.height);
+  std::vector<int64_t> columns(width, 0);
+  for (size_t k : steering)
+    for (size_t i = 0; i < plane; ++i) columns[i % width] += full.masks[k * plane + i];
+  const int64_t total = std::accumulate(columns.begin(), columns.end(), int64_t(0));
+  size_t split = 0;
+  for (int64_t below = 0; split < width && 2 * (below + columns[split]) <= total; ++split)
+    below += columns[split];
+  std::vector<float> side(count * plane, std::numeric_limits<float>::quiet_NaN());
+  for (size_t k = 0; k < count; ++k)
+    for (size_t i = 0; i < plane; ++i)
+      if (full.masks[k * plane + i] && (i % width < split) == left)
+        side[k * plane + i] = full.frames[k * plane + i];
+  return side;
+}
+
 }  // namespace
 
 std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
@@ -70,7 +109,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
   std::vector<FrameReport> frames(s.count);
   std::optional<Pose> correction;  // the sweep modes' shared one
   std::optional<double> sweep_metric;
-  std::optional<double> halves_mm;  // the sweep modes' halves check (kHalvesAgreementMm)
+  // The sweep modes' halves check (kHalvesAgreementMm): the frames' halves, their pixels' sides.
+  std::optional<double> halves_mm, sides_mm;
   // `metric`: the frame's own final cost (per frame: the optimisation's; a sweep's is shared).
   // `pose`: the refined pose, when not the world-side correction's o.correction · initial.
   const auto describe = [&](size_t k, const Outcome& o, int64_t evaluations,
@@ -91,7 +131,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       std::tie(r.uncertainty_mm, r.uncertainty_deg) = register_impl::pose_uncertainty(
           settings.metric, terms(k, refined[k], 1, centre(k, refined[k]), true));
     r.converged = o.agreeing_starts >= kAgreeingStarts && std::isfinite(r.metric) &&
-                  !(halves_mm && *halves_mm > kHalvesAgreementMm);
+                  !(halves_mm && *halves_mm > kHalvesAgreementMm) &&
+                  !(sides_mm && *sides_mm > kHalvesAgreementMm);
   };
   // A frame without contrast keeps its pose; so does every frame of a sweep none of whose frames
   // has any (its cost is the same everywhere: the search would wander on round-off).
@@ -130,7 +171,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     // those frames' terms (in parallel, then in frame order), turning about `mean`.
     const auto pose_of = [&](const Pose& X, const Pose& T) { return probe_side ? T * X : X * T; };
     const auto sweep_problem = [&](const std::vector<Pose>& base,
-                                   const std::vector<size_t>& members, const Vec3& mean) {
+                                   const std::vector<size_t>& members, const Vec3& mean,
+                                   const FrameRegistration& r) {
       Problem p;
       p.frames_per_evaluation = int64_t(members.size());
       p.shared = true;
@@ -140,10 +182,10 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
           const size_t k = members[size_t(i)];
           const Pose& T = base[k];
           if (!probe_side) {
-            each[size_t(i)] = terms(k, X * T, f, c, g);
+            each[size_t(i)] = r.terms(k, X * T, f, c, g);
             return;
           }
-          each[size_t(i)] = terms(k, T * X, f, T.transform_point(c), g);
+          each[size_t(i)] = r.terms(k, T * X, f, T.transform_point(c), g);
           if (g) each[size_t(i)] = register_impl::turned_into(each[size_t(i)], T.linear());
         });
         PoseTerms sum;
@@ -161,9 +203,9 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
           const size_t k = members[size_t(i)];
           const Pose pose = pose_of(X, base[k]);
           if (settings.metric == RegistrationMetric::MI)
-            each[size_t(i)] = {cost(k, pose, f, settings.metric), 1.0};
+            each[size_t(i)] = {r.cost(k, pose, f, settings.metric), 1.0};
           else
-            each[size_t(i)] = patch_score(k, pose, f, settings.metric);
+            each[size_t(i)] = r.patch_score(k, pose, f, settings.metric);
         });
         double weighted = 0, weight = 0;
         for (const auto& [a, b] : each) {
@@ -189,15 +231,18 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     std::vector<size_t> all(s.count);
     for (size_t k = 0; k < s.count; ++k) all[k] = k;
     const Vec3 mean = mean_centre(initial, all);
-    const Problem p = sweep_problem(initial, all, mean);
+    const Problem p = sweep_problem(initial, all, mean, *this);
     Outcome o = multi_start(p, settings, 0, mean);
     correction = o.correction;
     sweep_metric = o.cost;  // every optimisation ends with p.cost(X, 1), the full-resolution cost
-    // What agreeing starts cannot see: a wrong optimum that every start reaches. The sweep's
-    // first and second halves (of its frames with contrast), each refined alone from the
-    // sweep's result, must end within kHalvesAgreementMm of each other at every frame's centre:
-    // a right answer fits both halves, a wrong one that the whole sweep prefers usually pulls
-    // its halves apart, since each half sees other tissue.
+    // What agreeing starts cannot see: a wrong optimum that every start reaches. The sweep is
+    // split in two, twice: its first and second halves (of its frames with contrast), and the
+    // left and right halves of its frames' pixels. Each half, refined alone from the sweep's
+    // result, must end within kHalvesAgreementMm of the other at every frame's centre: a right
+    // answer fits both halves, a wrong one that the whole sweep prefers usually pulls its halves
+    // apart, since each sees other tissue. The frames' halves catch wrong answers through the
+    // image plane; the pixels' halves those of a sweep that slides across it (whose frames all
+    // see much the same tissue), mostly a turn about the sweep line.
     std::vector<size_t> steering;
     for (size_t k = 0; k < s.count; ++k)
       if (!flat[k]) steering.push_back(k);
@@ -212,23 +257,60 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       // Compared at half a millimetre: steps of 0.01 mm and 0.01° are fine enough, and fewer.
       local.tolerance_mm = std::max(local.tolerance_mm, 0.01);
       local.tolerance_deg = std::max(local.tolerance_deg, 0.01);
+      // The two halves' corrections, refined over `members` of `by[h]`; how far apart they end.
+      const auto halves_apart = [&](const FrameRegistration* const(&by)[2],
+                                    const std::vector<size_t>(&members)[2]) {
+        Pose ends[2];
+        for (int h = 0; h < 2; ++h) {
+          const Vec3 c = mean_centre(at_result, members[h]);
+          const Outcome e =
+              multi_start(sweep_problem(at_result, members[h], c, *by[h]), local, 0, c);
+          ends[h] = e.correction;
+          o.evaluations += e.evaluations;
+        }
+        double apart = 0;
+        for (size_t k : steering) {
+          const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, at_result[k]);
+          apart = std::max(apart, norm(ends[0].transform_point(c) - ends[1].transform_point(c)));
+        }
+        return apart;
+      };
       const size_t half = steering.size() / 2;
-      const std::vector<size_t> halves[2] = {
-          {steering.begin(), steering.begin() + std::ptrdiff_t(half)},
-          {steering.begin() + std::ptrdiff_t(half), steering.end()}};
-      Pose ends[2];
-      for (int h = 0; h < 2; ++h) {
-        const Vec3 c = mean_centre(at_result, halves[h]);
-        const Outcome e = multi_start(sweep_problem(at_result, halves[h], c), local, 0, c);
-        ends[h] = e.correction;
-        o.evaluations += e.evaluations;
-      }
-      double apart = 0;
+      const FrameRegistration* const whole[2] = {this, this};
+      halves_mm = halves_apart(whole, {{steering.begin(), steering.begin() + std::ptrdiff_t(half)},
+                                       {steering.begin() + std::ptrdiff_t(half), steering.end()}});
+      // The pixels' halves, where the frames' halves are blind: a sweep that moves more within
+      // its image plane than through it (or not at all) shows both halves of its frames much the
+      // same tissue.
+      std::vector<Vec3> centres, normals;
       for (size_t k : steering) {
-        const Vec3 c = probe_side ? s.mask_centre[k] : centre(k, at_result[k]);
-        apart = std::max(apart, norm(ends[0].transform_point(c) - ends[1].transform_point(c)));
+        centres.push_back(centre(k, initial[k]));
+        normals.push_back(initial[k].linear().column(2));
       }
-      halves_mm = apart;
+      const auto [through, within] = sweep_extent(centres, normals);
+      if (through <= within) {
+        // Either side of the compared pixels' median column, as two registrations of the same
+        // volume (shared) and frames, the other side's pixels not compared. Only frames with
+        // contrast on both sides take part.
+        std::unique_ptr<FrameRegistration> sides[2];
+        std::vector<size_t> both;
+        try {
+          for (int h = 0; h < 2; ++h) {
+            const std::vector<float> side = side_frames(s.level(1), steering, s.count, h == 0);
+            sides[h] = std::make_unique<FrameRegistration>(s.volume, s.probe, side.data(), s.count);
+          }
+          const std::vector<bool> flat_left = flat_frames(sides[0]->state_->level(1), s.count),
+                                  flat_right = flat_frames(sides[1]->state_->level(1), s.count);
+          for (size_t k : steering)
+            if (!flat_left[k] && !flat_right[k]) both.push_back(k);
+        } catch (const InputError&) {
+          both.clear();  // a frame with no compared pixel on one side: not split by pixels
+        }
+        if (both.size() >= 4) {
+          const FrameRegistration* const by[2] = {sides[0].get(), sides[1].get()};
+          sides_mm = halves_apart(by, {both, both});
+        }
+      }
     }
     // The shared correction's uncertainty, from the sweep's summed terms.
     const auto [sweep_mm, sweep_deg] =
@@ -286,15 +368,24 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
          " of the starts; "
          "the report's converged and agreeing_starts say which): more starts, a wider search, or "
          "a better initial pose may help");
-  if (halves_mm && *halves_mm > kHalvesAgreementMm) {
-    char apart[96];
-    std::snprintf(apart, sizeof(apart), "%.2f mm apart (more than %g mm", *halves_mm,
-                  kHalvesAgreementMm);
-    warn(std::string("registration: the sweep is not converged: its first and second halves, "
-                     "each refined alone from its result, end ") +
-         apart +
-         "; the report's halves_mm): a wrong optimum of the whole sweep, or frames that do "
-         "not share one correction (a tracking jump; a drift: smooth-sweep)");
+  // One warning naming each split whose halves end too far apart.
+  std::string apart;
+  for (const auto& [split, mm, field] :
+       {std::tuple{"its first and second halves", halves_mm, "halves_mm"},
+        std::tuple{"the left and right halves of its frames", sides_mm, "sides_mm"}}) {
+    if (!mm || *mm <= kHalvesAgreementMm) continue;
+    char text[160];
+    std::snprintf(text, sizeof(text), "%s%s end %.2f mm apart (the report's %s)",
+                  apart.empty() ? "" : ", and ", split, *mm, field);
+    apart += text;
+  }
+  if (!apart.empty()) {
+    char bound[64];
+    std::snprintf(bound, sizeof(bound), ", more than %g mm", kHalvesAgreementMm);
+    warn("registration: the sweep is not converged: refined alone from its result, " + apart +
+         bound +
+         ": a wrong optimum of the whole sweep, or frames that do not share one correction (a "
+         "tracking jump; a drift: smooth-sweep)");
   }
   if (report) {
     report->settings = settings;
@@ -302,6 +393,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     report->correction = correction;
     report->sweep_metric = sweep_metric;
     report->halves_mm = halves_mm;
+    report->sides_mm = sides_mm;
     report->evaluations = 0;
     for (const FrameReport& r : frames) report->evaluations += r.evaluations;
     report->seconds =

@@ -87,11 +87,13 @@ std::pair<double, double> pose_error(const Pose& a, const Pose& b, const Vec3& c
 }
 
 /// `count` poses of `base` moved `step_mm` apart along its elevation axis, centred on it.
-std::vector<Pose> straight_sweep(const Pose& base, int count, double step_mm) {
+/// `count` poses `step_mm` apart along the probe's axis `axis` (2: through the image plane; 0:
+/// across, within it), centred on `base`.
+std::vector<Pose> straight_sweep(const Pose& base, int count, double step_mm, int axis = 2) {
   std::vector<Pose> sweep;
   for (int k = 0; k < count; ++k) {
     Pose p = base;
-    for (int i = 0; i < 3; ++i) p.m[i][3] += step_mm * (k - (count - 1) / 2.0) * base.m[i][2];
+    for (int i = 0; i < 3; ++i) p.m[i][3] += step_mm * (k - (count - 1) / 2.0) * base.m[i][axis];
     sweep.push_back(p);
   }
   return sweep;
@@ -293,6 +295,8 @@ TEST(Register, RigidSweepAtTheDefaultsConvergesAndSaysSo) {
   ASSERT_TRUE(report.halves_mm.has_value());
   std::printf("[ rigid sweep, defaults ] halves %.4f mm apart\n", *report.halves_mm);
   EXPECT_LT(*report.halves_mm, 0.1);
+  // Through the image plane, the frames' halves see other tissue: the sides are not compared.
+  EXPECT_FALSE(report.sides_mm.has_value());
 
   // One start: whatever it finds, it cannot confirm it.
   settings.starts = 1;
@@ -333,8 +337,8 @@ TEST(Register, RigidSweepWhoseHalvesDisagreeIsNotConverged) {
   bool said = false;
   for (const std::string& m : warnings.messages())
     said = said || m.rfind(
-                       "registration: the sweep is not converged: its first and second "
-                       "halves",
+                       "registration: the sweep is not converged: refined alone from its "
+                       "result, its first and second halves end 3.00 mm apart",
                        0) == 0;
   EXPECT_TRUE(said) << (warnings.messages().empty() ? "" : warnings.messages()[0]);
 
@@ -343,6 +347,58 @@ TEST(Register, RigidSweepWhoseHalvesDisagreeIsNotConverged) {
   settings.starts = 1;
   reg.run(recorded, settings, &report);
   EXPECT_FALSE(report.halves_mm.has_value());
+}
+
+// A sweep across the probe (within its image plane), whose frames' right halves were taken 3 mm
+// through the plane from their left halves: no one correction fits both sides, but each half of
+// the sweep sees much the same tissue with the same mismatch. Refined alone, the sides end about
+// 3 mm apart, the frames' halves less.
+TEST(Register, RigidSweepAcrossWhoseSidesDisagreeIsNotConverged) {
+  const Pose base = phantom_random_poses(4, 3)[2];
+  const ProbeGeometry probe = linear_probe();
+  const std::vector<Pose> truth = straight_sweep(base, 20, 1.0, 0);
+  std::vector<Pose> moved_through = truth;
+  for (Pose& p : moved_through)
+    for (int i = 0; i < 3; ++i) p.m[i][3] += 3 * base.m[i][2];  // along the probe's normal
+  const Slicer slicer(phantom().ct, probe);
+  std::vector<float> frames = slicer.slice<float>(truth);
+  const std::vector<float> right = slicer.slice<float>(moved_through);
+  const int W = probe.image.width;
+  for (size_t i = 0; i < frames.size(); ++i)
+    if (int(i % size_t(W)) >= W / 2) frames[i] = right[i];
+  const FrameRegistration reg(phantom().ct, probe, frames.data(), truth.size());
+  RegistrationSettings settings;
+  settings.mode = RegistrationMode::RigidSweep;
+  RegistrationReport report;
+  const test::CapturedWarnings warnings;
+  reg.run(truth, settings, &report);
+  ASSERT_TRUE(report.halves_mm.has_value() && report.sides_mm.has_value());
+  std::printf("[ rigid sweep across, sides 3 mm apart ] halves %.3f mm, sides %.3f mm\n",
+              *report.halves_mm, *report.sides_mm);
+  EXPECT_LT(*report.halves_mm, *report.sides_mm);
+  EXPECT_GT(*report.sides_mm, 2.0);
+  EXPECT_LT(*report.sides_mm, 4.0);
+  for (const FrameReport& r : report.frames) EXPECT_FALSE(r.converged);
+  ASSERT_EQ(warnings.messages().size(), 1u);
+  const std::string& said = warnings.messages()[0];
+  EXPECT_EQ(
+      said.rfind("registration: the sweep is not converged: refined alone from its result, ", 0),
+      0u)
+      << said;
+  EXPECT_NE(said.find("the left and right halves of its frames end 3.00 mm apart (the report's "
+                      "sides_mm)"),
+            std::string::npos)
+      << said;
+
+  // The same sweep without the mismatch: the sides agree.
+  const std::vector<float> clean = slicer.slice<float>(truth);
+  const FrameRegistration clean_reg(phantom().ct, probe, clean.data(), truth.size());
+  clean_reg.run(truth, settings, &report);
+  ASSERT_TRUE(report.sides_mm.has_value());
+  std::printf("[ rigid sweep across ] halves %.4f mm, sides %.4f mm\n", *report.halves_mm,
+              *report.sides_mm);
+  EXPECT_LT(*report.sides_mm, 0.1);
+  for (const FrameReport& r : report.frames) EXPECT_TRUE(r.converged);
 }
 
 // A probe calibration error: every frame's pose is off by the same probe-side X0 (T_i·X0⁻¹ given
