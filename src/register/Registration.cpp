@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <numeric>
@@ -30,9 +31,10 @@ using register_impl::SweepOutcome;
 using register_impl::SweepTerms;
 
 namespace {
-/// Per frame of level `l` (1: full resolution): whether its compared pixels are constant, or
-/// fewer than 16.
-std::vector<bool> flat_frames(const register_impl::Level& l, size_t count) {
+/// Per frame of level `l` (1: full resolution): whether its compared pixels (those in the
+/// columns `in_column` keeps, when given) are constant, or fewer than 16.
+std::vector<bool> flat_frames(const register_impl::Level& l, size_t count,
+                              const std::function<bool(size_t)>& in_column = nullptr) {
   const size_t plane = size_t(l.width) * l.height;
   std::vector<bool> flat(count);
   for (size_t k = 0; k < count; ++k) {
@@ -41,7 +43,7 @@ std::vector<bool> flat_frames(const register_impl::Level& l, size_t count) {
     double lo = std::numeric_limits<double>::infinity(), hi = -lo;
     size_t n = 0;
     for (size_t i = 0; i < plane; ++i)
-      if (m[i]) {
+      if (m[i] && (!in_column || in_column(i % size_t(l.width)))) {
         lo = std::min(lo, double(f[i]));
         hi = std::max(hi, double(f[i]));
         ++n;
@@ -67,10 +69,9 @@ std::pair<double, double> sweep_extent(const std::vector<Vec3>& centres,
   return {through, within};
 }
 
-/// The frames of level 1 with only the compared pixels left (`left`) or right of the median
-/// column of the `steering` frames' compared pixels; NaN (not compared) elsewhere.
-std::vector<float> side_frames(const register_impl::Level& full,
-                               const std::vector<size_t>& steering, size_t count, bool left) {
+/// The column that splits the `steering` frames' compared pixels of level 1 in halves: the
+/// first column right of the median.
+size_t median_column(const register_impl::Level& full, const std::vector<size_t>& steering) {
   const size_t width = size_t(full.width), plane = width * size_t(full.height);
   std::vector<int64_t> columns(width, 0);
   for (size_t k : steering)
@@ -79,6 +80,14 @@ std::vector<float> side_frames(const register_impl::Level& full,
   size_t split = 0;
   for (int64_t below = 0; split < width && 2 * (below + columns[split]) <= total; ++split)
     below += columns[split];
+  return split;
+}
+
+/// The frames of level 1 with only the compared pixels left (`left`) or right of column `split`;
+/// NaN (not compared) elsewhere.
+std::vector<float> side_frames(const register_impl::Level& full, size_t count, size_t split,
+                               bool left) {
+  const size_t width = size_t(full.width), plane = width * size_t(full.height);
   std::vector<float> side(count * plane, std::numeric_limits<float>::quiet_NaN());
   for (size_t k = 0; k < count; ++k)
     for (size_t i = 0; i < plane; ++i)
@@ -257,14 +266,15 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       // Compared at half a millimetre: steps of 0.01 mm and 0.01° are fine enough, and fewer.
       local.tolerance_mm = std::max(local.tolerance_mm, 0.01);
       local.tolerance_deg = std::max(local.tolerance_deg, 0.01);
-      // The two halves' corrections, refined over `members` of `by[h]`; how far apart they end.
-      const auto halves_apart = [&](const FrameRegistration* const(&by)[2],
+      // The two halves' corrections, each refined over `members[h]` of the registration `by(h)`
+      // (asked for in turn); how far apart they end.
+      const auto halves_apart = [&](const std::function<const FrameRegistration&(int)>& by,
                                     const std::vector<size_t>(&members)[2]) {
         Pose ends[2];
         for (int h = 0; h < 2; ++h) {
           const Vec3 c = mean_centre(at_result, members[h]);
           const Outcome e =
-              multi_start(sweep_problem(at_result, members[h], c, *by[h]), local, 0, c);
+              multi_start(sweep_problem(at_result, members[h], c, by(h)), local, 0, c);
           ends[h] = e.correction;
           o.evaluations += e.evaluations;
         }
@@ -276,7 +286,7 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
         return apart;
       };
       const size_t half = steering.size() / 2;
-      const FrameRegistration* const whole[2] = {this, this};
+      const auto whole = [this](int) -> const FrameRegistration& { return *this; };
       halves_mm = halves_apart(whole, {{steering.begin(), steering.begin() + std::ptrdiff_t(half)},
                                        {steering.begin() + std::ptrdiff_t(half), steering.end()}});
       // The pixels' halves, where the frames' halves are blind: a sweep that moves more within
@@ -289,26 +299,29 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
       }
       const auto [through, within] = sweep_extent(centres, normals);
       if (through <= within) {
-        // Either side of the compared pixels' median column, as two registrations of the same
-        // volume (shared) and frames, the other side's pixels not compared. Only frames with
-        // contrast on both sides take part.
-        std::unique_ptr<FrameRegistration> sides[2];
+        // Either side of the compared pixels' median column, as a registration of the same
+        // volume (shared) and frames, the other side's pixels not compared; one side's copy of
+        // the frames at a time. Only frames with contrast on both sides take part.
+        const register_impl::Level& full = s.level(1);
+        const size_t split = median_column(full, steering);
+        const std::vector<bool> flat_left =
+            flat_frames(full, s.count, [&](size_t u) { return u < split; });
+        const std::vector<bool> flat_right =
+            flat_frames(full, s.count, [&](size_t u) { return u >= split; });
         std::vector<size_t> both;
+        for (size_t k : steering)
+          if (!flat_left[k] && !flat_right[k]) both.push_back(k);
+        std::unique_ptr<FrameRegistration> side;
+        const auto side_of = [&](int h) -> const FrameRegistration& {
+          side.reset();
+          const std::vector<float> frames = side_frames(full, s.count, split, h == 0);
+          side = std::make_unique<FrameRegistration>(s.volume, s.probe, frames.data(), s.count);
+          return *side;
+        };
         try {
-          for (int h = 0; h < 2; ++h) {
-            const std::vector<float> side = side_frames(s.level(1), steering, s.count, h == 0);
-            sides[h] = std::make_unique<FrameRegistration>(s.volume, s.probe, side.data(), s.count);
-          }
-          const std::vector<bool> flat_left = flat_frames(sides[0]->state_->level(1), s.count),
-                                  flat_right = flat_frames(sides[1]->state_->level(1), s.count);
-          for (size_t k : steering)
-            if (!flat_left[k] && !flat_right[k]) both.push_back(k);
+          if (both.size() >= 4) sides_mm = halves_apart(side_of, {both, both});
         } catch (const InputError&) {
-          both.clear();  // a frame with no compared pixel on one side: not split by pixels
-        }
-        if (both.size() >= 4) {
-          const FrameRegistration* const by[2] = {sides[0].get(), sides[1].get()};
-          sides_mm = halves_apart(by, {both, both});
+          // A frame (without contrast) with no compared pixel on one side: not split by pixels.
         }
       }
     }
