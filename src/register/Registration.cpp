@@ -31,10 +31,10 @@ using register_impl::SweepOutcome;
 using register_impl::SweepTerms;
 
 namespace {
-/// Per frame of level `l` (1: full resolution): whether its compared pixels (those in the
-/// columns `in_column` keeps, when given) are constant, or fewer than 16.
-std::vector<bool> flat_frames(const register_impl::Level& l, size_t count,
-                              const std::function<bool(size_t)>& in_column = nullptr) {
+/// Per frame of level `l` (1: full resolution): whether its compared pixels in columns
+/// [first, end) are constant, or fewer than 16.
+std::vector<bool> flat_frames(const register_impl::Level& l, size_t count, size_t first = 0,
+                              size_t end = std::numeric_limits<size_t>::max()) {
   const size_t plane = size_t(l.width) * l.height;
   std::vector<bool> flat(count);
   for (size_t k = 0; k < count; ++k) {
@@ -43,7 +43,7 @@ std::vector<bool> flat_frames(const register_impl::Level& l, size_t count,
     double lo = std::numeric_limits<double>::infinity(), hi = -lo;
     size_t n = 0;
     for (size_t i = 0; i < plane; ++i)
-      if (m[i] && (!in_column || in_column(i % size_t(l.width)))) {
+      if (m[i] && i % size_t(l.width) >= first && i % size_t(l.width) < end) {
         lo = std::min(lo, double(f[i]));
         hi = std::max(hi, double(f[i]));
         ++n;
@@ -304,10 +304,8 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
         // the frames at a time. Only frames with contrast on both sides take part.
         const register_impl::Level& full = s.level(1);
         const size_t split = median_column(full, steering);
-        const std::vector<bool> flat_left =
-            flat_frames(full, s.count, [&](size_t u) { return u < split; });
-        const std::vector<bool> flat_right =
-            flat_frames(full, s.count, [&](size_t u) { return u >= split; });
+        const std::vector<bool> flat_left = flat_frames(full, s.count, 0, split),
+                                flat_right = flat_frames(full, s.count, split);
         std::vector<size_t> both;
         for (size_t k : steering)
           if (!flat_left[k] && !flat_right[k]) both.push_back(k);
