@@ -103,7 +103,9 @@ struct RegistrationSettings {
   /// ball of search_trans_mm); the best end wins. Unset (the default): automatic, one start after
   /// another until the best end has been reached from kAgreeingStarts starts (kAgreementMm
   /// and kAgreementDeg apart at most), at most kAutoMaxStarts; in the sweep modes and
-  /// calibration mode at most kAutoMaxSweepStarts. A number: exactly that many.
+  /// calibration mode at most kAutoMaxSweepStarts. Automatic starts run the pyramid's finest
+  /// level only from coarse ends that are the best so far or near one that ran it
+  /// (docs/registration.md §3). A number: exactly that many, each through every level.
   std::optional<int> starts;
   double search_rot_deg = 10, search_trans_mm = 10;
   uint64_t seed = 0;  ///< the multi-start draws
