@@ -333,7 +333,7 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   // agreement of the coarse end of a start that ran it (its finest level may bring it to agree).
   // The others keep their coarse end, count as starts that did not agree, and cannot be the
   // best. On docs/registration.md §5's frames this changed 10 of 280 frames' poses (none from a
-  // hit to a miss or back) and took 9–42 % off a frame's time, half or more off a sweep's.
+  // hit to a miss or back) and took 9 % to half off a frame's time, half or more off a sweep's.
   const size_t levels = s.pyramid->size();
   const bool coarse_first = automatic && levels > 1;
   std::vector<Pose> coarse_ends;  // of the starts begun, in start order
