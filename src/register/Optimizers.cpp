@@ -309,7 +309,7 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
            rotation_angle_deg(a.linear(), b.linear()) > deg;
   };
   // Each start's end, and whether it ran the finest level (below).
-  std::vector<Pose> ends, begun;
+  std::vector<Pose> ends;
   std::vector<char> refined;
   Outcome best;
   const auto agreeing = [&] {
@@ -336,77 +336,79 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   // hit to a miss or back) and took 9 % to half off a frame's time, half or more off a sweep's.
   const size_t levels = s.pyramid->size();
   const bool coarse_first = automatic && levels > 1;
-  std::vector<Pose> coarse_ends;  // of the starts begun, in start order
-  std::vector<char> coarse_refined;
   double best_coarse = std::numeric_limits<double>::infinity();
-  // A frame that has the threads to itself optimises its next starts side by side, as many as
-  // there are threads; the ends are then taken in start order, as one thread would take them,
-  // and those past the stopping point are dropped (not counted): the same result, evaluations
-  // and report on any thread count (which starts run the finest level depends only on the
-  // coarse ends of the starts before them). A sweep's evaluations are already spread over its
-  // frames.
-  const int width = p.shared ? 1 : backend::parallel_width();
+  // A frame that has the threads to itself runs its starts side by side, one phase (coarse, or
+  // finest) per thread, the next start's coarse levels on a thread that no finest level needs.
+  // The ends are taken in start order, as one thread would take them, and starts past the
+  // stopping point are dropped (not counted): the same result, evaluations and report on any
+  // thread count, since which starts run the finest level depends only on the coarse ends of
+  // the starts before them. A sweep's evaluations are already spread over its frames.
+  struct Start {
+    Pose from, coarse_end;
+    Outcome outcome;  // after its coarse levels, then its end
+    bool coarse_done = false, fine = true, done = false;
+  };
+  std::vector<Start> started;
+  size_t decided = 0, taken = 0;  // starts whose finest level is decided; taken into `ends`
+  const size_t width = p.shared ? 1 : size_t(backend::parallel_width());
   size_t next = 0;
   bool stop = false;
-  while (!stop && int(ends.size()) < most) {
-    std::vector<Pose> batch;
-    while (next < candidates.size() && int(ends.size() + batch.size()) < most &&
-           int(batch.size()) < width) {
+  while (!stop) {
+    // This round's phases: the finest levels decided on, in start order, then new starts.
+    std::vector<std::pair<size_t, bool>> phases;  // (start, its finest level)
+    for (size_t k = taken; k < decided && phases.size() < width; ++k)
+      if (!started[k].done) phases.emplace_back(k, true);
+    while (phases.size() < width && int(started.size()) < most && next < candidates.size()) {
       const Pose& from = candidates[next++].second;
       if (automatic) {
         bool far = true;
-        for (const Pose& b : begun)
-          far = far && apart(from, b, s.search_trans_mm / 2, s.search_rot_deg / 2);
+        for (const Start& b : started)
+          far = far && apart(from, b.from, s.search_trans_mm / 2, s.search_rot_deg / 2);
         if (!far) continue;
       }
-      begun.push_back(from);
-      batch.push_back(from);
+      started.push_back({from, from, {}, false, true, false});
+      phases.emplace_back(started.size() - 1, false);
     }
-    if (batch.empty()) break;
-    const auto each = [&](const std::function<void(size_t)>& f) {
-      backend::parallel_for(int64_t(batch.size()), [&](int64_t b) { f(size_t(b)); });
-    };
-    std::vector<Outcome> outcomes(batch.size());
-    std::vector<char> fine(batch.size(), 1);
-    if (!coarse_first) {
-      each([&](size_t b) { outcomes[b] = optimise(p, s, batch[b], centre, {0, levels - 1}); });
-    } else {
-      each([&](size_t b) { outcomes[b] = optimise(p, s, batch[b], centre, {0, levels - 2}); });
-      for (size_t b = 0; b < batch.size(); ++b) {
-        const Outcome& o = outcomes[b];
-        bool refine = !(o.cost > best_coarse);
-        for (size_t k = 0; k < coarse_ends.size() && !refine; ++k)
-          refine = coarse_refined[k] &&
-                   !apart(coarse_ends[k], o.correction, 2 * kAgreementMm, 2 * kAgreementDeg);
-        fine[b] = refine;
-        coarse_ends.push_back(o.correction);
-        coarse_refined.push_back(refine);
-        best_coarse = std::min(best_coarse, o.cost);
+    if (phases.empty()) break;
+    backend::parallel_for(int64_t(phases.size()), [&](int64_t q) {
+      Start& t = started[phases[size_t(q)].first];
+      if (!phases[size_t(q)].second) {
+        t.outcome = optimise(p, s, t.from, centre, {0, coarse_first ? levels - 2 : levels - 1});
+        t.coarse_done = true;
+        t.done = !coarse_first;
+        return;
       }
-      each([&](size_t b) {
-        Outcome& o = outcomes[b];
-        if (!fine[b]) {
-          o.cost = std::numeric_limits<double>::infinity();
-          return;
-        }
-        Outcome end = optimise(p, s, o.correction, centre, {levels - 1, levels - 1});
-        end.evaluations += o.evaluations;
-        end.iterations += o.iterations;
-        o = end;
-      });
+      Outcome end = optimise(p, s, t.outcome.correction, centre, {levels - 1, levels - 1});
+      end.evaluations += t.outcome.evaluations;
+      end.iterations += t.outcome.iterations;
+      t.outcome = end;
+      t.done = true;
+    });
+    for (; decided < started.size() && started[decided].coarse_done; ++decided) {
+      Start& t = started[decided];
+      if (!coarse_first) continue;
+      t.coarse_end = t.outcome.correction;
+      bool refine = !(t.outcome.cost > best_coarse);
+      for (size_t k = 0; k < decided && !refine; ++k)
+        refine = started[k].fine &&
+                 !apart(started[k].coarse_end, t.coarse_end, 2 * kAgreementMm, 2 * kAgreementDeg);
+      best_coarse = std::min(best_coarse, t.outcome.cost);
+      t.fine = refine;
+      if (!refine) {
+        t.outcome.cost = std::numeric_limits<double>::infinity();
+        t.done = true;
+      }
     }
-    for (size_t b = 0; b < batch.size(); ++b) {
-      const Outcome& o = outcomes[b];
+    for (; !stop && taken < decided && started[taken].done; ++taken) {
+      const Outcome& o = started[taken].outcome;
       evaluations += o.evaluations;
       iterations += o.iterations;
       ends.push_back(o.correction);
-      refined.push_back(fine[b]);
+      refined.push_back(started[taken].fine);
       if (ends.size() == 1 || o.cost < best.cost) best = o;
-      if (automatic && std::isfinite(best.cost) && agreeing() >= kAgreeingStarts) {
-        stop = true;
-        break;
-      }
+      stop = automatic && std::isfinite(best.cost) && agreeing() >= kAgreeingStarts;
     }
+    stop = stop || (int(taken) >= most);
   }
   best.evaluations = evaluations;
   best.iterations = iterations;
