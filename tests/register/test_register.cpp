@@ -435,7 +435,7 @@ TEST(Register, CalibrationModeFindsOneProbeSideError) {
 
 // One frame has the threads to itself: its candidate starts are ranked and its starts optimised
 // side by side, the ends taken in start order. Poses and reports must not depend on the thread
-// count, also when the stopping rule falls inside a batch of starts (automatic starts stop at
+// count, also when the stopping rule falls while another start runs (automatic starts stop at
 // the third agreeing one, so two threads optimise a fourth that is dropped).
 // Also for a frame of noise, whose twelve starts end apart, so that most of them stop at the
 // coarse levels (docs/registration.md §3): which ones does not depend on the thread count either.
