@@ -308,14 +308,21 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
     return norm(a.transform_point(centre) - b.transform_point(centre)) > mm ||
            rotation_angle_deg(a.linear(), b.linear()) > deg;
   };
-  // Each start's end, and whether it ran the finest level (below).
-  std::vector<Pose> ends;
-  std::vector<char> refined;
+  // The starts in start order: where each began, its coarse end, its outcome (after its coarse
+  // levels, then its end) and whether it runs the finest level (below).
+  struct Start {
+    Pose from, coarse_end;
+    Outcome outcome;
+    bool coarse_done = false, fine = true, done = false;
+  };
+  std::vector<Start> started;
+  size_t decided = 0, taken = 0;  // starts whose finest level is decided; whose end is taken
   Outcome best;
   const auto agreeing = [&] {
     int n = 0;
-    for (size_t k = 0; k < ends.size(); ++k)
-      n += refined[k] && !apart(best.correction, ends[k], kAgreementMm, kAgreementDeg);
+    for (size_t k = 0; k < taken; ++k)
+      n += started[k].fine &&
+           !apart(best.correction, started[k].outcome.correction, kAgreementMm, kAgreementDeg);
     return n;
   };
   // Automatic starts: the initial pose first, then the best-ranked points at least half the
@@ -343,13 +350,6 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
   // stopping point are dropped (not counted): the same result, evaluations and report on any
   // thread count, since which starts run the finest level depends only on the coarse ends of
   // the starts before them. A sweep's evaluations are already spread over its frames.
-  struct Start {
-    Pose from, coarse_end;
-    Outcome outcome;  // after its coarse levels, then its end
-    bool coarse_done = false, fine = true, done = false;
-  };
-  std::vector<Start> started;
-  size_t decided = 0, taken = 0;  // starts whose finest level is decided; taken into `ends`
   const size_t width = p.shared ? 1 : size_t(backend::parallel_width());
   size_t next = 0;
   bool stop = false;
@@ -399,20 +399,18 @@ Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item
         t.done = true;
       }
     }
-    for (; !stop && taken < decided && started[taken].done; ++taken) {
-      const Outcome& o = started[taken].outcome;
+    while (!stop && taken < decided && started[taken].done) {
+      const Outcome& o = started[taken++].outcome;
       evaluations += o.evaluations;
       iterations += o.iterations;
-      ends.push_back(o.correction);
-      refined.push_back(started[taken].fine);
-      if (ends.size() == 1 || o.cost < best.cost) best = o;
+      if (taken == 1 || o.cost < best.cost) best = o;
       stop = automatic && std::isfinite(best.cost) && agreeing() >= kAgreeingStarts;
     }
     stop = stop || (int(taken) >= most);
   }
   best.evaluations = evaluations;
   best.iterations = iterations;
-  best.starts = int(ends.size());
+  best.starts = int(taken);
   best.agreeing_starts = agreeing();
   return best;
 }

@@ -35,19 +35,19 @@ namespace {
 /// [first, end) are constant, or fewer than 16.
 std::vector<bool> flat_frames(const register_impl::Level& l, size_t count, size_t first = 0,
                               size_t end = std::numeric_limits<size_t>::max()) {
-  const size_t plane = size_t(l.width) * l.height;
+  const size_t width = size_t(l.width), plane = width * l.height;
+  end = std::min(end, width);
   std::vector<bool> flat(count);
   for (size_t k = 0; k < count; ++k) {
-    const float* f = l.frames.data() + k * plane;
-    const uint8_t* m = l.masks.data() + k * plane;
     double lo = std::numeric_limits<double>::infinity(), hi = -lo;
     size_t n = 0;
-    for (size_t i = 0; i < plane; ++i)
-      if (m[i] && i % size_t(l.width) >= first && i % size_t(l.width) < end) {
-        lo = std::min(lo, double(f[i]));
-        hi = std::max(hi, double(f[i]));
-        ++n;
-      }
+    for (size_t row = k * plane; row < (k + 1) * plane; row += width)
+      for (size_t i = row + first; i < row + end; ++i)
+        if (l.masks[i]) {
+          lo = std::min(lo, double(l.frames[i]));
+          hi = std::max(hi, double(l.frames[i]));
+          ++n;
+        }
     flat[k] = n < 16 || !(hi > lo);
   }
   return flat;
