@@ -104,6 +104,7 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeG
   const size_t plane = size_t(l.width) * l.height;
   L.frame = l.frames.data() + frame * plane;
   L.mask = l.masks.data() + frame * plane;
+  L.spans = l.spans.data() + frame * size_t(l.height) * 2;
   L.probe_to_index = grid.index_map(pose);
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) {
@@ -125,69 +126,6 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeG
 /// covers more of the frame where the frame is smoother (a wider basin, docs/registration.md §1).
 constexpr int kPatchHalf = 5;
 
-/// The sums of the per-pixel terms (K values a pixel, W × H pixels) over the (2·half + 1)² window
-/// around each pixel, pixels outside the image counting 0, streamed row by row: row v's terms are
-/// made by `make_row(v, row)` (W·K values, zeroed beforehand), summed along the row (running
-/// sums), and the window's column sums kept as a running sum of those row sums, so a pixel costs
-/// O(K) whatever the window, and only 2·half + 2 rows of row sums are held (a few hundred KB at
-/// full W1 resolution, in cache; the whole frame's terms would be tens of MB an evaluation).
-/// `use(sums, centre)`, row by row in order: the row's window sums (W·K values) and whether each
-/// pixel itself was compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread buffers, reused
-/// across calls.
-template <int K, typename MakeRow, typename Use>
-void window_sums(int W, int H, int half, const MakeRow& make_row, const Use& use) {
-  const int rows_held = 2 * half + 2;  // rows v − half − 1 .. v + half
-  const size_t line = size_t(W) * K;
-  thread_local std::vector<double> row, row_sums, run;
-  thread_local std::vector<uint8_t> centres;
-  row.resize(line);
-  row_sums.resize(line * rows_held);
-  run.assign(line, 0.0);
-  centres.resize(size_t(W) * rows_held);
-  // Row v's terms into its slot of the ring: the running sums along the row, and its centres.
-  const auto add_row = [&](int v) {
-    std::fill(row.begin(), row.end(), 0.0);
-    make_row(v, row.data());
-    const int slot = v % rows_held;
-    double* b = row_sums.data() + size_t(slot) * line;
-    uint8_t* c = centres.data() + size_t(slot) * W;
-    const double* a = row.data();
-    double sum[K] = {};
-    for (int u = 0; u < std::min(half, W); ++u)
-      for (int k = 0; k < K; ++k) sum[k] += a[u * K + k];
-    for (int u = 0; u < W; ++u) {
-      if (u + half < W)
-        for (int k = 0; k < K; ++k) sum[k] += a[(u + half) * K + k];
-      if (u - half - 1 >= 0)
-        for (int k = 0; k < K; ++k) sum[k] -= a[(u - half - 1) * K + k];
-      for (int k = 0; k < K; ++k) b[u * K + k] = sum[k];
-      c[u] = a[u * K] != 0;
-    }
-  };
-  const auto sums_of = [&](int v) { return row_sums.data() + size_t(v % rows_held) * line; };
-  for (int v = 0; v < std::min(half, H); ++v) {
-    add_row(v);
-    const double* r = sums_of(v);
-    for (size_t j = 0; j < line; ++j) run[j] += r[j];
-  }
-  for (int v = 0; v < H; ++v) {
-    // The row entering the window is added and the row leaving it taken away in one pass (each
-    // element as (run + in) − out, the order two passes would take).
-    const bool enters = v + half < H, leaves = v - half - 1 >= 0;
-    if (enters) add_row(v + half);
-    const double* in = enters ? sums_of(v + half) : nullptr;
-    const double* out = leaves ? sums_of(v - half - 1) : nullptr;
-    if (in && out)
-      for (size_t j = 0; j < line; ++j) run[j] = (run[j] + in[j]) - out[j];
-    else if (in)
-      for (size_t j = 0; j < line; ++j) run[j] += in[j];
-    else if (out)
-      for (size_t j = 0; j < line; ++j) run[j] -= out[j];
-    use(static_cast<const double*>(run.data()),
-        static_cast<const uint8_t*>(centres.data() + size_t(v % rows_held) * W));
-  }
-}
-
 }  // namespace
 
 PoseTerms FrameRegistration::terms(size_t frame, const Pose& pose, int level, const Vec3& centre,
@@ -206,23 +144,12 @@ std::pair<double, double> FrameRegistration::patch_score(size_t frame, const Pos
   const State& s = *state_;
   const register_impl::TermsLaunch L =
       make_launch(s.probe, s.grid, s.L, s.level(level), frame, pose, Vec3{0, 0, 0});
-  constexpr int K = register_impl::kLc2Sums;
-  const int W = L.width, H = L.height, half = kPatchHalf;
   // A patch counts when at least half its window is compared (the fan's edge and the volume's
   // border leave fits of a few pixels that would be noise).
-  const double least = std::max(8.0, 0.5 * (2 * half + 1) * (2 * half + 1));
+  const double least = std::max(8.0, 0.5 * (2 * kPatchHalf + 1) * (2 * kPatchHalf + 1));
   double weighted = 0, weight = 0;
-  // Each pixel's terms, summed over the patch around each pixel (Wein's LC2 is a patch per
-  // pixel: a patch grid would make the cost jump as structures cross its lines).
-  const CpuIsa isa = cpu_kernel_isa();
-  const auto make_row = [&](int v, double* row) {
-    register_impl::lc2_row_terms_cpu(isa, L, v, row);
-  };
-  const bool lncc = metric == RegistrationMetric::LNCC;
-  const auto use = [&](const double* sums, const uint8_t* centre) {
-    register_impl::score_patch_row_cpu(isa, sums, centre, W, least, lncc, weighted, weight);
-  };
-  window_sums<K>(W, H, half, make_row, use);
+  register_impl::patch_score_cpu(cpu_kernel_isa(), L, kPatchHalf, least,
+                                 metric == RegistrationMetric::LNCC, weighted, weight);
   return {weighted, weight};
 }
 

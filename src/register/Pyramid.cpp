@@ -77,6 +77,17 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
         l.masks[j] = all ? 1 : 0;
         l.frames[j] = all ? float(s / (f * f)) : 0.f;
       }
+  l.spans.assign(count * size_t(l.height) * 2, 0);
+  for (size_t k = 0; k < count; ++k)
+    for (int v = 0; v < l.height; ++v) {
+      const uint8_t* row = l.masks.data() + k * plane + size_t(v) * l.width;
+      int first = 0, end = l.width;
+      while (first < end && !row[first]) ++first;
+      while (end > first && !row[end - 1]) --end;
+      int32_t* span = l.spans.data() + (k * l.height + size_t(v)) * 2;
+      span[0] = first;
+      span[1] = end;
+    }
   return l;
 }
 

@@ -21,30 +21,18 @@ inline void terms_cpu(CpuIsa isa, const TermsLaunch& L, PoseTerms& total) {
   }
 }
 
-/// LC2's per-pixel terms of row v (lc2_row_terms) into the row's `q`.
-void lc2_row_terms_generic(const TermsLaunch& L, int v, double* q);
-void lc2_row_terms_avx2(const TermsLaunch& L, int v, double* q);
-inline void lc2_row_terms_cpu(CpuIsa isa, const TermsLaunch& L, int v, double* q) {
+/// LC2's (local NCC's) patches of one frame at one pose (patch_score).
+void patch_score_generic(const TermsLaunch& L, int half, double least, bool lncc, double& weighted,
+                         double& weight);
+void patch_score_avx2(const TermsLaunch& L, int half, double least, bool lncc, double& weighted,
+                      double& weight);
+inline void patch_score_cpu(CpuIsa isa, const TermsLaunch& L, int half, double least, bool lncc,
+                            double& weighted, double& weight) {
   switch (isa) {
     case CpuIsa::Avx2:
-      return lc2_row_terms_avx2(L, v, q);
+      return patch_score_avx2(L, half, least, lncc, weighted, weight);
     case CpuIsa::Generic:
-      return lc2_row_terms_generic(L, v, q);
-  }
-}
-
-/// LC2's (local NCC's) patches of one row (score_patch_row).
-void score_patch_row_generic(const double* sums, const uint8_t* centre, int W, double least,
-                             bool lncc, double& weighted, double& weight);
-void score_patch_row_avx2(const double* sums, const uint8_t* centre, int W, double least, bool lncc,
-                          double& weighted, double& weight);
-inline void score_patch_row_cpu(CpuIsa isa, const double* sums, const uint8_t* centre, int W,
-                                double least, bool lncc, double& weighted, double& weight) {
-  switch (isa) {
-    case CpuIsa::Avx2:
-      return score_patch_row_avx2(sums, centre, W, least, lncc, weighted, weight);
-    case CpuIsa::Generic:
-      return score_patch_row_generic(sums, centre, W, least, lncc, weighted, weight);
+      return patch_score_generic(L, half, least, lncc, weighted, weight);
   }
 }
 

@@ -4,6 +4,7 @@
 /// structs and pointers; accumulate_rows sums a frame's rows in order (one frame per thread), so
 /// the result does not depend on the thread count, nor, since the AVX2 build rounds as the
 /// generic one does, on the CPU.
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -30,6 +31,9 @@ struct TermsLaunch {
   double centre[3];   // world point the rotation increments turn about
   const float* frame = nullptr;   // the level's frame, width × height
   const uint8_t* mask = nullptr;  // the level's mask (fan ∧ user ∧ finite frame)
+  // Per row, the mask's columns [first, end) (2 values a row), so that the kernels skip the
+  // rows' ends outside a fan (three quarters of a W1 frame); nullptr: every row whole.
+  const int32_t* spans = nullptr;
   int width = 0, height = 0;
   double x0 = 0, y0 = 0, sx = 1, sy = 1;  // the level's pixel (u, v) → probe (x0 + u·sx, ...)
   bool gradients = false;
@@ -74,14 +78,21 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool sample_cell(const TermsLaunch& L, do
   return true;
 }
 
-/// f(i, x, cs) for each pixel i of row v (from column `first` on) inside the mask whose sample lies
-/// inside the volume (x: its probe x; cs: its sample, with derivatives when `gradient`).
+/// Row v's columns that may hold mask pixels: [*first, *end).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void row_span(const TermsLaunch& L, int v, int* first,
+                                                     int* end) {
+  *first = L.spans ? L.spans[2 * v] : 0;
+  *end = L.spans ? L.spans[2 * v + 1] : L.width;
+}
+
+/// f(i, x, cs) for each pixel i of row v in columns [first, end) inside the mask whose sample
+/// lies inside the volume (x: its probe x; cs: its sample, with derivatives when `gradient`).
 template <typename F>
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE void for_each_row_sample(const TermsLaunch& L, int v,
                                                                 bool gradient, const F& f,
-                                                                int first = 0) {
+                                                                int first, int end) {
   const double y = L.y0 + v * L.sy;
-  for (int u = first; u < L.width; ++u) {
+  for (int u = first; u < end; ++u) {
     const int64_t i = int64_t(v) * L.width + u;
     if (!L.mask[i]) continue;
     const double x = L.x0 + u * L.sx;
@@ -314,15 +325,16 @@ SONOSLICE_INLINE void lc2_four(const TermsLaunch& L, int v, int u, double* q) {
 SONOSLICE_HOST_DEVICE inline int pack_row(const TermsLaunch& L, int v, double* x) {
   const int w = row_stride(L.width);
   const double y = L.y0 + v * L.sy;
-  int n = 0, u = 0;
+  int n = 0, u, end;
+  row_span(L, v, &u, &end);
 #if SONOSLICE_REGISTER_AVX2
   if (gathers_reach(L))
-    for (; u + 4 <= L.width; u += 4) n += pack_four(L, v, u, x, w, n);
+    for (; u + 4 <= end; u += 4) n += pack_four(L, v, u, x, w, n);
 #endif
   for_each_row_sample(
       L, v, L.gradients,
       [&](int64_t i, double px, const CellSample& cs) { pack_pixel(L, i, px, y, cs, x, w, n++); },
-      u);
+      u, end);
   return n;
 }
 
@@ -404,26 +416,31 @@ inline void accumulate_rows(const TermsLaunch& L, PoseTerms& total) {
 SONOSLICE_HOST_DEVICE inline void accumulate_mi_row(const TermsLaunch& L, int v, double* joint,
                                                     double vol_lo, double vol_scale, double fr_lo,
                                                     double fr_scale) {
-  for_each_row_sample(L, v, false, [&](int64_t i, double, const CellSample& cs) {
-    const double p = cs.value;
-    const auto bin = [](double value, double lo, double scale, int* at, double* frac) {
-      double t = (value - lo) * scale;
-      t = t < 0 ? 0 : (t > kMiBins - 1 ? kMiBins - 1 : t);
-      int b = int(t);
-      b = b > kMiBins - 2 ? kMiBins - 2 : b;
-      *at = b;
-      *frac = t - b;
-    };
-    int bi, bf;
-    double ti, tf;
-    bin(p, vol_lo, vol_scale, &bi, &ti);
-    bin(double(L.frame[i]), fr_lo, fr_scale, &bf, &tf);
-    double* h = joint + int64_t(bi) * kMiBins + bf;
-    h[0] += (1 - ti) * (1 - tf);
-    h[1] += (1 - ti) * tf;
-    h[kMiBins] += ti * (1 - tf);
-    h[kMiBins + 1] += ti * tf;
-  });
+  int first, end;
+  row_span(L, v, &first, &end);
+  for_each_row_sample(
+      L, v, false,
+      [&](int64_t i, double, const CellSample& cs) {
+        const double p = cs.value;
+        const auto bin = [](double value, double lo, double scale, int* at, double* frac) {
+          double t = (value - lo) * scale;
+          t = t < 0 ? 0 : (t > kMiBins - 1 ? kMiBins - 1 : t);
+          int b = int(t);
+          b = b > kMiBins - 2 ? kMiBins - 2 : b;
+          *at = b;
+          *frac = t - b;
+        };
+        int bi, bf;
+        double ti, tf;
+        bin(p, vol_lo, vol_scale, &bi, &ti);
+        bin(double(L.frame[i]), fr_lo, fr_scale, &bf, &tf);
+        double* h = joint + int64_t(bi) * kMiBins + bf;
+        h[0] += (1 - ti) * (1 - tf);
+        h[1] += (1 - ti) * tf;
+        h[kMiBins] += ti * (1 - tf);
+        h[kMiBins + 1] += ti * tf;
+      },
+      first, end);
 }
 
 /// LC2 (Wein et al. 2008), row v: for each pixel inside the mask and the volume, the frame's
@@ -433,10 +450,11 @@ SONOSLICE_HOST_DEVICE inline void accumulate_mi_row(const TermsLaunch& L, int v,
 /// patch's fit.
 SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, double* q) {
   const double y = L.y0 + v * L.sy;
-  int first = 0;
+  int first, end;
+  row_span(L, v, &first, &end);
 #if SONOSLICE_REGISTER_AVX2
   if (gathers_reach(L))
-    for (; first + 4 <= L.width; first += 4) lc2_four(L, v, first, q);
+    for (; first + 4 <= end; first += 4) lc2_four(L, v, first, q);
 #endif
   const auto pixel = [&](int64_t i, double x, const CellSample& cs) {
     const double p = cs.value;
@@ -467,7 +485,7 @@ SONOSLICE_HOST_DEVICE inline void lc2_row_terms(const TermsLaunch& L, int v, dou
     t[8] = U * g;
     t[9] = p * g;
   };
-  for_each_row_sample(L, v, true, pixel, first);
+  for_each_row_sample(L, v, true, pixel, first, end);
 }
 
 /// One patch's score from its window sums t (kLc2Sums values; n = t[0] compared pixels), when it
@@ -600,6 +618,122 @@ SONOSLICE_HOST_DEVICE inline void score_patch_row(const double* sums, const uint
       weight += w;
     }
   }
+}
+
+/// The sums of the per-pixel terms (K values a pixel, W × H pixels) over the (2·half + 1)² window
+/// around each pixel, pixels outside the image counting 0, streamed row by row: row v's terms are
+/// made by `make_row(v, row)` (W·K values, zero beforehand; it writes only the columns
+/// `span(v, &first, &end)` gives), summed along the row (running sums), and the window's column
+/// sums kept as a running sum of those row sums, so a pixel costs O(K) whatever the window, and
+/// only 2·half + 2 rows of row sums are held (a few hundred KB at full W1 resolution, in cache;
+/// the whole frame's terms would be tens of MB an evaluation). Each pass covers only the columns
+/// a row's span can reach (a fan fills a quarter of W1's rectangle); the row sums beyond them are
+/// zeros, not the running sums' round-off. `use(sums, centre, first, end)`, row by row in order:
+/// the row's window sums (W·K values, meaningful in [first, end), the row's span) and whether
+/// each pixel itself was compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread buffers,
+/// reused across calls and left all zero between them.
+template <int K, typename Span, typename MakeRow, typename Use>
+inline void window_sums(int W, int H, int half, const Span& span, const MakeRow& make_row,
+                        const Use& use) {
+  const int rows_held = 2 * half + 2;  // rows v − half − 1 .. v + half
+  const size_t line = size_t(W) * K;
+  thread_local std::vector<double> row, row_sums;
+  thread_local std::vector<uint8_t> centres;
+  if (row.size() != line) row.assign(line, 0.0);
+  if (row_sums.size() != line * rows_held) row_sums.assign(line * rows_held, 0.0);
+  centres.resize(size_t(W) * rows_held);
+  std::vector<double> run(line, 0.0);
+  struct Columns {
+    int first = 0, end = 0;
+  };
+  // Per slot of the ring: the columns of its row sums that may be non-zero, and its row's span.
+  const size_t held = size_t(rows_held);
+  std::vector<Columns> written(held), spans(held);
+  const auto slot_of = [&](int v) { return size_t(v % rows_held); };
+  const auto clear = [&](size_t slot) {
+    double* b = row_sums.data() + slot * line;
+    std::fill(b + size_t(written[slot].first) * K, b + size_t(written[slot].end) * K, 0.0);
+    written[slot] = {};
+  };
+  // Row v's terms into its slot of the ring: the running sums along the row, and its centres.
+  const auto add_row = [&](int v) {
+    const size_t slot = slot_of(v);
+    clear(slot);
+    Columns& s = spans[slot];
+    span(v, &s.first, &s.end);
+    if (s.first >= s.end) return;
+    make_row(v, row.data());
+    double* b = row_sums.data() + slot * line;
+    uint8_t* c = centres.data() + slot * size_t(W);
+    const double* a = row.data();
+    // Column u's sum covers columns u − half .. u + half: zero left of first − half, and
+    // constant (zero up to round-off) right of end + half.
+    const int from = std::max(0, s.first - half), to = std::min(W, s.end + half);
+    double sum[K] = {};
+    if (from == 0)
+      for (int u = 0; u < std::min(half, W); ++u)
+        for (int k = 0; k < K; ++k) sum[k] += a[u * K + k];
+    for (int u = from; u < to; ++u) {
+      if (u + half < W)
+        for (int k = 0; k < K; ++k) sum[k] += a[(u + half) * K + k];
+      if (u - half - 1 >= 0)
+        for (int k = 0; k < K; ++k) sum[k] -= a[(u - half - 1) * K + k];
+      for (int k = 0; k < K; ++k) b[u * K + k] = sum[k];
+    }
+    written[slot] = {from, to};
+    for (int u = s.first; u < s.end; ++u) c[u] = a[u * K] != 0;
+    std::fill(row.begin() + ptrdiff_t(s.first) * K, row.begin() + ptrdiff_t(s.end) * K, 0.0);
+  };
+  const auto sums_of = [&](int v) { return row_sums.data() + slot_of(v) * line; };
+  for (int v = 0; v < std::min(half, H); ++v) {
+    add_row(v);
+    const double* r = sums_of(v);
+    const Columns& w = written[slot_of(v)];
+    for (size_t j = size_t(w.first) * K; j < size_t(w.end) * K; ++j) run[j] += r[j];
+  }
+  for (int v = 0; v < H; ++v) {
+    // The row entering the window is added and the row leaving it taken away in one pass (each
+    // element as (run + in) − out, the order two passes would take), over the columns either
+    // may reach: elsewhere both are zero.
+    const bool enters = v + half < H, leaves = v - half - 1 >= 0;
+    if (enters) add_row(v + half);
+    const double* in = enters ? sums_of(v + half) : nullptr;
+    const double* out = leaves ? sums_of(v - half - 1) : nullptr;
+    const Columns none{W, 0};
+    const Columns& wi = enters ? written[slot_of(v + half)] : none;
+    const Columns& wo = leaves ? written[slot_of(v - half - 1)] : none;
+    const auto reach = [](const Columns& w) { return w.first < w.end; };
+    const size_t j0 = size_t(std::min(reach(wi) ? wi.first : W, reach(wo) ? wo.first : W)) * K;
+    const size_t j1 = size_t(std::max(reach(wi) ? wi.end : 0, reach(wo) ? wo.end : 0)) * K;
+    if (in && out)
+      for (size_t j = j0; j < j1; ++j) run[j] = (run[j] + in[j]) - out[j];
+    else if (in)
+      for (size_t j = j0; j < j1; ++j) run[j] += in[j];
+    else if (out)
+      for (size_t j = j0; j < j1; ++j) run[j] -= out[j];
+    const Columns& s = spans[slot_of(v)];
+    if (s.first < s.end)
+      use(static_cast<const double*>(run.data()),
+          static_cast<const uint8_t*>(centres.data() + slot_of(v) * size_t(W)), s.first, s.end);
+  }
+  for (size_t slot = 0; slot < held; ++slot) clear(slot);
+}
+
+/// LC2's (local NCC's) patches of one frame at one pose (the launch L), one centred on each
+/// compared pixel, 2·half + 1 pixels a side (Wein's LC2 is a patch per pixel: a grid of patches
+/// would make the cost jump as structures cross its lines): adds each patch that counts (at least
+/// `least` compared pixels, score_patch) to `weighted` and `weight`, in pixel order. Host code
+/// (per-thread buffers, window_sums).
+inline void patch_score(const TermsLaunch& L, int half, double least, bool lncc, double& weighted,
+                        double& weight) {
+  constexpr int K = kLc2Sums;
+  const auto span = [&](int v, int* first, int* end) { row_span(L, v, first, end); };
+  const auto make_row = [&](int v, double* row) { lc2_row_terms(L, v, row); };
+  const auto use = [&](const double* sums, const uint8_t* centre, int first, int end) {
+    score_patch_row(sums + size_t(first) * K, centre + first, end - first, least, lncc, weighted,
+                    weight);
+  };
+  window_sums<K>(L.width, L.height, half, span, make_row, use);
 }
 
 }  // namespace SONOSLICE_KERNEL_ISA

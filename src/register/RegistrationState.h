@@ -23,6 +23,7 @@ struct Level {
   int nx = 0, ny = 0, nz = 0;
   std::vector<float> frames;   // count × w × h
   std::vector<uint8_t> masks;  // count × w × h (fan ∧ user ∧ finite)
+  std::vector<int32_t> spans;  // count × h × 2: each row's mask columns [first, end)
   int width = 0, height = 0;
 };
 

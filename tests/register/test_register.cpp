@@ -644,9 +644,12 @@ TEST(Register, Lc2FitsAPatchAroundEveryPixel) {
     for (int u = 0; u < W; ++u) {
       const double x = probe.image.origin_mm[0] + u * 0.5, y = probe.image.origin_mm[1] + v * 0.5;
       p[size_t(v) * W + u] = float(2 * x + 3 * y + 1);
-      // Correlation that changes across the frame, and a hole in the mask.
+      // Correlation that changes across the frame, and a mask whose rows start and end inside
+      // the frame (the kernels skip each row's columns outside its mask), with a gap inside
+      // rows and a row without any pixel.
       frame[size_t(v) * W + u] = float(p[size_t(v) * W + u] * (u / double(W)) + 4 * noise(rng));
-      if (u > 20 && v > 15) mask[size_t(v) * W + u] = 0;
+      if ((u > 20 && v > 15) || 3 * u < v || (u == 12 && v < 10) || v == 3)
+        mask[size_t(v) * W + u] = 0;
     }
   const FrameRegistration reg(volume, probe, frame.data(), 1, mask.data());
   const auto [weighted, weight] = reg.patch_score(0, Pose::identity(), 1, RegistrationMetric::LC2);
