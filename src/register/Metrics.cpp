@@ -91,6 +91,7 @@ register_impl::TermsLaunch make_launch(const ProbeGeometry& probe, const VolumeG
   const int f = l.f, g = l.g;
   register_impl::TermsLaunch L;
   L.volume = l.volume;
+  L.volume16 = l.volume16;
   L.grid = geometry::VolumeView::of(l.nx, l.ny, l.nz);
   // The level's pixel (u, v) is the centre of a block of f × f full pixels; a level voxel the
   // centre of g³ full voxels: c_level = (c − (g − 1)/2) / g.

@@ -18,15 +18,19 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
   levels.emplace_back();
   Level& l = levels.back();
   const Level& first = levels.front();  // level 1 (made first, by the constructor)
-  const float* volume = this->volume.data_as<float>();
+  const bool int16 = volume.pixel_type() == PixelType::Int16;
+  const float* floats = int16 ? nullptr : volume.data_as<float>();
+  const int16_t* int16s = int16 ? volume.data_as<int16_t>() : nullptr;
+  const auto voxel = [&](int64_t i) { return int16 ? double(int16s[i]) : double(floats[i]); };
   l.f = f;
   const int W = probe.image.width, H = probe.image.height;
   const int64_t nx = grid.dims[0], ny = grid.dims[1], nz = grid.dims[2];
   const double pixel = std::min(probe.image.spacing_mm[0], probe.image.spacing_mm[1]);
-  const double voxel = std::min({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
-  l.g = std::max(1, int(std::floor(f * pixel / voxel + 1e-9)));
+  const double spacing = std::min({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
+  l.g = std::max(1, int(std::floor(f * pixel / spacing + 1e-9)));
   if (l.g == 1) {
-    l.volume = volume;
+    l.volume = floats;
+    l.volume16 = int16s;
     l.nx = int(nx);
     l.ny = int(ny);
     l.nz = int(nz);
@@ -44,7 +48,7 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
           for (int dz = 0; dz < g && z * g + dz < nz; ++dz)
             for (int dy = 0; dy < g && int64_t(y) * g + dy < ny; ++dy)
               for (int dx = 0; dx < g && int64_t(x) * g + dx < nx; ++dx, ++n)
-                s += volume[((z * g + dz) * ny + (int64_t(y) * g + dy)) * nx + int64_t(x) * g + dx];
+                s += voxel(((z * g + dz) * ny + (int64_t(y) * g + dy)) * nx + int64_t(x) * g + dx);
           l.volume_copy[(size_t(z) * l.ny + y) * l.nx + x] = float(s / std::max(n, 1));
         }
     });
@@ -112,9 +116,15 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
   for (int k = 0; k < 3; ++k)
     if (s.grid.dims[k] < 2)
       throw InputError("volume: needs at least 2 voxels along each axis for trilinear gradients");
-  // The kernels read float: a float32 volume is shared, others are converted once.
-  if (volume.pixel_type() != PixelType::Float32) s.volume = volume.converted(PixelType::Float32);
-  const float* full = s.volume.data_as<float>();
+  // The kernels read float32 or int16 (a CT's own type: no copy of a few hundred MB to make, and
+  // half the memory to read): those volumes are shared, others converted once to float32.
+  const PixelType type = volume.pixel_type();
+  if (type != PixelType::Float32 && type != PixelType::Int16)
+    s.volume = volume.converted(PixelType::Float32);
+  const bool int16 = s.volume.pixel_type() == PixelType::Int16;
+  const auto full = [&](int64_t i) {
+    return int16 ? float(s.volume.data_as<int16_t>()[i]) : s.volume.data_as<float>()[i];
+  };
   std::vector<uint8_t> mask = probe.mask();
   if (user_mask)
     for (size_t i = 0; i < mask.size(); ++i) mask[i] = mask[i] && user_mask[i];
@@ -154,7 +164,7 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
     const int64_t stride = std::max<int64_t>(1, voxels / 1000000);
     std::vector<float> sample;
     for (int64_t i = 0; i < voxels; i += stride)
-      if (std::isfinite(full[i])) sample.push_back(full[i]);
+      if (std::isfinite(full(i))) sample.push_back(full(i));
     percentiles(std::move(sample), s.volume_range);
   }
   s.frame_range.resize(frame_count);

@@ -23,9 +23,12 @@ namespace register_impl {
 
 /// One frame at one pose, at one pyramid level.
 struct TermsLaunch {
-  const float* volume = nullptr;  // the level's volume, x fastest
-  geometry::VolumeView grid;      // its extent
-  IndexMap probe_to_index;        // probe mm → the level's continuous index
+  const float* volume = nullptr;  // the level's volume, x fastest (nullptr: volume16)
+  // or, for a full-resolution int16 volume (a CT's own type), its values as they are: read as
+  // int16, exactly the floats a converted copy would hold, in half the memory and no copy.
+  const int16_t* volume16 = nullptr;
+  geometry::VolumeView grid;  // its extent
+  IndexMap probe_to_index;    // probe mm → the level's continuous index
   double G[9];        // the level's index gradient → world gradient: ∇_w I = G · ∇_c I
   double P[9], p[3];  // probe mm → world mm (the pose)
   double centre[3];   // world point the rotation increments turn about
@@ -73,8 +76,12 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool sample_cell(const TermsLaunch& L, do
   L.probe_to_index.apply(x, y, 0, c);
   if (!geometry::inside<EdgeRule::Interior>(L.grid, c[0], c[1], c[2])) return false;
   const auto cell = geometry::linear_cell<EdgeRule::Interior>(L.grid, c[0], c[1], c[2]);
-  out.value = gradient ? geometry::linear_value_gradient<double>(L.volume, cell, out.gc)
-                       : geometry::linear_value<double>(L.volume, cell);
+  if (L.volume16)
+    out.value = gradient ? geometry::linear_value_gradient<double>(L.volume16, cell, out.gc)
+                         : geometry::linear_value<double>(L.volume16, cell);
+  else
+    out.value = gradient ? geometry::linear_value_gradient<double>(L.volume, cell, out.gc)
+                         : geometry::linear_value<double>(L.volume, cell);
   return true;
 }
 
@@ -215,12 +222,29 @@ SONOSLICE_INLINE bool sample_four(const TermsLaunch& L, int v, int u, bool gradi
   const __m128i o000 = _mm_add_epi32(r00, cell[0]);
   const __m128i o010 = _mm_add_epi32(o000, sy), o001 = _mm_add_epi32(o000, sz);
   const __m128i o011 = _mm_add_epi32(o001, sy);
-  const auto voxels = [&](__m128i o) { return _mm256_cvtps_pd(_mm_i32gather_ps(L.volume, o, 4)); };
-  const auto next = [&](__m128i o) {
-    return _mm256_cvtps_pd(_mm_i32gather_ps(L.volume + 1, o, 4));
-  };
-  const __m256d v000 = voxels(o000), v100 = next(o000), v010 = voxels(o010), v110 = next(o010);
-  const __m256d v001 = voxels(o001), v101 = next(o001), v011 = voxels(o011), v111 = next(o011);
+  __m256d v000, v100, v010, v110, v001, v101, v011, v111;
+  if (L.volume16) {
+    // One 32-bit gather brings a voxel and its +x neighbour (little-endian: the voxel in the low
+    // half), each sign-extended; the cell's x + 1 is always inside the row.
+    const auto pair = [&](__m128i o, __m256d* at, __m256d* next) {
+      const __m128i two = _mm_i32gather_epi32(reinterpret_cast<const int*>(L.volume16), o, 2);
+      *at = _mm256_cvtepi32_pd(_mm_srai_epi32(_mm_slli_epi32(two, 16), 16));
+      *next = _mm256_cvtepi32_pd(_mm_srai_epi32(two, 16));
+    };
+    pair(o000, &v000, &v100);
+    pair(o010, &v010, &v110);
+    pair(o001, &v001, &v101);
+    pair(o011, &v011, &v111);
+  } else {
+    const auto voxels = [&](__m128i o) {
+      return _mm256_cvtps_pd(_mm_i32gather_ps(L.volume, o, 4));
+    };
+    const auto next = [&](__m128i o) {
+      return _mm256_cvtps_pd(_mm_i32gather_ps(L.volume + 1, o, 4));
+    };
+    v000 = voxels(o000), v100 = next(o000), v010 = voxels(o010), v110 = next(o010);
+    v001 = voxels(o001), v101 = next(o001), v011 = voxels(o011), v111 = next(o011);
+  }
   const auto lerp = [](__m256d a, __m256d b, __m256d t) {
     return _mm256_add_pd(a, _mm256_mul_pd(t, _mm256_sub_pd(b, a)));
   };

@@ -18,8 +18,9 @@ namespace register_impl {
 /// already coarser than the blocks is not averaged again.
 struct Level {
   int f = 1, g = 1;
-  std::vector<float> volume_copy;  // empty: the full-resolution float volume, shared
+  std::vector<float> volume_copy;  // empty: the full-resolution volume, shared
   const float* volume = nullptr;
+  const int16_t* volume16 = nullptr;  // instead of `volume`: the full-resolution int16 volume
   int nx = 0, ny = 0, nz = 0;
   std::vector<float> frames;   // count × w × h
   std::vector<uint8_t> masks;  // count × w × h (fan ∧ user ∧ finite)
@@ -34,7 +35,7 @@ struct FrameRegistration::State {
   VolumeGrid grid;
   Mat3 L;  // world → index, linear (the gradients' chain rule)
   size_t count = 0;
-  Volume volume;                            // float32: the caller's (shared) or a converted copy
+  Volume volume;  // float32 or int16: the caller's (shared), else a float32 copy
   std::deque<register_impl::Level> levels;  // only added to: references to a level stay valid
   std::vector<Vec3> mask_centre;  // per frame: the centroid of its compared pixels (probe mm)
   // MI's intensity ranges: the volume's and each frame's 1st and 99th percentiles.

@@ -196,6 +196,42 @@ TEST(Register, Avx2AndGenericKernelsGiveTheSameTermsBitForBit) {
     }
 }
 
+// An int16 volume (a CT's own type) is read as it is, not copied to float32: every metric's
+// sums must equal, bit for bit, those of its float32 copy (the same values), in both builds, at
+// the full-resolution level (int16) and a coarser one (averaged into float32 from the int16).
+TEST(Register, Int16VolumesGiveTheSameSumsAsTheirFloatCopies) {
+  ASSERT_EQ(phantom().ct.pixel_type(), PixelType::Int16);
+  const Volume floats = phantom().ct.converted(PixelType::Float32);
+  const std::vector<Pose> poses = phantom_random_poses(3, 12);
+  const ProbeGeometry p = workload_w1_fan_probe();
+  const std::vector<float> frames = Slicer(phantom().ct, p).slice<float>(poses);
+  const FrameRegistration a(phantom().ct, p, frames.data(), poses.size());
+  const FrameRegistration b(floats, p, frames.data(), poses.size());
+  std::vector<CpuIsa> isas = {CpuIsa::Generic};
+  if (cpu_kernel_isa_available(CpuIsa::Avx2)) isas.push_back(CpuIsa::Avx2);
+  for (const FrameRegistration* r : {&a, &b}) r->prepare_level(4);
+  for (CpuIsa isa : isas) {
+    set_cpu_kernel_isa(isa);
+    for (size_t k = 0; k < poses.size(); ++k) {
+      const Pose at = perturbed(poses[k], poses[k].transform_point(fan_centre()), 1.5, 1.5, 4);
+      for (int level : {1, 4}) {
+        const PoseTerms ta = a.terms(k, at, level, a.centre(k, at), true);
+        const PoseTerms tb = b.terms(k, at, level, b.centre(k, at), true);
+        EXPECT_EQ(0, std::memcmp(&ta, &tb, sizeof ta)) << "pose " << k << ", level " << level;
+        EXPECT_GT(ta.n, 100);
+        for (RegistrationMetric metric :
+             {RegistrationMetric::LC2, RegistrationMetric::LNCC, RegistrationMetric::MI}) {
+          const double ca = a.cost(k, at, level, metric), cb = b.cost(k, at, level, metric);
+          EXPECT_EQ(0, std::memcmp(&ca, &cb, sizeof ca))
+              << to_string(metric) << ", pose " << k << ", level " << level << ": " << ca << " / "
+              << cb;
+        }
+      }
+    }
+  }
+  set_cpu_kernel_isa("auto");
+}
+
 TEST(Register, RecoversPerturbedPosesFromNoisyCtFans) {
   const std::vector<Pose> truth = phantom_random_poses(8, 11);
   const std::vector<float> frames = noisy_fans(truth, 20);
