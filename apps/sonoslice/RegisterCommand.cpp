@@ -18,6 +18,7 @@
 #include "sonoslice/plus/PlusConfig.h"
 #include "sonoslice/plus/PlusSequence.h"
 #include "sonoslice/plus/TrackedFrames.h"
+#include "sonoslice/register/PlusRegistration.h"
 #include "sonoslice/register/Registration.h"
 
 namespace sonoslice {
@@ -74,7 +75,7 @@ RegistrationSettings settings_of(const RegisterFlags& f) {
 }
 
 /// What is registered: the probe, the frames (count × H × W floats), their initial poses and
-/// the pixels compared; from --probe/--frames/--poses/--mask or from a PLUS sequence.
+/// the pixels compared from --probe/--frames/--poses/--mask, or a PLUS sequence's tracked frames.
 struct Inputs {
   ProbeGeometry probe;
   std::vector<Pose> initial;
@@ -123,22 +124,16 @@ Inputs read_frame_inputs(const RegisterFlags& f, WorldFrame world) {
 }
 
 // A PLUS sequence: the frames compound would use, their ImageToReference split into rigid poses
-// on the frames' pixel grid, the configuration's clip as the mask.
+// on the frames' pixel grid, the configuration's clip as the mask (register_tracked_frames takes
+// them from here, after the volume is read).
 Inputs read_sequence_inputs(const RegisterFlags& f) {
   Inputs in;
   PlusReconstructionConfig config;
   if (!f.config.empty()) config = read_plus_config(f.config);
   const PlusSequence sequence = read_plus_sequence(f.sequence);
   in.plus = plus_tracked_frames(sequence, config);
-  in.probe = in.plus->probe;
-  in.initial = in.plus->poses;
-  in.frames = in.plus->pixels.data();
   in.count = in.plus->frames.size();
-  in.user_mask = in.plus->mask;
-  try {
-    in.image_to_probe = config.coordinate_definitions.get(config.image_frame, "Probe");
-  } catch (const InputError&) {  // no Image → Probe calibration in the configuration
-  }
+  in.image_to_probe = plus_image_to_probe(config);
   return in;
 }
 
@@ -202,23 +197,28 @@ void run_register(const RegisterFlags& f) {
   const Volume volume = read_volume(f.volume.path, f.volume.options());
   const double load_seconds = load.seconds();
 
-  const FrameRegistration reg(volume, in.probe, in.frames, count,
-                              in.user_mask.empty() ? nullptr : in.user_mask.data());
+  // A sequence's refined ImageToReference matrices (PlusRegistration.h), else the refined poses
+  // in the input's frame (pose_to_lps is its own inverse).
   RegistrationReport report;
-  const std::vector<Pose> refined = reg.run(in.initial, settings, &report);
+  std::vector<Mat4> matrices;
+  std::optional<Mat4> corrected_image_to_probe;
+  if (from_sequence) {
+    PlusRegistration r = register_tracked_frames(volume, *in.plus, settings, in.image_to_probe);
+    matrices = std::move(r.image_to_reference);
+    corrected_image_to_probe = r.image_to_probe;
+    report = std::move(r.report);
+  } else {
+    const FrameRegistration reg(volume, in.probe, in.frames, count,
+                                in.user_mask.empty() ? nullptr : in.user_mask.data());
+    for (const Pose& p : reg.run(in.initial, settings, &report))
+      matrices.push_back(pose_to_lps(p, world));
+  }
 
   OutputSet outputs;  // both or neither
   std::vector<double> flat;
-  for (size_t k = 0; k < refined.size(); ++k) {
-    // A sequence's refined ImageToReference: the frame's own matrix (with its calibration's
-    // scale and shear) moved by the correction found, refined · initial⁻¹. Else the pose in the
-    // input's frame (pose_to_lps is its own inverse).
-    const Mat4 p = from_sequence
-                       ? refined[k] * *invert(in.initial[k]) * in.plus->image_to_reference[k]
-                       : pose_to_lps(refined[k], world);
+  for (const Mat4& p : matrices)
     for (int i = 0; i < 16; ++i) flat.push_back(p.m[i / 4][i % 4]);
-  }
-  write_npy(f.out, PixelType::Float64, {int64_t(refined.size()), 4, 4}, flat.data(), &outputs);
+  write_npy(f.out, PixelType::Float64, {int64_t(matrices.size()), 4, 4}, flat.data(), &outputs);
   if (!f.report.empty()) {
     // The settings as the library resolved them (the optimiser chosen for the metric).
     const RegistrationSettings& ran = report.settings;
@@ -253,15 +253,7 @@ void run_register(const RegisterFlags& f) {
       j["sequence"] = f.sequence;
       j["sequence_frames"] = in.plus->frames;
       if (!in.plus->skipped.empty()) j["skipped"] = in.plus->skipped;
-      // The calibration corrected. Frame i's refined ImageToReference is C_i·M_i (C_i = refined_i ·
-      // initial_i⁻¹, M_i = ProbeToReference_i · ImageToProbe); in calibration mode C_i·M_i =
-      // ProbeToReference_i · ImageToProbe' for every i, with ImageToProbe' = ImageToProbe ·
-      // M_0⁻¹ · C_0 · M_0.
-      if (ran.mode == RegistrationMode::Calibration && in.image_to_probe && count > 0) {
-        const Mat4& M0 = in.plus->image_to_reference[0];
-        const Mat4 C0 = refined[0] * *invert(in.initial[0]);
-        j["image_to_probe"] = matrix_json(*in.image_to_probe * *invert(M0) * C0 * M0);
-      }
+      if (corrected_image_to_probe) j["image_to_probe"] = matrix_json(*corrected_image_to_probe);
     }
     j["evaluations"] = report.evaluations;
     j["seconds"] = report.seconds;

@@ -44,7 +44,7 @@ from .phantom import PHANTOM_LABELS, phantom, phantom_poses, surface_poses
 from .plus import (PlusConfig, PlusSequence, TransformRepository, plus_image_to_reference, read_plus_config,
                    read_plus_sequence, reconstruct_plus, write_plus_sequence)
 from .registration import (RegistrationMetric, RegistrationMode, RegistrationOptimizer, RegistrationSettings,
-                           register, registration_cost)
+                           register, register_sequence, registration_cost)
 from .sampling import PoseSampler, SamplerSettings, sample_seeds
 from .simulation import (SimulationOutput, SimulationSettings, SimulationSource, Simulator, Tissue, default_tissues,
                          phantom_tissues, simulation_presets)
@@ -65,7 +65,7 @@ __all__ = [
     "Simulator", "SimulationSettings", "SimulationSource", "SimulationOutput", "Tissue", "default_tissues",
     "phantom_tissues", "simulation_presets",
     # registration (docs/registration.md)
-    "register", "registration_cost", "RegistrationSettings", "RegistrationMetric", "RegistrationOptimizer",
+    "register", "register_sequence", "registration_cost", "RegistrationSettings", "RegistrationMetric", "RegistrationOptimizer",
     "RegistrationMode",
     # pose samplers and datasets (docs/datasets.md)
     "PoseSampler", "SamplerSettings", "sample_seeds",

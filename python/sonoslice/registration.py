@@ -10,10 +10,11 @@ import numpy as np
 
 from . import _arrays
 from . import _sonoslice as _ext
+from .plus import _as_config, _as_sequence
 from .slicing import Probe
 from .volume import Volume
 
-__all__ = ["register", "RegistrationSettings", "RegistrationMetric", "RegistrationOptimizer", "RegistrationMode"]
+__all__ = ["register", "register_sequence", "RegistrationSettings", "RegistrationMetric", "RegistrationOptimizer", "RegistrationMode"]
 
 RegistrationSettings = _ext.RegistrationSettings
 RegistrationMetric = _ext.RegistrationMetric
@@ -112,6 +113,42 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     m = None if mask is None else np.ascontiguousarray(_arrays.real_array(mask, "mask") != 0, dtype=np.uint8)
     refined, report = _ext.register_frames(volume._cpp, probe._cpp, f, p, mask=m, settings=s)
     return np.ascontiguousarray(_arrays.pose_to_lps(refined, world)), _report(report)
+
+
+def register_sequence(volume: Volume, sequence, config=None, *, metric: Optional[str] = None,
+                      optimizer: Optional[str] = None, mode: Optional[str] = None, starts: Optional[int] = None,
+                      search_rot_deg: Optional[float] = None, search_trans_mm: Optional[float] = None,
+                      seed: Optional[int] = None, pyramid: Optional[Sequence[int]] = None,
+                      smoothness: Optional[float] = None, settings: Optional[RegistrationSettings] = None):
+    """Registers a PLUS sequence's tracked frames to ``volume``, as ``sonoslice register --sequence
+    S --config C`` does (one C++ function; docs/registration.md §4): the frames and their
+    ImageToReference chains that ``compound`` would use, the configuration's clip as the mask.
+    ``sequence``/``config``: objects (:func:`read_plus_sequence`, :func:`read_plus_config`) or
+    paths; ``config`` None: no calibration, every frame, no clip. The settings are
+    :func:`register`'s.
+
+    Returns ``(image_to_reference, report)``: the refined ImageToReference of each frame used,
+    (M, 4, 4) float64 in the sequence's reference frame (its own matrix moved by the correction
+    found, so a calibration's scale stays), and :func:`register`'s report with
+    "sequence_frames" (the sequence's frames used), "skipped" (why frames were left out, when
+    some were) and, in calibration mode with an Image → Probe calibration in the configuration,
+    "image_to_probe" (that calibration corrected, 4 × 4)."""
+    if not isinstance(volume, Volume):
+        raise TypeError("volume: expected a sonoslice.Volume")
+    s = _settings(settings, dict(metric=metric, optimizer=optimizer, mode=mode, starts=starts,
+                                 search_rot_deg=search_rot_deg, search_trans_mm=search_trans_mm, seed=seed,
+                                 pyramid=pyramid, smoothness=smoothness))
+    seq, cfg = _as_sequence(sequence), _as_config(config)
+    frames, matrices, image_to_probe, skipped, report = _ext.register_plus_sequence(
+        volume._cpp, seq._cpp, None if cfg is None else cfg._cpp, settings=s)
+    out = _report(report)
+    out["sequence"] = seq.path
+    out["sequence_frames"] = list(frames)
+    if skipped:
+        out["skipped"] = skipped
+    if image_to_probe is not None:
+        out["image_to_probe"] = np.asarray(image_to_probe).tolist()
+    return np.ascontiguousarray(matrices), out
 
 
 def registration_cost(volume: Volume, probe: Probe, frames, poses, *, metric: str = "ncc", level: int = 1,

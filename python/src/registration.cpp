@@ -11,6 +11,7 @@
 
 #include "bindings.h"
 #include "sonoslice/register/Differentiable.h"
+#include "sonoslice/register/PlusRegistration.h"
 #include "sonoslice/register/Registration.h"
 
 namespace sonoslice::bindings {
@@ -252,6 +253,27 @@ void bind_registration(nb::module_& m) {
       "volume"_a, "probe"_a, "frames"_a, "poses"_a, nb::kw_only(), "mask"_a.none() = nb::none(),
       "settings"_a = RegistrationSettings(),
       "(refined (N, 4, 4) poses, RegistrationReport): FrameRegistration::run.");
+
+  m.def(
+      "register_plus_sequence",
+      [](nb::pointer_and_handle<Volume> volume, const PlusSequence& sequence,
+         const PlusReconstructionConfig* config, const RegistrationSettings& settings) {
+        auto source = volume_source(volume.h);
+        if (source) source->check("register_sequence");
+        PlusRegistration r;
+        {
+          nb::gil_scoped_release release;
+          r = register_plus_sequence(*volume.p, sequence,
+                                     config ? *config : PlusReconstructionConfig(), settings);
+        }
+        return std::make_tuple(std::move(r.frames), matrices_to_numpy(r.image_to_reference),
+                               matrix_or_none(r.image_to_probe), std::move(r.skipped),
+                               std::move(r.report));
+      },
+      "volume"_a, "sequence"_a, "config"_a.none(), nb::kw_only(),
+      "settings"_a = RegistrationSettings(),
+      "(frames used, (M, 4, 4) refined ImageToReference, corrected ImageToProbe or None, why "
+      "frames were skipped, RegistrationReport): register_plus_sequence.");
 }
 
 }  // namespace sonoslice::bindings

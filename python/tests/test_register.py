@@ -377,6 +377,30 @@ def test_calibration_of_a_plus_sweep_recovers_a_perturbed_image_to_probe(cli, tm
     assert start > 2 and apart.max() < 0.3
 
 
+def test_python_registers_a_plus_sequence_as_the_command_does(cli, tmp_path):
+    """sonoslice.register_sequence (paths or objects) and `register --sequence --config` are one
+    library call: the same refined ImageToReference matrices, frames and corrected ImageToProbe."""
+    import sonoslice
+    out, report_path = tmp_path / "cli.npy", tmp_path / "cli.json"
+    xml = nwire_config(tmp_path / "c.xml", None)  # every 4th frame
+    r = run(cli, "register", "--sequence", NWIRE, "--config", xml, "--volume", NWIRE_VOLUME,
+            "--mode", "calibration", "--pyramid", "8,4", "--out", str(out), "--report", str(report_path))
+    assert r.returncode == 0, r.stderr
+    want = json.load(open(report_path))
+    volume = sonoslice.Volume.from_file(NWIRE_VOLUME)
+    for sequence, config in ((NWIRE, xml), (sonoslice.read_plus_sequence(NWIRE), sonoslice.read_plus_config(xml))):
+        with pytest.warns(UserWarning, match="degrees from perpendicular"):
+            matrices, report = sonoslice.register_sequence(volume, sequence, config, mode="calibration",
+                                                           pyramid=[8, 4])
+        np.testing.assert_array_equal(matrices, np.load(out))
+        assert report["sequence_frames"] == want["sequence_frames"] == list(range(0, 97, 4))
+        np.testing.assert_array_equal(report["image_to_probe"], want["image_to_probe"])
+        assert report["mode"] == "calibration" and report["converged_frames"] == want["converged_frames"]
+        assert [f["metric"] for f in report["frames"]] == [f["metric"] for f in want["frames"]]
+    with pytest.raises(TypeError, match="volume"):
+        sonoslice.register_sequence(NWIRE_VOLUME, NWIRE)
+
+
 def test_sequence_input_bad_input_is_one_line(cli, tmp_path):
     skewed = nwire_image_to_probe()
     skewed[:3, 1] = skewed[:3, 1] + 0.3 * np.linalg.norm(skewed[:3, 1]) * skewed[:3, 0] / np.linalg.norm(skewed[:3, 0])
