@@ -35,7 +35,7 @@ struct TermsLaunch {
   const float* frame = nullptr;   // the level's frame, width × height
   const uint8_t* mask = nullptr;  // the level's mask (fan ∧ user ∧ finite frame)
   // Per row, the mask's columns [first, end) (2 values a row), so that the kernels skip the
-  // rows' ends outside a fan (three quarters of a W1 frame); nullptr: every row whole.
+  // rows' ends outside a fan (two fifths of a W1 frame); nullptr: every row whole.
   const int32_t* spans = nullptr;
   int width = 0, height = 0;
   double x0 = 0, y0 = 0, sx = 1, sy = 1;  // the level's pixel (u, v) → probe (x0 + u·sx, ...)
@@ -651,11 +651,11 @@ SONOSLICE_HOST_DEVICE inline void score_patch_row(const double* sums, const uint
 /// sums kept as a running sum of those row sums, so a pixel costs O(K) whatever the window, and
 /// only 2·half + 2 rows of row sums are held (a few hundred KB at full W1 resolution, in cache;
 /// the whole frame's terms would be tens of MB an evaluation). Each pass covers only the columns
-/// a row's span can reach (a fan fills a quarter of W1's rectangle); the row sums beyond them are
-/// zeros, not the running sums' round-off. `use(sums, centre, first, end)`, row by row in order:
-/// the row's window sums (W·K values, meaningful in [first, end), the row's span) and whether
-/// each pixel itself was compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread buffers,
-/// reused across calls and left all zero between them.
+/// a row's span can reach (a W1 fan fills three fifths of its rectangle); the row sums beyond them
+/// are zeros, not the running sums' round-off. `use(sums, centre, first, end)`, row by row in
+/// order: the row's window sums (W·K values, meaningful in [first, end), the row's span) and
+/// whether each pixel itself was compared (its count term, centre[u] = row[u·K] ≠ 0). Per-thread
+/// buffers, reused across calls and left all zero between them.
 template <int K, typename Span, typename MakeRow, typename Use>
 inline void window_sums(int W, int H, int half, const Span& span, const MakeRow& make_row,
                         const Use& use) {
