@@ -19,9 +19,6 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
   Level& l = levels.back();
   const Level& first = levels.front();  // level 1 (made first, by the constructor)
   const bool int16 = volume.pixel_type() == PixelType::Int16;
-  const float* floats = int16 ? nullptr : volume.data_as<float>();
-  const int16_t* int16s = int16 ? volume.data_as<int16_t>() : nullptr;
-  const auto voxel = [&](int64_t i) { return int16 ? double(int16s[i]) : double(floats[i]); };
   l.f = f;
   const int W = probe.image.width, H = probe.image.height;
   const int64_t nx = grid.dims[0], ny = grid.dims[1], nz = grid.dims[2];
@@ -29,8 +26,8 @@ const Level& FrameRegistration::State::make_level(int f, const float* frames, co
   const double spacing = std::min({grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2]});
   l.g = std::max(1, int(std::floor(f * pixel / spacing + 1e-9)));
   if (l.g == 1) {
-    l.volume = floats;
-    l.volume16 = int16s;
+    l.volume = int16 ? nullptr : volume.data_as<float>();
+    l.volume16 = int16 ? volume.data_as<int16_t>() : nullptr;
     l.nx = int(nx);
     l.ny = int(ny);
     l.nz = int(nz);
@@ -121,10 +118,6 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
   const PixelType type = volume.pixel_type();
   if (type != PixelType::Float32 && type != PixelType::Int16)
     s.volume = volume.converted(PixelType::Float32);
-  const bool int16 = s.volume.pixel_type() == PixelType::Int16;
-  const auto full = [&](int64_t i) {
-    return int16 ? float(s.volume.data_as<int16_t>()[i]) : s.volume.data_as<float>()[i];
-  };
   std::vector<uint8_t> mask = probe.mask();
   if (user_mask)
     for (size_t i = 0; i < mask.size(); ++i) mask[i] = mask[i] && user_mask[i];
@@ -164,7 +157,7 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
     const int64_t stride = std::max<int64_t>(1, voxels / 1000000);
     std::vector<float> sample;
     for (int64_t i = 0; i < voxels; i += stride)
-      if (std::isfinite(full(i))) sample.push_back(full(i));
+      if (std::isfinite(s.voxel(i))) sample.push_back(float(s.voxel(i)));
     percentiles(std::move(sample), s.volume_range);
   }
   s.frame_range.resize(frame_count);

@@ -661,18 +661,19 @@ inline void window_sums(int W, int H, int half, const Span& span, const MakeRow&
                         const Use& use) {
   const int rows_held = 2 * half + 2;  // rows v − half − 1 .. v + half
   const size_t line = size_t(W) * K;
-  thread_local std::vector<double> row, row_sums;
-  thread_local std::vector<uint8_t> centres;
-  if (row.size() != line) row.assign(line, 0.0);
-  if (row_sums.size() != line * rows_held) row_sums.assign(line * rows_held, 0.0);
-  centres.resize(size_t(W) * rows_held);
-  std::vector<double> run(line, 0.0);
   struct Columns {
     int first = 0, end = 0;
   };
-  // Per slot of the ring: the columns of its row sums that may be non-zero, and its row's span.
+  thread_local std::vector<double> row, row_sums, run;
+  thread_local std::vector<uint8_t> centres;
+  // Per slot of the ring: the columns of its row sums that may be non-zero.
+  thread_local std::vector<Columns> written;
   const size_t held = size_t(rows_held);
-  std::vector<Columns> written(held), spans(held);
+  if (row.size() != line) row.assign(line, 0.0);
+  if (row_sums.size() != line * held) row_sums.assign(line * held, 0.0);
+  run.assign(line, 0.0);
+  centres.resize(size_t(W) * held);
+  written.assign(held, Columns{});
   const auto slot_of = [&](int v) { return size_t(v % rows_held); };
   const auto clear = [&](size_t slot) {
     double* b = row_sums.data() + slot * line;
@@ -683,7 +684,7 @@ inline void window_sums(int W, int H, int half, const Span& span, const MakeRow&
   const auto add_row = [&](int v) {
     const size_t slot = slot_of(v);
     clear(slot);
-    Columns& s = spans[slot];
+    Columns s;
     span(v, &s.first, &s.end);
     if (s.first >= s.end) return;
     make_row(v, row.data());
@@ -735,7 +736,8 @@ inline void window_sums(int W, int H, int half, const Span& span, const MakeRow&
       for (size_t j = j0; j < j1; ++j) run[j] += in[j];
     else if (out)
       for (size_t j = j0; j < j1; ++j) run[j] -= out[j];
-    const Columns& s = spans[slot_of(v)];
+    Columns s;
+    span(v, &s.first, &s.end);
     if (s.first < s.end)
       use(static_cast<const double*>(run.data()),
           static_cast<const uint8_t*>(centres.data() + slot_of(v) * size_t(W)), s.first, s.end);

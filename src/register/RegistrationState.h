@@ -42,6 +42,11 @@ struct FrameRegistration::State {
   double volume_range[2] = {0, 1};
   std::vector<std::array<double, 2>> frame_range;
 
+  /// Voxel i of `volume` (float32 or int16).
+  double voxel(int64_t i) const {
+    return volume.pixel_type() == PixelType::Int16 ? double(volume.data_as<int16_t>()[i])
+                                                   : double(volume.data_as<float>()[i]);
+  }
   const register_impl::Level& level(int f) const {
     for (const register_impl::Level& l : levels)
       if (l.f == f) return l;
