@@ -38,7 +38,7 @@ struct LiveFeed::Impl {
   // The volume: snapshots taken on the refresher thread, so that neither the run's thread nor a
   // request waits for one.
   std::function<Volume()> snapshot;
-  double min_interval = 0.07;
+  double min_interval = 0.04;
   static constexpr double kSnapshotSpacing = 4;
   std::thread refresher;
   bool stopping = false;
@@ -56,7 +56,9 @@ struct LiveFeed::Impl {
     while (!stopping) {
       // A snapshot holds the compounder (and on two cores both cores) for its length: snapshots
       // start at least kSnapshotSpacing times their length apart, so that they take at most a
-      // quarter of the time and the frames keep up whatever the volume's size.
+      // quarter of the time and the frames keep up whatever the volume's size. Their length is
+      // averaged over the last few: one snapshot slowed by a busy core (the browser, the sender)
+      // would otherwise hold the next one back four times as long.
       const double gap = std::max(min_interval, kSnapshotSpacing * took);
       const double wait = gap - (view_detail::now_seconds() - last);
       if (seq == frames_at_snapshot || !wanted || wait > 0) {
@@ -73,7 +75,8 @@ struct LiveFeed::Impl {
       } catch (const std::exception&) {
         // nothing compounded yet (every frame so far rejected): no volume to show
       }
-      took = view_detail::now_seconds() - last;
+      const double length = view_detail::now_seconds() - last;
+      took = took == 0 ? length : 0.7 * took + 0.3 * length;
       lock.lock();
       frames_at_snapshot = at;
       if (v && v->grid().voxel_count() > 0 && running) {

@@ -74,7 +74,7 @@ class LiveFeed {
   void set_stats(std::function<std::string()> stats_json);
   /// The growing volume, taken on a thread of the feed's at most every `min_interval_s` while
   /// frames arrive (`snapshot` must stay callable until finish() or destruction).
-  void set_volume_source(std::function<Volume()> snapshot, double min_interval_s = 0.07);
+  void set_volume_source(std::function<Volume()> snapshot, double min_interval_s = 0.04);
   /// The run ended: no more snapshots; `final_volume` (when given) is shown from now on.
   void finish(std::optional<Volume> final_volume);
 
