@@ -154,7 +154,8 @@ void add_view_command(CLI::App& app) {
   cmd->add_option("--world", f->world, "Frame of the poses and meshes: LPS (default) or RAS");
   cmd->add_option("--downsampling", f->downsampling, "Divide the probe image size by K");
   cmd->add_option("--host", f->host, "Address to serve on (127.0.0.1)");
-  cmd->add_option("--port", f->port, "Port (default: a free one)");
+  cmd->add_option("--port", f->port, "Port (default: a free one)")
+      ->check(CLI::Range(0, 65535));  // checked before the volume loads
   cmd->add_flag("--no-browser", f->no_browser, "Do not open a browser");
   add_threads_option(*cmd, f->threads);
   cmd->callback([f] { run_view(*f); });

@@ -53,8 +53,12 @@ def native(a, what: str, *, in_place: bool = False):
 
 
 def real_array(x, what: str) -> np.ndarray:
-    """Numbers (array-like, not torch) as float64; complex refused naming ``what``."""
-    return np.asarray(no_complex(np.asarray(x), what), dtype=np.float64)
+    """Numbers (array-like, not torch) as float64; complex and what is not numbers (text, None)
+    refused naming ``what``."""
+    a = np.asarray(x)
+    if a.dtype.kind not in "biufc":
+        raise TypeError(f"{what}: expected numbers, got {type(x).__name__} {x!r:.60}")
+    return np.asarray(no_complex(a, what), dtype=np.float64)
 
 
 def floats(x, what: str, count: int) -> Tuple[float, ...]:

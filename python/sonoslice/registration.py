@@ -35,6 +35,13 @@ def _settings(settings: Optional[RegistrationSettings], given: dict) -> Registra
                       ("mode", RegistrationMode)):
         if key in given:
             given[key] = _arrays.choice(kind, given[key], key)
+    # Checked here so that a wrong type gets an error naming the setting, not nanobind's generic one.
+    for key in ("starts", "seed"):
+        if key in given:
+            given[key] = _arrays.whole(given[key], key)
+    for key in ("search_rot_deg", "search_trans_mm", "smoothness"):
+        if key in given:
+            given[key] = _arrays.floats(given[key], key, 1)[0]
     if "pyramid" in given:
         given["pyramid"] = [_arrays.whole(level, "pyramid") for level in given["pyramid"]]
     return RegistrationSettings(**given)

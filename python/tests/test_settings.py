@@ -89,6 +89,14 @@ def test_register_passes_only_what_it_is_given(phantom, poses):
         sonoslice.register(ct, probe, frames, poses[:2], settings=settings, starts=2)
     with pytest.raises(ValueError, match="^mode 'sweep': expected 'per-frame', 'rigid-sweep', 'smooth-sweep' or 'calibration'"):
         sonoslice.register(ct, probe, frames, poses[:2], mode="sweep")
+    # A keyword of the wrong type is named, as a wrong value is (not nanobind's generic error).
+    for kwargs, error, message in ((dict(starts=2.5), ValueError, "^starts 2.5: expected a whole number"),
+                                   (dict(starts=math.nan), ValueError, "^starts nan: expected a whole number"),
+                                   (dict(seed="x"), TypeError, "^seed: expected an integer"),
+                                   (dict(search_rot_deg="x"), TypeError, "^search_rot_deg: expected numbers"),
+                                   (dict(search_trans_mm=[1, 2]), ValueError, "^search_trans_mm: expected 1 numbers")):
+        with pytest.raises(error, match=message):
+            sonoslice.register(ct, probe, frames, poses[:2], **kwargs)
 
 
 # ---- simulation -----------------------------------------------------------------------------------
