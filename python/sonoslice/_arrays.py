@@ -1,5 +1,6 @@
 """The checks and conversions every capability's arguments go through: arrays (NumPy, torch,
-lists), 4×4 matrix stacks (poses, image→reference transforms), paths, whole numbers and choices.
+lists), 4×4 matrix stacks (poses, image→reference transforms), paths, numbers, whole numbers,
+seeds, strings and choices.
 One place, so that a pose is checked the same way by the slicer, the compounder, registration,
 the samplers and ``sonoslice.torch``.
 """
@@ -81,6 +82,61 @@ def whole(value, what: str) -> int:
     if isinstance(value, (float, np.floating)):
         raise ValueError(f"{what} {value!r}: expected a whole number")
     raise TypeError(f"{what}: expected an integer, got {type(value).__name__}")
+
+
+def count(value, what: str) -> int:
+    """A whole number ≥ 0 (a count, an index); errors name ``what`` (a negative one would meet
+    nanobind's generic "incompatible function arguments")."""
+    n = whole(value, what)
+    if n < 0:
+        raise ValueError(f"{what} {n}: must be at least 0")
+    return n
+
+
+def seed(value, what: str = "seed") -> int:
+    """A seed: a whole number from 0 to 2⁶⁴ − 1 (the library's seeds are unsigned 64-bit)."""
+    n = whole(value, what)
+    if not 0 <= n < 2**64:
+        raise ValueError(f"{what} {n}: expected a whole number from 0 to {2**64 - 1}")
+    return n
+
+
+def number(value, what: str) -> float:
+    """One real number as float (NaN passes: the library says what it must be); TypeError naming
+    ``what`` for text, None, a sequence or a bool."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{what}: expected a number, got {value!r}")
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return float(value)
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+        return float(value)
+    raise TypeError(f"{what}: expected a number, got {type(value).__name__} {value!r:.60}")
+
+
+def spacing(value, what: str, n: int) -> Tuple[float, ...]:
+    """A spacing given as one number for every axis or as ``n`` numbers."""
+    if np.ndim(value) == 0 and not isinstance(value, str):
+        return (number(value, what),) * n
+    return floats(value, what, n)
+
+
+def text(value, what: str) -> str:
+    """A string argument (a name, a choice); TypeError naming ``what`` otherwise (``str(None)``
+    would become the choice 'None')."""
+    if isinstance(value, str):
+        return value
+    raise TypeError(f"{what}: expected a string, got {type(value).__name__} {value!r:.60}")
+
+
+def dtype_name(value, what: str) -> str:
+    """NumPy's name of a dtype given as a name ("float32"), a NumPy type or a dtype; errors name
+    ``what`` (``np.dtype(None)`` would be float64)."""
+    if value is None or isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{what}: expected a dtype (a name such as 'float32'), got {value!r}")
+    try:
+        return np.dtype(value).name
+    except TypeError:
+        raise ValueError(f"{what} {value!r:.60}: not a dtype") from None
 
 
 def choice(kind, value, what: str):

@@ -118,16 +118,16 @@ def _spacing3(spacing, what: str) -> Tuple[float, float, float]:
     """One number or three (x, y, z mm) as three; the library checks the values."""
     if spacing is None:
         raise ValueError(f"{what}: give spacing (mm)")
-    s = (float(spacing),) * 3 if np.isscalar(spacing) else tuple(float(v) for v in spacing)
-    if len(s) != 3:
-        raise ValueError(f"{what}: spacing must be one number or three (x, y, z mm), got {spacing!r}")
-    return s
+    name = what if what == "spacing" else f"{what}: spacing"
+    if np.ndim(spacing) == 1 and len(spacing) != 3:
+        raise ValueError(f"{name} must be one number or three (x, y, z mm), got {spacing!r}")
+    return _arrays.spacing(spacing, name, 3)
 
 
 def _dtype_name(dtype, what: str) -> str:
     try:
-        name = np.dtype(dtype).name
-    except TypeError:
+        name = _arrays.dtype_name(dtype, what)
+    except ValueError:
         raise ValueError(f"{what} {dtype!r}: expected one of {', '.join(_DTYPES)}") from None
     if name not in _DTYPES:
         raise ValueError(f"{what} {name}: expected one of {', '.join(_DTYPES)}")
@@ -411,12 +411,12 @@ class Compounder:
             if shape is None or spacing is None:
                 raise ValueError("Compounder: give a grid (a sonoslice.Grid or Volume), or shape=(nz, ny, nx) "
                                  "and spacing (mm)")
-            shape = tuple(int(n) for n in shape)
-            if len(shape) != 3:
-                raise ValueError(f"Compounder: shape {shape} must be (nz, ny, nx)")
-            o = tuple(float(v) for v in origin)
-            if len(o) != 3:
-                raise ValueError(f"Compounder: origin {origin} must be (x, y, z) mm")
+            if np.ndim(shape) != 1 or len(shape) != 3:
+                raise ValueError(f"Compounder: shape {shape!r} must be (nz, ny, nx)")
+            shape = tuple(_arrays.whole(n, "Compounder: shape") for n in shape)
+            if np.ndim(origin) != 1 or len(origin) != 3:
+                raise ValueError(f"Compounder: origin {origin!r} must be (x, y, z) mm")
+            o = _arrays.floats(origin, "Compounder: origin", 3)
             d = _IDENTITY3 if direction is None else _direction_rows(direction)
             g = Grid(shape, _spacing3(spacing, "Compounder"), o, d)
         if fill_holes is None:
@@ -428,7 +428,7 @@ class Compounder:
         settings = _ext.CompoundSettings(
             interpolation=str(interpolation), compounding=str(compounding), fill_holes=bool(fill_holes),
             hole_filling=_hole_elements(hole_filling),
-            rejection_threshold=None if rejection_threshold is None else float(rejection_threshold))
+            rejection_threshold=None if rejection_threshold is None else _arrays.number(rejection_threshold, "rejection_threshold"))
         self._cpp = _ext.Compounder(g._to_ext(), settings, str(device), _memory_bytes(max_memory),
                                     _dtype_name(dtype, "dtype"))
         self._device = str(device)

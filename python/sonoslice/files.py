@@ -15,7 +15,7 @@ __all__ = ["read_poses", "write_poses", "validate_poses", "write_stack"]
 def read_poses(path, world: str = "LPS") -> np.ndarray:
     """(N, 4, 4) float64 poses from .npy ((N,4,4) or fan-slicer's (4,4N)), .txt/.csv (16 or 12
     numbers a line) or .json; validated, converted to LPS."""
-    return _ext.read_poses(_arrays.path(path), world)
+    return _ext.read_poses(_arrays.path(path), _arrays.text(world, "world"))
 
 
 def write_poses(path, poses) -> None:

@@ -52,7 +52,7 @@ class LiveCompounder:
             compounding=None if compounding is None else str(compounding),
             fill_holes=None if fill_holes is None else bool(fill_holes),
             hole_filling=_hole_elements(hole_filling),
-            rejection_threshold=None if rejection_threshold is None else float(rejection_threshold),
+            rejection_threshold=None if rejection_threshold is None else _arrays.number(rejection_threshold, "rejection_threshold"),
             clip=None if clip is None else _frame_clip(clip, "clip"),
             dtype=None if dtype is None else _dtype_name(dtype, "dtype"), device=str(device),
             max_memory=_memory_bytes(max_memory), queue=str(queue),
@@ -64,7 +64,7 @@ class LiveCompounder:
         refused (also counted in :meth:`stats`)."""
         frame = np.ascontiguousarray(frame)
         matrix = _arrays.matrices(image_to_reference, "image_to_reference", 1, single=True)[0]
-        why = self._cpp.push(frame, np.ascontiguousarray(matrix, dtype=np.float64), float(timestamp))
+        why = self._cpp.push(frame, np.ascontiguousarray(matrix, dtype=np.float64), _arrays.number(timestamp, "timestamp"))
         return why or None
 
     @property

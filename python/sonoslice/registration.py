@@ -167,4 +167,4 @@ def registration_cost(volume: Volume, probe: Probe, frames, poses, *, metric: st
     at a metric's landscape: give one frame repeated along a path of poses."""
     f, p = _frames_and_poses(volume, probe, frames, poses, world)
     s = _settings(None, dict(metric=metric))
-    return np.asarray(_ext.registration_costs(volume._cpp, probe._cpp, f, p, s.metric, int(level)))
+    return np.asarray(_ext.registration_costs(volume._cpp, probe._cpp, f, p, s.metric, _arrays.whole(level, "level")))

@@ -72,8 +72,11 @@ class Simulator:
                  settings: Optional[SimulationSettings] = None):
         if not isinstance(volume_or_labels, Volume):
             raise TypeError("volume_or_labels: expected a sonoslice.Volume")
-        given = dict(frequency_mhz=frequency, seed=seed, dynamic_range_db=dynamic_range,
-                     device=None if device is None else str(device))
+        a = _arrays  # checked here so that a wrong type gets an error naming it, not nanobind's generic one
+        given = dict(frequency_mhz=None if frequency is None else a.number(frequency, "frequency"),
+                     seed=None if seed is None else a.seed(seed),
+                     dynamic_range_db=None if dynamic_range is None else a.number(dynamic_range, "dynamic_range"),
+                     device=None if device is None else str(device) if a.is_torch(device) else a.text(device, "device"))
         if tgc is not None:
             if tgc not in ("auto", "off"):
                 raise ValueError(f'tgc {tgc!r}: expected "auto" or "off"')

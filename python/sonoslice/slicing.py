@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -14,6 +14,11 @@ from . import _sonoslice as _ext
 from .volume import Volume
 
 __all__ = ["Probe", "Slicer"]
+
+
+def _origin(origin_mm) -> Optional[Tuple[float, float]]:
+    """A probe's ``origin_mm``: None (the default) or probe (x, y) of pixel (0, 0)."""
+    return None if origin_mm is None else _arrays.floats(origin_mm, "origin_mm", 2)
 
 
 class Probe:
@@ -30,10 +35,12 @@ class Probe:
         """A convex fan: apex at ``(0, face_y_mm - radius_mm)``; a pixel is inside when its
         distance r from the apex is in [R, R + depth] and its angle within ±sector/2.
         ``origin_mm`` = probe coordinates of pixel (0, 0) (default: centred laterally, y = 0)."""
-        s = (float(spacing_mm),) * 2 if np.isscalar(spacing_mm) else tuple(map(float, spacing_mm))
-        return cls(_ext.Probe.curvilinear(float(radius_mm), float(depth_mm), float(sector_deg), int(width),
-                                          int(height), s, face_y_mm=float(face_y_mm),
-                                          origin_mm=None if origin_mm is None else tuple(map(float, origin_mm))))
+        a = _arrays
+        return cls(_ext.Probe.curvilinear(a.number(radius_mm, "radius_mm"), a.number(depth_mm, "depth_mm"),
+                                          a.number(sector_deg, "sector_deg"), a.whole(width, "width"),
+                                          a.whole(height, "height"), a.spacing(spacing_mm, "spacing_mm", 2),
+                                          face_y_mm=a.number(face_y_mm, "face_y_mm"),
+                                          origin_mm=_origin(origin_mm)))
 
     @classmethod
     def linear(cls, width: int, height: int, spacing_mm: Union[float, Sequence[float]],
@@ -41,15 +48,17 @@ class Probe:
                origin_mm: Optional[Sequence[float]] = None) -> "Probe":
         """A linear array: inside where ``|x| <= width_mm/2`` and ``0 <= y - face_y_mm <= depth_mm``
         (either limit optional; without them the whole image is inside)."""
-        s = (float(spacing_mm),) * 2 if np.isscalar(spacing_mm) else tuple(map(float, spacing_mm))
-        return cls(_ext.Probe.linear(int(width), int(height), s, width_mm=width_mm, depth_mm=depth_mm,
-                                     face_y_mm=float(face_y_mm),
-                                     origin_mm=None if origin_mm is None else tuple(map(float, origin_mm))))
+        a = _arrays
+        return cls(_ext.Probe.linear(a.whole(width, "width"), a.whole(height, "height"),
+                                     a.spacing(spacing_mm, "spacing_mm", 2),
+                                     width_mm=None if width_mm is None else a.number(width_mm, "width_mm"),
+                                     depth_mm=None if depth_mm is None else a.number(depth_mm, "depth_mm"),
+                                     face_y_mm=a.number(face_y_mm, "face_y_mm"), origin_mm=_origin(origin_mm)))
 
     @classmethod
     def from_json(cls, path, downsampling: int = 1) -> "Probe":
         """A native probe JSON or a fan-slicer configuration (recognised by its "simulation" key)."""
-        return cls(_ext.Probe.from_file(_arrays.path(path), int(downsampling)))
+        return cls(_ext.Probe.from_file(_arrays.path(path), _arrays.whole(downsampling, "downsampling")))
 
     @classmethod
     def from_fanslicer(cls, path, downsampling: int = 1) -> "Probe":
@@ -60,7 +69,7 @@ class Probe:
         with open(path) as f:
             if "simulation" not in json.load(f):
                 raise ValueError(f"fan-slicer config '{path}': no \"simulation\" block")
-        return cls(_ext.Probe.from_file(path, int(downsampling)))
+        return cls(_ext.Probe.from_file(path, _arrays.whole(downsampling, "downsampling")))
 
     @classmethod
     def workload(cls, name: str) -> "Probe":
@@ -139,6 +148,8 @@ class _ImageSlicer:
 def _out_array(out):
     """``out=``: filled in place, so a NumPy array must be writable and in this machine's byte
     order (ValueError naming ``out`` otherwise)."""
+    if out is not None and not (isinstance(out, np.ndarray) or _arrays.is_torch(out) or hasattr(out, "__dlpack__")):
+        raise TypeError(f"out: expected a NumPy array, a torch tensor or a DLPack array, got {type(out).__name__}")
     if isinstance(out, np.ndarray) and not out.flags.writeable:
         raise ValueError("out: the array is read-only; slicing fills it in place: pass a writable array")
     return _arrays.native(out, "out", in_place=True)
@@ -187,7 +198,10 @@ class Slicer(_ImageSlicer):
         if not isinstance(probe, Probe):
             raise TypeError("probe: expected a sonoslice.Probe")
         self.volume, self.probe = volume, probe
-        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, str(device), str(interpolation), float(fill), str(dtype))
+        device = str(device) if _arrays.is_torch(device) else _arrays.text(device, "device")  # torch.device too
+        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, device,
+                                _arrays.text(interpolation, "interpolation"), _arrays.number(fill, "fill"),
+                                _arrays.dtype_name(dtype, "dtype"))
 
     device = property(lambda self: self._cpp.device, doc='"cpu" or "cuda:K"')
     interpolation = property(lambda self: self._cpp.interpolation, doc='"linear" or "nearest"')

@@ -108,11 +108,11 @@ class Volume:
 
     def world_to_index(self, point_mm: Sequence[float]) -> np.ndarray:
         """Continuous voxel index (i, j, k) of a world point (mm, LPS)."""
-        return np.array(self._cpp.world_to_index(tuple(map(float, point_mm))))
+        return np.array(self._cpp.world_to_index(_arrays.floats(point_mm, "point_mm", 3)))
 
     def index_to_world(self, index: Sequence[float]) -> np.ndarray:
         """World position (mm, LPS) of a continuous voxel index (i, j, k)."""
-        return np.array(self._cpp.index_to_world(tuple(map(float, index))))
+        return np.array(self._cpp.index_to_world(_arrays.floats(index, "index", 3)))
 
     def __repr__(self) -> str:
         nz, ny, nx = self.shape

@@ -221,6 +221,41 @@ def test_none_is_not_a_path():
             call()
 
 
+def test_arguments_of_the_wrong_type_are_named():
+    # Each call gets text, None, a list of text and a bool where a number or a string belongs: the error names
+    # the argument (nanobind's "incompatible function arguments" and int()/float()'s messages do not).
+    ct = sonoslice.Volume(np.zeros((8, 8, 8), np.float32))
+    probe = sonoslice.Probe.linear(**SMALL_PROBE)
+    calls = {
+        "fill": lambda v: sonoslice.Slicer(ct, probe, fill=v),
+        "interpolation": lambda v: sonoslice.Slicer(ct, probe, interpolation=v),
+        "dtype": lambda v: sonoslice.Slicer(ct, probe, dtype=v),
+        "count": lambda v: sonoslice.phantom_poses(v),
+        "seed": lambda v: sonoslice.phantom_poses(3, seed=v),
+        "face_y_mm": lambda v: sonoslice.surface_poses(3, face_y_mm=v),
+        "size": lambda v: sonoslice.phantom(v),
+        "frequency": lambda v: sonoslice.Simulator(ct, probe, frequency=v),
+        "level": lambda v: sonoslice.registration_cost(ct, probe, np.zeros((1, 16, 16), np.float32), np.eye(4), level=v),
+        "width": lambda v: sonoslice.Probe.linear(v, 16, 0.5),
+        "spacing_mm": lambda v: sonoslice.Probe.linear(16, 16, v),
+        "Compounder: spacing": lambda v: sonoslice.Compounder(shape=(4, 4, 4), spacing=v),
+        "world": lambda v: sonoslice.read_poses(os.path.join(DATA, "README.md"), world=v),
+        "out": lambda v: sonoslice.Slicer(ct, probe).slice(np.eye(4), out=v),
+    }
+    for name, call in calls.items():
+        for value in ("x", None, ["a", "b"], True):
+            if value is None and name in ("frequency", "out"):
+                continue  # the default
+            try:
+                call(value)
+            except (TypeError, ValueError) as e:
+                message = str(e)
+                assert "incompatible function arguments" not in message and "argument must be" not in message, (name, value, message)
+                assert name in message or "give" in message, (name, value, message)
+            else:
+                raise AssertionError(f"{name}={value!r} was accepted")
+
+
 # ---- threads and --skip ---------------------------------------------------------------------------------
 def test_thread_counts_below_one_are_refused():
     default = sonoslice.threads()
