@@ -147,9 +147,18 @@ _FAN_KEYS = {"angles_deg": "fan_angles_deg", "origin_px": "fan_origin_px", "radi
 
 
 def _whole_pixels(v, rect, what: str) -> int:
-    if not float(v).is_integer():
-        raise ValueError(f"{what}: clip rect {rect} must be whole pixels")
-    return int(v)
+    try:
+        return _arrays.whole(v, f"{what}: clip rect")
+    except ValueError:
+        raise ValueError(f"{what}: clip rect {rect} must be whole pixels") from None
+
+
+def _shape_of(shape, what: str, names: str) -> Tuple[int, ...]:
+    """A shape given as a sequence of whole numbers (``names``: what each is, for the error)."""
+    n = names.count(",") + 1
+    if np.ndim(shape) != 1 or len(shape) != n:
+        raise ValueError(f"{what} {shape!r} must be ({names})")
+    return tuple(_arrays.whole(v, what) for v in shape)
 
 
 def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None) -> FrameClip:
@@ -185,10 +194,9 @@ def _frame_clip(clip, what: str, frame_shape: Optional[Tuple[int, int]] = None) 
             if "angles_deg" not in f:
                 raise ValueError(f"{what}: clip fan needs angles_deg=(a0, a1) (degrees from +y, towards +x)")
             for key, value in f.items():
-                v = tuple(float(t) for t in value)
-                if len(v) != 2:
+                if np.ndim(value) != 1 or len(value) != 2:
                     raise ValueError(f"{what}: clip fan {key} must be two numbers, got {value!r}")
-                kw[_FAN_KEYS[key]] = v
+                kw[_FAN_KEYS[key]] = _arrays.floats(value, f"{what}: clip fan {key}", 2)
         return FrameClip(**kw)
     m = np.asarray(_arrays.numpy_of(clip))
     if m.ndim != 2:
@@ -216,7 +224,7 @@ def clip_mask(clip: Clip, frame_shape: Tuple[int, int]) -> np.ndarray:
     ``frame_shape`` = (H, W). ``clip``: ``dict(rect=(x, y, w, h), fan=dict(angles_deg=(a0, a1),
     origin_px=(ox, oy), radius_px=(r0, r1)))`` (PLUS's conventions: the w × h pixels from (x, y);
     fan angles from the +y (depth) axis towards +x, inclusive), or a mask."""
-    h, w = (int(v) for v in frame_shape)
+    h, w = _shape_of(frame_shape, "clip_mask: frame_shape", "H, W")
     return _frame_clip(clip, "clip_mask", (h, w)).mask(w, h)
 
 
@@ -224,7 +232,7 @@ def grid_around(image_to_reference, frame_shape: Tuple[int, int], spacing, clip:
     """PLUS's output grid for 2D frames of ``frame_shape`` = (H, W): axes parallel to the reference
     frame, origin at the per-axis minimum of the clip rectangle's corner pixel centres over all
     frames, ``round((max - min) / spacing) + 1`` voxels. ``image_to_reference``: (N, 4, 4)."""
-    h, w = (int(v) for v in frame_shape)
+    h, w = _shape_of(frame_shape, "grid_around: frame_shape", "H, W")
     m = _arrays.matrices(image_to_reference, "grid_around: image_to_reference")
     return Grid._from_ext(_ext.compound_grid_around(m, w, h, _frame_clip(clip, "grid_around", (h, w)),
                                                     _spacing3(spacing, "grid_around")))
@@ -235,9 +243,7 @@ def grid_around_beams(probe_to_reference, geometry, beam_shape: Tuple[int, int, 
     beam-space frames of ``beam_shape`` = (n_elevation, n_azimuth, n_samples)."""
     m = _arrays.matrices(probe_to_reference, "grid_around_beams: probe_to_reference")
     g = BeamGeometry.of(geometry)
-    shape = tuple(int(v) for v in beam_shape)
-    if len(shape) != 3:
-        raise ValueError(f"grid_around_beams: beam_shape {beam_shape} must be (n_elevation, n_azimuth, n_samples)")
+    shape = _shape_of(beam_shape, "grid_around_beams: beam_shape", "n_elevation, n_azimuth, n_samples")
     spacing = _spacing3(spacing, "grid_around_beams")
     return Grid._from_ext(_ext.compound_grid_around_beams(m, g, shape, spacing))
 
@@ -282,7 +288,7 @@ def _beam_geometry_of(geometry) -> BeamGeometry:
         unknown = sorted(set(geometry) - set(names))
         if unknown:
             raise ValueError(f"beam geometry: unknown key(s) {unknown}; expected {', '.join(sorted(names))}")
-        return BeamGeometry(**{k: float(v) for k, v in geometry.items()})
+        return BeamGeometry(**{k: _arrays.number(v, f"beam geometry: {k}") for k, v in geometry.items()})
     if isinstance(geometry, (str, os.PathLike)):
         return BeamGeometry.from_file(geometry)
     raise TypeError("geometry: expected a sonoslice.BeamGeometry, a dict or a path to its JSON file, got "
@@ -327,9 +333,11 @@ def _hole_elements(hole_filling) -> Optional[List[HoleFillingElement]]:
                              "distance_weight_inverse, nearest_neighbor or stick)")
         # Set field by field: the Compounder checks the list, naming the element's position
         # ("hole filling element 2: size 4 must be odd ...").
-        element = HoleFillingElement(str(d.pop("type")))
+        element = HoleFillingElement(_arrays.text(d.pop("type"), f"hole_filling[{k}]: type"))
         for key, value in d.items():
-            setattr(element, key, float(value) if key in ("stdev", "minimum_known_ratio") else int(value))
+            name = f"hole_filling[{k}]: {next(u for u, f in _HOLE_KEYS.items() if f == key)}"  # the caller's key
+            setattr(element, key, _arrays.number(value, name) if key in ("stdev", "minimum_known_ratio")
+                    else _arrays.whole(value, name))
         out.append(element)
     return out
 
@@ -364,7 +372,7 @@ def _memory_bytes(max_memory) -> int:
         except (ValueError, KeyError):
             raise ValueError(f"max_memory {max_memory!r}: expected bytes or a size such as '8G' or '512M'") from None
     else:
-        value, scale = float(max_memory), 1
+        value, scale = _arrays.number(max_memory, "max_memory"), 1
     if not (value > 0 and math.isfinite(value)):
         raise ValueError(f"max_memory {max_memory!r}: must be a positive size")
     return int(value * scale)

@@ -114,7 +114,7 @@ class LiveCompounder:
 
 
 def _host_port(text: str, what: str) -> Tuple[str, int]:
-    host, _, port = str(text).rpartition(":")
+    host, _, port = _arrays.text(text, what).rpartition(":")
     try:
         value = int(port)
     except ValueError:
@@ -142,7 +142,7 @@ class LiveCompoundServer:
         self._cpp = _ext.LiveCompoundServer(compounder._cpp, listen=connect is None, host=host, port=port,
                                             image_device=image_device or "",
                                             max_frames=_arrays.whole(max_frames, "max_frames"),
-                                            max_seconds=float(max_seconds))
+                                            max_seconds=_arrays.number(max_seconds, "max_seconds"))
 
     @property
     def port(self) -> int:

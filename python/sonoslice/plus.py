@@ -85,7 +85,7 @@ class PlusSequence:
 
     def _index(self, frame: int) -> int:
         n = len(self)
-        k = int(frame)
+        k = _arrays.whole(frame, "frame")
         if k < 0:
             k += n
         if not 0 <= k < n:

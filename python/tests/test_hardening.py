@@ -241,10 +241,14 @@ def test_arguments_of_the_wrong_type_are_named():
         "Compounder: spacing": lambda v: sonoslice.Compounder(shape=(4, 4, 4), spacing=v),
         "world": lambda v: sonoslice.read_poses(os.path.join(DATA, "README.md"), world=v),
         "out": lambda v: sonoslice.Slicer(ct, probe).slice(np.eye(4), out=v),
+        "grid_around: frame_shape": lambda v: sonoslice.grid_around(np.eye(4)[None], v, 1.0),
+        "hole_filling[0]: size": lambda v: sonoslice.Compounder(
+            shape=(4, 4, 4), spacing=1.0, hole_filling=[dict(type="gaussian", size=v, stdev=1, min_ratio=0.5)]),
+        "listen": lambda v: sonoslice.LiveCompoundServer(sonoslice.LiveCompounder(spacing=1.0), listen=v),
     }
     for name, call in calls.items():
         for value in ("x", None, ["a", "b"], True):
-            if value is None and name in ("frequency", "out"):
+            if value is None and name in ("frequency", "out", "hole_filling[0]: size"):
                 continue  # the default
             try:
                 call(value)
