@@ -129,6 +129,33 @@ def test_live_volume_is_the_offline_compound_of_the_recording(cli, tmp_path, fra
     assert out.read_bytes() == offline.read_bytes()
 
 
+def test_a_start_without_grid_attributes_keeps_the_grid(cli, tmp_path, frames):
+    # PlusServer's StartVolumeReconstruction sets only the grid attributes it carries (SlicerIGT's
+    # PlusRemote sends none without an ROI): the configured grid stays.
+    out = tmp_path / "live.mha"
+    fixed = grid_flags(frames)
+    server = start(cli, "--out", str(out), "--max-seconds", "60", *fixed)
+    peer = Peer(server.port)
+    peer.send(command(1, '<Command Name="StartVolumeReconstruction" />'))
+    assert 'Status="SUCCESS"' in peer.receive()[2].string
+    # A grid attribute that does not parse fails the command, named as the configuration's reader names it.
+    peer.send(command(2, '<Command Name="StartVolumeReconstruction" OutputSpacing="0.5 0.5" />'))
+    header, _, reply = peer.receive()
+    assert 'Status="FAIL"' in reply.string and "OutputSpacing: expected 3 numbers" in reply.string, reply.string
+    peer.send(command(3, '<Command Name="StartVolumeReconstruction" OutputSpacing="0.5 0.5 0.5" '
+                         'OutputOrigin="0 0 0" OutputExtent="0 9 0 9 5 1" />'))
+    assert 'Status="FAIL"' in peer.receive()[2].string
+    for pixels, matrix, t in frames[:5]:
+        peer.send(image_message(pixels, matrix, t))
+    peer.send(command(4, '<Command Name="StopVolumeReconstruction" />'))
+    assert 'Status="SUCCESS"' in peer.receive()[2].string
+    assert server.wait(60) == 0
+    peer.close()
+    g = sonoslice.Volume.from_file(out)
+    assert g.shape[::-1] == tuple(int(v) for v in fixed[3].split(","))
+    np.testing.assert_allclose(g.origin, [float(v) for v in fixed[1].split(",")], atol=1e-6)
+
+
 def test_plus_server_commands_over_string_messages(cli, tmp_path, frames):
     out, stats = tmp_path / "live.mha", tmp_path / "stats.json"
     server = start(cli, "--out", str(out), "--stats", str(stats), "--max-seconds", "60")

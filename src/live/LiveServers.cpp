@@ -19,6 +19,7 @@
 #include "../io/ByteOrder.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/VolumeFile.h"
+#include "sonoslice/plus/PlusConfig.h"
 
 namespace sonoslice {
 namespace {
@@ -83,9 +84,9 @@ std::vector<uint8_t> volume_message(const Volume& v, const std::string& device) 
                           [&](uint8_t* out) { std::memcpy(out, v.data(), bytes); });
 }
 
-// One PlusServer command: its name and attributes.
+// One PlusServer command: its name, attributes and XML.
 struct PlusCommand {
-  std::string name;
+  std::string name, xml;
   std::map<std::string, std::string> attributes;
   std::string attribute(const std::string& key) const {
     const auto it = attributes.find(key);
@@ -101,6 +102,7 @@ std::string parse_plus_command(const std::string& xml, PlusCommand& out) {
   if (std::string(root.name()) != "Command") return "command XML without a Command element";
   for (const pugi::xml_attribute& a : root.attributes()) out.attributes[a.name()] = a.value();
   out.name = out.attribute("Name");
+  out.xml = xml;
   return "";
 #else
   (void)xml;
@@ -109,44 +111,25 @@ std::string parse_plus_command(const std::string& xml, PlusCommand& out) {
 #endif
 }
 
-// PlusServer's OutputSpacing / OutputOrigin / OutputExtent attributes → options.
+// PlusServer's OutputSpacing / OutputOrigin / OutputExtent attributes → options, read by the
+// configuration's reader. As PlusServer, a command sets only what it gives: a Start without them
+// keeps the grid (given by --origin/--extent or the configuration, or growing).
 std::string apply_grid_attributes(const PlusCommand& c, ReconstructionOptions& o) {
-  const auto numbers = [](const std::string& text, size_t n, std::vector<double>& out) {
-    out.clear();
-    const char* p = text.c_str();
-    char* end = nullptr;
-    for (;;) {
-      const double v = std::strtod(p, &end);
-      if (end == p) break;
-      out.push_back(v);
-      p = end;
-    }
-    return out.size() == n;
-  };
-  std::vector<double> v;
-  if (!c.attribute("OutputSpacing").empty()) {
-    if (!numbers(c.attribute("OutputSpacing"), 3, v)) return "OutputSpacing is not 3 numbers";
-    o.spacing_mm = Vec3{{v[0], v[1], v[2]}};
+  PlusReconstructionConfig given;
+  try {
+    given = read_plus_output_grid(c.xml, "command " + c.name);
+  } catch (const Error& e) {
+    return e.what();
   }
-  const bool origin = !c.attribute("OutputOrigin").empty(),
-             extent = !c.attribute("OutputExtent").empty();
-  if (origin != extent) return "give OutputOrigin and OutputExtent together";
-  if (origin) {
+  if (given.output_spacing_mm) o.spacing_mm = given.output_spacing_mm;
+  if (given.output_origin_mm.has_value() != given.output_extent.has_value())
+    return "give OutputOrigin and OutputExtent together";
+  if (given.output_origin_mm) {
     if (!o.spacing_mm) return "OutputOrigin/OutputExtent need OutputSpacing";
-    std::vector<double> e;
-    if (!numbers(c.attribute("OutputOrigin"), 3, v)) return "OutputOrigin is not 3 numbers";
-    if (!numbers(c.attribute("OutputExtent"), 6, e)) return "OutputExtent is not 6 numbers";
-    Vec3 org{};
-    std::array<int64_t, 3> dims{};
-    for (int a = 0; a < 3; ++a) {
-      org[a] = v[size_t(a)] + e[size_t(2 * a)] * (*o.spacing_mm)[a];
-      dims[a] = int64_t(e[size_t(2 * a + 1)] - e[size_t(2 * a)]) + 1;
-    }
-    o.origin_mm = org;
-    o.extent = dims;
-  } else if (o.spacing_mm) {
-    o.origin_mm.reset();
-    o.extent.reset();
+    given.output_spacing_mm = o.spacing_mm;
+    const VolumeGrid grid = *given.output_grid();
+    o.origin_mm = grid.origin_mm;
+    o.extent = grid.dims;
   }
   return "";
 }

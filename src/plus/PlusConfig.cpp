@@ -47,6 +47,11 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
               "': sonoslice was built without pugixml (install libpugixml-dev and rebuild)");
 }
 
+PlusReconstructionConfig read_plus_output_grid(const std::string&, const std::string& source) {
+  throw Error("cannot read " + source +
+              ": sonoslice was built without pugixml (install libpugixml-dev and rebuild)");
+}
+
 #else
 
 namespace {
@@ -504,6 +509,18 @@ PlusReconstructionConfig read_plus_config(const std::string& path) {
   read_optimization(a, path, &config);
   collect_ignored_attributes(a, path, &config);
   collect_unknown_attributes(a, path, &config);
+  return config;
+}
+
+PlusReconstructionConfig read_plus_output_grid(const std::string& element_xml,
+                                               const std::string& source) {
+  pugi::xml_document doc;
+  if (!doc.load_buffer(element_xml.data(), element_xml.size()))
+    throw InputError(source + ": malformed XML");
+  const pugi::xml_node element = doc.document_element();
+  Attributes a(element, source, element.name());
+  PlusReconstructionConfig config;
+  read_output_grid(a, &config);
   return config;
 }
 

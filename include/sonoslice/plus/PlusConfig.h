@@ -49,4 +49,12 @@ struct PlusReconstructionConfig {
 /// sonoslice::warn. Throws Error in a build without pugixml.
 PlusReconstructionConfig read_plus_config(const std::string& path);
 
+/// The OutputSpacing, OutputOrigin and OutputExtent attributes of one XML element given as text
+/// (a PlusServer command such as StartVolumeReconstruction carries them as a configuration's
+/// VolumeReconstruction element does), each optional and checked as read_plus_config checks them;
+/// only those three fields of the result are set. InputError "<source>: Command/@OutputExtent:
+/// ..." for a value that does not parse.
+PlusReconstructionConfig read_plus_output_grid(const std::string& element_xml,
+                                               const std::string& source);
+
 }  // namespace sonoslice
