@@ -101,6 +101,13 @@ def seed(value, what: str = "seed") -> int:
     return n
 
 
+def wholes(values, what: str) -> list:
+    """A sequence of whole numbers (labels, colours) as a list of ints; errors name ``what``."""
+    if isinstance(values, (str, bytes)) or np.ndim(values) != 1:
+        raise TypeError(f"{what}: expected a sequence of integers, got {type(values).__name__} {values!r:.60}")
+    return [whole(v, what) for v in values]
+
+
 def number(value, what: str) -> float:
     """One real number as float (NaN passes: the library says what it must be); TypeError naming
     ``what`` for text, None, a sequence or a bool."""

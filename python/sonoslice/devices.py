@@ -7,6 +7,7 @@ from typing import Optional
 
 import numpy as np
 
+from . import _arrays
 from . import _sonoslice as _ext
 
 __all__ = ["devices", "cuda_available", "set_threads", "threads"]
@@ -19,6 +20,7 @@ def devices() -> str:
 
 def cuda_available(device: str = "cuda:0") -> bool:
     """True when this build has CUDA and ``device`` is a usable GPU (starts the CUDA runtime)."""
+    device = str(device) if _arrays.is_torch(device) else _arrays.text(device, "device")
     try:
         _ext.require_device(device)
         return True

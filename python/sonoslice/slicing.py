@@ -75,7 +75,7 @@ class Probe:
     def workload(cls, name: str) -> "Probe":
         """The benchmark probes: "W1" (fan-slicer's LUS fan at downsampling 2, 334×272) or
         "W2" (fan-slicer's linear probe, 400×500)."""
-        return cls(_ext.Probe.workload(name))
+        return cls(_ext.Probe.workload(_arrays.text(name, "workload")))
 
     def to_json(self) -> str:
         return self._cpp.to_json()

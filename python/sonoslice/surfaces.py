@@ -22,7 +22,9 @@ class Mesh:
     def __init__(self, vertices, triangles, name: str = "mesh"):
         vertices = np.ascontiguousarray(_arrays.real_array(_arrays.numpy_of(vertices), "vertices"))
         triangles = np.ascontiguousarray(_arrays.no_complex(np.asarray(_arrays.numpy_of(triangles)), "triangles"), dtype=np.int32)
-        self._cpp = _ext.Mesh.from_arrays(vertices, triangles, name)
+        if vertices.ndim != 2 or vertices.shape[1:] != (3,):
+            raise ValueError(f"vertices: expected (V, 3) points, got shape {vertices.shape}")
+        self._cpp = _ext.Mesh.from_arrays(vertices, triangles, _arrays.text(name, "name"))
 
     @classmethod
     def _wrap(cls, cpp) -> "Mesh":
@@ -66,11 +68,11 @@ def voxelize(meshes, spacing: Optional[float] = None, margin: Optional[float] = 
         raise ValueError("voxelize: give spacing (mm) or a reference volume")
     if reference is not None and (spacing is not None or margin is not None):
         raise ValueError("voxelize: the reference volume sets the grid; spacing and margin do not apply")
-    spacing = 0.0 if spacing is None else float(spacing)
-    margin = spacing if margin is None else float(margin)
+    spacing = 0.0 if spacing is None else _arrays.number(spacing, "spacing")
+    margin = spacing if margin is None else _arrays.number(margin, "margin")
     return Volume._wrap(_ext.voxelize([m._cpp for m in meshes], spacing, margin,
                                       None if reference is None else reference._cpp,
-                                      [] if labels is None else [int(x) for x in labels]))
+                                      [] if labels is None else _arrays.wholes(labels, "labels")))
 
 
 class SurfaceSlicer(_ImageSlicer):
@@ -82,7 +84,8 @@ class SurfaceSlicer(_ImageSlicer):
         meshes = [meshes] if isinstance(meshes, Mesh) else list(meshes)
         self.meshes, self.probe = meshes, probe
         self._cpp = _ext.SurfaceSlicer([m._cpp for m in meshes], probe._cpp,
-                                       [] if labels is None else [int(x) for x in labels], dtype)
+                                       [] if labels is None else _arrays.wholes(labels, "labels"),
+                                       _arrays.dtype_name(dtype, "dtype"))
 
     def slice(self, poses, out=None, *, progress=None, world: str = "LPS", chunk: Optional[int] = None):
         """(N, H, W) label images for (N, 4, 4) poses (NumPy or torch); ``out`` as in Slicer.slice
@@ -106,7 +109,9 @@ def colorize(labels, mask, colors: Optional[Sequence[Sequence[int]]] = None) -> 
     if colors is None:
         top = int(labels.max()) if labels.size else 0
         colors = [_ext.default_label_color(k) for k in range(1, max(top, 1) + 1)]
-    return _ext.colorize(labels, _arrays.mask_array(mask, "mask"), [tuple(int(v) for v in c) for c in colors])
+    if isinstance(colors, (str, bytes)) or np.ndim(colors) != 2 or np.shape(colors)[1] != 3:
+        raise ValueError(f"colors: expected (r, g, b) triples, got {colors!r:.60}")
+    return _ext.colorize(labels, _arrays.mask_array(mask, "mask"), [tuple(_arrays.wholes(c, "colors")) for c in colors])
 
 
 def cut_polygons(mesh: Mesh, pose) -> list:

@@ -226,6 +226,8 @@ def test_arguments_of_the_wrong_type_are_named():
     # the argument (nanobind's "incompatible function arguments" and int()/float()'s messages do not).
     ct = sonoslice.Volume(np.zeros((8, 8, 8), np.float32))
     probe = sonoslice.Probe.linear(**SMALL_PROBE)
+    tetra = sonoslice.Mesh(np.array([[0, 0, 0], [9, 0, 0], [0, 9, 0], [0, 0, 9]], float),
+                           [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     calls = {
         "fill": lambda v: sonoslice.Slicer(ct, probe, fill=v),
         "interpolation": lambda v: sonoslice.Slicer(ct, probe, interpolation=v),
@@ -245,11 +247,18 @@ def test_arguments_of_the_wrong_type_are_named():
         "hole_filling[0]: size": lambda v: sonoslice.Compounder(
             shape=(4, 4, 4), spacing=1.0, hole_filling=[dict(type="gaussian", size=v, stdev=1, min_ratio=0.5)]),
         "listen": lambda v: sonoslice.LiveCompoundServer(sonoslice.LiveCompounder(spacing=1.0), listen=v),
+        "labels": lambda v: sonoslice.voxelize([tetra], spacing=1.0, labels=v),
+        "margin": lambda v: sonoslice.voxelize([tetra], spacing=1.0, margin=v),
+        "colors": lambda v: sonoslice.colorize(np.zeros((4, 4), np.uint8), np.ones((4, 4), np.uint8), colors=v),
+        "workload": lambda v: sonoslice.Probe.workload(v),
+        "device": lambda v: sonoslice.cuda_available(v),
     }
     for name, call in calls.items():
         for value in ("x", None, ["a", "b"], True):
-            if value is None and name in ("frequency", "out", "hole_filling[0]: size"):
+            if value is None and name in ("frequency", "out", "hole_filling[0]: size", "labels", "margin", "colors"):
                 continue  # the default
+            if value == "x" and name == "device":
+                continue  # cuda_available answers False for a device it does not know
             try:
                 call(value)
             except (TypeError, ValueError) as e:
