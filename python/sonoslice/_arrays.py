@@ -6,6 +6,7 @@ the samplers and ``sonoslice.torch``.
 """
 from __future__ import annotations
 
+import numbers
 import os
 from typing import Optional, Tuple
 
@@ -70,9 +71,17 @@ def floats(x, what: str, count: int) -> Tuple[float, ...]:
     return tuple(float(v) for v in a)
 
 
+def _scalar(value):
+    """A 0-d NumPy array or torch tensor as its Python number; anything else unchanged."""
+    if (isinstance(value, np.ndarray) or is_torch(value)) and getattr(value, "ndim", None) == 0:
+        return value.item()
+    return value
+
+
 def whole(value, what: str) -> int:
     """An integer argument; ValueError naming ``what`` for 2.5 (int() would make it 2), TypeError for
     what is not a number. The library checks the range."""
+    value = _scalar(value)
     if isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{what}: expected an integer, got {value!r}")
     if isinstance(value, (int, np.integer)):
@@ -111,11 +120,10 @@ def wholes(values, what: str) -> list:
 def number(value, what: str) -> float:
     """One real number as float (NaN passes: the library says what it must be); TypeError naming
     ``what`` for text, None, a sequence or a bool."""
+    value = _scalar(value)
     if isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{what}: expected a number, got {value!r}")
-    if isinstance(value, (int, float, np.integer, np.floating)):
-        return float(value)
-    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "iuf":
+    if isinstance(value, numbers.Real):  # int, float, NumPy's, Fraction
         return float(value)
     raise TypeError(f"{what}: expected a number, got {type(value).__name__} {value!r:.60}")
 
