@@ -57,7 +57,15 @@ def native(a, what: str, *, in_place: bool = False):
 def real_array(x, what: str) -> np.ndarray:
     """Numbers (array-like, not torch) as float64; complex and what is not numbers (text, None)
     refused naming ``what``."""
-    a = np.asarray(x)
+    try:
+        a = np.asarray(x)
+    except ValueError:  # NumPy's "inhomogeneous shape"
+        raise ValueError(f"{what}: expected numbers in a regular (rectangular) shape, got {x!r:.60}") from None
+    if a.dtype.kind == "O":  # numbers held as Python objects (a pandas column) convert; None does not
+        try:
+            a = np.asarray("") if any(v is None for v in a.flat) else a.astype(np.float64)
+        except (TypeError, ValueError):
+            a = np.asarray("")
     if a.dtype.kind not in "biufc":
         raise TypeError(f"{what}: expected numbers, got {type(x).__name__} {x!r:.60}")
     return np.asarray(no_complex(a, what), dtype=np.float64)
