@@ -61,12 +61,13 @@ def real_array(x, what: str) -> np.ndarray:
         a = np.asarray(x)
     except ValueError:  # NumPy's "inhomogeneous shape"
         raise ValueError(f"{what}: expected numbers in a regular (rectangular) shape, got {x!r:.60}") from None
-    if a.dtype.kind == "O":  # numbers held as Python objects (a pandas column) convert; None does not
-        try:
-            a = np.asarray("") if any(v is None for v in a.flat) else a.astype(np.float64)
+    numbers = a.dtype.kind in "biufc"
+    if a.dtype.kind == "O" and not any(v is None for v in a.flat):
+        try:  # numbers held as Python objects (a pandas column) convert; None and text do not
+            a, numbers = a.astype(np.float64), True
         except (TypeError, ValueError):
-            a = np.asarray("")
-    if a.dtype.kind not in "biufc":
+            pass
+    if not numbers:
         raise TypeError(f"{what}: expected numbers, got {type(x).__name__} {x!r:.60}")
     return np.asarray(no_complex(a, what), dtype=np.float64)
 
@@ -149,6 +150,12 @@ def text(value, what: str) -> str:
     if isinstance(value, str):
         return value
     raise TypeError(f"{what}: expected a string, got {type(value).__name__} {value!r:.60}")
+
+
+def device(value, what: str = "device") -> str:
+    """A device name ("cpu", "cuda", "cuda:K"), also as a torch.device; TypeError naming ``what``
+    for anything else. The library checks the name."""
+    return str(value) if is_torch(value) else text(value, what)
 
 
 def dtype_name(value, what: str) -> str:

@@ -327,16 +327,16 @@ def _hole_elements(hole_filling) -> Optional[List[HoleFillingElement]]:
         if unknown:
             raise ValueError(f"hole_filling[{k}]: unknown key(s) {unknown}; expected type, size, stdev, "
                              "min_ratio, length_limit, sticks")
-        d = {_HOLE_KEYS[key]: v for key, v in e.items() if v is not None}
-        if "type" not in d:
+        given = {key: v for key, v in e.items() if v is not None}
+        if "type" not in given:
             raise ValueError(f"hole_filling[{k}]: needs a type (gaussian, gaussian_accumulation, "
                              "distance_weight_inverse, nearest_neighbor or stick)")
         # Set field by field: the Compounder checks the list, naming the element's position
         # ("hole filling element 2: size 4 must be odd ...").
-        element = HoleFillingElement(_arrays.text(d.pop("type"), f"hole_filling[{k}]: type"))
-        for key, value in d.items():
-            name = f"hole_filling[{k}]: {next(u for u, f in _HOLE_KEYS.items() if f == key)}"  # the caller's key
-            setattr(element, key, _arrays.number(value, name) if key in ("stdev", "minimum_known_ratio")
+        element = HoleFillingElement(_arrays.text(given.pop("type"), f"hole_filling[{k}]: type"))
+        for key, value in given.items():
+            name, field = f"hole_filling[{k}]: {key}", _HOLE_KEYS[key]
+            setattr(element, field, _arrays.number(value, name) if field in ("stdev", "minimum_known_ratio")
                     else _arrays.whole(value, name))
         out.append(element)
     return out

@@ -20,9 +20,8 @@ def devices() -> str:
 
 def cuda_available(device: str = "cuda:0") -> bool:
     """True when this build has CUDA and ``device`` is a usable GPU (starts the CUDA runtime)."""
-    device = str(device) if _arrays.is_torch(device) else _arrays.text(device, "device")
     try:
-        _ext.require_device(device)
+        _ext.require_device(_arrays.device(device))
         return True
     except (RuntimeError, ValueError):
         return False

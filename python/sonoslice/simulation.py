@@ -76,7 +76,7 @@ class Simulator:
         given = dict(frequency_mhz=None if frequency is None else a.number(frequency, "frequency"),
                      seed=None if seed is None else a.seed(seed),
                      dynamic_range_db=None if dynamic_range is None else a.number(dynamic_range, "dynamic_range"),
-                     device=None if device is None else str(device) if a.is_torch(device) else a.text(device, "device"))
+                     device=None if device is None else a.device(device))
         if tgc is not None:
             if tgc not in ("auto", "off"):
                 raise ValueError(f'tgc {tgc!r}: expected "auto" or "off"')

@@ -198,8 +198,7 @@ class Slicer(_ImageSlicer):
         if not isinstance(probe, Probe):
             raise TypeError("probe: expected a sonoslice.Probe")
         self.volume, self.probe = volume, probe
-        device = str(device) if _arrays.is_torch(device) else _arrays.text(device, "device")  # torch.device too
-        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, device,
+        self._cpp = _ext.Slicer(volume._cpp, probe._cpp, _arrays.device(device),
                                 _arrays.text(interpolation, "interpolation"), _arrays.number(fill, "fill"),
                                 _arrays.dtype_name(dtype, "dtype"))
 

@@ -38,7 +38,7 @@ struct LiveFeed::Impl {
   // The volume: snapshots taken on the refresher thread, so that neither the run's thread nor a
   // request waits for one.
   std::function<Volume()> snapshot;
-  double min_interval = 0.04;
+  double min_interval = kMinSnapshotInterval;
   static constexpr double kSnapshotSpacing = 4;
   std::thread refresher;
   bool stopping = false;

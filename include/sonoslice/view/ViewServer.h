@@ -72,9 +72,12 @@ class LiveFeed {
   void frame(const void* pixels, PixelType type, int width, int height, const Mat4& to_world);
   /// The run's statistics as a JSON object (LiveStats::json's keys), called when polled.
   void set_stats(std::function<std::string()> stats_json);
+  /// Snapshots start at least this far apart (seconds), and at least four times their length.
+  static constexpr double kMinSnapshotInterval = 0.04;
   /// The growing volume, taken on a thread of the feed's at most every `min_interval_s` while
   /// frames arrive (`snapshot` must stay callable until finish() or destruction).
-  void set_volume_source(std::function<Volume()> snapshot, double min_interval_s = 0.04);
+  void set_volume_source(std::function<Volume()> snapshot,
+                         double min_interval_s = kMinSnapshotInterval);
   /// The run ended: no more snapshots; `final_volume` (when given) is shown from now on.
   void finish(std::optional<Volume> final_volume);
 
