@@ -290,6 +290,25 @@ def test_view_compound_volume_of_a_plus_sweep(cli, browser):
         viewer.stop()
 
 
+def test_a_page_served_on_a_network_address_needs_its_token(cli, browser):
+    import urllib.error
+    import urllib.request
+    viewer = start_view(cli, "--compound", NWIRE, "--host", "0.0.0.0")
+    try:
+        base, _, token = viewer.url.partition("?token=")
+        assert len(token) == 32 and base.endswith("/"), viewer.url
+        for path in ("", "api/scene", "view.js", "api/plane?axis=0&pos=0", "?token=" + "0" * 32):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(base + path, timeout=10)
+            assert e.value.code == 403, path
+        # The printed URL opens the page; the cookie it gets carries every later request.
+        open_page(browser, viewer.url)
+        check_planes(browser, sonoslice.Volume.from_file(NWIRE), 127.5, 255)
+        assert_clean(browser, base)
+    finally:
+        viewer.stop()
+
+
 def test_planes_and_images_without_webgl(cli, phantom_dir):
     driver = chromium("--disable-webgl", "--disable-3d-apis")
     ct = phantom_dir / "ct.nii.gz"

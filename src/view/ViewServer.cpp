@@ -11,6 +11,7 @@
 #include <cstring>
 #include <map>
 #include <mutex>
+#include <random>
 #include <thread>
 
 #include <httplib.h>
@@ -112,6 +113,34 @@ std::string host_without_port(const std::string& h) {
   return h.substr(0, h.find(':'));
 }
 
+// 128 random bits as hex: the key a page served on a network address must show.
+std::string random_token() {
+  std::random_device device;
+  std::string token;
+  for (int i = 0; i < 4; ++i) {
+    char word[9];
+    std::snprintf(word, sizeof word, "%08x", unsigned(device()));
+    token += word;
+  }
+  return token;
+}
+
+// Whether a Cookie header ("a=1; b=2") holds name=value.
+bool has_cookie(const std::string& header, const std::string& name, const std::string& value) {
+  const std::string wanted = name + "=" + value;
+  size_t at = 0;
+  while (at < header.size()) {
+    size_t end = header.find(';', at);
+    if (end == std::string::npos) end = header.size();
+    size_t first = header.find_first_not_of(' ', at);
+    if (first != std::string::npos && first < end &&
+        header.compare(first, end - first, wanted) == 0)
+      return true;
+    at = end + 1;
+  }
+  return false;
+}
+
 }  // namespace
 
 // ------------------------------------------------------------------------------------ server --
@@ -122,6 +151,9 @@ struct ViewServer::Impl {
   httplib::Server http;
   std::thread thread;
   std::string host;
+  // Served on a network address: the token its URL carries (then kept by the page as a
+  // cookie); every request without it is refused. Empty on loopback.
+  std::string token;
   int port = 0;
   // The shown volume: the content's, or the live run's newest snapshot.
   std::shared_ptr<const Volume> volume;
@@ -396,6 +428,25 @@ struct ViewServer::Impl {
         res.set_content("view: served on loopback; Host " + h + " refused", "text/plain");
         return httplib::Server::HandlerResponse::Handled;
       });
+    else
+      // On a network address anyone who reaches it could read the data: as Jupyter does, the
+      // printed URL carries a token; the page's first request trades it for a cookie that the
+      // browser sends with every later one (same host and port only, never to other sites).
+      http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+        const std::string cookie = "sonoslice_view_" + std::to_string(port);
+        if (req.has_param("token") && req.get_param_value("token") == token) {
+          res.set_header("Set-Cookie",
+                         cookie + "=" + token + "; Path=/; HttpOnly; SameSite=Strict");
+          return httplib::Server::HandlerResponse::Unhandled;
+        }
+        if (has_cookie(req.get_header_value("Cookie"), cookie, token))
+          return httplib::Server::HandlerResponse::Unhandled;
+        res.status = 403;
+        res.set_content(
+            "view: served on " + host + "; open the URL printed at start, with its token",
+            "text/plain");
+        return httplib::Server::HandlerResponse::Handled;
+      });
     http.Get("/", [](const httplib::Request&, httplib::Response& res) {
       const WebAsset* a = find_web_asset("index.html");
       res.set_content(a->data, a->size, a->mime);
@@ -465,6 +516,7 @@ ViewServer::ViewServer(ViewContent content, const std::string& host, int port,
   im.content = std::move(content);
   im.live = std::move(live);
   im.host = host;
+  if (!is_loopback_name(host)) im.token = random_token();
   if (im.content.volume) {
     im.volume = std::make_shared<Volume>(*im.content.volume);
     im.volume_version = 0;
@@ -508,7 +560,8 @@ int ViewServer::port() const {
 std::string ViewServer::url() const {
   const std::string& h = impl_->host;
   const std::string shown = h == "0.0.0.0" || h.empty() ? "127.0.0.1" : h;
-  return "http://" + shown + ":" + std::to_string(impl_->port) + "/";
+  const std::string key = impl_->token.empty() ? "" : "?token=" + impl_->token;
+  return "http://" + shown + ":" + std::to_string(impl_->port) + "/" + key;
 }
 
 void ViewServer::stop() {

@@ -99,7 +99,8 @@ class ViewServer {
   ViewServer& operator=(const ViewServer&) = delete;
 
   int port() const;
-  /// "http://127.0.0.1:PORT/"
+  /// "http://127.0.0.1:PORT/"; on a network address "http://HOST:PORT/?token=KEY", the key
+  /// without which the server answers 403.
   std::string url() const;
   void stop();
 
