@@ -95,7 +95,10 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   check_distinct_outputs({{"--out", f.out}, {"--record", f.record}, {"--stats", f.stats}},
                          {{"--config", f.config}});
   check_volume_output(f.out, "--out");
-  if (!f.record.empty()) check_output_path(f.record);
+  if (!f.record.empty()) {
+    check_plus_sequence_name(f.record);
+    check_output_path(f.record);
+  }
   if (!f.stats.empty()) check_output_path(f.stats);
   std::shared_ptr<const PlusReconstructionConfig> config;
   if (!f.config.empty())
@@ -149,7 +152,8 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   for (const auto& [reason, n] : result.stats.rejected_by_reason)
     why += "; " + std::to_string(n) + " rejected: " + reason;
   for (const auto& [key, n] : result.network)
-    if (key.rfind("rejected: ", 0) == 0 || key.rfind("ignored: ", 0) == 0)
+    if (key.rfind("rejected: ", 0) == 0 || key.rfind("ignored: ", 0) == 0 ||
+        key.rfind("connect failed: ", 0) == 0)
       why += "; " + std::to_string(n) + " " + key;
   if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
   std::fprintf(stderr, "sonoslice live compound: stopped by %s: %s%s\n", result.stopped_by.c_str(),

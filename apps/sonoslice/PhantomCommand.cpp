@@ -29,6 +29,11 @@ void run_phantom(const PhantomFlags& f) {
   if (f.format != "nii.gz" && f.format != "nii" && f.format != "mha" && f.format != "nrrd" &&
       f.format != "npy")
     throw InputError("--format " + f.format + ": expected nii.gz, nii, mha, nrrd or npy");
+  // poses.npy holds 128 bytes a pose: ten million (1.3 GB) is beyond any benchmark's need.
+  constexpr int kMaxPoses = 10000000;
+  if (f.poses < 0 || f.poses > kMaxPoses)
+    throw InputError("--poses " + std::to_string(f.poses) + ": expected 0 to " +
+                     std::to_string(kMaxPoses));
   std::error_code ec;
   std::filesystem::create_directories(f.out_dir, ec);
   if (ec) throw FileError("cannot create directory '" + f.out_dir + "': " + ec.message());
@@ -37,18 +42,22 @@ void run_phantom(const PhantomFlags& f) {
   const double generate = clock.seconds();
   const std::string ct = (std::filesystem::path(f.out_dir) / ("ct." + f.format)).string();
   const std::string labels = (std::filesystem::path(f.out_dir) / ("labels." + f.format)).string();
+  // The benchmark's poses (random, inside the body) and probes on the skin, to slice with: made
+  // before anything is written, so that a failure leaves no partial folder.
+  const std::vector<Pose> random_poses = phantom_random_poses(size_t(f.poses));
+  const std::vector<Pose> surface_poses =
+      f.poses > 0
+          ? phantom_surface_poses(size_t(std::min(f.poses, 64)), workload_w1_fan_probe().face_y_mm)
+          : std::vector<Pose>{};
   write_volume(ct, phantom.ct);
   write_volume(labels, phantom.labels);
   // The labels' acoustic properties, for `sonoslice simulate --labels ... --tissues`.
   const std::string tissues = (std::filesystem::path(f.out_dir) / "tissues.json").string();
   write_text_file(tissues, tissue_table_json(phantom_tissues()));
   if (f.poses > 0) {
-    // The benchmark's poses (random, inside the body) and probes on the skin, to slice with.
-    write_poses_npy((std::filesystem::path(f.out_dir) / "poses.npy").string(),
-                    phantom_random_poses(size_t(f.poses)));
-    write_poses_text(
-        (std::filesystem::path(f.out_dir) / "surface_poses.txt").string(),
-        phantom_surface_poses(size_t(std::min(f.poses, 64)), workload_w1_fan_probe().face_y_mm));
+    write_poses_npy((std::filesystem::path(f.out_dir) / "poses.npy").string(), random_poses);
+    write_poses_text((std::filesystem::path(f.out_dir) / "surface_poses.txt").string(),
+                     surface_poses);
   }
   if (!f.quiet) {
     const auto& g = phantom.ct.grid();

@@ -55,6 +55,8 @@ void run_view(const ViewFlags& f) {
   if (f.volume.path.empty() && f.labels.empty() && f.compound.empty() && f.meshes.empty() &&
       f.mesh_dir.empty() && f.poses.empty())
     throw UsageError("view: nothing to show (give --volume, --labels, --meshes, --poses, ...)");
+  if (f.host.empty() || f.host.find_first_of(" /") != std::string::npos)
+    throw InputError("--host '" + f.host + "': expected an address (127.0.0.1, 0.0.0.0, a name)");
   const WorldFrame world = parse_world_frame(f.world);
 
   ViewContent c;

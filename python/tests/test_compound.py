@@ -709,8 +709,7 @@ def test_absurd_spacing_and_a_broken_transform_are_named(cli, tmp_path):
                                        capture_output=True, text=True, timeout=300)  # noqa: E731
     r = run("--sequence", sequence, "--spacing", "1e-300")
     assert r.returncode == 1, r.stderr
-    assert r.stderr.startswith("sonoslice: error: --spacing 1e-300 mm: the frames span ") and \
-        "more than 2^31 voxels at this spacing" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr == "sonoslice: error: --spacing 1e-300 mm: expected a spacing from 1e-06 to 1e+09 mm\n", r.stderr
     # Frame 5's ProbeToTracker translation set to 1e30.
     data = open(sequence, "rb").read()
     head, rest = data.split(b"ElementDataFile", 1)

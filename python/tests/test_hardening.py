@@ -352,3 +352,52 @@ def test_cli_skip_zero_is_bad_input(cli, tmp_path):
                 "--skip", "0")
     assert r.returncode == 1 and r.stderr == "sonoslice: error: --skip 0: must be >= 1 (every K-th frame)\n"
     assert os.listdir(tmp_path) == []
+
+
+def test_absurd_geometry_and_counts_are_refused_before_anything_is_written(cli, tmp_path):
+    """Geometry beyond 1e9 mm once aborted inside ITK while a .nii was written (a hidden temporary
+    left); the other cases were accepted in silence, refused late or named the wrong input."""
+    sequence = os.path.join(DATA, "plus", "NwirePhantomFreehand.igs.mha")
+    config = os.path.join(DATA, "plus", "PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml")
+    with open(config) as f:
+        xml = f.read()
+    tiny = tmp_path / "tiny.xml"
+    tiny.write_text(xml.replace('OutputSpacing="0.5 0.5 0.5"', 'OutputSpacing="1e-300 1e-300 1e-300"'))
+    assert 'OutputSpacing="0.5 0.5 0.5"' in xml
+    probe = tmp_path / "huge_pixels.json"
+    probe.write_text('{"simulation": {"transducer": "curvilinear", "fan_geometry": [0.05, 0.1235, 36, 526, 380, 17], '
+                     '"image_dimensions": [668, 544], "pixel_size": [1e39, 1e39]}}')
+    (tmp_path / "adir").mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    compound = ("compound", "--sequence", sequence, "--threads", "1", "-q")
+    cases = [
+        ((*compound, "--config", config, "--spacing", "1e300", "--out", str(out / "v.nii.gz")),
+         "--spacing 1e+300 mm: expected a spacing from 1e-06 to 1e+09 mm"),
+        ((*compound, "--config", config, "--spacing", "0.5,0.5,0", "--out", str(out / "v.nii.gz")),
+         "--spacing 0 mm: expected a spacing"),
+        ((*compound, "--config", str(tiny), "--out", str(out / "v.nii.gz")),
+         "the configuration's OutputSpacing 1e-300 mm"),
+        ((*compound, "--config", config, "--origin", "1e300,0,0", "--extent", "10,10,10", "--out",
+          str(out / "v.nii")), "expected an origin within 1e9 mm"),
+        ((*compound, "--config", config, "--origin", "0,0,0", "--out", str(out / "v.nii")),
+         "give --origin and --extent together"),
+        ((*compound, "--config", str(tmp_path / "adir"), "--out", str(out / "v.npy")),
+         "cannot read PLUS configuration '" + str(tmp_path / "adir") + "': it is a directory"),
+        (("slice", "--volume", "none.nii", "--probe", str(tmp_path / "adir"), "--poses", "p.npy", "--out",
+          str(out / "s.npy")), "it is a directory"),
+        (("phantom", str(out / "ph"), "--poses", "-1", "-q"), "--poses -1: expected 0 to 10000000"),
+        (("phantom", str(out / "ph"), "--poses", "2000000000", "-q"), "--poses 2000000000: expected 0"),
+        (("live", "compound", "--listen", "127.0.0.1:0", "--spacing", "1", "--out", str(out / "l.nii.gz"),
+          "--record", str(out / "r.nii.gz"), "--max-seconds", "5"), "cannot write PLUS sequence"),
+        (("view", "--no-browser", "--compound", os.path.join(DATA, "plus", "NwirePhantomFreehandReconstructed.mha"),
+          "--host", ""), "--host '': expected an address"),
+    ]
+    for args, needle in cases:
+        r = run_cli(cli, *args, cwd=tmp_path)
+        assert r.returncode == 1, (args, r.returncode, r.stderr)
+        assert r.stderr.count("\n") == 1 and needle in r.stderr, (args, r.stderr)
+    r = run_cli(cli, "slice", "--volume", "none.nii", "--probe", str(probe), "--poses", "p.npy", "--out",
+                str(out / "s.nii.gz"), cwd=tmp_path)
+    assert r.returncode == 1 and "is beyond any probe's extent" in r.stderr, r.stderr
+    assert os.listdir(out) == [], os.listdir(out)  # no partial output, no temporary

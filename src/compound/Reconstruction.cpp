@@ -7,6 +7,7 @@
 #include <cctype>
 #include <chrono>
 #include <cmath>
+#include <sstream>
 
 #include "PlusExact.h"
 #include "sonoslice/compound/BeamGeometryFile.h"
@@ -437,9 +438,15 @@ Vec3 resolve_spacing(const PlusReconstructionConfig* config, const Reconstructio
   if (!spacing)
     throw InputError("give " + spelled(o.names, "spacing") + " (mm) or a PLUS configuration (" +
                      spelled(o.names, "config") + ") with OutputSpacing");
+  // Below a nanometre or beyond a kilometre's thousandfold is a typo, not a voxel size.
+  constexpr double kMinSpacingMm = 1e-6;
   for (double s : *spacing)
-    if (!(s > 0) || !std::isfinite(s))
-      throw InputError(spelled(o.names, "spacing") + " " + std::to_string(s) + ": must be > 0 mm");
+    if (!(s >= kMinSpacingMm && s <= kMaxGeometryMm)) {
+      std::ostringstream why;
+      why << (o.spacing_mm ? spelled(o.names, "spacing") : "the configuration's OutputSpacing")
+          << " " << s << " mm: expected a spacing from 1e-06 to 1e+09 mm";
+      throw InputError(why.str());
+    }
   return *spacing;
 }
 
@@ -457,9 +464,9 @@ std::optional<VolumeGrid> fixed_grid(const PlusReconstructionConfig* config,
     for (int a = 0; a < 3; ++a) grid.dims[a] = (*o.extent)[a];
     for (int a = 0; a < 3; ++a)
       if (grid.dims[a] < 1 || grid.dims[a] > (int64_t(1) << 20) ||
-          !std::isfinite(grid.origin_mm[a]))
+          !(std::fabs(grid.origin_mm[a]) <= kMaxGeometryMm))
         throw InputError(spelled(o.names, "extent") + " / " + spelled(o.names, "origin_mm") +
-                         ": expected finite origin and 1 to 1048576 voxels per axis");
+                         ": expected an origin within 1e9 mm and 1 to 1048576 voxels per axis");
     return grid;
   }
   return config && !o.spacing_mm ? config->output_grid() : std::nullopt;

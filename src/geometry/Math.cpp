@@ -7,6 +7,12 @@
 
 namespace sonoslice {
 
+double rigid_deviation(const Mat4& m) {
+  const Vec3 x = m.column3(0), y = m.column3(1), z = m.column3(2);
+  return std::max({std::fabs(norm(x) - 1), std::fabs(norm(y) - 1), std::fabs(dot(x, y)),
+                   norm(z - cross(x, y))});
+}
+
 std::optional<Mat4> invert(const Mat4& m) {
   double a[4][8];
   double scale = 0;

@@ -52,15 +52,12 @@ void validate_poses(const Pose* poses, size_t count, const std::string& source, 
         if (!std::isfinite(p.m[r][c])) fail("has a non-finite entry (NaN or inf)");
     if (p.m[3][0] != 0 || p.m[3][1] != 0 || p.m[3][2] != 0 || p.m[3][3] != 1)
       fail("last row must be 0 0 0 1");
-    const Vec3 x = p.column3(0), y = p.column3(1), z = p.column3(2);
+    const Vec3 x = p.column3(0), y = p.column3(1);
     const double nx = norm(x), ny = norm(y);
     if (nx < 0.5 || nx > 2.0) fail("lateral axis (column 0) has norm " + std::to_string(nx));
     if (ny < 0.5 || ny > 2.0) fail("axial axis (column 1) has norm " + std::to_string(ny));
     if (std::fabs(dot(x, y)) > 0.5 * nx * ny) fail("lateral and axial axes are nearly parallel");
-    // Deviation from a rotation: norms, orthogonality and the elevation column.
-    const Vec3 expected_z = cross(x, y);
-    const double deviation = std::max(
-        {std::fabs(nx - 1), std::fabs(ny - 1), std::fabs(dot(x, y)), norm(z - expected_z)});
+    const double deviation = rigid_deviation(p);
     if (deviation > worst_deviation) {
       worst_deviation = deviation;
       worst_index = first_index + n;

@@ -29,6 +29,20 @@ void ProbeGeometry::validate(const std::string& what) const {
   if (!std::isfinite(image.origin_mm[0]) || !std::isfinite(image.origin_mm[1]))
     fail("image origin must be finite");
   if (!std::isfinite(face_y_mm)) fail("face_y_mm must be finite");
+  for (const auto& [name, length] :
+       {std::pair<const char*, double>{"pixel spacing", image.spacing_mm[0]},
+        {"pixel spacing", image.spacing_mm[1]},
+        {"image origin", image.origin_mm[0]},
+        {"image origin", image.origin_mm[1]},
+        {"face_y_mm", face_y_mm},
+        {"radius_mm", radius_mm},
+        {"depth_mm", depth_mm},
+        {"width_mm", width_mm}})
+    if (std::fabs(length) > kMaxGeometryMm) {
+      std::ostringstream s;
+      s << name << " " << length << " mm is beyond any probe's extent (at most 1e9 mm)";
+      fail(s.str());
+    }
   if (type == ProbeType::Curvilinear) {
     if (!positive(radius_mm)) fail("radius_mm must be > 0");
     if (!positive(depth_mm)) fail("depth_mm must be > 0");

@@ -16,6 +16,10 @@ void VolumeGrid::validate(const std::string& what) const {
       why << "spacing along axis " << a << " is " << spacing_mm[a] << " mm (must be > 0)";
     else if (!std::isfinite(origin_mm[a]))
       why << "origin is not finite";
+    else if (spacing_mm[a] > kMaxGeometryMm || std::fabs(origin_mm[a]) > kMaxGeometryMm)
+      why << (spacing_mm[a] > kMaxGeometryMm ? "spacing" : "origin") << " along axis " << a
+          << " is " << (spacing_mm[a] > kMaxGeometryMm ? spacing_mm[a] : origin_mm[a])
+          << " mm: beyond any scanner's extent (at most 1e9 mm)";
     if (!why.str().empty()) break;
   }
   if (why.str().empty()) {

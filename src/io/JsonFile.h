@@ -2,6 +2,7 @@
 // Internal: opening and parsing a JSON file, with the messages the JSON readers share.
 #include <cerrno>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <string>
 
@@ -40,6 +41,9 @@ enum class OpenErrorReason { Omit, Append };
 /// when it does not parse.
 inline nlohmann::json read_json_file(const std::string& path, const std::string& what,
                                      OpenErrorReason reason = OpenErrorReason::Omit) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))
+    throw FileError("cannot open " + what + " '" + path + "': it is a directory");
   std::ifstream in(path);
   if (!in) {
     const int err = errno;

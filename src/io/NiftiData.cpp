@@ -15,6 +15,7 @@
 #include "ByteOrder.h"
 #include "MappedFile.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/Math.h"
 #include "sonoslice/io/VolumeFile.h"
 
 namespace sonoslice {
@@ -23,10 +24,6 @@ namespace {
 
 // zlib's default buffer is 8 KiB; a larger one means fewer read calls on volumes of hundreds of MB.
 constexpr unsigned kGzipBufferBytes = 1u << 20;
-
-// Geometry beyond this (1000 km, in mm) is no scanner's: a header field near FLT_MAX once made
-// ITK's orientation SVD (vnl_svd, netlib ssvdc) loop without end.
-constexpr double kMaxGeometryMm = 1e9;
 
 [[noreturn]] void throw_absurd(const std::string& where, const std::string& field, double v) {
   std::ostringstream s;

@@ -1,6 +1,7 @@
 #include "sonoslice/io/ProbeFile.h"
 
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <optional>
 #include <sstream>
@@ -174,6 +175,9 @@ ProbeGeometry parse_probe_json(const std::string& text, const std::string& sourc
 }
 
 ProbeGeometry read_probe(const std::string& path, int downsampling) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))
+    throw FileError("cannot open probe file '" + path + "': it is a directory");
   std::ifstream in(path);
   if (!in) throw FileError("cannot open probe file '" + path + "'");
   std::stringstream text;

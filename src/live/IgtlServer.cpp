@@ -107,6 +107,7 @@ struct IgtlEndpoint::Impl {
     c.id = next_id++;
     const int r = ::connect(fd, reinterpret_cast<const sockaddr*>(&a), sizeof(a));
     if (r != 0 && errno != EINPROGRESS) {
+      ++counts[std::string("connect failed: ") + std::strerror(errno)];
       ::close(fd);
       next_connect = now_seconds() + 0.5;
       return;
@@ -277,6 +278,8 @@ void IgtlEndpoint::poll(int timeout_ms, bool read, const MessageHandler& on_mess
       socklen_t len = sizeof(err);
       getsockopt(c.fd, SOL_SOCKET, SO_ERROR, &err, &len);
       if (err != 0 || (ev & (POLLERR | POLLHUP))) {
+        ++im.counts[std::string("connect failed: ") +
+                    (err != 0 ? std::strerror(err) : "the server hung up")];
         ::close(c.fd);
         im.connections.erase(im.connections.begin() + long(at));
         im.next_connect = now_seconds() + 0.5;  // the server is not there yet: try again

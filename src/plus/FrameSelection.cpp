@@ -2,6 +2,7 @@
 #include "sonoslice/plus/FrameSelection.h"
 
 #include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,11 @@ PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
   // out and named; a tracker writes such frames when it loses a tool. When no frame has a chain
   // at all, the calibration is what is missing: that is an error.
   int considered = 0, without_chain = 0;
+  struct {
+    double deviation = 0;
+    int frame = 0;
+    std::string name;
+  } worst;
   std::string first_without_chain;
   for (int k = 0; k < sequence.frame_count; k += skip) {
     if (!sequence.image_ok(k)) {
@@ -62,8 +68,22 @@ PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
     }
     sel.frames.push_back(k);
     sel.to_reference.push_back(*m);
+    // A tracker's transforms are rigid; one that scales or shears (a corrupt or hand-edited
+    // file) stretches the volume. PLUS uses it as given, and so does this, but says so.
+    for (const std::string& name : sequence.transform_names(k)) {
+      const std::optional<Mat4> t = sequence.transform(k, name);
+      const double deviation = t ? rigid_deviation(*t) : 0.0;
+      if (deviation > worst.deviation) worst = {deviation, k, name};
+    }
   }
   if (considered > 0 && without_chain == considered) throw InputError(first_without_chain + hint);
+  if (worst.deviation > 1e-3) {
+    std::ostringstream s;
+    s << sequence.path << ": frame " << worst.frame << "'s " << worst.name
+      << "Transform is not rigid (" << worst.deviation
+      << " from a rotation, the largest of the frames'); tracking transforms are used as given";
+    warn(s.str());
+  }
   return sel;
 }
 

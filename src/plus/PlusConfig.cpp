@@ -230,6 +230,8 @@ void load_document(const std::string& path, pugi::xml_document* doc) {
   std::error_code ec;
   if (!std::filesystem::exists(path, ec))
     throw FileError("PLUS configuration '" + path + "' not found");
+  if (std::filesystem::is_directory(path, ec))
+    throw FileError("cannot read PLUS configuration '" + path + "': it is a directory");
   const pugi::xml_parse_result parsed = doc->load_file(path.c_str());
   if (!parsed) {
     if (parsed.status == pugi::status_file_not_found || parsed.status == pugi::status_io_error)
@@ -441,16 +443,14 @@ void read_hole_filling(const pugi::xml_node& recon, Attributes& a, const std::st
 /// The Optimization attribute, upper-cased for the reconstruction recipe (and in the settings
 /// when it names one of PLUS's CPU paths).
 void read_optimization(Attributes& a, const std::string& path, PlusReconstructionConfig* config) {
-  // Only --plus-exact acts on it (the recipe parses it there, so that an unknown value or GPU
-  // stops a --plus-exact run and nothing else); absent: FULL, PLUS's default.
+  // Only --plus-exact acts on it; absent: FULL, PLUS's default. GPU (PLUS's OpenCL path) stops
+  // a --plus-exact run there (the recipe parses it again) and nothing else; a value PLUS does
+  // not know is refused here, as the other enumerated attributes are.
   if (!a.has("Optimization")) return;
   config->optimization = upper(trim(a.text("Optimization")));
-  try {
-    config->settings.plus_optimization =
-        parse_plus_optimization(config->optimization, path + ": " + a.label("Optimization"));
-  } catch (const InputError&) {
-    // GPU or a typo: settings keep FULL; a --plus-exact reconstruction refuses it.
-  }
+  if (config->optimization == "GPU") return;
+  config->settings.plus_optimization =
+      parse_plus_optimization(config->optimization, path + ": " + a.label("Optimization"));
 }
 
 /// Attributes PLUS reads that sonoslice does not act on; a warning for those switched on.

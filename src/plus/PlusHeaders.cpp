@@ -66,6 +66,9 @@ void set_frame_dims(const std::vector<int64_t>& sizes, const std::vector<std::st
   const int64_t limit = std::numeric_limits<int>::max();
   if (w < 0 || h < 0 || n < 0 || w > limit || h > limit || n > limit)
     throw InputError(where + ": invalid image size");
+  if (n > 0 && (w == 0 || h == 0))
+    throw InputError(where + ": " + std::to_string(n) + " frames of " + std::to_string(w) + "x" +
+                     std::to_string(h) + " pixels: a frame needs at least one pixel");
   layout->width = int(w), layout->height = int(h), layout->frames = int(n);
 }
 

@@ -150,12 +150,16 @@ void check_header_text(const std::string& text, const std::string& what, const s
 
 }  // namespace
 
-void write_plus_sequence(const std::string& path, const PlusSequence& s, bool compress) {
+void check_plus_sequence_name(const std::string& path) {
   const std::string name = lower(path);
-  const bool nrrd = ends_with(name, ".nrrd");
-  if (!nrrd && !ends_with(name, ".mha"))
+  if (!ends_with(name, ".nrrd") && !ends_with(name, ".mha"))
     throw InputError("cannot write PLUS sequence '" + path +
                      "': unsupported file name ending (expected .mha or .nrrd, e.g. .igs.mha)");
+}
+
+void write_plus_sequence(const std::string& path, const PlusSequence& s, bool compress) {
+  check_plus_sequence_name(path);
+  const bool nrrd = ends_with(lower(path), ".nrrd");
   if (s.width <= 0 || s.height <= 0 || s.frame_count <= 0)
     throw InputError("cannot write PLUS sequence '" + path + "': " + std::to_string(s.width) + "x" +
                      std::to_string(s.height) + " pixels, " + std::to_string(s.frame_count) +

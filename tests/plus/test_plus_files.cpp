@@ -734,6 +734,35 @@ TEST(PlusFrameSelection, FramesTheirTransformsCannotPlaceAreSkippedAndNamed) {
       << e;
 }
 
+// A tracking transform that scales or shears is used as given (as PLUS does), with a warning
+// naming the frame and the transform; the real sweep's own transforms raise none.
+TEST(PlusFrameSelection, NonRigidTrackingTransformsAreUsedAndNamed) {
+  REQUIRE_PLUS_DATA();
+  REQUIRE_PUGIXML();
+  PlusSequence s = read_plus_sequence(plus_data("NwirePhantomFreehand.igs.mha"));
+  const PlusReconstructionConfig config = read_plus_config(
+      plus_data("PlusDeviceSet_NwirePhantomFreehand_vtkVolumeReconstructorTest2.xml"));
+  {
+    WarningCapture warnings;
+    select_plus_frames(s, config.coordinate_definitions, "Image", "Reference");
+    EXPECT_EQ(warnings.all().find("not rigid"), std::string::npos) << warnings.all();
+  }
+  Mat4 m = *s.transform(7, "ProbeToTracker");
+  for (int r = 0; r < 3; ++r) m.m[r][0] *= 1.5;  // the x axis stretched
+  std::ostringstream text;
+  text.precision(17);
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) text << m.m[r][c] << " ";
+  s.frame_fields[7]["ProbeToTrackerTransform"] = text.str();
+  WarningCapture warnings;
+  const PlusFrameSelection sel =
+      select_plus_frames(s, config.coordinate_definitions, "Image", "Reference");
+  EXPECT_EQ(sel.frames.size(), 97u);
+  EXPECT_NE(warnings.all().find("frame 7's ProbeToTrackerTransform is not rigid (0.5"),
+            std::string::npos)
+      << warnings.all();
+}
+
 // A calibration applies to every frame: an all-zero one (XML, option or Python) is refused.
 TEST(PlusFrameSelection, DegenerateCalibrationIsRefused) {
   REQUIRE_PLUS_DATA();
@@ -1112,6 +1141,7 @@ TEST_F(PlusConfigSynthetic, BadValuesAreInputErrors) {
            {"<VolumeReconstruction CompoundingMode=\"IMPORTANCE_MASK\"/>", "not supported"},
            {"<VolumeReconstruction CompoundingMode=\"MEDIAN\"/>", "MEAN, MAXIMUM, LATEST"},
            {"<VolumeReconstruction Interpolation=\"CUBIC\"/>", "LINEAR, NEAREST_NEIGHBOR"},
+           {"<VolumeReconstruction Optimization=\"TURBO\"/>", "NONE, PARTIAL, FULL"},
            {"<VolumeReconstruction FillHoles=\"MAYBE\"/>", "FillHoles"},
            {"<VolumeReconstruction FillHoles=\"ON\"/>", "HoleFilling"},
            {"<VolumeReconstruction FillHoles=\"ON\"><HoleFilling><HoleFillingElement "

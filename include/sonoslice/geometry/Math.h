@@ -9,6 +9,11 @@ namespace sonoslice {
 
 constexpr double kPi = 3.14159265358979323846;
 
+/// Lengths beyond this (1000 km, in mm) are no scanner's or probe's: volumes, probes and files
+/// with spacing, origin or sizes beyond it are refused as absurd (a header field near FLT_MAX
+/// once made ITK's orientation SVD loop without end; one beyond it makes ITK abort).
+constexpr double kMaxGeometryMm = 1e9;
+
 using Vec3 = std::array<double, 3>;
 
 /// 3×3 matrix, row-major: m[r][c].
@@ -129,6 +134,10 @@ Mat3 uniform_rotation(double u1, double u2, double u3);
 /// The inverse of a 4×4 matrix (Gauss-Jordan elimination with partial pivoting); std::nullopt
 /// when it is singular (a pivot below 1e-12 of the matrix's largest entry) or not finite.
 std::optional<Mat4> invert(const Mat4& m);
+
+/// How far m's 3×3 part is from a rotation: the largest of |‖x‖ − 1|, |‖y‖ − 1|, |x·y| and
+/// ‖z − x × y‖ over its columns x, y, z (0 for a rigid transform).
+double rigid_deviation(const Mat4& m);
 
 inline Vec3 operator+(const Vec3& a, const Vec3& b) {
   return {a[0] + b[0], a[1] + b[1], a[2] + b[2]};

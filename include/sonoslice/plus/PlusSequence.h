@@ -59,4 +59,8 @@ PlusSequence read_plus_sequence(const std::string& path);
 void write_plus_sequence(const std::string& path, const PlusSequence& sequence,
                          bool compress = true);
 
+/// Throws InputError naming `path` unless it ends in a sequence format write_plus_sequence
+/// writes (.mha or .nrrd): for callers that write one at the end of a long run.
+void check_plus_sequence_name(const std::string& path);
+
 }  // namespace sonoslice
