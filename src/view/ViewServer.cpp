@@ -125,17 +125,28 @@ std::string random_token() {
   return token;
 }
 
-// Whether a Cookie header ("a=1; b=2") holds name=value.
-bool has_cookie(const std::string& header, const std::string& name, const std::string& value) {
-  const std::string wanted = name + "=" + value;
+// Whether `given` is the token, in a time that does not depend on where they differ (so that
+// the token cannot be guessed character by character from answer times).
+bool same_token(const std::string& given, const std::string& token) {
+  if (given.size() != token.size()) return false;
+  unsigned char differ = 0;
+  for (size_t i = 0; i < token.size(); ++i) differ |= uint8_t(given[i] ^ token[i]);
+  return differ == 0;
+}
+
+// Whether a Cookie header ("a=1; b=2") gives `name` the token.
+bool has_cookie(const std::string& header, const std::string& name, const std::string& token) {
   size_t at = 0;
   while (at < header.size()) {
     size_t end = header.find(';', at);
     if (end == std::string::npos) end = header.size();
-    size_t first = header.find_first_not_of(' ', at);
-    if (first != std::string::npos && first < end &&
-        header.compare(first, end - first, wanted) == 0)
-      return true;
+    const size_t first = header.find_first_not_of(' ', at);
+    if (first != std::string::npos && first < end) {
+      const std::string item = header.substr(first, end - first);
+      if (item.size() > name.size() && item.compare(0, name.size(), name) == 0 &&
+          item[name.size()] == '=' && same_token(item.substr(name.size() + 1), token))
+        return true;
+    }
     at = end + 1;
   }
   return false;
@@ -434,7 +445,7 @@ struct ViewServer::Impl {
       // browser sends with every later one (same host and port only, never to other sites).
       http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
         const std::string cookie = "sonoslice_view_" + std::to_string(port);
-        if (req.has_param("token") && req.get_param_value("token") == token) {
+        if (req.has_param("token") && same_token(req.get_param_value("token"), token)) {
           res.set_header("Set-Cookie",
                          cookie + "=" + token + "; Path=/; HttpOnly; SameSite=Strict");
           return httplib::Server::HandlerResponse::Unhandled;
