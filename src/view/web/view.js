@@ -104,29 +104,13 @@ function cmMul(a, b) {
 
 // ---- windowing: the contract's formula, evaluated in exactly its order (lo, scale, clamp, round),
 // so that the tests can compare pixels bit for bit.
-// One 32-bit store a pixel (opaque gray) where the platform is little-endian, as every browser's
-// is; byte by byte elsewhere. 8-bit values (live frames, PLUS images) go through a table of the
-// formula's 256 results: a live 820 × 616 frame costs a fifth of the arithmetic per pixel.
-const LITTLE_ENDIAN = new Uint8Array(new Uint32Array([1]).buffer)[0] === 1;
-const grayWord = (g) => (0xff000000 | (g << 16) | (g << 8) | g) >>> 0;
 function windowInto(rgba, values, level, width) {
   const lo = level - width / 2, scale = 255 / width, n = values.length;
-  const gray = (v) => (v !== v ? 0 : Math.round(Math.min(255, Math.max(0, (v - lo) * scale))));
-  if (!LITTLE_ENDIAN || rgba.byteOffset % 4 !== 0) {
-    for (let i = 0, o = 0; i < n; i++, o += 4) {
-      const g = gray(values[i]);
-      rgba[o] = g; rgba[o + 1] = g; rgba[o + 2] = g; rgba[o + 3] = 255;
-    }
-    return;
+  for (let i = 0, o = 0; i < n; i++, o += 4) {
+    const v = values[i];
+    const g = v !== v ? 0 : Math.round(Math.min(255, Math.max(0, (v - lo) * scale)));
+    rgba[o] = g; rgba[o + 1] = g; rgba[o + 2] = g; rgba[o + 3] = 255;
   }
-  const words = new Uint32Array(rgba.buffer, rgba.byteOffset, n);
-  if (values instanceof Uint8Array) {
-    const table = new Uint32Array(256);
-    for (let v = 0; v < 256; v++) table[v] = grayWord(gray(v));
-    for (let i = 0; i < n; i++) words[i] = table[values[i]];
-    return;
-  }
-  for (let i = 0; i < n; i++) words[i] = grayWord(gray(values[i]));
 }
 // Labels over gray: 50/50 blend; over nothing (labels-only scene): the label colours on black.
 function blendLabels(rgba, labels, colors, onBlack) {
@@ -429,16 +413,12 @@ function showImage(data, W, H, pixToWorld, caption) {
   image.pixToWorld = pixToWorld;
   const sx = Math.abs(scene.probe && W === scene.probe.width ? scene.probe.pixel_to_probe[0] : 0) || rmColumnNorm(pixToWorld, 0) || 1;
   const sy = Math.abs(scene.probe && H === scene.probe.height ? scene.probe.pixel_to_probe[5] : 0) || rmColumnNorm(pixToWorld, 1) || 1;
-  const aspect = (W * sx) / (H * sy);
-  // The stage is laid out again only when its shape changed (or the panel did: ResizeObserver):
-  // measuring the panel forces the browser to lay out the page, at a live stream's frame rate.
-  const relayout = aspect !== image.aspect || image.stage.hidden;
-  image.aspect = aspect;
+  image.aspect = (W * sx) / (H * sy);
   image.caption = caption;
   $('image-caption').textContent = caption;
   image.note.hidden = true;
   image.stage.hidden = false;
-  if (relayout) layoutImage();
+  layoutImage();
   drawImage();
 }
 
