@@ -36,7 +36,7 @@ struct RegisterFlags {
   std::optional<double> search_rot_deg, search_trans_mm, smoothness;
   std::optional<uint64_t> seed;
   std::optional<int> threads;
-  bool verbose = false;
+  bool verbose = false, quiet = false;
 };
 
 /// "8,4,2,1" → block sizes (the settings check their range).
@@ -260,7 +260,7 @@ void run_register(const RegisterFlags& f) {
     write_text_file(f.report, j.dump(2) + "\n", &outputs);
   }
   outputs.commit();
-  if (f.verbose)
+  if (f.verbose && !f.quiet)
     std::fprintf(stderr,
                  "sonoslice: %zu frames, %s, %s; load %.3f s, register %.3f s (%lld pose "
                  "evaluations, %.0f per second, %d threads), total %.3f s\n",
@@ -360,6 +360,7 @@ void add_register_command(CLI::App& app) {
   cmd->add_option("--world", flags->world, "Frame of the poses: LPS (default) or RAS");
   add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--verbose,-v", flags->verbose, "Print times and evaluation counts");
+  cmd->add_flag("--quiet,-q", flags->quiet, "No summary (the default without -v)");
   cmd->callback([flags] { run_register(*flags); });
 }
 

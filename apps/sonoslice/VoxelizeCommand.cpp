@@ -1,6 +1,9 @@
 // sonoslice voxelize: surface meshes → one label volume (label k for the k-th mesh).
+#include <cmath>
 #include <cstdio>
 #include <memory>
+#include <optional>
+#include <sstream>
 
 #include "Commands.h"
 #include "Common.h"
@@ -17,18 +20,27 @@ namespace {
 struct VoxelizeFlags {
   std::vector<std::string> meshes;
   std::string out, reference, world = "LPS";
-  double spacing = 0, margin = -1;
-  std::optional<int> threads;  // unset: all hardware threads
+  std::optional<double> spacing, margin;  // unset: from --reference (margin: one voxel)
+  std::optional<int> threads;             // unset: all hardware threads
   bool quiet = false, verbose = false;
 };
 
 void run_voxelize(const VoxelizeFlags& f) {
   setup_threads(f.threads);
   const WorldFrame frame = parse_world_frame(f.world);
-  if (f.reference.empty() && !(f.spacing > 0))
+  if (f.reference.empty() && !f.spacing)
     throw InputError("voxelize: give --spacing S (mm) or --reference VOLUME");
-  if (!f.reference.empty() && (f.spacing > 0 || f.margin >= 0))
+  if (!f.reference.empty() && (f.spacing || f.margin))
     throw InputError("voxelize: --reference sets the grid; --spacing and --margin do not apply");
+  const auto shown = [](double v) {
+    std::ostringstream out;
+    out << v;
+    return out.str();
+  };
+  if (f.spacing && !(*f.spacing > 0 && std::isfinite(*f.spacing)))
+    throw InputError("--spacing " + shown(*f.spacing) + ": must be > 0 mm");
+  if (f.margin && !(*f.margin >= 0 && std::isfinite(*f.margin)))
+    throw InputError("--margin " + shown(*f.margin) + ": must be >= 0 mm");
   check_output_path(f.out);
   Stopwatch load;
   std::vector<TriangleMesh> meshes;
@@ -38,7 +50,7 @@ void run_voxelize(const VoxelizeFlags& f) {
   if (!f.reference.empty()) {
     grid = read_volume(f.reference).grid();
   } else {
-    grid = voxel_grid_around(meshes, f.spacing, f.margin >= 0 ? f.margin : f.spacing);
+    grid = voxel_grid_around(meshes, *f.spacing, f.margin ? *f.margin : *f.spacing);
   }
   const uint64_t bytes = uint64_t(grid.voxel_count()) * (meshes.size() > 255 ? 2 : 1);
   if (bytes > available_memory_bytes())

@@ -69,6 +69,9 @@ class PoseSampler:
             a = a[None]
         if a.ndim != 1 or not (np.issubdtype(a.dtype, np.integer) or a.size == 0):
             raise ValueError(f"seeds: expected a 1-D array of integers, got {a.dtype} {a.shape}")
+        if a.size and np.issubdtype(a.dtype, np.signedinteger) and a.min() < 0:
+            # astype would wrap -1 to 2**64 - 1: another seed than the one given.
+            raise ValueError(f"seeds: {a.min()} is negative; seeds are whole numbers from 0 to {2**64 - 1}")
         return np.ascontiguousarray(a.astype(np.uint64, copy=False))
 
     def sample(self, seeds) -> np.ndarray:

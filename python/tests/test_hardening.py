@@ -401,3 +401,43 @@ def test_absurd_geometry_and_counts_are_refused_before_anything_is_written(cli, 
                 str(out / "s.nii.gz"), cwd=tmp_path)
     assert r.returncode == 1 and "is beyond any probe's extent" in r.stderr, r.stderr
     assert os.listdir(out) == [], os.listdir(out)  # no partial output, no temporary
+
+
+def test_python_volumes_tables_and_seeds_are_checked_like_the_files(cli, tmp_path):
+    """The Python constructors take the checks the file readers apply (a Volume of spacing 1e300
+    once aborted the interpreter when saved as NIfTI), and typos in tissue tables are named."""
+    zeros = np.zeros((4, 4, 4), np.float32)
+    for kwargs, needle in ((dict(spacing=(1e300, 1, 1)), "beyond any scanner's extent"),
+                           (dict(origin=(1e300, 0, 0)), "beyond any scanner's extent"),
+                           (dict(spacing=(1e-300, 1, 1)), "below any scanner's resolution")):
+        with pytest.raises(ValueError, match=needle):
+            sonoslice.Volume(zeros, **kwargs)
+    with pytest.raises(ValueError, match="beyond any scanner's extent"):
+        sonoslice.Compounder(shape=(4, 4, 4), spacing=1e300)
+    table = [dict(t) for t in sonoslice.default_tissues()]
+    table[2]["impedence"] = 1.0
+    with pytest.raises(ValueError, match=r'tissues\[2\]: unknown key "impedence"'):
+        sonoslice._ext.tissue_table(table)
+    with pytest.raises(ValueError, match='unknown key "bogus"'):
+        sonoslice._ext.tissue_table({"tissues": table[:2], "bogus": 1})
+    probe = sonoslice.Probe.linear(16, 16, 0.5)
+    sampler = sonoslice.PoseSampler({"type": "region", "label": 1}, probe,
+                                    labels=sonoslice.Volume(np.ones((8, 8, 8), np.uint8)))
+    with pytest.raises(ValueError, match="seeds: -1 is negative"):
+        sampler.sample(-1)
+    far = np.stack([centre_pose(8)] * 2)
+    far[1, 0, 3] = 1e300
+    with pytest.raises(ValueError, match=r"pose 1: translation 1e\+300 mm is beyond any scanner"):
+        sonoslice.Slicer(sonoslice.Volume(np.ones((8, 8, 8), np.float32)), probe).slice(far)
+    (tmp_path / "adir").mkdir()
+    r = run_cli(cli, "info", str(tmp_path / "adir"))
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "no DICOM series" in r.stderr, r.stderr
+    r = run_cli(cli, "voxelize", str(tmp_path / "adir"), "--spacing", "1", "--out", str(tmp_path / "v.npy"))
+    assert r.returncode == 1 and "cannot read mesh" in r.stderr and "it is a directory" in r.stderr, r.stderr
+    mesh = os.path.join(DATA, "fanslicer", "liver.vtk")
+    for flags, needle in ((("--spacing", "0"), "--spacing 0: must be > 0 mm"),
+                          (("--spacing", "1e-30"), "below any scanner's resolution"),
+                          (("--spacing", "1", "--margin", "nan"), "--margin nan: must be >= 0 mm")):
+        r = run_cli(cli, "voxelize", mesh, *flags, "--out", str(tmp_path / "v.nii.gz"))
+        assert r.returncode == 1 and r.stderr.count("\n") == 1 and needle in r.stderr, (flags, r.stderr)
+    assert sorted(os.listdir(tmp_path)) == ["adir"]

@@ -117,8 +117,10 @@ def test_simulator_reports_what_the_library_chose(phantom):
 
 @pytest.mark.parametrize("kwargs, message", [
     (dict(preset="nope"), "preset nope: unknown (presets: abdominal"),
-    (dict(frequency_mhz=0.0), "frequency_mhz: frequency 0 MHz must be in (0, 100]"),
-    (dict(dynamic_range_db=-3.0), "dynamic_range_db: dynamic range -3 dB must be > 0"),
+    (dict(frequency_mhz=0.0), "frequency_mhz: frequency 0 MHz must be in [0.1, 100]"),
+    (dict(frequency_mhz=1e-300), "frequency_mhz: frequency 1e-300 MHz must be in [0.1, 100]"),
+    (dict(dynamic_range_db=-3.0), "dynamic_range_db: dynamic range -3 dB must be in (0, 200]"),
+    (dict(dynamic_range_db=1e300), "dynamic_range_db: dynamic range 1e+300 dB must be in (0, 200]"),
 ])
 def test_simulation_errors_name_the_setting(kwargs, message):
     with pytest.raises(ValueError) as e:

@@ -438,8 +438,6 @@ Vec3 resolve_spacing(const PlusReconstructionConfig* config, const Reconstructio
   if (!spacing)
     throw InputError("give " + spelled(o.names, "spacing") + " (mm) or a PLUS configuration (" +
                      spelled(o.names, "config") + ") with OutputSpacing");
-  // Below a nanometre or beyond a kilometre's thousandfold is a typo, not a voxel size.
-  constexpr double kMinSpacingMm = 1e-6;
   for (double s : *spacing)
     if (!(s >= kMinSpacingMm && s <= kMaxGeometryMm)) {
       std::ostringstream why;

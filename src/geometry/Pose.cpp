@@ -50,6 +50,12 @@ void validate_poses(const Pose* poses, size_t count, const std::string& source, 
     for (int r = 0; r < 4; ++r)
       for (int c = 0; c < 4; ++c)
         if (!std::isfinite(p.m[r][c])) fail("has a non-finite entry (NaN or inf)");
+    for (int r = 0; r < 3; ++r)
+      if (std::fabs(p.m[r][3]) > kMaxGeometryMm) {
+        std::ostringstream t;
+        t << "translation " << p.m[r][3] << " mm is beyond any scanner (at most 1e9 mm)";
+        fail(t.str());
+      }
     if (p.m[3][0] != 0 || p.m[3][1] != 0 || p.m[3][2] != 0 || p.m[3][3] != 1)
       fail("last row must be 0 0 0 1");
     const Vec3 x = p.column3(0), y = p.column3(1);

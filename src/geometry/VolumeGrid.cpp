@@ -16,6 +16,9 @@ void VolumeGrid::validate(const std::string& what) const {
       why << "spacing along axis " << a << " is " << spacing_mm[a] << " mm (must be > 0)";
     else if (!std::isfinite(origin_mm[a]))
       why << "origin is not finite";
+    else if (spacing_mm[a] < kMinSpacingMm)
+      why << "spacing along axis " << a << " is " << spacing_mm[a]
+          << " mm: below any scanner's resolution (at least 1e-6 mm)";
     else if (spacing_mm[a] > kMaxGeometryMm || std::fabs(origin_mm[a]) > kMaxGeometryMm)
       why << (spacing_mm[a] > kMaxGeometryMm ? "spacing" : "origin") << " along axis " << a
           << " is " << (spacing_mm[a] > kMaxGeometryMm ? spacing_mm[a] : origin_mm[a])

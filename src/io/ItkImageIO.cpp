@@ -56,6 +56,8 @@ class WarningWindow : public itk::OutputWindow {
   void DisplayText(const char* text) override {
     // "WARNING: In /path/file.cxx, line N\nClass (0x...): message" → "message"
     const std::string t = text::one_line_message(text ? text : "", /*drop_location=*/true);
+    // A directory without a DICOM series is sonoslice's own error (naming the directory).
+    if (t.find("No Series were found") != std::string::npos) return;
     if (!t.empty()) warn("ITK: " + t);
   }
 };

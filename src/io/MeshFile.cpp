@@ -648,7 +648,9 @@ vtkSmartPointer<vtkAlgorithm> reader_for(const std::string& path, const std::str
 TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec))
-    throw FileError("cannot read mesh '" + path + "': no such file");
+    throw FileError(
+        "cannot read mesh '" + path +
+        "': " + (std::filesystem::is_directory(path, ec) ? "it is a directory" : "no such file"));
   const std::string ext = file_extension(path);
   WindowScope scope;
   vtkSmartPointer<vtkPolyData> input;

@@ -457,6 +457,7 @@ void write_image(const std::string& path, const void* data, PixelType type,
 
 void write_volume(const std::string& path, const Volume& volume, OutputSet* together) {
   const VolumeGrid& g = volume.grid();
+  g.validate("output '" + path + "'");  // a file that can be read back (ITK aborts on some)
   const ImageFormat format = image_format(path, "output");
   if (format == ImageFormat::Directory || format == ImageFormat::Png)
     throw InputError("output '" + path + "': write a volume as .nii.gz, .mha, .nrrd or .npy");

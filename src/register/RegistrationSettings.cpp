@@ -105,8 +105,13 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
     out << v;
     return out.str();
   };
+  // Each start is an optimisation with its own state: a million is a typo, not a search.
+  constexpr int kMaxStarts = 100000;
   if (starts && *starts < 1)
     throw InputError(name("starts") + " " + std::to_string(*starts) + ": must be at least 1");
+  if (starts && *starts > kMaxStarts)
+    throw InputError(name("starts") + " " + std::to_string(*starts) + ": at most " +
+                     std::to_string(kMaxStarts));
   if (!(search_rot_deg >= 0 && search_rot_deg <= 180))
     throw InputError(name("search_rot_deg") + " " + number(search_rot_deg) +
                      ": must be in [0, 180] degrees");

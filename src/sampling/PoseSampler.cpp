@@ -194,6 +194,8 @@ void SamplerSettings::validate(const std::string& where) const {
   interval(tilt_deg, "tilt_deg");
   interval(heel_toe_deg, "heel_toe_deg");
   interval(depth_mm, "depth_mm");
+  if (std::max(std::fabs(depth_mm.lo), std::fabs(depth_mm.hi)) > kMaxGeometryMm)
+    throw InputError(where + ": depth_mm: beyond any body (at most 1e9 mm)");
   if (std::max(std::fabs(tilt_deg.lo), std::fabs(tilt_deg.hi)) > 89 ||
       std::max(std::fabs(heel_toe_deg.lo), std::fabs(heel_toe_deg.hi)) > 89)
     throw InputError(where + ": tilt_deg and heel_toe_deg must stay within ±89 degrees");

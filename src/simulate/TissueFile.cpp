@@ -1,7 +1,9 @@
 // Tissue tables as JSON (include/sonoslice/simulate/TissueFile.h), through nlohmann-json.
 #include "sonoslice/simulate/TissueFile.h"
 
+#include <algorithm>
 #include <cmath>
+#include <iterator>
 
 #include "../io/JsonFile.h"
 
@@ -11,11 +13,31 @@ namespace {
 std::vector<Tissue> tissues_from(const nlohmann::json& doc, const std::string& where) {
   if (!doc.is_object() || !doc.contains("tissues") || !doc["tissues"].is_array())
     throw InputError(where + ": expected an object with a \"tissues\" array");
+  // A key sonoslice does not read is a typo ("impedence") that would otherwise run with a
+  // default or fail later without naming it; descriptive keys (notes, a colour, any "_key") are
+  // kept for the people who read the table.
+  const auto descriptive = [](const std::string& key) {
+    return key == "notes" || key == "comment" || key == "description" || key == "colour" ||
+           key == "color" || (!key.empty() && key[0] == '_');
+  };
+  for (const auto& item : doc.items())
+    if (item.key() != "tissues" && !descriptive(item.key()))
+      throw InputError(where + ": unknown key \"" + item.key() + "\" (expected \"tissues\")");
+  static const char* const kKeys[] = {
+      "name",         "label",          "impedance_mrayl", "attenuation_db_cm_mhz",
+      "scatter_mean", "scatter_density"};
   std::vector<Tissue> out;
   int index = 0;
   for (const nlohmann::json& e : doc["tissues"]) {
     const std::string entry = where + ": tissues[" + std::to_string(index++) + "]";
     if (!e.is_object()) throw InputError(entry + ": expected an object");
+    for (const auto& item : e.items())
+      if (std::find(std::begin(kKeys), std::end(kKeys), item.key()) == std::end(kKeys) &&
+          !descriptive(item.key()))
+        throw InputError(entry + ": unknown key \"" + item.key() +
+                         "\" (expected name, label, impedance_mrayl, attenuation_db_cm_mhz, "
+                         "scatter_mean, scatter_density; or notes, comment, description, "
+                         "colour, _any)");
     const auto number = [&](const char* key, bool required, double fallback) {
       if (!e.contains(key)) {
         if (required) throw InputError(entry + ": missing \"" + key + "\"");

@@ -34,6 +34,9 @@ Volume Volume::allocate(PixelType type, const VolumeGrid& grid) {
 
 Volume Volume::wrap(void* data, PixelType type, const VolumeGrid& grid,
                     std::shared_ptr<void> owner) {
+  // Every volume, however made (a file, a Python array, a compounder), has a grid the kernels
+  // and the writers can take: ITK aborts writing a NIfTI of spacing 1e300.
+  grid.validate("volume");
   Volume v;
   v.type_ = type;
   v.grid_ = grid;

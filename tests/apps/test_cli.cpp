@@ -718,7 +718,7 @@ std::vector<BadCase> bad_cases() {
        "--out {OUT} --device cuda",
        "--surface-mode exact runs on the CPU"},
       {"VoxelizeZeroSpacing", "voxelize {DIR}/in_tet.stl --spacing 0 --out {OUT}",
-       "voxelize: give --spacing"},
+       "--spacing 0: must be > 0 mm"},
       {"VoxelizeNoMesh", "voxelize {DIR}/nope.stl --spacing 1 --out {OUT}",
        "nope.stl': no such file"},
       {"CompoundMissingSequence", "compound --sequence {DIR}/nope.igs.mha --spacing 1 --out {OUT}",

@@ -13,6 +13,8 @@ constexpr double kPi = 3.14159265358979323846;
 /// with spacing, origin or sizes beyond it are refused as absurd (a header field near FLT_MAX
 /// once made ITK's orientation SVD loop without end; one beyond it makes ITK abort).
 constexpr double kMaxGeometryMm = 1e9;
+/// And a voxel or pixel below a nanometre is a typo (a grid of it overflows any size).
+constexpr double kMinSpacingMm = 1e-6;
 
 using Vec3 = std::array<double, 3>;
 

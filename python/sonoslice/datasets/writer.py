@@ -62,6 +62,10 @@ _PROBE_KEYS = {"id", "file", "downsampling"}
 _IMAGE_KEYS = {"kind", "dtype"}
 # A sampler entry's own keys; everything else is the sampler's parameters (sonoslice.PoseSampler).
 _SAMPLER_DATASET_KEYS = {"volume", "probe", "count", "images", "mesh"}
+# A sampler's count and local:N's workers beyond these are typos: a billion W1 images is about
+# 200 TB, and no machine runs a thousand worker processes.
+_MAX_SAMPLES = 1_000_000_000
+_MAX_LOCAL_WORKERS = 1024
 # Images rendered at a time within a shard: bounds memory (64 W1 float32 images are 23 MB).
 _CHUNK = 64
 
@@ -301,7 +305,7 @@ def _sampler_entry(where: str, entry, index: int, first: int, base: str, volumes
     for key, known in (("volume", volumes), ("probe", probes)):
         if entry[key] not in known:
             raise SpecError(f"{where}{key} {entry[key]!r}: no such id in {key}s (ids: {', '.join(known)})")
-    count = _integer(where, "count", entry["count"], 1)
+    count = _integer(where, "count", entry["count"], 1, _MAX_SAMPLES)
     if "images" in entry:
         kinds = _image_kinds(where + "images: ", entry["images"], image_format)
     elif images is not None:
@@ -826,9 +830,9 @@ def _parse_scheduler(scheduler: Optional[str]) -> Optional[int]:
         _scheduler_address(scheduler)
         return None
     n = scheduler[len("local:"):] if scheduler.startswith("local:") else ""
-    if not n.isdigit() or int(n) < 1:
-        raise ValueError(f"--scheduler '{scheduler}': expected local:N (N >= 1 worker processes) or a Dask "
-                         "scheduler address such as tcp://HOST:8786")
+    if not n.isdigit() or not 1 <= int(n) <= _MAX_LOCAL_WORKERS:
+        raise ValueError(f"--scheduler '{scheduler}': expected local:N (1 <= N <= {_MAX_LOCAL_WORKERS} worker "
+                         "processes) or a Dask scheduler address such as tcp://HOST:8786")
     return int(n)
 
 
