@@ -35,12 +35,11 @@ auto with_json_errors_named(const std::string& where, F read) -> decltype(read()
 /// Whether a failure to open the file names the system's reason.
 enum class OpenErrorReason { Omit, Append };
 
-/// The JSON document in `path`, which errors call `what` (e.g. "poses"). FileError
-/// "cannot open <what> '<path>'" when the file cannot be opened (followed by ": " and
-/// strerror(errno) with OpenErrorReason::Append), "<what> '<path>': invalid JSON (<detail>)"
-/// when it does not parse.
-inline nlohmann::json read_json_file(const std::string& path, const std::string& what,
-                                     OpenErrorReason reason = OpenErrorReason::Omit) {
+/// `path` opened for reading, which errors call `what` (e.g. "poses"): FileError
+/// "cannot open <what> '<path>'" when it cannot be opened (followed by ": " and strerror(errno)
+/// with OpenErrorReason::Append) or ": it is a directory" (which an ifstream would open).
+inline std::ifstream open_text_file(const std::string& path, const std::string& what,
+                                    OpenErrorReason reason = OpenErrorReason::Omit) {
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec))
     throw FileError("cannot open " + what + " '" + path + "': it is a directory");
@@ -51,6 +50,14 @@ inline nlohmann::json read_json_file(const std::string& path, const std::string&
     if (reason == OpenErrorReason::Append) message += std::string(": ") + std::strerror(err);
     throw FileError(message);
   }
+  return in;
+}
+
+/// The JSON document in `path` (open_text_file's errors), or FileError
+/// "<what> '<path>': invalid JSON (<detail>)" when it does not parse.
+inline nlohmann::json read_json_file(const std::string& path, const std::string& what,
+                                     OpenErrorReason reason = OpenErrorReason::Omit) {
+  std::ifstream in = open_text_file(path, what, reason);
   try {
     return nlohmann::json::parse(in);
   } catch (const nlohmann::json::exception& e) {

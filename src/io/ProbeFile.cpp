@@ -1,7 +1,6 @@
 #include "sonoslice/io/ProbeFile.h"
 
 #include <cmath>
-#include <filesystem>
 #include <fstream>
 #include <optional>
 #include <sstream>
@@ -175,11 +174,7 @@ ProbeGeometry parse_probe_json(const std::string& text, const std::string& sourc
 }
 
 ProbeGeometry read_probe(const std::string& path, int downsampling) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec))
-    throw FileError("cannot open probe file '" + path + "': it is a directory");
-  std::ifstream in(path);
-  if (!in) throw FileError("cannot open probe file '" + path + "'");
+  std::ifstream in = open_text_file(path, "probe file");
   std::stringstream text;
   text << in.rdbuf();
   return parse_probe_json(text.str(), path, downsampling);
