@@ -629,8 +629,15 @@ def write_tar(f, members) -> Tuple[str, int]:
         end = 2 * tarfile.BLOCKSIZE
         end += -(out.size + end) % tarfile.RECORDSIZE
         out.write([tarfile.NUL * end])
-    finally:
+    except Exception:
         out.close()
+        raise
+    except BaseException:
+        # SIGTERM or Ctrl-C, raised by a signal handler wherever the main thread was, possibly
+        # inside a Queue's lock: a close() would wait on that lock for ever. The threads are
+        # daemons and the process is on its way out.
+        raise
+    out.close()
     return out.sha.hexdigest(), out.size
 
 
