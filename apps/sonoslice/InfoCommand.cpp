@@ -24,7 +24,7 @@ void run_info(const InfoFlags& f) {
     std::printf("%s", describe_devices().c_str());
     if (f.volume.path.empty()) return;
   }
-  if (f.volume.path.empty()) throw InputError("info: give a volume path (or --devices)");
+  if (f.volume.path.empty()) throw UsageError("info: give a volume path (or --devices)");
   std::vector<DicomSeriesInfo> series;
   std::error_code ec;
   if (std::filesystem::is_directory(f.volume.path, ec)) series = list_dicom_series(f.volume.path);

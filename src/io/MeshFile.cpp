@@ -60,24 +60,42 @@ class CollectingWindow : public vtkOutputWindow {
  public:
   static CollectingWindow* New();
   vtkTypeMacro(CollectingWindow, vtkOutputWindow);
-  void DisplayErrorText(const char* t) override { errors += clean(t); }
-  void DisplayWarningText(const char* t) override { warnings += clean(t); }
-  void DisplayGenericWarningText(const char* t) override { warnings += clean(t); }
+  void DisplayErrorText(const char* t) override { add(errors, t); }
+  void DisplayWarningText(const char* t) override { add(warnings, t); }
+  void DisplayGenericWarningText(const char* t) override { add(warnings, t); }
   void DisplayText(const char*) override {}
-  std::string errors, warnings;
+  bool failed() const { return pipeline_failed || !errors.empty(); }
+  // What to tell the user when the read failed: the reader's errors, else its warnings (some
+  // readers only log), else that the pipeline failed.
+  std::string error_text() const {
+    if (!errors.empty()) return errors;
+    return warnings.empty() ? "not a valid file of its format; " : warnings;
+  }
+  std::string errors, warnings;  // "message; message; "
+
+  void add(std::string& to, const char* text) {
+    // "ERROR: In /path/x.cxx, line N\nvtkClass (0x...): message" → "message"
+    const std::string message = text::one_line_message(text ? text : "", /*drop_location=*/true);
+    if (message.empty()) return;
+    // The pipeline's "Algorithm vtkXReader(0x...) returned failure for request: vtkInformation
+    // (...)" dump follows the reader's own message and says nothing more.
+    if (message.rfind("Algorithm ", 0) == 0 &&
+        message.find(" returned failure for request") != std::string::npos) {
+      pipeline_failed = true;
+      return;
+    }
+    if (to.find(message + "; ") == std::string::npos) to += message + "; ";
+  }
 
  private:
-  static std::string clean(const char* text) {
-    // "ERROR: In /path/x.cxx, line N\nvtkClass (0x...): message" → "message"
-    const std::string s = text::one_line_message(text ? text : "", /*drop_location=*/true);
-    return s.empty() ? s : s + "; ";
-  }
+  bool pipeline_failed = false;
 };
 vtkStandardNewMacro(CollectingWindow);
 
 // Some VTK 9 readers log through vtkLogger (to stderr) instead: silence that and collect it too.
 void collect_log(void* user, const vtkLogger::Message& m) {
-  static_cast<CollectingWindow*>(user)->warnings += std::string(m.message ? m.message : "") + "; ";
+  auto* window = static_cast<CollectingWindow*>(user);
+  window->add(window->warnings, m.message);
 }
 
 struct WindowScope {
@@ -661,8 +679,8 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
     if (ext == ".stl") check_stl(path);
     if (ext == ".obj") check_obj(path);
     reader->Update();
-    if (!scope.window->errors.empty())
-      throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->errors));
+    if (scope.window->failed())
+      throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->error_text()));
     input = vtkPolyData::SafeDownCast(reader->GetOutputDataObject(0));
     if (!input) throw FileError("cannot read mesh '" + path + "': no polygonal data");
     check_poly(path, input);
@@ -676,8 +694,8 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
   clean->PointMergingOn();
   clean->SetTolerance(0.0);
   clean->Update();
-  if (!scope.window->errors.empty())
-    throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->errors));
+  if (scope.window->failed())
+    throw FileError("cannot read mesh '" + path + "': " + trimmed(scope.window->error_text()));
   vtkPolyData* poly = clean->GetOutput();
   TriangleMesh mesh;
   mesh.name = std::filesystem::path(path).filename().string();
@@ -754,7 +772,7 @@ void write_mesh(const std::string& path, const TriangleMesh& mesh) {
   } else {
     throw InputError("mesh '" + path + "': unknown format '" + ext + "'");
   }
-  if (!ok || !scope.window->errors.empty()) throw FileError("cannot write mesh '" + path + "'");
+  if (!ok || scope.window->failed()) throw FileError("cannot write mesh '" + path + "'");
   file.commit();
 }
 

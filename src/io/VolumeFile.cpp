@@ -145,14 +145,18 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
   if (options.spacing_mm) g.spacing_mm = *options.spacing_mm;
   if (options.origin_mm) g.origin_mm = *options.origin_mm;
   if (options.direction) g.direction = *options.direction;
-  if (!have_geometry)
-    warn("volume '" + path + "': no spacing given (a spacing option or a sidecar " +
-         sidecar.filename().string() + "); assuming 1 mm voxels at the origin");
+  // Said once the file is known to be readable: a truncated file gets its error alone.
+  const auto warn_if_assumed = [&] {
+    if (!have_geometry)
+      warn("volume '" + path + "': no spacing given (a spacing option or a sidecar " +
+           sidecar.filename().string() + "); assuming 1 mm voxels at the origin");
+  };
 
   if (a.fortran_order) {
     const int axis_of[3] = {2, 1, 0};  // still (nz, ny, nx), but stored Fortran-order
     Volume v = permuted(a, axis_of, g);
     v.grid().validate("volume '" + path + "'");
+    warn_if_assumed();
     return v;
   }
   g.dims = {a.shape[2], a.shape[1], a.shape[0]};
@@ -160,6 +164,7 @@ Volume read_npy_volume(const std::string& path, const VolumeReadOptions& options
   if (mappable)
     a.data = map_file_region(path, a.data_offset, uint64_t(a.element_count()) * pixel_size(a.type),
                              pixel_size(a.type));
+  warn_if_assumed();
   void* data = a.data.get();
   return Volume::wrap(data, a.type, g, a.data);  // zero-copy: the Volume owns the buffer or map
 }
@@ -317,7 +322,8 @@ Volume warn_non_finite(Volume v, const std::string& path) {
 }
 }  // namespace
 
-Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
+namespace {
+Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& options) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileError("cannot read volume '" + path + "': no such file");
   const ImageFormat format = image_format(path, "volume");
@@ -328,17 +334,22 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
         "volume '" + path +
         "': spacing, origin, direction and a fan-slicer npy config apply to .npy volumes only "
         "(this file carries its own geometry)");
-  if (format == ImageFormat::Npy) return warn_non_finite(read_npy_volume(path, options), path);
+  if (format == ImageFormat::Npy) return read_npy_volume(path, options);
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
     throw ParameterError("series_uid", "applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
   Volume v = fs::is_directory(path, ec) ? itk_io::read_dicom_directory(path, options.series_uid)
                                         : itk_io::read_image_file(path);
   v.grid().validate("volume '" + path + "'");
-  return warn_non_finite(std::move(v), path);
+  return v;
 #else
   no_itk(path);
 #endif
+}
+}  // namespace
+
+Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
+  return warn_non_finite(read_volume_as_stored(path, options), path);
 }
 
 namespace {
@@ -373,7 +384,8 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
       // One 2-D image (H, W), as `slice --mask` writes it: a stack of one.
       if (read_npy_header(path).shape.size() == 2) return read_npy_image(path, what);
     }
-    return read_volume(path, options);
+    // Images are not sampled: what their NaN pixels mean is the caller's to say.
+    return read_volume_as_stored(path, options);
   }
   std::vector<std::string> files;
   for (const auto& entry : fs::directory_iterator(path, ec))

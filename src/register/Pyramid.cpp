@@ -138,6 +138,14 @@ FrameRegistration::FrameRegistration(const Volume& volume, const ProbeGeometry& 
                        " has no pixel inside the probe's fan and the mask with a finite value");
     s.mask_centre[k] = {sx / n, sy / n, 0};
   }
+  // NaN and infinite pixels are left out like pixels outside the mask; run() says how many.
+  const size_t plane = size_t(probe.image.width) * probe.image.height;
+  for (size_t k = 0; k < frame_count; ++k)
+    for (size_t i = 0; i < plane; ++i)
+      if (mask[i]) {
+        ++s.masked_pixels;
+        s.non_finite_pixels += !std::isfinite(frames[k * plane + i]);
+      }
   // MI's ranges (robust: a few bright voxels or pixels do not squeeze the histogram).
   const auto percentiles = [](std::vector<float> values, double out[2]) {
     if (values.empty()) {

@@ -109,6 +109,12 @@ std::vector<Pose> FrameRegistration::run(const std::vector<Pose>& initial,
     throw InputError("poses: " + std::to_string(initial.size()) + " poses for " +
                      std::to_string(s.count) + " frames");
   validate_poses(initial.data(), initial.size(), "poses");
+  // Said here, not when the frames are taken: the sweep checks make registrations of their own
+  // whose frames hold NaN for the pixels they leave out.
+  if (s.non_finite_pixels > 0)
+    warn("frames: " + std::to_string(s.non_finite_pixels) + " of the " +
+         std::to_string(s.masked_pixels) +
+         " pixels inside the fan and the mask are NaN or infinite; they are left out");
   for (int f : *settings.pyramid) prepare_level(f);
   // Frames without contrast (constant over their compared pixels, or none left) have nothing to
   // register against: per frame they keep their pose, and the warning says why.

@@ -38,6 +38,8 @@ struct FrameRegistration::State {
   Volume volume;  // float32 or int16: the caller's (shared), else a float32 copy
   std::deque<register_impl::Level> levels;  // only added to: references to a level stay valid
   std::vector<Vec3> mask_centre;  // per frame: the centroid of its compared pixels (probe mm)
+  // Pixels inside the fan and the user's mask, and how many of them are NaN or infinite (left out).
+  size_t masked_pixels = 0, non_finite_pixels = 0;
   // MI's intensity ranges: the volume's and each frame's 1st and 99th percentiles.
   double volume_range[2] = {0, 1};
   std::vector<std::array<double, 2>> frame_range;

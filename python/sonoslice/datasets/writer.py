@@ -384,9 +384,10 @@ def pose_sampler(spec: Spec, s: SamplerEntry):
 
     def make():
         mesh = None if s.mesh is None else _load(f"{spec.where(f'samplers[{s.index}]')}mesh", s.mesh, Mesh.from_file)
+        inputs = dict(volume=volume(spec, s.volume), labels=labels(spec, s.volume), mesh=mesh)  # name their own entries
+        the_probe = probe(spec, s.probe)
         try:
-            return PoseSampler(dict(s.config), probe(spec, s.probe), volume=volume(spec, s.volume),
-                               labels=labels(spec, s.volume), mesh=mesh)
+            return PoseSampler(dict(s.config), the_probe, **inputs)
         except (ValueError, TypeError, RuntimeError) as e:
             raise SpecError(f"{spec.where(f'samplers[{s.index}]')}{_unprefixed(e)}") from None
     return _cached(key, make)
