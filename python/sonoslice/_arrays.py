@@ -87,25 +87,27 @@ def _scalar(value):
     return value
 
 
-def whole(value, what: str) -> int:
-    """An integer argument; ValueError naming ``what`` for 2.5 (int() would make it 2), TypeError for
-    what is not a number. The library checks the range."""
+def whole(value, what: str, limit: int = 2**31 - 1) -> int:
+    """An integer argument; ValueError naming ``what`` for 2.5 (int() would make it 2) or beyond
+    ±``limit`` (the C++ parameter's range: nanobind would refuse it with a generic message),
+    TypeError for what is not a number. The library checks the meaningful range."""
     value = _scalar(value)
     if isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{what}: expected an integer, got {value!r}")
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)) and float(value).is_integer():
-        return int(value)
-    if isinstance(value, (float, np.floating)):
+    if isinstance(value, (float, np.floating)) and not float(value).is_integer():
         raise ValueError(f"{what} {value!r}: expected a whole number")
-    raise TypeError(f"{what}: expected an integer, got {type(value).__name__}")
+    if not isinstance(value, (int, np.integer, float, np.floating)):
+        raise TypeError(f"{what}: expected an integer, got {type(value).__name__}")
+    n = int(value)  # a float here is whole (and finite: inf and NaN are not is_integer())
+    if not -limit - 1 <= n <= limit:
+        raise ValueError(f"{what} {n}: out of range")
+    return n
 
 
 def count(value, what: str) -> int:
     """A whole number ≥ 0 (a count, an index); errors name ``what`` (a negative one would meet
     nanobind's generic "incompatible function arguments")."""
-    n = whole(value, what)
+    n = whole(value, what, limit=2**63 - 1)
     if n < 0:
         raise ValueError(f"{what} {n}: must be at least 0")
     return n
@@ -113,7 +115,7 @@ def count(value, what: str) -> int:
 
 def seed(value, what: str = "seed") -> int:
     """A seed: a whole number from 0 to 2⁶⁴ − 1 (the library's seeds are unsigned 64-bit)."""
-    n = whole(value, what)
+    n = whole(value, what, limit=2**64)
     if not 0 <= n < 2**64:
         raise ValueError(f"{what} {n}: expected a whole number from 0 to {2**64 - 1}")
     return n

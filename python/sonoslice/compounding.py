@@ -138,7 +138,10 @@ def _frames(frames, what: str = "frames") -> np.ndarray:
     """Frames as an array in host memory (torch tensors through NumPy, lists as arrays, big-endian
     ones converted); the library checks their dtype and shape (naming ``what``), and nanobind
     makes strided arrays C-contiguous."""
-    return _arrays.native(np.asarray(_arrays.numpy_of(frames)), what)
+    a = np.asarray(_arrays.numpy_of(frames))
+    if a.dtype.kind in "OSUVMm":  # None, text, objects: nanobind would only say "incompatible"
+        raise TypeError(f"{what}: expected an array of numbers, got {type(frames).__name__} of dtype {a.dtype}")
+    return _arrays.native(a, what)
 
 
 # ---- frame clips ----------------------------------------------------------------------------------

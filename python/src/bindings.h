@@ -128,7 +128,6 @@ ReconstructionOptions reconstruction_options(
     std::optional<std::array<int64_t, 3>> extent = std::nullopt);
 using MatricesOut = nb::ndarray<nb::numpy, double, nb::shape<-1, 4, 4>>;
 
-/// NumPy's name of a DLPack dtype ("uint8", "float32", "complex64", "bool", ...).
 /// A seed given as any Python int: 0..2^64 − 1, else an InputError (ValueError) naming `what`
 /// instead of nanobind's generic "incompatible function arguments" (-1) or a silent wrap.
 inline uint64_t seed_value(const nb::int_& value, const std::string& what) {
@@ -141,6 +140,21 @@ inline uint64_t seed_value(const nb::int_& value, const std::string& what) {
   return uint64_t(v);
 }
 
+/// Keywords a settings class does not take (a typo, a setting of another class): an InputError
+/// (ValueError) naming them and the ones it takes, instead of nanobind's generic "incompatible
+/// function arguments" that lists every signature.
+template <typename Names>
+void refuse_unknown_keywords(const nb::kwargs& given, const std::string& what, const Names& known) {
+  if (given.size() == 0) return;
+  std::string unknown, expected;
+  for (auto item : given)
+    unknown += (unknown.empty() ? "'" : ", '") + std::string(nb::str(item.first).c_str()) + "'";
+  for (const auto& name : known) expected += (expected.empty() ? "" : ", ") + std::string(name);
+  throw InputError(what + ": unknown keyword" + (given.size() > 1 ? "s " : " ") + unknown +
+                   " (expected " + expected + ")");
+}
+
+/// NumPy's name of a DLPack dtype ("uint8", "float32", "complex64", "bool", ...).
 inline std::string dtype_name(nb::dlpack::dtype d) {
   using C = nb::dlpack::dtype_code;
   std::string name;

@@ -274,7 +274,7 @@ void bind_volumes(nb::module_& m) {
 
   nb::class_<ArrayVolume, Volume>(m, "ArrayVolume",
                                   "A Volume viewing a caller's array (checked before each use).")
-      .def_static("from_array", &volume_from_array, "array"_a, "spacing"_a, "origin"_a,
+      .def_static("from_array", &volume_from_array, "array"_a.none(), "spacing"_a, "origin"_a,
                   "direction"_a);
 
   // ---- the built-in phantom
