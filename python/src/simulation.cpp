@@ -127,7 +127,9 @@ void bind_simulation(nb::module_& m) {
       .def(
           "__init__",
           [](Tissue* self, const std::string& name, int label, double impedance_mrayl,
-             double attenuation_db_cm_mhz, double scatter_mean, double scatter_density) {
+             double attenuation_db_cm_mhz, double scatter_mean, double scatter_density,
+             const nb::kwargs& unknown) {
+            refuse_unknown_keywords(unknown, "Tissue", kTissueFields);
             const Tissue t{name,         label,          impedance_mrayl, attenuation_db_cm_mhz,
                            scatter_mean, scatter_density};
             validate_tissues({t}, "Tissue");
@@ -136,7 +138,8 @@ void bind_simulation(nb::module_& m) {
           nb::kw_only(), "name"_a = tissue.name, "label"_a = tissue.label,
           "impedance_mrayl"_a = tissue.impedance_mrayl,
           "attenuation_db_cm_mhz"_a = tissue.attenuation_db_cm_mhz,
-          "scatter_mean"_a = tissue.scatter_mean, "scatter_density"_a = tissue.scatter_density)
+          "scatter_mean"_a = tissue.scatter_mean, "scatter_density"_a = tissue.scatter_density,
+          "unknown"_a)
       .def_ro("name", &Tissue::name, "lower case: \"liver\", \"soft tissue\", ...")
       .def_ro("label", &Tissue::label, "the label value in a label volume (0..65535)")
       .def_ro("impedance_mrayl", &Tissue::impedance_mrayl, "acoustic impedance Z (MRayl)")
@@ -171,6 +174,16 @@ void bind_simulation(nb::module_& m) {
   });
 
   const SimulationSettings settings;
+  static constexpr const char* kSettingNames[] = {"preset",
+                                                  "frequency_mhz",
+                                                  "seed",
+                                                  "dynamic_range_db",
+                                                  "tgc_auto",
+                                                  "output",
+                                                  "axial_fwhm_mm",
+                                                  "lateral_fwhm_mm",
+                                                  "elevation_fwhm_mm",
+                                                  "device"};
   nb::class_<SimulationSettings>(
       m, "SimulationSettings",
       "What a simulation does (docs/simulation.md); unset values take the library's defaults. "
@@ -180,7 +193,8 @@ void bind_simulation(nb::module_& m) {
           [](SimulationSettings* self, std::optional<std::string> preset,
              std::optional<double> frequency_mhz, nb::int_ seed, double dynamic_range_db,
              bool tgc_auto, SimulationOutput output, double axial_fwhm_mm, double lateral_fwhm_mm,
-             double elevation_fwhm_mm, const std::string& device) {
+             double elevation_fwhm_mm, const std::string& device, const nb::kwargs& unknown) {
+            refuse_unknown_keywords(unknown, "SimulationSettings", kSettingNames);
             SimulationSettings s;
             s.preset = std::move(preset);
             s.frequency_mhz = frequency_mhz;
@@ -201,7 +215,7 @@ void bind_simulation(nb::module_& m) {
           "axial_fwhm_mm"_a = settings.axial_fwhm_mm,
           "lateral_fwhm_mm"_a = settings.lateral_fwhm_mm,
           "elevation_fwhm_mm"_a = settings.elevation_fwhm_mm,
-          "device"_a = settings.device.to_string(),
+          "device"_a = settings.device.to_string(), "unknown"_a,
           "preset: a probe and frequency (simulation_presets()); frequency_mhz: default the "
           "preset's, else 5 MHz.")
       .def_ro("preset", &SimulationSettings::preset)

@@ -2,6 +2,7 @@
 caller gave), errors name the setting as Python spells it (never a CLI flag), and dicts of settings
 go through the library's parsers."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -137,8 +138,12 @@ def test_tissue_tables_are_lists_of_tissues():
                                  "scatter_density"]
     assert eval(repr(liver), {"Tissue": sonoslice.Tissue}) == liver
     assert sonoslice.Tissue(**dict(liver)) == liver
-    with pytest.raises(ValueError, match="impedance_mrayl must be > 0"):
+    with pytest.raises(ValueError, match="impedance_mrayl -1 must be > 0 and <= 1000$"):
         sonoslice.Tissue(name="x", label=1, impedance_mrayl=-1.0)
+    for key, value in (("impedance_mrayl", 1e300), ("attenuation_db_cm_mhz", 2000.0), ("scatter_mean", math.inf),
+                       ("scatter_density", 1e7), ("scatter_density", math.nan)):
+        with pytest.raises(ValueError, match="^" + re.escape(f"Tissue: tissue 'x' (label 1): {key} {value:g} must be ")):
+            sonoslice.Tissue(name="x", label=1, **{key: value})
     # Dicts are read by the table files' parser: the same required keys and checks.
     with pytest.raises(ValueError, match='missing "scatter_mean"'):
         sonoslice._ext.tissue_table([dict(name="x", label=1, impedance_mrayl=1.5, attenuation_db_cm_mhz=0.5)])

@@ -205,7 +205,7 @@ def test_python_simulator_bad_input(phantom, poses, tmp_path):
         sonoslice.Simulator(labels, "lus", tissues=sonoslice.default_tissues())
     bad = [dict(t) for t in sonoslice.phantom_tissues()]
     bad[2]["impedance_mrayl"] = -1
-    with pytest.raises(ValueError, match="impedance_mrayl must be > 0"):
+    with pytest.raises(ValueError, match="impedance_mrayl -1 must be > 0 and <= 1000$"):
         sonoslice.Simulator(labels, "lus", tissues=bad)
     sim = sonoslice.Simulator(ct, "lus")
     p = np.array(poses[:2])

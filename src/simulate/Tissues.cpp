@@ -68,6 +68,14 @@ Tissue tissue_from_hu(double hu) {
   return t;
 }
 
+namespace {
+std::string number(double v) {
+  std::ostringstream out;
+  out << v;
+  return out.str();
+}
+}  // namespace
+
 void validate_tissues(const std::vector<Tissue>& tissues, const std::string& what) {
   if (tissues.empty()) throw InputError(what + ": the tissue table is empty");
   std::set<int> labels;
@@ -78,24 +86,19 @@ void validate_tissues(const std::vector<Tissue>& tissues, const std::string& wha
       throw InputError(name + ": the label must be in [0, 65535]");
     if (!labels.insert(t.label).second)
       throw InputError(what + ": label " + std::to_string(t.label) + " is listed twice");
-    if (!(t.impedance_mrayl > 0) || !std::isfinite(t.impedance_mrayl))
-      throw InputError(name + ": impedance_mrayl must be > 0");
-    if (!(t.attenuation_db_cm_mhz >= 0) || !std::isfinite(t.attenuation_db_cm_mhz))
-      throw InputError(name + ": attenuation_db_cm_mhz must be >= 0");
-    if (!(t.scatter_mean >= 0) || !std::isfinite(t.scatter_mean))
-      throw InputError(name + ": scatter_mean must be >= 0");
-    if (!(t.scatter_density > 0) || !std::isfinite(t.scatter_density))
-      throw InputError(name + ": scatter_density must be > 0");
+    // The upper bounds lie far beyond any material (tungsten: 100 MRayl; lung: 40 dB/cm/MHz;
+    // a reflection's amplitude: at most 1): a value past them is a typo or a unit mistake.
+    const auto check = [&](double value, bool above_zero, double most, const char* key) {
+      if (!(above_zero ? value > 0 : value >= 0) || !(value <= most))
+        throw InputError(name + ": " + key + " " + number(value) + " must be " +
+                         (above_zero ? "> 0" : ">= 0") + " and <= " + number(most));
+    };
+    check(t.impedance_mrayl, true, 1000, "impedance_mrayl");
+    check(t.attenuation_db_cm_mhz, false, 1000, "attenuation_db_cm_mhz");
+    check(t.scatter_mean, false, 1000, "scatter_mean");
+    check(t.scatter_density, true, 1e6, "scatter_density");
   }
 }
-
-namespace {
-std::string number(double v) {
-  std::ostringstream out;
-  out << v;
-  return out.str();
-}
-}  // namespace
 
 const char* to_string(SimulationSource source) {
   switch (source) {
