@@ -147,7 +147,7 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
     result = run_live_compound(compounder, run);
   }
   if (feed) feed->finish(result.volume);
-  // The statistics first: they say why a run has no volume.
+  // Why frames were turned away, for the summary line and the error of a run without a volume.
   std::string why;
   for (const auto& [reason, n] : result.stats.rejected_by_reason)
     why += "; " + std::to_string(n) + " rejected: " + reason;
@@ -155,17 +155,20 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
     if (key.rfind("rejected: ", 0) == 0 || key.rfind("ignored: ", 0) == 0 ||
         key.rfind("connect failed: ", 0) == 0)
       why += "; " + std::to_string(n) + " " + key;
-  if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
   std::fprintf(stderr, "sonoslice live compound: stopped by %s: %s%s\n", result.stopped_by.c_str(),
                result.stats.summary().c_str(), why.c_str());
-  if (result.volume.grid().voxel_count() == 0)
+  if (result.volume.grid().voxel_count() == 0) {
+    // The statistics alone: they say why the run has no volume.
+    if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
     throw InputError("live compound: no frame was compounded, nothing written to '" + f.out +
                      "' (" + std::to_string(result.stats.received) + " frames received" + why +
                      ")");
-  OutputSet outputs;
+  }
+  OutputSet outputs;  // the volume, the recording and the statistics: all of them or none
   write_volume(f.out, result.volume, &outputs);
+  if (!f.record.empty()) write_plus_sequence(f.record, compounder.recorded(), true, &outputs);
+  if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n", &outputs);
   outputs.commit();
-  if (!f.record.empty()) write_plus_sequence(f.record, compounder.recorded());
   if (!f.quiet && result.stats.grid) {
     const VolumeGrid& g = *result.stats.grid;
     std::fprintf(stderr,

@@ -4,6 +4,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -157,7 +158,8 @@ void check_plus_sequence_name(const std::string& path) {
                      "': unsupported file name ending (expected .mha or .nrrd, e.g. .igs.mha)");
 }
 
-void write_plus_sequence(const std::string& path, const PlusSequence& s, bool compress) {
+void write_plus_sequence(const std::string& path, const PlusSequence& s, bool compress,
+                         OutputSet* together) {
   check_plus_sequence_name(path);
   const bool nrrd = ends_with(lower(path), ".nrrd");
   if (s.width <= 0 || s.height <= 0 || s.frame_count <= 0)
@@ -235,9 +237,9 @@ void write_plus_sequence(const std::string& path, const PlusSequence& s, bool co
   h << (nrrd ? "\n" : "ElementDataFile = LOCAL\n");
   const std::string header = h.str();
 
-  AtomicFile atomic(path);
+  auto atomic = std::make_unique<AtomicFile>(path);
   {
-    OutputFile out(atomic.temp_path(), path);
+    OutputFile out(atomic->temp_path(), path);
     out.write(header);
     PixelSink sink(&out, compress, nrrd ? 15 + 16 : 15, path);
     std::vector<uint8_t> frame;
@@ -259,7 +261,10 @@ void write_plus_sequence(const std::string& path, const PlusSequence& s, bool co
     }
     out.close();
   }
-  atomic.commit();
+  if (together)
+    together->add(std::move(atomic));
+  else
+    atomic->commit();
 }
 
 }  // namespace sonoslice

@@ -12,6 +12,8 @@
 
 namespace sonoslice {
 
+class OutputSet;
+
 /// A tracked-frame sequence with its frames converted to MF orientation.
 struct PlusSequence {
   std::string path;
@@ -55,9 +57,10 @@ PlusSequence read_plus_sequence(const std::string& path);
 
 /// Writes a PLUS sequence file atomically (.mha: MetaImage with `ElementDataFile = LOCAL`;
 /// .nrrd: NRRD with `key:=value` fields), compressed (zlib for .mha, gzip for .nrrd) or raw.
-/// The frames are written in the sequence's `orientation` (flipped back from MF).
+/// The frames are written in the sequence's `orientation` (flipped back from MF). With
+/// `together`, the file goes into place with that set's commit().
 void write_plus_sequence(const std::string& path, const PlusSequence& sequence,
-                         bool compress = true);
+                         bool compress = true, OutputSet* together = nullptr);
 
 /// Throws InputError naming `path` unless it ends in a sequence format write_plus_sequence
 /// writes (.mha or .nrrd): for callers that write one at the end of a long run.
