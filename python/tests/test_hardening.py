@@ -315,6 +315,7 @@ def test_cli_usage_errors_exit_2_with_one_line(cli, tmp_path):
         (("slice", "--volume", "ct.nii"), "--probe is required; see 'sonoslice slice --help'"),
         (("slice", "--bogus", "1"), "unexpected argument(s) --bogus 1"),
         (("info", "a", "b", "c"), "not expected"),
+        (("info",), "info: give a volume path (or --devices)"),
         (("phantom", "ph", "--threads", "abc"), "--threads = abc"),
         (("compound", "--skip", "x"), "--skip = x"),
     ]
@@ -441,3 +442,63 @@ def test_python_volumes_tables_and_seeds_are_checked_like_the_files(cli, tmp_pat
         r = run_cli(cli, "voxelize", mesh, *flags, "--out", str(tmp_path / "v.nii.gz"))
         assert r.returncode == 1 and r.stderr.count("\n") == 1 and needle in r.stderr, (flags, r.stderr)
     assert sorted(os.listdir(tmp_path)) == ["adir"]
+
+
+# ---- what a library below says, in one line and in our words ----------------------------------------------
+def test_messages_from_vtk_nanobind_and_numpy_files_are_ours_in_one_line(cli, tmp_path):
+    # A VTK reader's failure came with the pipeline's ten-line vtkInformation dump; a truncated .npy
+    # with the "no spacing" warning of a file that was never read; nanobind's generic "incompatible
+    # function arguments" for None, unknown keywords and integers beyond a C int.
+    for name, text in (("bad.stl", "solid garbage\nfoo bar\n"), ("bad.ply", "garbage\n1 2 3\n")):
+        (tmp_path / name).write_text(text)
+        r = run_cli(cli, "voxelize", name, "--out", "v.nii.gz", "--spacing", "1", cwd=tmp_path)
+        assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+        assert f"cannot read mesh '{name}': " in r.stderr and "vtkInformation" not in r.stderr, r.stderr
+    np.save(tmp_path / "whole.npy", np.zeros((10, 10, 10), np.float32))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "whole.npy").read_bytes()[:300])
+    r = run_cli(cli, "info", "cut.npy", cwd=tmp_path)
+    assert r.returncode == 1 and r.stderr == "sonoslice: error: cannot read 'cut.npy': truncated file (300 bytes, 4128 needed)\n"
+    assert sorted(os.listdir(tmp_path)) == ["bad.ply", "bad.stl", "cut.npy", "whole.npy"]
+
+    fanslicer = os.path.join(DATA, "fanslicer", "models_intensity_LUS_config.json")
+    calls = [
+        (lambda: sonoslice.Volume(None), ValueError, "^volume array: expected a NumPy array or a torch tensor .*got NoneType$"),
+        (lambda: sonoslice.SimulationSettings(seed=1, bogus=1), ValueError,
+         "^SimulationSettings: unknown keyword 'bogus' \\(expected preset, frequency_mhz, seed, "),
+        (lambda: sonoslice.Tissue(name="x", colour=1, notes=""), ValueError, "^Tissue: unknown keywords 'colour', 'notes' "),
+        (lambda: sonoslice.Probe.from_fanslicer(fanslicer, downsampling=1e12), ValueError,
+         "^downsampling 1000000000000: out of range$"),
+        (lambda: sonoslice.Probe.linear(2**40, 16, 0.5), ValueError, "^width 1099511627776: out of range$"),
+        (lambda: sonoslice.Compounder(shape=(4, 4, 4), spacing=1.0).add(None, np.eye(4)), TypeError,
+         "^add: frames: expected an array of numbers, got NoneType"),
+        (lambda: sonoslice.Compounder(shape=(4, 4, 4), spacing=1.0).add([["a"]], np.eye(4)), TypeError,
+         "^add: frames: expected an array of numbers, got list of dtype <U1$"),
+    ]
+    for call, kind, message in calls:
+        with pytest.raises(kind, match=message):
+            call()
+    assert sonoslice.SimulationSettings(seed=2**64 - 1).seed == 2**64 - 1  # seeds keep their 64 bits
+    assert sonoslice.Tissue(name="x", label=3).label == 3
+
+
+def test_nan_pixels_of_frames_to_register_are_counted_once(cli, tmp_path, phantom, poses):
+    ct, _ = phantom
+    probe = sonoslice.Probe.linear(**SMALL_PROBE)
+    frames = sonoslice.Slicer(ct, probe).slice(poses[:2]).astype(np.float32)
+    frames[:, :4] = np.nan
+    ct.save(str(tmp_path / "ct.nii.gz"))
+    (tmp_path / "probe.json").write_text(probe.to_json())
+    np.save(tmp_path / "poses.npy", poses[:2])
+    np.save(tmp_path / "part.npy", frames)
+    np.save(tmp_path / "all.npy", np.full_like(frames, np.nan))
+    args = ["register", "--volume", "ct.nii.gz", "--probe", "probe.json", "--poses", "poses.npy", "--starts", "1",
+            "-q", "--out", "refined.npy", "--frames"]
+    r = run_cli(cli, *args, "part.npy", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.startswith("sonoslice: warning: frames: 128 of the 512 pixels inside the fan and the mask are "
+                               "NaN or infinite; they are left out\n"), r.stderr
+    os.remove(tmp_path / "refined.npy")
+    r = run_cli(cli, *args, "all.npy", cwd=tmp_path)
+    assert r.returncode == 1 and r.stderr == ("sonoslice: error: frames: frame 0 has no pixel inside the probe's fan and "
+                                              "the mask with a finite value\n"), r.stderr
+    assert not (tmp_path / "refined.npy").exists()
