@@ -405,14 +405,16 @@ def test_live_compound_view_updates_and_ends_on_the_offline_volume(cli, timed_br
             if i % 5 == 0:
                 samples.append((time.time(), *browser.execute_script(
                     "const v = window.sonosliceView;"
-                    "return [v.stats.liveUpdates, Number(document.getElementById('frame-counter').textContent)]")))
+                    "return [v.stats.liveUpdates, Number(document.getElementById('frame-counter').textContent),"
+                    " v.stats.framesShown]")))
             time.sleep(max(0.0, t0 + (i + 1) / 30 - time.time()))
         # While the sender streams, the planes and the counter change ≥ 10 times a second.
-        (ta, ua, fa), (tb, ub, fb) = samples[len(samples) // 4], samples[-1]
+        (ta, ua, fa, sa), (tb, ub, fb, sb) = samples[len(samples) // 4], samples[-1]
         rate = (ub - ua) / (tb - ta)
-        print(f"live view: {rate:.1f} plane updates/s while streaming 30 frames/s")
+        print(f"live view: {rate:.1f} plane updates/s and {(sb - sa) / (tb - ta):.1f} frames shown/s "
+              "while streaming 30 frames/s")
         assert rate >= 10, samples
-        assert fb > fa
+        assert fb > fa and sb > sa  # the counter, and the newest frame drawn in its place
         screenshot(browser, "view_live.png")
         # The run ends (--max-frames); the page then shows the volume `compound` makes offline.
         line = viewer.process.stderr.readline()

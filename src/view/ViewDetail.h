@@ -39,7 +39,10 @@ struct LiveFeed::Impl {
   // request waits for one.
   std::function<Volume()> snapshot;
   double min_interval = kMinSnapshotInterval;
-  static constexpr double kSnapshotSpacing = 4;
+  // Snapshots start three times their length apart, plus what they last beyond kShortSnapshot:
+  // short ones (a small grid, whose hold the frames barely notice) take up to a third of the
+  // time, long ones (a large grid, hole filling) approach a quarter.
+  static constexpr double kSnapshotSpacing = 3, kShortSnapshot = 0.05;
   std::thread refresher;
   bool stopping = false;
   // Snapshots are taken only while a page polls: no page, no cost (a snapshot holds the
@@ -55,11 +58,11 @@ struct LiveFeed::Impl {
     double last = -1e9, took = 0;
     while (!stopping) {
       // A snapshot holds the compounder (and on two cores both cores) for its length: snapshots
-      // start at least kSnapshotSpacing times their length apart, so that they take at most a
-      // quarter of the time and the frames keep up whatever the volume's size. Their length is
-      // averaged over the last few: one snapshot slowed by a busy core (the browser, the sender)
-      // would otherwise hold the next one back four times as long.
-      const double gap = std::max(min_interval, kSnapshotSpacing * took);
+      // start far enough apart (kSnapshotSpacing) that the frames keep up whatever the volume's
+      // size. Their length is averaged over the last few: one snapshot slowed by a busy core (the
+      // browser, the sender) would otherwise hold the next one back as long.
+      const double gap = std::max(
+          min_interval, kSnapshotSpacing * took + std::max(0.0, took - kShortSnapshot));
       const double wait = gap - (view_detail::now_seconds() - last);
       if (seq == frames_at_snapshot || !wanted || wait > 0) {
         // Woken by a new frame, by a page taking the last snapshot, or when the interval ends.

@@ -72,7 +72,7 @@ class LiveFeed {
   void frame(const void* pixels, PixelType type, int width, int height, const Mat4& to_world);
   /// The run's statistics as a JSON object (LiveStats::json's keys), called when polled.
   void set_stats(std::function<std::string()> stats_json);
-  /// Snapshots start at least this far apart (seconds), and at least four times their length.
+  /// Snapshots start at least this far apart (seconds), and at least three times their length.
   static constexpr double kMinSnapshotInterval = 0.04;
   /// The growing volume, taken on a thread of the feed's at most every `min_interval_s` while
   /// frames arrive (`snapshot` must stay callable until finish() or destruction).
