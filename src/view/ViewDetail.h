@@ -61,8 +61,8 @@ struct LiveFeed::Impl {
       // start far enough apart (kSnapshotSpacing) that the frames keep up whatever the volume's
       // size. Their length is averaged over the last few: one snapshot slowed by a busy core (the
       // browser, the sender) would otherwise hold the next one back as long.
-      const double gap = std::max(
-          min_interval, kSnapshotSpacing * took + std::max(0.0, took - kShortSnapshot));
+      const double gap =
+          std::max(min_interval, kSnapshotSpacing * took + std::max(0.0, took - kShortSnapshot));
       const double wait = gap - (view_detail::now_seconds() - last);
       if (seq == frames_at_snapshot || !wanted || wait > 0) {
         // Woken by a new frame, by a page taking the last snapshot, or when the interval ends.
