@@ -105,7 +105,10 @@ void run_poses(const PosesFlags& f) {
   Stopwatch load;
   std::optional<Volume> volume, labels;
   if (!f.volume.path.empty()) volume = read_volume(f.volume.path, f.volume.options());
-  if (!f.labels.empty()) labels = read_volume(f.labels, {});
+  if (!f.labels.empty()) {
+    labels = read_volume(f.labels, {});
+    check_label_volume(*labels, "--labels '" + f.labels + "'");
+  }
   const double load_seconds = load.seconds();
 
   Stopwatch build;

@@ -78,10 +78,7 @@ SimulationInput read_simulation_input(const SimulateFlags& f) {
     in.description = f.volume.path + " (HU)";
   } else if (!f.labels.empty()) {
     in.volume = read_volume(f.labels, f.volume.options());
-    if (in.volume.pixel_type() != PixelType::UInt8 && in.volume.pixel_type() != PixelType::UInt16)
-      throw InputError("--labels '" + f.labels +
-                       "': a label volume is uint8 or uint16, this one is " +
-                       to_string(in.volume.pixel_type()));
+    check_label_volume(in.volume, "--labels '" + f.labels + "'");
     in.description = f.labels + " (labels)";
   } else {
     // Meshes: label k for the k-th mesh, voxelised at --voxel-size.

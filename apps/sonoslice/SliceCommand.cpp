@@ -62,10 +62,7 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
     src.description = path + ": " + std::to_string(v.grid().dims[0]) + "x" +
                       std::to_string(v.grid().dims[1]) + "x" + std::to_string(v.grid().dims[2]) +
                       " " + to_string(v.pixel_type());
-    if (!f.labels.empty() && v.pixel_type() != PixelType::UInt8 &&
-        v.pixel_type() != PixelType::UInt16)
-      throw InputError("--labels '" + path + "': a label volume is uint8 or uint16, this one is " +
-                       to_string(v.pixel_type()));
+    if (!f.labels.empty()) check_label_volume(v, "--labels '" + path + "'");
     for (int k = 1; k <= 255; ++k) src.colors.push_back(default_label_color(k));
     src.slicer = std::make_unique<Slicer>(v, probe, settings, device);
     return src;

@@ -477,6 +477,16 @@ def test_messages_from_vtk_nanobind_and_numpy_files_are_ours_in_one_line(cli, tm
     for call, kind, message in calls:
         with pytest.raises(kind, match=message):
             call()
+    ct, labels = sonoslice.phantom("small")
+    with pytest.raises(ValueError, match="^labels: a label volume is uint8 or uint16, this one is int16$"):
+        sonoslice.PoseSampler(dict(type="region", label=4), sonoslice.Probe.linear(**SMALL_PROBE), labels=ct)
+    ct.save(str(tmp_path / "ct.nii.gz"))
+    (tmp_path / "probe.json").write_text(sonoslice.Probe.linear(**SMALL_PROBE).to_json())
+    r = run_cli(cli, "poses", "--sampler", '{"type": "region", "label": 4}', "--probe", "probe.json", "--labels", "ct.nii.gz", "--count", "2",
+                "--out", "p.npy", cwd=tmp_path)
+    assert r.returncode == 1 and r.stderr == ("sonoslice: error: --labels 'ct.nii.gz': a label volume is uint8 or "
+                                              "uint16, this one is int16\n"), r.stderr
+    assert not (tmp_path / "p.npy").exists()
     assert sonoslice.SimulationSettings(seed=2**64 - 1).seed == 2**64 - 1  # seeds keep their 64 bits
     assert sonoslice.Tissue(name="x", label=3).label == 3
 

@@ -640,7 +640,10 @@ PoseSampler::PoseSampler(const SamplerSettings& settings, const ProbeGeometry& p
   st.face = {0, probe.face_y_mm, 0};
   st.centre = {0, probe.face_y_mm + 0.5 * probe.depth_mm, 0};
   if (volume) st.ct = VoxelSource(*volume);
-  if (labels) st.labels = VoxelSource(*labels);
+  if (labels) {
+    check_label_volume(*labels, "labels");
+    st.labels = VoxelSource(*labels);
+  }
   const RejectionRules& r = settings.reject;
   const bool needs_volume = settings.type == SamplerType::Skin ||
                             (settings.type == SamplerType::Region && settings.label < 0) ||

@@ -213,9 +213,7 @@ void set_label_source(Model& m, Volume& volume, const std::vector<Tissue>& tissu
   ImageModel& b = m.base;
   const VolumeGrid grid = volume.grid();
   const int64_t voxels = grid.voxel_count();
-  if (volume.pixel_type() != PixelType::UInt8 && volume.pixel_type() != PixelType::UInt16)
-    throw InputError("labels: a label volume is uint8 or uint16, this one is " +
-                     to_string(volume.pixel_type()));
+  check_label_volume(volume, "labels");
   validate_tissues(tissues, "tissues");
   // Which labels the volume holds: each must be in the table.
   std::vector<uint8_t> present(65536, 0);

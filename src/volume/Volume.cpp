@@ -97,6 +97,12 @@ int64_t count_non_finite(const void* data, PixelType type, int64_t n) {
   return total;
 }
 
+void check_label_volume(const Volume& labels, const std::string& what) {
+  const PixelType type = labels.pixel_type();
+  if (type != PixelType::UInt8 && type != PixelType::UInt16)
+    throw InputError(what + ": a label volume is uint8 or uint16, this one is " + to_string(type));
+}
+
 int64_t Volume::non_finite_count() const {
   return count_non_finite(data_, type_, grid_.voxel_count());
 }

@@ -56,6 +56,11 @@ class Volume {
   std::shared_ptr<void> owner_;
 };
 
+/// Throws InputError "<what>: a label volume is uint8 or uint16, this one is <type>" unless
+/// `labels` holds one of the two label types (a CT given as labels would otherwise be read as
+/// thousands of labels).
+void check_label_volume(const Volume& labels, const std::string& what);
+
 /// How many of the `count` values of `type` at `data` are NaN or infinite (0 for integer types).
 int64_t count_non_finite(const void* data, PixelType type, int64_t count);
 
