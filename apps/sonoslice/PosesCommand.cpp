@@ -107,7 +107,7 @@ void run_poses(const PosesFlags& f) {
   if (!f.volume.path.empty()) volume = read_volume(f.volume.path, f.volume.options());
   if (!f.labels.empty()) {
     labels = read_volume(f.labels, {});
-    check_label_volume(*labels, "--labels '" + f.labels + "'");
+    check_label_values(*labels, "--labels '" + f.labels + "'");
   }
   const double load_seconds = load.seconds();
 

@@ -478,14 +478,18 @@ def test_messages_from_vtk_nanobind_and_numpy_files_are_ours_in_one_line(cli, tm
         with pytest.raises(kind, match=message):
             call()
     ct, labels = sonoslice.phantom("small")
-    with pytest.raises(ValueError, match="^labels: a label volume is uint8 or uint16, this one is int16$"):
+    with pytest.raises(ValueError, match=r"^labels: a label volume holds whole numbers 0..65535; this one is int16 with "
+                                         r"values in \[-[0-9]+, [0-9]+\]$"):
         sonoslice.PoseSampler(dict(type="region", label=4), sonoslice.Probe.linear(**SMALL_PROBE), labels=ct)
     ct.save(str(tmp_path / "ct.nii.gz"))
     (tmp_path / "probe.json").write_text(sonoslice.Probe.linear(**SMALL_PROBE).to_json())
     r = run_cli(cli, "poses", "--sampler", '{"type": "region", "label": 4}', "--probe", "probe.json", "--labels", "ct.nii.gz", "--count", "2",
                 "--out", "p.npy", cwd=tmp_path)
-    assert r.returncode == 1 and r.stderr == ("sonoslice: error: --labels 'ct.nii.gz': a label volume is uint8 or "
-                                              "uint16, this one is int16\n"), r.stderr
+    assert r.returncode == 1 and r.stderr.startswith("sonoslice: error: --labels 'ct.nii.gz': a label volume holds "
+                                                     "whole numbers 0..65535; this one is int16 with values in [-"), r.stderr
+    # A segmentation stored as int16 (as 3D Slicer exports label maps) is taken.
+    sonoslice.PoseSampler(dict(type="region", label=4), sonoslice.Probe.linear(**SMALL_PROBE),
+                          labels=sonoslice.Volume(labels.array.astype(np.int16), labels.spacing, labels.origin))
     assert not (tmp_path / "p.npy").exists()
     assert sonoslice.SimulationSettings(seed=2**64 - 1).seed == 2**64 - 1  # seeds keep their 64 bits
     assert sonoslice.Tissue(name="x", label=3).label == 3

@@ -641,7 +641,7 @@ PoseSampler::PoseSampler(const SamplerSettings& settings, const ProbeGeometry& p
   st.centre = {0, probe.face_y_mm + 0.5 * probe.depth_mm, 0};
   if (volume) st.ct = VoxelSource(*volume);
   if (labels) {
-    check_label_volume(*labels, "labels");
+    check_label_values(*labels, "labels");
     st.labels = VoxelSource(*labels);
   }
   const RejectionRules& r = settings.reject;

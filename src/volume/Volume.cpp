@@ -103,6 +103,18 @@ void check_label_volume(const Volume& labels, const std::string& what) {
     throw InputError(what + ": a label volume is uint8 or uint16, this one is " + to_string(type));
 }
 
+void check_label_values(const Volume& labels, const std::string& what) {
+  const PixelType type = labels.pixel_type();
+  const bool integer = type != PixelType::Float32 && type != PixelType::Float64;
+  const auto [lo, hi] = labels.value_range();
+  if (!integer || lo < 0 || hi > 65535) {
+    std::ostringstream range;
+    range << "[" << lo << ", " << hi << "]";
+    throw InputError(what + ": a label volume holds whole numbers 0..65535; this one is " +
+                     to_string(type) + " with values in " + range.str());
+  }
+}
+
 int64_t Volume::non_finite_count() const {
   return count_non_finite(data_, type_, grid_.voxel_count());
 }

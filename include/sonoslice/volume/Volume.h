@@ -61,6 +61,10 @@ class Volume {
 /// thousands of labels).
 void check_label_volume(const Volume& labels, const std::string& what);
 
+/// Throws InputError naming `what` unless `labels` holds integers in 0..65535 (any integer
+/// type: segmentations exported as int16 are common; a CT's negative HU are refused).
+void check_label_values(const Volume& labels, const std::string& what);
+
 /// How many of the `count` values of `type` at `data` are NaN or infinite (0 for integer types).
 int64_t count_non_finite(const void* data, PixelType type, int64_t count);
 
