@@ -346,15 +346,39 @@ def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
     viewer = start_view(cli, "--volume", phantom_dir / "ct.nii.gz", "--probe", LUS, "--downsampling", 2,
                         "--poses", phantom_dir / "surface_poses.txt")
     try:
-        for bad in ("api/plane?axis=7&pos=0", "api/plane?axis=1&pos=nan", "api/plane?axis=x&pos=1",
-                    "api/image?pose=100000", "api/image?pose=-1", "api/image?matrix=1,2,3",
-                    "api/image?matrix=" + ",".join(["nan"] * 16), "api/mesh/3", "api/plane"):
+        for bad, message in (("api/plane?axis=7&pos=0", "plane: axis 0..2"),
+                             ("api/plane?axis=1&pos=nan", "plane: pos 'nan' is not a finite number"),
+                             ("api/plane?axis=x&pos=1", "plane: axis 'x' is not a whole number"),
+                             ("api/plane?axis=1abc&pos=0", "plane: axis '1abc' is not a whole number"),
+                             ("api/plane?axis=0&pos=5mm", "plane: pos '5mm' is not a finite number"),
+                             ("api/plane?axis=0&pos=1e308", "plane: pos '1e308' is beyond any scanner"),
+                             ("api/plane", "plane: axis '' is not a whole number"),
+                             ("api/image?pose=100000", "image: pose 100000 out of range"),
+                             ("api/image?pose=-1", "image: pose -1 out of range"),
+                             ("api/image?pose=1e3", "image: pose '1e3' is not a whole number"),
+                             ("api/image?pose=2.7", "image: pose '2.7' is not a whole number"),
+                             ("api/image?matrix=1,2,3", "image: matrix has 16 numbers"),
+                             ("api/image?matrix=1,,0", "image: matrix '1,,0': 16 finite numbers"),
+                             ("api/image?matrix=" + ",".join(["nan"] * 16), "image: matrix"),
+                             ("api/mesh/3", "mesh"), ("api/mesh/99999999999999999999", "view: 404: no such page"),
+                             ("nope", "view: 404: no such page '/nope'")):
             with pytest.raises(urllib.error.HTTPError) as e:
                 urllib.request.urlopen(viewer.url + bad, timeout=10)
             assert e.value.code in (400, 404), bad
-        # A page of another site that re-points its name at 127.0.0.1 (DNS rebinding) is refused;
-        # the loopback names are answered.
-        for host, code in (("attacker.example:80", 403), ("localhost", 200), ("127.0.0.1", 200)):
+            assert e.value.read().decode().startswith(message), bad
+        # Only GET: other methods and bodies are refused before a body is read.
+        for method, headers, code in (("POST", {}, 405), ("DELETE", {}, 405),
+                                      ("GET", {"Transfer-Encoding": "chunked"}, 413)):
+            request = urllib.request.Request(viewer.url + "api/scene", method=method, headers=headers,
+                                             data=b"x" * 1000 if method == "POST" else None)
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(request, timeout=10)
+            assert e.value.code == code, method
+        # A page of another site that re-points its name at 127.0.0.1 (DNS rebinding) is refused,
+        # also a name that merely begins like a loopback address; the loopback names are answered.
+        for host, code in (("attacker.example:80", 403), ("127.0.0.1.attacker.example", 403),
+                           ("127.attacker.example:80", 403), ("localhost", 200), ("127.0.0.1", 200),
+                           ("127.1.2.3:8", 200)):
             request = urllib.request.Request(viewer.url + "api/scene", headers={"Host": host})
             try:
                 assert urllib.request.urlopen(request, timeout=10).status == code, host

@@ -20,6 +20,7 @@
 #include <sys/socket.h>
 #include <nlohmann/json.hpp>
 
+#include "../io/TextParse.h"
 #include "ViewDetail.h"
 #include "WebAssets.h"
 #include "sonoslice/core/Error.h"
@@ -103,8 +104,48 @@ void send_floats(httplib::Response& res, std::vector<float> values) {
 }
 
 // "localhost", 127.x.x.x or ::1 (with or without brackets).
+// An IPv4 literal a.b.c.d (four decimal numbers 0..255).
+bool is_ipv4_literal(const std::string& h, int* first) {
+  int parts = 0;
+  size_t at = 0;
+  while (parts < 4) {
+    size_t end = at;
+    while (end < h.size() && end - at < 3 && h[end] >= '0' && h[end] <= '9') ++end;
+    if (end == at || std::stoi(h.substr(at, end - at)) > 255) return false;
+    if (parts++ == 0) *first = std::stoi(h.substr(at, end - at));
+    if (parts < 4 && (end >= h.size() || h[end] != '.')) return false;
+    at = end + 1;
+    if (parts == 4 && end != h.size()) return false;
+  }
+  return true;
+}
+
+// localhost, ::1 or an address of 127.0.0.0/8 written as one: a name that merely starts with
+// "127." (127.0.0.1.attacker.example) is a name, which DNS rebinding can point here.
 bool is_loopback_name(const std::string& h) {
-  return h == "localhost" || h == "::1" || h == "[::1]" || h.rfind("127.", 0) == 0;
+  int first = -1;
+  return h == "localhost" || h == "::1" || h == "[::1]" ||
+         (is_ipv4_literal(h, &first) && first == 127);
+}
+
+// A query parameter as a whole number or a finite number: the whole text, or an InputError naming
+// it (std::stoi would take "3xyz" as 3 and answer "stoi" for "").
+int64_t whole_param(const httplib::Request& req, const char* name, const std::string& what) {
+  const std::string text = req.get_param_value(name);
+  double value = 0;
+  if (!req.has_param(name) || !text::parse_double(text, &value) || value != std::floor(value) ||
+      std::fabs(value) > 9e15 || text.find_first_of(".eE") != std::string::npos)
+    throw InputError(what + ": " + name + " " + text::quote_value(text) + " is not a whole number");
+  return int64_t(value);
+}
+
+double number_param(const httplib::Request& req, const char* name, const std::string& what) {
+  const std::string text = req.get_param_value(name);
+  double value = 0;
+  if (!req.has_param(name) || !text::parse_double(text, &value))
+    throw InputError(what + ": " + name + " " + text::quote_value(text) +
+                     " is not a finite number");
+  return value;
 }
 
 // "name:port" or "[v6]:port" to the name.
@@ -311,11 +352,15 @@ struct ViewServer::Impl {
   }
 
   void plane(const httplib::Request& req, httplib::Response& res) {
-    const int axis = std::stoi(req.get_param_value("axis"));
-    const double pos = std::stod(req.get_param_value("pos"));
+    const int64_t axis = whole_param(req, "axis", "plane");
+    const double pos = number_param(req, "pos", "plane");
     const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "volume";
-    if (axis < 0 || axis > 2 || !std::isfinite(pos) || (layer != "volume" && layer != "labels"))
+    if (axis < 0 || axis > 2 || (layer != "volume" && layer != "labels"))
       throw InputError("plane: axis 0..2, a finite pos and layer volume|labels");
+    // The plane's place, not a pose: beyond any scanner it is no place in the volume.
+    if (std::fabs(pos) > kMaxGeometryMm)
+      throw InputError("plane: pos " + text::quote_value(req.get_param_value("pos")) +
+                       " is beyond any scanner (at most 1e9 mm)");
     std::lock_guard<std::mutex> lock(slice_mutex);
     int64_t version = 0;
     const std::shared_ptr<const Volume> v = current_volume(&version);
@@ -335,8 +380,8 @@ struct ViewServer::Impl {
     Pose pose;
     int64_t index = -1;
     if (req.has_param("pose")) {
-      const long k = std::stol(req.get_param_value("pose"));
-      if (k < 0 || size_t(k) >= content.poses.size())
+      const int64_t k = whole_param(req, "pose", "image");
+      if (k < 0 || uint64_t(k) >= content.poses.size())
         throw InputError("image: pose " + std::to_string(k) + " out of range");
       pose = content.poses[size_t(k)];
       index = k;
@@ -345,7 +390,11 @@ struct ViewServer::Impl {
       std::string text = req.get_param_value("matrix");
       for (size_t at = 0; at <= text.size();) {
         const size_t comma = std::min(text.find(',', at), text.size());
-        m.push_back(std::stod(text.substr(at, comma - at)));
+        double value = 0;
+        if (!text::parse_double(text.substr(at, comma - at), &value))
+          throw InputError("image: matrix " + text::quote_value(text) +
+                           ": 16 finite numbers separated by commas");
+        m.push_back(value);
         at = comma + 1;
       }
       if (m.size() != 16) throw InputError("image: matrix has 16 numbers");
@@ -425,39 +474,44 @@ struct ViewServer::Impl {
     res.set_content(std::move(body), "application/octet-stream");
   }
 
+  // Whether a request is turned away before anything of it is read beyond its headers (here a
+  // body would be read next, and cpp-httplib reads a chunked one whole whatever its size).
+  bool refused(const httplib::Request& req, httplib::Response& res) const {
+    const auto refuse = [&](int status, const std::string& why) {
+      res.status = status;
+      res.set_header("Connection", "close");
+      res.set_content("view: " + why, "text/plain");
+      return true;
+    };
+    if (req.method != "GET" && req.method != "HEAD")
+      return refuse(405, "only GET is served, not " + text::quote_value(req.method));
+    if (req.has_header("Transfer-Encoding")) return refuse(413, "a request body is not taken here");
+    if (is_loopback_name(host)) {
+      // Served on loopback, a page of any web site could still reach it by DNS rebinding (its
+      // own name re-pointed at 127.0.0.1); its requests carry that name as Host, and are refused.
+      const std::string h = req.get_header_value("Host");
+      if (h.empty() || is_loopback_name(host_without_port(h))) return false;
+      return refuse(403, "served on loopback; Host " + text::quote_value(h) + " refused");
+    }
+    // On a network address anyone who reaches it could read the data: as Jupyter does, the
+    // printed URL carries a token; the page's first request trades it for a cookie that the
+    // browser sends with every later one (same host and port only, never to other sites).
+    const std::string cookie = "sonoslice_view_" + std::to_string(port);
+    if (req.has_param("token") && same_token(req.get_param_value("token"), token)) {
+      res.set_header("Set-Cookie", cookie + "=" + token + "; Path=/; HttpOnly; SameSite=Strict");
+      return false;
+    }
+    if (has_cookie(req.get_header_value("Cookie"), cookie, token)) return false;
+    return refuse(403, "served on " + host + "; open the URL printed at start, with its token");
+  }
+
   void routes() {
     // Every answer is for this machine's page only: no caching of data that changes live.
     http.set_default_headers({{"Cache-Control", "no-store"}});
-    // Served on loopback, a page of any web site could still reach it by DNS rebinding (its own
-    // name re-pointed at 127.0.0.1); its requests carry that name as Host, and are refused.
-    if (is_loopback_name(host))
-      http.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
-        const std::string h = req.get_header_value("Host");
-        if (h.empty() || is_loopback_name(host_without_port(h)))
-          return httplib::Server::HandlerResponse::Unhandled;
-        res.status = 403;
-        res.set_content("view: served on loopback; Host " + h + " refused", "text/plain");
-        return httplib::Server::HandlerResponse::Handled;
-      });
-    else
-      // On a network address anyone who reaches it could read the data: as Jupyter does, the
-      // printed URL carries a token; the page's first request trades it for a cookie that the
-      // browser sends with every later one (same host and port only, never to other sites).
-      http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
-        const std::string cookie = "sonoslice_view_" + std::to_string(port);
-        if (req.has_param("token") && same_token(req.get_param_value("token"), token)) {
-          res.set_header("Set-Cookie",
-                         cookie + "=" + token + "; Path=/; HttpOnly; SameSite=Strict");
-          return httplib::Server::HandlerResponse::Unhandled;
-        }
-        if (has_cookie(req.get_header_value("Cookie"), cookie, token))
-          return httplib::Server::HandlerResponse::Unhandled;
-        res.status = 403;
-        res.set_content(
-            "view: served on " + host + "; open the URL printed at start, with its token",
-            "text/plain");
-        return httplib::Server::HandlerResponse::Handled;
-      });
+    http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+      return refused(req, res) ? httplib::Server::HandlerResponse::Handled
+                               : httplib::Server::HandlerResponse::Unhandled;
+    });
     http.Get("/", [](const httplib::Request&, httplib::Response& res) {
       const WebAsset* a = find_web_asset("index.html");
       res.set_content(a->data, a->size, a->mime);
@@ -496,7 +550,7 @@ struct ViewServer::Impl {
       res.set_content(reinterpret_cast<const char*>(probe_mask.data()), probe_mask.size(),
                       "application/octet-stream");
     });
-    http.Get(R"(/api/mesh/(\d+))", [this](const httplib::Request& req, httplib::Response& res) {
+    http.Get(R"(/api/mesh/(\d{1,9}))", [this](const httplib::Request& req, httplib::Response& res) {
       mesh(size_t(std::stoul(req.matches[1].str())), res);
     });
     if (live) {
@@ -517,6 +571,19 @@ struct ViewServer::Impl {
           res.status = 400;
           res.set_content(message, "text/plain");
         });
+    // cpp-httplib's own refusals (no such path, a method other than GET, a URI or header too
+    // long) come without a body: one line that says which.
+    http.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
+      if (!res.body.empty()) return;
+      const std::string path = text::quote_value(req.path);
+      const std::string why = req.method != "GET" && req.method != "HEAD"
+                                  ? "only GET is served, not " + text::quote_value(req.method)
+                              : res.status == 404 ? "no such page " + path
+                              : res.status == 413 ? "a request body is not taken here"
+                              : res.status == 414 ? "the URI is too long"
+                                                  : "a bad request";
+      res.set_content("view: " + std::to_string(res.status) + ": " + why, "text/plain");
+    });
   }
 };
 
@@ -544,6 +611,13 @@ ViewServer::ViewServer(ViewContent content, const std::string& host, int port,
   if (port < 0 || port > 65535)
     throw InputError("--port " + std::to_string(port) + ": expected 0 to 65535");
   im.routes();
+  // The page only GETs. Bodies are refused unread beyond a few kB (a 3 GiB POST was held in
+  // memory whole); idle and slow connections hold one of many workers for at most a few seconds
+  // each (8 workers and 5 s let a handful of idle sockets stall the page).
+  im.http.set_payload_max_length(64 * 1024);
+  im.http.new_task_queue = [] { return new httplib::ThreadPool(64); };
+  im.http.set_read_timeout(2, 0);
+  im.http.set_keep_alive_timeout(2);
   // Small answers go out at once (no Nagle delay against the browser's delayed ACKs); accepted
   // sockets inherit the option from the listening one.
   im.http.set_socket_options([](socket_t sock) {
