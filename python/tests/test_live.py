@@ -298,6 +298,40 @@ def test_malformed_messages_are_counted_and_the_server_goes_on(cli, tmp_path, fr
     np.testing.assert_array_equal(sonoslice.Volume.from_file(out).array, offline.finish().array)
 
 
+def test_commands_that_deliver_nothing_fail_and_idle_clients_make_room(cli, tmp_path, frames):
+    out, stats = tmp_path / "live.mha", tmp_path / "stats.json"
+    server = start(cli, "--out", str(out), "--stats", str(stats), "--max-seconds", "60", *grid_flags(frames))
+    peer = Peer(server.port)
+    # A snapshot before any frame: FAIL, not a SUCCESS that delivers nothing.
+    peer.send(command(1, f'<Command Name="GetVolumeReconstructionSnapshot" OutputVolFilename="{tmp_path}/s.mha"/>'))
+    _, _, reply = peer.receive()
+    assert 'Status="FAIL"' in reply.string and "no frame compounded yet" in reply.string, reply.string
+    peer.send(command(2, '<Command Name="FormatDisk"/>'))
+    _, _, reply = peer.receive()
+    assert 'Status="FAIL" Message="unknown command FormatDisk"' in reply.string
+    pixels, matrix, t = frames[0]
+    point = matrix.copy()
+    point[:3, :3] = np.eye(3) * 1e-30  # a frame shrunk to a point
+    peer.send(image_message(pixels, point, t))
+    # 15 more clients that connect and do nothing fill the 16 places; once they have been silent
+    # for 2 s a sender still gets in (the silent one longest out).
+    idle = [Peer(server.port) for _ in range(15)]
+    time.sleep(2.5)
+    sender = Peer(server.port)
+    for pixels, matrix, t in frames[:3]:
+        sender.send(image_message(pixels, matrix, t))
+    time.sleep(0.5)
+    assert server.stop() == 0, server.process.stderr.read()
+    for c in (peer, sender, *idle):
+        c.close()
+    s = json.loads(stats.read_text())
+    assert s["frames_compounded"] == 3 and not (tmp_path / "s.mha").exists()
+    network = s["network"]
+    assert network["rejected: unknown command FormatDisk"] == 1
+    assert [k for k in network if "spacing" in k] == ["rejected: an IMAGE pixel spacing of 1e-30 mm along axis 0 (expected 1e-6 to 1e9 mm)"], network
+    assert network["dropped: an idle client at the client limit"] == 1
+
+
 def grid_kwargs(frames):
     g = sonoslice.grid_around(np.stack([m for _, m, _ in frames]), frames[0][0].shape, 0.5)
     return {"origin": g.origin, "extent": g.dims}
@@ -375,6 +409,9 @@ def test_virtual_probe_answers_each_pose_with_the_slice_image(cli, tmp_path):
                    "--max-frames", str(len(poses)), cli=cli)
     peer = Peer(server.port)
     expected = sonoslice.Slicer(sonoslice.Volume.from_file(ct_path), probe).slice(poses)
+    mirror = poses[0].copy()
+    mirror[:3, 2] *= -1  # a left-handed frame: counted and answered with nothing
+    peer.send(pyigtl.TransformMessage(mirror, device_name="ProbeToReference"))
     for k, pose in enumerate(poses):
         peer.send(pyigtl.TransformMessage(pose, timestamp=100 + k, device_name="ProbeToReference"))
         header, _, image = peer.receive()
@@ -387,7 +424,10 @@ def test_virtual_probe_answers_each_pose_with_the_slice_image(cli, tmp_path):
     assert server.wait(30) == 0
     peer.close()
     s = json.loads(stats.read_text())
-    assert s["poses_received"] == s["images_sent"] == len(poses)
+    assert s["poses_received"] == len(poses) + 1 and s["images_sent"] == len(poses), s
+    assert [k for k in s["network"] if k.startswith("rejected")] == [
+        "rejected: TRANSFORM ProbeToReference: not a rigid frame (a mirror image, deviation 2.000000 from "
+        "orthonormal and right-handed)"], s
     # --world RAS (3D Slicer's frame): RAS poses in, the same images, matrices in RAS.
     ras = np.diag([-1.0, -1.0, 1.0, 1.0])
     server = serve("slice", "--volume", str(ct_path), "--probe", str(probe_path), "--world", "RAS",

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <functional>
 
@@ -277,6 +278,18 @@ std::string parse_image(const std::vector<uint8_t>& c, Image& out) {
   // Columns with spacing (t, s, n), then the image centre: (size - 1) / 2 along each axis.
   Vec3 cols[3], centre{{f[9], f[10], f[11]}};
   for (int a = 0; a < 3; ++a) cols[a] = Vec3{{f[3 * a], f[3 * a + 1], f[3 * a + 2]}};
+  // A pixel's size, the length of its column: a frame shrunk to a point (1e-30 mm) or spread
+  // beyond any scanner is refused like a file's spacing (a zero column is the compounder's
+  // "singular" frame).
+  for (int a = 0; a < 2; ++a) {
+    const double spacing = norm(cols[a]);
+    if (spacing > 0 && (spacing < kMinSpacingMm || spacing > kMaxGeometryMm)) {
+      char text[32];
+      std::snprintf(text, sizeof text, "%g", spacing);
+      return "an IMAGE pixel spacing of " + std::string(text) + " mm along axis " +
+             std::to_string(a) + " (expected 1e-6 to 1e9 mm)";
+    }
+  }
   Vec3 origin = centre;
   for (int a = 0; a < 3; ++a)
     for (int r = 0; r < 3; ++r) origin[r] -= cols[a][r] * (out.size[a] - 1) / 2.0;

@@ -53,6 +53,7 @@ struct Connection {
   int id = 0;
   bool connected = true;  // false while a client's connect() is in progress
   bool sent_anything = false;
+  double last_active = now_seconds();  // the last byte in or out (or the accept)
   std::vector<uint8_t> in;             // the message being read: header, then header + body
   std::optional<igtl::Header> header;  // its header, parsed and checked once complete
   std::deque<std::vector<uint8_t>> out;
@@ -72,6 +73,10 @@ void parse_host_port(const std::string& text, const std::string& flag, std::stri
     throw InputError(flag + " " + text + ": expected [HOST:]PORT with a port 0-65535");
   port = int(v);
 }
+
+// How long a client must have been silent (nothing in or out) to make room for a newcomer when
+// the server is at its client limit.
+constexpr double kIdleAtLimitSeconds = 2.0;
 
 struct IgtlEndpoint::Impl {
   IgtlEndpointOptions options;
@@ -187,6 +192,7 @@ bool IgtlEndpoint::Impl::read_from(size_t k, const MessageHandler& on_message, s
     if (got == 0) return false;  // the peer closed (mid-message or not: nothing is half-used)
     if (got < 0) return errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR;
     c.sent_anything = true;
+    c.last_active = now_seconds();
     counts["bytes"] += got;
     c.in.insert(c.in.end(), buffer, buffer + got);
     if (!c.header && c.in.size() == igtl::kHeaderBytes) {
@@ -219,6 +225,7 @@ bool IgtlEndpoint::Impl::write_to(Connection& c) {
     const ssize_t sent =
         ::send(c.fd, front.data() + c.out_offset, front.size() - c.out_offset, MSG_NOSIGNAL);
     if (sent < 0) return errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR;
+    c.last_active = now_seconds();
     c.out_offset += size_t(sent);
     if (c.out_offset == front.size()) {
       c.out_bytes -= front.size();
@@ -248,10 +255,21 @@ void IgtlEndpoint::poll(int timeout_ms, bool read, const MessageHandler& on_mess
       for (;;) {
         const int fd = accept(im.listen_fd, nullptr, nullptr);
         if (fd < 0) break;
+        // At the limit, a client idle for a while (nothing in or out) makes room: clients that
+        // connect and then do nothing would otherwise lock every sender out for the whole run.
         if (clients() >= im.options.max_clients) {
-          ::close(fd);
-          im.count_reject("a connection over the client limit");
-          continue;
+          size_t idlest = im.connections.size();
+          double oldest = now_seconds() - kIdleAtLimitSeconds;
+          for (size_t k = 0; k < im.connections.size(); ++k)
+            if (im.connections[k].last_active < oldest)
+              oldest = im.connections[k].last_active, idlest = k;
+          if (idlest == im.connections.size()) {
+            ::close(fd);
+            im.count_reject("a connection over the client limit");
+            continue;
+          }
+          ++im.counts["dropped: an idle client at the client limit"];
+          im.close_connection(idlest, "");
         }
         set_nonblocking(fd);
         Connection c;

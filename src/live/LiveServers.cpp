@@ -102,6 +102,10 @@ std::string parse_plus_command(const std::string& xml, PlusCommand& out) {
   if (std::string(root.name()) != "Command") return "command XML without a Command element";
   for (const pugi::xml_attribute& a : root.attributes()) out.attributes[a.name()] = a.value();
   out.name = out.attribute("Name");
+  // Names are identifiers (PlusServer's commands): other bytes would be echoed into the reply's
+  // XML and the log.
+  for (const char ch : out.name)
+    if (ch < 0x20 || ch > 0x7e) return "a command Name that is not printable text";
   out.xml = xml;
   return "";
 #else
@@ -219,8 +223,13 @@ bool CompoundServer::on_command(int client, const PlusCommand& c, std::string& m
   const std::string file = c.attribute("OutputVolFilename");
   const std::string device = c.attribute("OutputVolDeviceName");
   // Snapshot and Stop: the volume to the file and/or to the asking client, as PlusServer does.
+  // False (a FAIL reply) when no frame was compounded: nothing to save or send.
   const auto deliver = [&](const Volume& v) {
-    if (v.grid().voxel_count() == 0) return;
+    if (v.grid().voxel_count() == 0) {
+      if (file.empty() && device.empty()) return true;
+      message += " no frame compounded yet: no volume to save or send";
+      return false;
+    }
     if (!file.empty()) {
       write_volume(file, v);
       message += " saved reconstructed volume to file: " + file + ";";
@@ -229,6 +238,7 @@ bool CompoundServer::on_command(int client, const PlusCommand& c, std::string& m
       endpoint_.send(client, volume_message(v, device));
       message += " image sent as: " + device + ";";
     }
+    return true;
   };
   if (c.name == "StartVolumeReconstruction") {
     // PlusServer's Start clears the volume and applies the command's grid attributes.
@@ -264,16 +274,15 @@ bool CompoundServer::on_command(int client, const PlusCommand& c, std::string& m
   if (c.name == "GetVolumeReconstructionSnapshot") {
     compounder_->drain();  // every frame received before the command is in it
     message = "Snapshot:";
-    deliver(compounder_->snapshot());
-    return true;
+    return deliver(compounder_->snapshot());
   }
   if (c.name == "StopVolumeReconstruction") {
     stopped_by_ = "StopVolumeReconstruction";
     message = "Volume reconstruction stopped:";
-    if (!file.empty() || !device.empty()) deliver(compounder_->finish());
-    return true;
+    return file.empty() && device.empty() ? true : deliver(compounder_->finish());
   }
   message = "unknown command " + c.name;
+  endpoint_.reject(message);  // counted, as a malformed message is
   return false;
 }
 
@@ -396,6 +405,12 @@ VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const Virtua
       pose = pose_to_lps(pose, run.world);
       try {
         validate_poses(&pose, 1, "TRANSFORM " + m.header.device, 0, false);
+        // A probe's pose is rigid: a mirror image (determinant -1), a scale or a shear is a
+        // tracker or calibration fault, not a place to image (a float32 matrix deviates ~1e-7).
+        if (const double d = rigid_deviation(pose); d > 1e-3)
+          problem = "TRANSFORM " + m.header.device + ": not a rigid frame (" +
+                    (pose.linear().determinant() < 0 ? "a mirror image, " : "") + "deviation " +
+                    std::to_string(d) + " from orthonormal and right-handed)";
       } catch (const InputError& e) {
         problem = e.what();
       }
