@@ -155,15 +155,15 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
     if (key.rfind("rejected: ", 0) == 0 || key.rfind("ignored: ", 0) == 0 ||
         key.rfind("connect failed: ", 0) == 0)
       why += "; " + std::to_string(n) + " " + key;
+  if (result.volume.grid().voxel_count() == 0) {
+    // One line, the error's, with the counts; the statistics alone say more.
+    if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
+    throw InputError("live compound: stopped by " + result.stopped_by +
+                     " with no frame compounded, nothing written to '" + f.out + "' (" +
+                     std::to_string(result.stats.received) + " frames received" + why + ")");
+  }
   std::fprintf(stderr, "sonoslice live compound: stopped by %s: %s%s\n", result.stopped_by.c_str(),
                result.stats.summary().c_str(), why.c_str());
-  if (result.volume.grid().voxel_count() == 0) {
-    // The statistics alone: they say why the run has no volume.
-    if (!f.stats.empty()) write_text_file(f.stats, result.json() + "\n");
-    throw InputError("live compound: no frame was compounded, nothing written to '" + f.out +
-                     "' (" + std::to_string(result.stats.received) + " frames received" + why +
-                     ")");
-  }
   OutputSet outputs;  // the volume, the recording and the statistics: all of them or none
   write_volume(f.out, result.volume, &outputs);
   if (!f.record.empty()) write_plus_sequence(f.record, compounder.recorded(), true, &outputs);

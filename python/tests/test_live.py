@@ -318,8 +318,10 @@ def test_commands_that_deliver_nothing_fail_and_idle_clients_make_room(cli, tmp_
     idle = [Peer(server.port) for _ in range(15)]
     time.sleep(2.5)
     sender = Peer(server.port)
-    for pixels, matrix, t in frames[:3]:
-        sender.send(image_message(pixels, matrix, t))
+    for k, (pixels, matrix, t) in enumerate(frames[:3]):
+        values = pixels.astype(np.float32)
+        values[0, 0] = np.nan if k == 0 else values[0, 0]  # compounded as it is, and counted
+        sender.send(image_message(values, matrix, t))
     time.sleep(0.5)
     assert server.stop() == 0, server.process.stderr.read()
     for c in (peer, sender, *idle):
@@ -330,6 +332,7 @@ def test_commands_that_deliver_nothing_fail_and_idle_clients_make_room(cli, tmp_
     assert network["rejected: unknown command FormatDisk"] == 1
     assert [k for k in network if "spacing" in k] == ["rejected: an IMAGE pixel spacing of 1e-30 mm along axis 0 (expected 1e-6 to 1e9 mm)"], network
     assert network["dropped: an idle client at the client limit"] == 1
+    assert network["frames with NaN or infinite pixels"] == 1
 
 
 def grid_kwargs(frames):
@@ -364,7 +367,10 @@ def test_no_frame_no_volume_and_a_named_reason(cli, tmp_path):
     out = tmp_path / "live.mha"
     r = subprocess.run([cli, "live", "compound", "--listen", "127.0.0.1:0", "--config", CONFIG,
                         "--out", str(out), "--max-seconds", "0.3"], capture_output=True, text=True)
-    assert r.returncode == 1 and "no frame was compounded" in r.stderr and not out.exists()
+    assert r.returncode == 1 and not out.exists()
+    assert r.stderr.splitlines()[-1] == (f"sonoslice: error: live compound: stopped by --max-seconds with no frame "
+                                         f"compounded, nothing written to '{out}' (0 frames received)"), r.stderr
+    assert "stopped by --max-seconds:" not in r.stderr  # the error alone carries the counts
     for args, what in [(["--listen", "0", "--connect", "x:1"], "one of --listen or --connect"),
                        (["--listen", "99999"], "--listen 99999"),
                        (["--listen", "0", "--queue", "some"], "--queue"),

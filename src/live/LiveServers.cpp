@@ -155,6 +155,15 @@ class CompoundServer {
     if (run_.log) run_.log(line);
   }
   void ignore(const std::string& why) { ++ignored_["ignored: " + why]; }
+  // NaN and infinite pixels are compounded as they are, as `compound` does with a file's: said
+  // once on the log and counted, rather than discovered in the volume.
+  void note_non_finite(const uint8_t* pixels, PixelType type, int64_t count) {
+    if (count_non_finite(pixels, type, count) == 0) return;
+    if (ignored_[kNonFinite]++ == 0)
+      log("a frame with NaN or infinite pixels: they are compounded as they are (counted as '" +
+          std::string(kNonFinite) + "')");
+  }
+  static constexpr const char* kNonFinite = "frames with NaN or infinite pixels";
 
   LiveCompounder* compounder_;
   const LiveCompoundRun& run_;
@@ -183,6 +192,7 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
     byteswap(swapped.data(), swapped.size() / pixel_size(image.type), pixel_size(image.type));
     pixels = swapped.data();
   }
+  note_non_finite(pixels, image.type, int64_t(image.size[0]) * image.size[1]);
   ++frames_;  // --max-frames counts the frames handed to the compounder
   compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
                     igtl::seconds_of_timestamp(m.header.timestamp), arrival);
