@@ -478,6 +478,32 @@ def test_python_live_compounder_matches_reconstruct_plus(tmp_path, frames):
         LiveCompounder(CONFIG, origin=(0, 0, 0))
 
 
+def test_a_stray_first_pose_does_not_turn_the_sweep_away(tmp_path, frames):
+    # A tracker's pose before it locks on, a metre from the sweep: the growing grid cannot take
+    # both. Three frames of the sweep later the sweep wins; the stray counts as rejected, and the
+    # volume is the one the sweep alone makes.
+    stray = frames[0][1].copy()
+    stray[:3, 3] += 1000.0
+    live = LiveCompounder(CONFIG, keep_frames=True)
+    live.push(frames[0][0], stray, 0.0)
+    for pixels, matrix, t in frames[:8]:
+        live.push(pixels, matrix, t)
+    volume = live.finish()
+    s = live.stats()
+    assert s["frames_compounded"] == 8 and s["frames_rejected"] == 1, s
+    assert s["rejected_by_reason"] == {
+        "a stray pose: far from the frames that followed it, which went on without it": 1}, s
+    alone = LiveCompounder(CONFIG)
+    for pixels, matrix, t in frames[:8]:
+        alone.push(pixels, matrix, t)
+    expected = alone.finish()
+    assert volume.shape == expected.shape and volume.origin == expected.origin
+    np.testing.assert_array_equal(volume.array, expected.array)
+    path = tmp_path / "rec.igs.mha"
+    live.recorded().save(path)
+    assert len(sonoslice.read_plus_sequence(path)) == 8
+
+
 def test_python_server_in_process(frames):
     live = LiveCompounder(CONFIG, **grid_kwargs(frames))
     with LiveCompoundServer(live, max_frames=6) as server:

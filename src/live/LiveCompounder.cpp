@@ -122,6 +122,11 @@ struct LiveCompounder::Impl {
   std::vector<double> kept_timestamps;
   bool growing = false;
   Box allocated;  // the growing grid, on the spacing's lattice
+  // Frames the growing grid refused (the box around them and the frames so far would be absurd),
+  // with the reason each was counted under; cleared when a frame goes in as usual.
+  std::vector<Frame> held;
+  std::vector<std::string> held_reasons;
+  static constexpr size_t kMaxHeld = 64;
   std::thread worker;
 
   std::string reject(const std::string& why) {
@@ -165,11 +170,75 @@ struct LiveCompounder::Impl {
   void insert_into_compounder(const Frame& f) {
     compounder->add_image(f.pixels.data(), *type, width, height, f.to_reference, plan->clip);
   }
-  void insert(Frame& f);  // under volume_mutex
+  // What an insert changed besides its own frame: frames compounded before that now count as
+  // rejected (strays), and refused ones that now count as compounded (with their old reasons).
+  struct Regrid {
+    int64_t displaced = 0;
+    std::vector<std::string> revived_reasons;
+  };
+  Regrid insert(Frame& f);  // under volume_mutex
+  Regrid refuse_growth(Frame& f, const std::string& reason);
+  void clear_volume() {
+    compounder.reset();
+    kept_pixels.clear();
+    kept_to_reference.clear();
+    kept_timestamps.clear();
+    held.clear();
+    held_reasons.clear();
+    plan.reset();
+  }
   void run();
 };
 
-void LiveCompounder::Impl::insert(Frame& f) {
+// A stray first pose (a tracker before it locks on) would otherwise make every later frame of
+// the sweep "absurd" to the grid (or more than the memory). Refused frames are held; once at
+// least three are held, more than twice the frames compounded, and a grid around them alone is
+// possible, they are the sweep: the grid starts over from them, and the frames compounded before
+// count as rejected strays. (A long sweep never gives way: at most kMaxHeld frames are held.)
+LiveCompounder::Impl::Regrid LiveCompounder::Impl::refuse_growth(Frame& f,
+                                                                 const std::string& reason) {
+  held.push_back(std::move(f));
+  held_reasons.push_back(reason);
+  if (held.size() > kMaxHeld) {
+    held.erase(held.begin());
+    held_reasons.erase(held_reasons.begin());
+  }
+  if (held.size() < 3 || held.size() <= 2 * kept_to_reference.size()) throw InputError(reason);
+  Box box = frame_box(held.front());
+  for (const Frame& h : held) box.add(frame_box(h));
+  for (int a = 0; a < 3; ++a) {
+    const int64_t pad = std::max<int64_t>(16, (box.hi[a] - box.lo[a] + 1) / 4);
+    box.lo[a] -= pad;
+    box.hi[a] += pad;
+  }
+  std::unique_ptr<Compounder> fresh;
+  try {
+    fresh = std::make_unique<Compounder>(box.grid(plan->spacing_mm), plan->settings, options.device,
+                                         options.max_memory_bytes, plan->output_type);
+  } catch (const Error&) {
+    // The held frames disagree among themselves too: hold again from this one.
+    held.erase(held.begin(), held.end() - 1);
+    held_reasons.erase(held_reasons.begin(), held_reasons.end() - 1);
+    throw InputError(reason);
+  }
+  Regrid r;
+  r.displaced = int64_t(kept_to_reference.size());
+  r.revived_reasons.assign(held_reasons.begin(), held_reasons.end() - 1);  // not this frame's
+  compounder = std::move(fresh);
+  allocated = box;
+  kept_pixels.clear();
+  kept_to_reference.clear();
+  kept_timestamps.clear();
+  for (const Frame& h : held) {
+    insert_into_compounder(h);
+    keep(h);
+  }
+  held.clear();
+  held_reasons.clear();
+  return r;
+}
+
+LiveCompounder::Impl::Regrid LiveCompounder::Impl::insert(Frame& f) {
   if (!plan) {
     plan = plan_stream(*type, width, height, config.get(), options);
     growing = !plan->grid;
@@ -190,12 +259,20 @@ void LiveCompounder::Impl::insert(Frame& f) {
         if (!compounder || b.lo[a] < allocated.lo[a]) grown.lo[a] -= pad;
         if (!compounder || b.hi[a] > allocated.hi[a]) grown.hi[a] += pad;
       }
-      rebuild(grown.grid(plan->spacing_mm));
+      try {
+        rebuild(grown.grid(plan->spacing_mm));
+      } catch (const Error& e) {  // absurd, or more than the memory
+        if (!compounder) throw;   // the first frame alone: its own problem
+        return refuse_growth(f, e.what());
+      }
       allocated = grown;  // once the larger grid exists (a failed one leaves the old)
     }
   }
   insert_into_compounder(f);
   if (live.keep_frames || growing) keep(f);
+  held.clear();
+  held_reasons.clear();
+  return {};
 }
 
 void LiveCompounder::Impl::run() {
@@ -210,9 +287,10 @@ void LiveCompounder::Impl::run() {
     lock.unlock();
     std::string error;
     const double arrival = f.arrival;
+    Regrid regrid;
     try {
       std::lock_guard<std::mutex> v(volume_mutex);
-      insert(f);
+      regrid = insert(f);
     } catch (const std::exception& e) {
       error = e.what();
     }
@@ -222,6 +300,15 @@ void LiveCompounder::Impl::run() {
     if (error.empty()) {
       ++counts.compounded;
       latencies_ms.push_back(float((done - arrival) * 1e3));
+      for (const std::string& why : regrid.revived_reasons) {
+        ++counts.compounded;
+        --counts.rejected;
+        if (--counts.rejected_by_reason[why] == 0) counts.rejected_by_reason.erase(why);
+      }
+      for (int64_t k = 0; k < regrid.displaced; ++k) {
+        --counts.compounded;
+        reject("a stray pose: far from the frames that followed it, which went on without it");
+      }
     } else {
       reject(error);
     }
@@ -330,11 +417,7 @@ bool LiveCompounder::is_suspended() const {
 void LiveCompounder::reset() {
   drain();
   std::lock_guard<std::mutex> v(impl_->volume_mutex);
-  impl_->compounder.reset();
-  impl_->kept_pixels.clear();
-  impl_->kept_to_reference.clear();
-  impl_->kept_timestamps.clear();
-  impl_->plan.reset();
+  impl_->clear_volume();
 }
 
 void LiveCompounder::reset(const ReconstructionOptions& options) {
@@ -347,11 +430,7 @@ void LiveCompounder::reset(const ReconstructionOptions& options) {
   drain();
   std::lock_guard<std::mutex> v(impl_->volume_mutex);
   impl_->options = options;
-  impl_->compounder.reset();
-  impl_->kept_pixels.clear();
-  impl_->kept_to_reference.clear();
-  impl_->kept_timestamps.clear();
-  impl_->plan.reset();
+  impl_->clear_volume();
 }
 
 const ReconstructionOptions& LiveCompounder::options() const {
