@@ -45,6 +45,9 @@ struct Box {
       hi[a] = std::max(hi[a], b.hi[a]);
     }
   }
+  // The margin a growing grid adds along axis a: a quarter of its size, at least 16 voxels (a
+  // sweep re-inserts its frames a few times, not at every frame, and allocates quickly).
+  int64_t margin(int a) const { return std::max<int64_t>(16, (hi[a] - lo[a] + 1) / 4); }
   VolumeGrid grid(const Vec3& spacing) const {
     VolumeGrid g;
     g.spacing_mm = spacing;
@@ -207,7 +210,7 @@ LiveCompounder::Impl::Regrid LiveCompounder::Impl::refuse_growth(Frame& f,
   Box box = frame_box(held.front());
   for (const Frame& h : held) box.add(frame_box(h));
   for (int a = 0; a < 3; ++a) {
-    const int64_t pad = std::max<int64_t>(16, (box.hi[a] - box.lo[a] + 1) / 4);
+    const int64_t pad = box.margin(a);
     box.lo[a] -= pad;
     box.hi[a] += pad;
   }
@@ -249,13 +252,11 @@ LiveCompounder::Impl::Regrid LiveCompounder::Impl::insert(Frame& f) {
   if (growing) {
     const Box b = frame_box(f);
     if (!compounder || !allocated.contains(b)) {
-      // Grow by a quarter of the current size (at least 16 voxels) where the frame leaves the
-      // box: a sweep re-inserts its frames a few times, not at every frame, and the margin
-      // stays small enough to allocate quickly.
+      // Grow by Box::margin where the frame leaves the box.
       Box grown = compounder ? allocated : b;
       grown.add(b);
       for (int a = 0; a < 3; ++a) {
-        const int64_t pad = std::max<int64_t>(16, (grown.hi[a] - grown.lo[a] + 1) / 4);
+        const int64_t pad = grown.margin(a);
         if (!compounder || b.lo[a] < allocated.lo[a]) grown.lo[a] -= pad;
         if (!compounder || b.hi[a] > allocated.hi[a]) grown.hi[a] += pad;
       }

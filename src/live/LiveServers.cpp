@@ -154,12 +154,12 @@ class CompoundServer {
   void log(const std::string& line) {
     if (run_.log) run_.log(line);
   }
-  void ignore(const std::string& why) { ++ignored_["ignored: " + why]; }
+  void ignore(const std::string& why) { ++network_counts_["ignored: " + why]; }
   // NaN and infinite pixels are compounded as they are, as `compound` does with a file's: said
   // once on the log and counted, rather than discovered in the volume.
   void note_non_finite(const uint8_t* pixels, PixelType type, int64_t count) {
     if (count_non_finite(pixels, type, count) == 0) return;
-    if (ignored_[kNonFinite]++ == 0)
+    if (network_counts_[kNonFinite]++ == 0)
       log("a frame with NaN or infinite pixels: they are compounded as they are (counted as '" +
           std::string(kNonFinite) + "')");
   }
@@ -168,7 +168,7 @@ class CompoundServer {
   LiveCompounder* compounder_;
   const LiveCompoundRun& run_;
   IgtlEndpoint endpoint_;
-  std::map<std::string, int64_t> ignored_;
+  std::map<std::string, int64_t> network_counts_;  // ignored messages, NaN frames
   int64_t frames_ = 0;
   std::string stopped_by_;
 };
@@ -354,7 +354,7 @@ LiveCompoundResult CompoundServer::serve() {
   endpoint_.flush(1000);  // replies and volumes still on their way
   r.stats = compounder_->stats();
   r.network = endpoint_.counts();
-  for (const auto& [k, n] : ignored_) r.network[k] += n;
+  for (const auto& [k, n] : network_counts_) r.network[k] += n;
   r.stopped_by = stopped_by_;
   return r;
 }

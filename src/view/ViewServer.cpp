@@ -14,6 +14,7 @@
 #include <random>
 #include <thread>
 
+#include <arpa/inet.h>
 #include <httplib.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
@@ -103,38 +104,20 @@ void send_floats(httplib::Response& res, std::vector<float> values) {
                   "application/octet-stream");
 }
 
-// "localhost", 127.x.x.x or ::1 (with or without brackets).
-// An IPv4 literal a.b.c.d (four decimal numbers 0..255).
-bool is_ipv4_literal(const std::string& h, int* first) {
-  int parts = 0;
-  size_t at = 0;
-  while (parts < 4) {
-    size_t end = at;
-    while (end < h.size() && end - at < 3 && h[end] >= '0' && h[end] <= '9') ++end;
-    if (end == at || std::stoi(h.substr(at, end - at)) > 255) return false;
-    if (parts++ == 0) *first = std::stoi(h.substr(at, end - at));
-    if (parts < 4 && (end >= h.size() || h[end] != '.')) return false;
-    at = end + 1;
-    if (parts == 4 && end != h.size()) return false;
-  }
-  return true;
-}
-
 // localhost, ::1 or an address of 127.0.0.0/8 written as one: a name that merely starts with
 // "127." (127.0.0.1.attacker.example) is a name, which DNS rebinding can point here.
 bool is_loopback_name(const std::string& h) {
-  int first = -1;
+  in_addr address{};
   return h == "localhost" || h == "::1" || h == "[::1]" ||
-         (is_ipv4_literal(h, &first) && first == 127);
+         (inet_pton(AF_INET, h.c_str(), &address) == 1 && (ntohl(address.s_addr) >> 24) == 127);
 }
 
 // A query parameter as a whole number or a finite number: the whole text, or an InputError naming
 // it (std::stoi would take "3xyz" as 3 and answer "stoi" for "").
 int64_t whole_param(const httplib::Request& req, const char* name, const std::string& what) {
   const std::string text = req.get_param_value(name);
-  double value = 0;
-  if (!req.has_param(name) || !text::parse_double(text, &value) || value != std::floor(value) ||
-      std::fabs(value) > 9e15 || text.find_first_of(".eE") != std::string::npos)
+  int64_t value = 0;
+  if (!req.has_param(name) || !text::parse_int64(text, &value))
     throw InputError(what + ": " + name + " " + text::quote_value(text) + " is not a whole number");
   return int64_t(value);
 }
