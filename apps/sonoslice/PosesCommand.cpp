@@ -30,7 +30,7 @@ struct PosesFlags {
   uint64_t seed = 0;
   std::optional<double> min_inside, min_body, min_label;
   std::optional<int> label, max_tries;
-  bool no_gas = false, verbose = false;
+  bool no_gas = false, verbose = false, quiet = false;
   std::optional<int> threads;
 };
 
@@ -124,7 +124,7 @@ void run_poses(const PosesFlags& f) {
     write_poses_npy(f.out, poses);
   else
     write_poses_text(f.out, poses);
-  if (f.verbose)
+  if (f.verbose && !f.quiet)
     std::fprintf(stderr,
                  "sonoslice: %zu poses (%lld seeds): load %.3f s, sampler setup %.3f s, sampling "
                  "%.3f s (%.0f poses/s, %d threads), total %.3f s\n",
@@ -166,6 +166,7 @@ void add_poses_command(CLI::App& app) {
   cmd->add_option("--world", flags->world, "Frame of the written poses: LPS (default) or RAS");
   add_threads_option(*cmd, flags->threads);
   cmd->add_flag("--verbose,-v", flags->verbose, "Print times and rates");
+  cmd->add_flag("--quiet,-q", flags->quiet, "No summary (the default without -v)");
   cmd->callback([flags] { run_poses(*flags); });
 }
 

@@ -32,8 +32,9 @@ def test_command_and_binding_agree(cli, ph):
     out = ph / "skin.npy"
     r = run(cli, "poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
             "--downsampling", "2", "--count", "500", "--seed", "9", "--tilt-deg", "-10,10", "--min-body", "0.5",
-            "--out", str(out))
+            "--out", str(out), "-v", "-q")
     assert r.returncode == 0, r.stderr
+    assert r.stderr == ""  # -q wins over -v, as in every command
     poses = np.load(out)
     assert poses.shape == (500, 4, 4) and poses.dtype == np.float64
     ct = sonoslice.Volume.from_file(str(ph / "ph" / "ct.nii.gz"))

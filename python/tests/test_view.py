@@ -351,6 +351,8 @@ def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
                              ("api/plane?axis=x&pos=1", "plane: axis 'x' is not a whole number"),
                              ("api/plane?axis=1abc&pos=0", "plane: axis '1abc' is not a whole number"),
                              ("api/plane?axis=0&pos=5mm", "plane: pos '5mm' is not a finite number"),
+                             ("api/plane?axis=0&pos=0x10", "plane: pos '0x10' is not a finite number"),
+                             ("api/plane?axis=%201&pos=0", "plane: axis ' 1' is not a whole number"),
                              ("api/plane?axis=0&pos=1e308", "plane: pos '1e308' is beyond any scanner"),
                              ("api/plane", "plane: axis '' is not a whole number"),
                              ("api/image?pose=100000", "image: pose 100000 out of range"),

@@ -65,8 +65,12 @@ inline std::string quote_value(const std::string& s) {
   return "'" + shown + "'";
 }
 
+/// A decimal number, the whole token: strtod alone would also take leading blanks and C's hex
+/// floats ("0x10" as 16), which no file format or query of ours means.
 inline bool parse_double(const std::string& token, double* out) {
-  if (token.empty()) return false;
+  if (token.empty() || std::isspace(static_cast<unsigned char>(token[0])) ||
+      token.find_first_of("xX") != std::string::npos)
+    return false;
   errno = 0;
   char* end = nullptr;
   const double v = std::strtod(token.c_str(), &end);  // underflow to 0 is fine, overflow is not
@@ -76,7 +80,7 @@ inline bool parse_double(const std::string& token, double* out) {
 }
 
 inline bool parse_int64(const std::string& token, int64_t* out) {
-  if (token.empty()) return false;
+  if (token.empty() || std::isspace(static_cast<unsigned char>(token[0]))) return false;
   errno = 0;
   char* end = nullptr;
   const long long v = std::strtoll(token.c_str(), &end, 10);
