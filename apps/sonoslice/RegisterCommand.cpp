@@ -314,7 +314,10 @@ void add_register_command(CLI::App& app) {
                   "Optimisations per frame (per sweep) from spread points (default: automatic, "
                   "until " +
                       std::to_string(kAgreeingStarts) + " reach the same pose, at most " +
-                      std::to_string(kAutoMaxStarts) + "; a sweep's shared correction: at most " +
+                      std::to_string(default_max_starts(RegistrationMetric::NCC)) +
+                      " for ssd and ncc, " +
+                      std::to_string(default_max_starts(RegistrationMetric::MI)) +
+                      " for the others; a sweep's shared correction: at most " +
                       std::to_string(kAutoMaxSweepStarts) + ")");
   cmd->add_option(
       "--search-rot-deg", flags->search_rot_deg,

@@ -106,7 +106,7 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
     reached from at least three starts (and, in rigid-sweep and calibration mode, both splits end
     at most 0.5 mm apart); a registration with frames that are not warns
     (``UserWarning``, one message). ``starts``: None (default) runs starts until three agree,
-    at most 12 (a sweep's shared correction: at most 16).
+    at most 48 for ssd and ncc, 12 for the others (a sweep's shared correction: at most 16).
 
     The settings are :class:`RegistrationSettings`' (give one as ``settings``, or its keywords;
     unset ones take the library's defaults, ``RegistrationSettings()``). ``optimizer``: by default

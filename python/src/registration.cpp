@@ -95,6 +95,9 @@ void bind_registration(nb::module_& m) {
         "others.");
   m.def("default_pyramid", &default_pyramid, "metric"_a,
         "The pyramid a metric gets when none is asked for: [8, 4, 2, 1], or [2, 1] for lc2.");
+  m.def("default_max_starts", &default_max_starts, "metric"_a,
+        "The most automatic starts a frame gets when starts is None: 48 for ssd and ncc, 12 for "
+        "the others (a sweep's shared correction: 16).");
 
   const RegistrationSettings settings;
   nb::class_<RegistrationSettings>(
@@ -133,7 +136,7 @@ void bind_registration(nb::module_& m) {
           "tolerance_deg"_a = settings.tolerance_deg,
           "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer). "
           "starts: None (default) runs starts until three reach the same pose, at most "
-          "kAutoMaxStarts. pyramid: None (default) is the metric's (default_pyramid).")
+          "default_max_starts(metric). pyramid: None (default) is the metric's (default_pyramid).")
       .def_ro("metric", &RegistrationSettings::metric)
       .def_ro("optimizer", &RegistrationSettings::optimizer,
               "None: not chosen yet (resolved() chooses)")

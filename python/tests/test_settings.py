@@ -43,6 +43,11 @@ def test_registration_settings_choose_the_pyramid_per_metric():
     assert sonoslice.RegistrationSettings().resolved().pyramid == [8, 4, 2, 1]
 
 
+def test_registration_settings_cap_the_automatic_starts_per_metric():
+    for metric, most in (("ssd", 48), ("ncc", 48), ("lncc", 12), ("mi", 12), ("lc2", 12)):
+        assert sonoslice._ext.default_max_starts(sonoslice.RegistrationMetric[metric]) == most
+
+
 def test_registration_cost_is_lowest_where_the_frame_was_made(phantom, poses):
     ct, _ = phantom
     probe = sonoslice.Probe.linear(40, 32, 0.5)

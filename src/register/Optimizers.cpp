@@ -281,7 +281,8 @@ double rotation_angle_deg(const Mat3& a, const Mat3& b) {
 Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,
                     const Vec3& centre) {
   const bool automatic = !s.starts;
-  const int most = !automatic ? *s.starts : (p.shared ? kAutoMaxSweepStarts : kAutoMaxStarts);
+  const int most =
+      !automatic ? *s.starts : (p.shared ? kAutoMaxSweepStarts : default_max_starts(s.metric));
   int64_t evaluations = 0, iterations = 0;
   const int draws = most == 1 ? 1 : most * kCandidatesPerStart;
   std::vector<std::pair<double, Pose>> candidates(size_t(draws), {0.0, Pose::identity()});

@@ -44,7 +44,7 @@ std::pair<double, double> pose_uncertainty(RegistrationMetric metric, const Pose
 double rotation_angle_deg(const Mat3& a, const Mat3& b);
 
 /// The best of the optimisations of `p` about `centre` (the frame's or the sweep's centre):
-/// settings.starts of them, or, unset, until kAgreeingStarts agree (at most kAutoMaxStarts; for
+/// settings.starts of them, or, unset, until kAgreeingStarts agree (default_max_starts; for
 /// a shared correction at most kAutoMaxSweepStarts); `item` seeds the
 /// drawn starts (a frame's index, or 0 for a sweep).
 Outcome multi_start(const Problem& p, const RegistrationSettings& s, size_t item,

@@ -91,6 +91,10 @@ std::vector<int> default_pyramid(RegistrationMetric metric) {
   return {8, 4, 2, 1};
 }
 
+int default_max_starts(RegistrationMetric metric) {
+  return metric_has_derivatives(metric) ? kAutoMaxStartsWithDerivatives : kAutoMaxStarts;
+}
+
 RegistrationSettings RegistrationSettings::resolved() const {
   RegistrationSettings s = *this;
   if (!s.optimizer) s.optimizer = default_optimizer(metric);

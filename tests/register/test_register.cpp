@@ -527,7 +527,7 @@ TEST(Register, NoiseFramesAreNotConverged) {
     std::printf("[ noise ] frame %zu: %d starts, %d agreeing\n", r.index, r.starts,
                 r.agreeing_starts);
     EXPECT_FALSE(r.converged);
-    EXPECT_EQ(r.starts, kAutoMaxStarts);
+    EXPECT_EQ(r.starts, default_max_starts(RegistrationSettings().metric));
   }
   EXPECT_EQ(warnings.messages().size(), 1u);
 }
