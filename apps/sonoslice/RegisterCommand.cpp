@@ -84,6 +84,8 @@ struct Inputs {
   std::vector<uint8_t> user_mask;
   Volume stack;                           // --frames
   std::optional<PlusTrackedFrames> plus;  // --sequence
+  std::optional<PlusSequence> sequence;   // --sequence, kept for a corrected sequence as --out
+  PlusReconstructionConfig config;        // --config
   std::optional<Mat4> image_to_probe;     // --config's calibration, when it has one
 };
 
@@ -123,17 +125,23 @@ Inputs read_frame_inputs(const RegisterFlags& f, WorldFrame world) {
   return in;
 }
 
+// --out as a PLUS sequence (.mha/.nrrd, with --sequence): the corrected sequence.
+bool sequence_out(const RegisterFlags& f) {
+  const std::string ext = file_extension(f.out);
+  return !f.sequence.empty() && (ext == ".mha" || ext == ".nrrd");
+}
+
 // A PLUS sequence: the frames compound would use, their ImageToReference split into rigid poses
 // on the frames' pixel grid, the configuration's clip as the mask (register_tracked_frames takes
 // them from here, after the volume is read).
 Inputs read_sequence_inputs(const RegisterFlags& f) {
   Inputs in;
-  PlusReconstructionConfig config;
-  if (!f.config.empty()) config = read_plus_config(f.config);
-  const PlusSequence sequence = read_plus_sequence(f.sequence);
-  in.plus = plus_tracked_frames(sequence, config);
+  if (!f.config.empty()) in.config = read_plus_config(f.config);
+  in.sequence = read_plus_sequence(f.sequence);
+  in.plus = plus_tracked_frames(*in.sequence, in.config);
   in.count = in.plus->frames.size();
-  in.image_to_probe = plus_image_to_probe(config);
+  in.image_to_probe = plus_image_to_probe(in.config);
+  if (!sequence_out(f)) in.sequence.reset();  // its pixels are in `plus` as well
   return in;
 }
 
@@ -173,8 +181,9 @@ void run_register(const RegisterFlags& f) {
   if (f.out.empty()) throw UsageError("register: --out is required");
   setup_threads(f.threads);
   const RegistrationSettings settings = settings_of(f);
-  if (file_extension(f.out) != ".npy")
-    throw InputError("--out '" + f.out + "': refined poses are written as .npy (N, 4, 4)");
+  if (file_extension(f.out) != ".npy" && !sequence_out(f))
+    throw InputError("--out '" + f.out + "': refined poses are written as .npy (N, 4, 4)" +
+                     (from_sequence ? "; a corrected sequence as .mha or .nrrd" : ""));
   if (!f.report.empty() && file_extension(f.report) != ".json")
     throw InputError("--report '" + f.report + "': the report is JSON (.json)");
   // The refined poses' .npy has no geometry sidecar: REFINED.npy beside REFINED.json is fine.
@@ -202,8 +211,10 @@ void run_register(const RegisterFlags& f) {
   RegistrationReport report;
   std::vector<Mat4> matrices;
   std::optional<Mat4> corrected_image_to_probe;
+  std::optional<PlusSequence> corrected;
   if (from_sequence) {
     PlusRegistration r = register_tracked_frames(volume, *in.plus, settings, in.image_to_probe);
+    if (in.sequence) corrected = corrected_plus_sequence(*in.sequence, in.config, r);
     matrices = std::move(r.image_to_reference);
     corrected_image_to_probe = r.image_to_probe;
     report = std::move(r.report);
@@ -218,7 +229,10 @@ void run_register(const RegisterFlags& f) {
   std::vector<double> flat;
   for (const Mat4& p : matrices)
     for (int i = 0; i < 16; ++i) flat.push_back(p.m[i / 4][i % 4]);
-  write_npy(f.out, PixelType::Float64, {int64_t(matrices.size()), 4, 4}, flat.data(), &outputs);
+  if (corrected)
+    write_plus_sequence(f.out, *corrected, /*compress=*/true, &outputs);
+  else
+    write_npy(f.out, PixelType::Float64, {int64_t(matrices.size()), 4, 4}, flat.data(), &outputs);
   if (!f.report.empty()) {
     // The settings as the library resolved them (the optimiser chosen for the metric).
     const RegistrationSettings& ran = report.settings;
@@ -284,7 +298,8 @@ void add_register_command(CLI::App& app) {
   cmd->add_option("--poses", flags->poses, "Initial poses, one per frame: .npy, .txt/.csv, .json");
   cmd->add_option("--out", flags->out,
                   "Refined poses: .npy (N,4,4); with --sequence, the refined ImageToReference "
-                  "(pixels to reference mm) of each frame used");
+                  "(pixels to reference mm) of each frame used as .npy, or the sequence with its "
+                  "tracked transforms corrected (.mha/.nrrd; compound it with the same --config)");
   cmd->add_option("--sequence", flags->sequence,
                   "A PLUS sequence (.igs.mha/.nrrd): its frames and tracked poses, instead of "
                   "--probe, --frames and --poses");

@@ -10,7 +10,7 @@ import numpy as np
 
 from . import _arrays
 from . import _sonoslice as _ext
-from .plus import _as_config, _as_sequence
+from .plus import PlusSequence, _as_config, _as_sequence
 from .slicing import Probe
 from .volume import Volume
 
@@ -126,7 +126,8 @@ def register_sequence(volume: Volume, sequence, config=None, *, metric: Optional
                       optimizer: Optional[str] = None, mode: Optional[str] = None, starts: Optional[int] = None,
                       search_rot_deg: Optional[float] = None, search_trans_mm: Optional[float] = None,
                       seed: Optional[int] = None, pyramid: Optional[Sequence[int]] = None,
-                      smoothness: Optional[float] = None, settings: Optional[RegistrationSettings] = None):
+                      smoothness: Optional[float] = None, settings: Optional[RegistrationSettings] = None,
+                      corrected: bool = False):
     """Registers a PLUS sequence's tracked frames to ``volume``, as ``sonoslice register --sequence
     S --config C`` does (one C++ function; docs/registration.md §4): the frames and their
     ImageToReference chains that ``compound`` would use, the configuration's clip as the mask.
@@ -139,15 +140,23 @@ def register_sequence(volume: Volume, sequence, config=None, *, metric: Optional
     found, so a calibration's scale stays), and :func:`register`'s report with
     "sequence_frames" (the sequence's frames used), "skipped" (why frames were left out, when
     some were) and, in calibration mode with an Image → Probe calibration in the configuration,
-    "image_to_probe" (that calibration corrected, 4 × 4)."""
+    "image_to_probe" (that calibration corrected, 4 × 4).
+
+    ``corrected=True`` returns ``(image_to_reference, report, corrected_sequence)``: the sequence
+    with the tracked transform of each frame used corrected (the first of the frame's own
+    transforms on its ImageToReference chain, typically ProbeToTracker), so that
+    :func:`reconstruct_plus` or ``sonoslice compound`` with the same configuration puts the frames
+    where registration did; ``corrected_sequence.save(path)`` writes it (docs/registration.md §4)."""
     if not isinstance(volume, Volume):
         raise TypeError("volume: expected a sonoslice.Volume")
     s = _settings(settings, dict(metric=metric, optimizer=optimizer, mode=mode, starts=starts,
                                  search_rot_deg=search_rot_deg, search_trans_mm=search_trans_mm, seed=seed,
                                  pyramid=pyramid, smoothness=smoothness))
     seq, cfg = _as_sequence(sequence), _as_config(config)
-    frames, matrices, image_to_probe, skipped, report = _ext.register_plus_sequence(
-        volume._cpp, seq._cpp, None if cfg is None else cfg._cpp, settings=s)
+    if not isinstance(corrected, bool):
+        raise TypeError("corrected: expected True or False")
+    frames, matrices, image_to_probe, skipped, report, fixed = _ext.register_plus_sequence(
+        volume._cpp, seq._cpp, None if cfg is None else cfg._cpp, settings=s, corrected=corrected)
     out = _report(report)
     out["sequence"] = seq.path
     out["sequence_frames"] = list(frames)
@@ -155,6 +164,8 @@ def register_sequence(volume: Volume, sequence, config=None, *, metric: Optional
         out["skipped"] = skipped
     if image_to_probe is not None:
         out["image_to_probe"] = np.asarray(image_to_probe).tolist()
+    if corrected:
+        return np.ascontiguousarray(matrices), out, PlusSequence(fixed)
     return np.ascontiguousarray(matrices), out
 
 

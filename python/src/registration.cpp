@@ -260,23 +260,27 @@ void bind_registration(nb::module_& m) {
   m.def(
       "register_plus_sequence",
       [](nb::pointer_and_handle<Volume> volume, const PlusSequence& sequence,
-         const PlusReconstructionConfig* config, const RegistrationSettings& settings) {
+         const PlusReconstructionConfig* config, const RegistrationSettings& settings,
+         bool corrected) {
         auto source = volume_source(volume.h);
         if (source) source->check("register_sequence");
         PlusRegistration r;
+        std::optional<PlusSequence> corrected_sequence;
         {
           nb::gil_scoped_release release;
-          r = register_plus_sequence(*volume.p, sequence,
-                                     config ? *config : PlusReconstructionConfig(), settings);
+          const PlusReconstructionConfig chosen = config ? *config : PlusReconstructionConfig();
+          r = register_plus_sequence(*volume.p, sequence, chosen, settings);
+          if (corrected) corrected_sequence = corrected_plus_sequence(sequence, chosen, r);
         }
         return std::make_tuple(std::move(r.frames), matrices_to_numpy(r.image_to_reference),
                                matrix_or_none(r.image_to_probe), std::move(r.skipped),
-                               std::move(r.report));
+                               std::move(r.report), std::move(corrected_sequence));
       },
       "volume"_a, "sequence"_a, "config"_a.none(), nb::kw_only(),
-      "settings"_a = RegistrationSettings(),
+      "settings"_a = RegistrationSettings(), "corrected"_a = false,
       "(frames used, (M, 4, 4) refined ImageToReference, corrected ImageToProbe or None, why "
-      "frames were skipped, RegistrationReport): register_plus_sequence.");
+      "frames were skipped, RegistrationReport, the corrected sequence or None): "
+      "register_plus_sequence, and with corrected, corrected_plus_sequence.");
 }
 
 }  // namespace sonoslice::bindings

@@ -401,6 +401,46 @@ def test_python_registers_a_plus_sequence_as_the_command_does(cli, tmp_path):
         sonoslice.register_sequence(NWIRE_VOLUME, NWIRE)
 
 
+def test_a_corrected_sequence_compounds_where_registration_put_the_frames(cli, tmp_path):
+    """`register --sequence --out X.igs.mha` writes the real NWire sweep with its ProbeToTracker
+    transforms corrected: read back with the same configuration, each used frame's ImageToReference
+    is the refined matrix `--out X.npy` writes, the other frames and every image are as they were,
+    `compound` takes it, and Python's register_sequence(corrected=True) writes the same."""
+    import sonoslice
+    xml = nwire_config(tmp_path / "c.xml", None)  # every 4th frame
+    common = ["register", "--sequence", NWIRE, "--config", xml, "--volume", NWIRE_VOLUME, "--pyramid", "8,4",
+              "--starts", "1"]
+    r = run(cli, *common, "--out", str(tmp_path / "refined.npy"))
+    assert r.returncode == 0, r.stderr
+    corrected_path = tmp_path / "corrected.igs.mha"
+    r = run(cli, *common, "--out", str(corrected_path))
+    assert r.returncode == 0, r.stderr
+    refined = np.load(tmp_path / "refined.npy")
+    frames, matrices = sonoslice.plus_image_to_reference(str(corrected_path), xml)
+    assert list(frames) == list(range(0, 97, 4))
+    np.testing.assert_allclose(matrices, refined, rtol=0, atol=1e-9)
+    _, before = sonoslice.plus_image_to_reference(NWIRE, xml)
+    moved = np.abs(matrices[:, :3, 3] - before[:, :3, 3]).max()
+    assert moved > 0.01, moved  # registration moved the frames, and the file says so
+    original, corrected = sonoslice.read_plus_sequence(NWIRE), sonoslice.read_plus_sequence(corrected_path)
+    np.testing.assert_array_equal(corrected.frames, original.frames)
+    for frame in range(len(original)):
+        changed = {k for k in original.frame_fields[frame]
+                   if original.frame_fields[frame][k] != corrected.frame_fields[frame].get(k)}
+        assert changed == ({"ProbeToTrackerTransform"} if frame % 4 == 0 else set()), (frame, changed)
+    volume = tmp_path / "v.mha"
+    r = run(cli, "compound", "--sequence", str(corrected_path), "--config", xml, "--out", str(volume), "-q")
+    assert r.returncode == 0 and volume.exists(), r.stderr
+    with pytest.warns(UserWarning, match="degrees from perpendicular"):
+        same, _, fixed = sonoslice.register_sequence(sonoslice.Volume.from_file(NWIRE_VOLUME), NWIRE, xml,
+                                                     pyramid=[8, 4], starts=1, corrected=True)
+    np.testing.assert_array_equal(same, refined)
+    assert fixed.frame_fields == corrected.frame_fields
+    # A refined-poses file is .npy; with --sequence a sequence as well, nothing else.
+    r = run(cli, *common, "--out", str(tmp_path / "x.txt"))
+    assert r.returncode == 1 and "a corrected sequence as .mha or .nrrd" in r.stderr, r.stderr
+
+
 def test_sequence_input_bad_input_is_one_line(cli, tmp_path):
     skewed = nwire_image_to_probe()
     skewed[:3, 1] = skewed[:3, 1] + 0.3 * np.linalg.norm(skewed[:3, 1]) * skewed[:3, 0] / np.linalg.norm(skewed[:3, 0])

@@ -6,6 +6,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <sstream>
 #include <string>
@@ -105,6 +106,20 @@ inline bool parse_matrix16(const std::string& text, Mat4* m) {
     if (!parse_double(tokens[i], &v[i])) return false;
   *m = Mat4::from_row_major(v);
   return true;
+}
+
+/// parse_matrix16's text of `m`: 16 numbers, row-major, each to 17 significant digits (read back
+/// exactly), as PLUS writes a sequence's transforms.
+inline std::string format_matrix16(const Mat4& m) {
+  std::string s;
+  char b[40];
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) {
+      std::snprintf(b, sizeof(b), "%.17g", m.m[r][c]);
+      if (!s.empty()) s += ' ';
+      s += b;
+    }
+  return s;
 }
 
 }  // namespace text

@@ -16,6 +16,7 @@
 
 #include "../compound/CompoundGrid.h"
 #include "../core/Text.h"
+#include "../io/TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -58,18 +59,6 @@ struct Box {
     return g;
   }
 };
-
-std::string matrix_text(const Mat4& m) {
-  std::string s;
-  char b[40];
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) {
-      std::snprintf(b, sizeof(b), "%.17g", m.m[r][c]);
-      if (!s.empty()) s += ' ';
-      s += b;
-    }
-  return s;
-}
 
 }  // namespace
 
@@ -497,7 +486,7 @@ PlusSequence LiveCompounder::recorded() const {
   for (size_t k = 0; k < im.kept_to_reference.size(); ++k) {
     char t[40];
     std::snprintf(t, sizeof(t), "%.6f", im.kept_timestamps[k]);
-    s.frame_fields.push_back({{transform, matrix_text(im.kept_to_reference[k])},
+    s.frame_fields.push_back({{transform, text::format_matrix16(im.kept_to_reference[k])},
                               {transform + "Status", "OK"},
                               {"Timestamp", t},
                               {"ImageStatus", "OK"}});

@@ -71,19 +71,19 @@ void TransformRepository::set_frame(const PlusSequence& sequence, int frame) {
   }
 }
 
-std::optional<Mat4> TransformRepository::get(const std::string& from, const std::string& to) const {
-  if (from == to) return Mat4::identity();
+std::optional<std::vector<TransformRepository::Link>> TransformRepository::chain(
+    const std::string& from, const std::string& to) const {
+  if (from == to) return std::vector<Link>{};
   struct Edge {
     std::string next;
+    const std::pair<std::string, std::string>* key;  // as stored
     const Entry* entry;
     bool inverse;
-    std::string name;  // AToB as stored
   };
   std::map<std::string, std::vector<Edge>> graph;
   for (const auto& [key, entry] : transforms_) {
-    const std::string name = key.first + "To" + key.second;
-    graph[key.first].push_back({key.second, &entry, false, name});
-    graph[key.second].push_back({key.first, &entry, true, name});
+    graph[key.first].push_back({key.second, &key, &entry, false});
+    graph[key.second].push_back({key.first, &key, &entry, true});
   }
   // Breadth-first: the chain with the fewest transforms; valid transforms only first, so that a
   // valid chain is found even when an equally short one passes through an invalid transform.
@@ -122,14 +122,22 @@ std::optional<Mat4> TransformRepository::get(const std::string& from, const std:
     throw InputError("no chain of transforms from '" + from + "' to '" + to +
                      "' (known: " + (known.empty() ? "none" : known) + ")");
   }
+  std::vector<Link> links;
+  for (const Edge* e : *path) links.push_back({e->key->first, e->key->second, e->inverse});
+  return links;
+}
+
+std::optional<Mat4> TransformRepository::get(const std::string& from, const std::string& to) const {
+  const std::optional<std::vector<Link>> links = chain(from, to);
+  if (!links) return std::nullopt;
   Mat4 result = Mat4::identity();
-  for (const Edge* e : *path) {
-    Mat4 step = e->entry->matrix;
-    if (e->inverse) {
+  for (const Link& link : *links) {
+    Mat4 step = transforms_.at({link.from, link.to}).matrix;
+    if (link.inverse) {
       std::optional<Mat4> inv = invert(step);
       if (!inv)
-        throw InputError("transform " + e->name + " is not invertible, so " + from + "To" + to +
-                         " cannot be computed through it");
+        throw InputError("transform " + link.from + "To" + link.to + " is not invertible, so " +
+                         from + "To" + to + " cannot be computed through it");
       step = *inv;
     }
     result = step * result;

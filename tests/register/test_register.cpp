@@ -10,12 +10,15 @@
 #include <string>
 #include <vector>
 
+#include "../../src/io/TextParse.h"
 #include "../common/TestUtil.h"
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/phantom/Phantom.h"
 #include "sonoslice/phantom/Workloads.h"
+#include "sonoslice/plus/TransformRepository.h"
 #include "sonoslice/register/Differentiable.h"
+#include "sonoslice/register/PlusRegistration.h"
 #include "sonoslice/register/Registration.h"
 #include "sonoslice/slice/Slicer.h"
 
@@ -850,6 +853,71 @@ TEST(Register, SettingsChooseTheOptimiserAndNameTheSetting) {
     FAIL() << "parsed";
   } catch (const InputError& e) {
     EXPECT_EQ(std::string(e.what()), "--metric mutual: expected ssd, ncc, lncc, mi or lc2");
+  }
+}
+
+// A corrected PLUS sequence: whichever way the frame's own transform is stored (ProbeToTracker
+// walked forwards, or TrackerToProbe walked backwards), the configuration's chain of the
+// corrected frame is the correction times the original, and the rest is kept.
+TEST(RegisterPlus, CorrectedSequenceChainsToTheRefinedMatrices) {
+  PlusReconstructionConfig config;
+  const Mat4 image_to_probe =
+      Mat4::from_columns({0.2, 0, 0}, {0, 0.2, 0.01}, {0, -0.01, 1}, {-30, 5, 2});
+  config.coordinate_definitions.set("Image", "Probe", image_to_probe);
+  const Mat4 reference_to_tracker =
+      Mat4::from_rotation_translation(test::rotation({0, 0, 1}, 30), {100, -20, 5});
+  const Mat4 probe_to_tracker[2] = {
+      Mat4::from_rotation_translation(test::rotation(normalized({1, 1, 0}), 20), {5, 6, 7}),
+      Mat4::from_rotation_translation(test::rotation(normalized({0, 1, 1}), -40), {-8, 2, 30})};
+  PlusRegistration registration;
+  registration.frames = {1};  // frame 0 is not used: kept as it is
+  registration.corrections = {
+      Mat4::from_rotation_translation(test::rotation(normalized({1, -2, 0.5}), 3), {1.5, -2, 0.7})};
+  for (const bool stored_backwards : {false, true}) {
+    PlusSequence s;
+    s.path = "sweep.igs.mha";
+    s.width = s.height = 2;
+    s.frame_count = 2;
+    s.pixels.assign(8, 7);
+    for (int k = 0; k < 2; ++k) {
+      const Mat4 tracked = stored_backwards ? *invert(probe_to_tracker[k]) : probe_to_tracker[k];
+      s.frame_fields.push_back(
+          {{stored_backwards ? "TrackerToProbeTransform" : "ProbeToTrackerTransform",
+            text::format_matrix16(tracked)},
+           {"ReferenceToTrackerTransform", text::format_matrix16(reference_to_tracker)},
+           {"ImageStatus", "OK"}});
+    }
+    const PlusSequence corrected = corrected_plus_sequence(s, config, registration);
+    const auto image_to_reference = [&](const PlusSequence& seq, int frame) {
+      TransformRepository r = config.coordinate_definitions;
+      r.set_frame(seq, frame);
+      return *r.get("Image", "Reference");
+    };
+    const Mat4 want = registration.corrections[0] * image_to_reference(s, 1);
+    const Mat4 got = image_to_reference(corrected, 1);
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) EXPECT_NEAR(got.m[r][c], want.m[r][c], 1e-9) << r << c;
+    EXPECT_EQ(corrected.frame_fields[0], s.frame_fields[0]);
+    EXPECT_EQ(corrected.frame_fields[1].at("ReferenceToTrackerTransform"),
+              s.frame_fields[1].at("ReferenceToTrackerTransform"));
+    EXPECT_EQ(corrected.pixels, s.pixels);
+  }
+  // A chain of the configuration's transforms alone has nothing of the frame's to correct.
+  PlusReconstructionConfig fixed;
+  fixed.coordinate_definitions.set("Image", "Reference", image_to_probe);
+  PlusSequence s;
+  s.path = "still.igs.mha";
+  s.width = s.height = s.frame_count = 1;
+  s.pixels.assign(1, 0);
+  s.frame_fields.push_back({{"ImageStatus", "OK"}});
+  registration.frames = {0};
+  try {
+    corrected_plus_sequence(s, fixed, registration);
+    ADD_FAILURE() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_STREQ(e.what(),
+                 "still.igs.mha: frame 0: its ImageToReference holds none of the frame's own "
+                 "transforms to correct");
   }
 }
 

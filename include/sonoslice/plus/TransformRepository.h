@@ -6,6 +6,7 @@
 #include <optional>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "sonoslice/geometry/Math.h"
 #include "sonoslice/plus/PlusSequence.h"
@@ -28,6 +29,15 @@ class TransformRepository {
   /// std::nullopt when a chain exists but passes through an invalid transform. Throws InputError
   /// naming both frames and the known transforms when no chain exists at all.
   std::optional<Mat4> get(const std::string& from, const std::string& to) const;
+  /// One transform of a chain: the stored `from`To`to`, walked from `to` to `from` when
+  /// `inverse`.
+  struct Link {
+    std::string from, to;
+    bool inverse;
+  };
+  /// The transforms get(from, to) chains, in order from `from` (empty when from == to); the same
+  /// errors as get, and std::nullopt where get gives it.
+  std::optional<std::vector<Link>> chain(const std::string& from, const std::string& to) const;
   /// Splits "ImageToReference" into {"Image", "Reference"}; InputError when not of that form.
   static std::pair<std::string, std::string> split_name(const std::string& transform_name);
 

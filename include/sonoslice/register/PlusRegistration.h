@@ -20,6 +20,9 @@ namespace sonoslice {
 struct PlusRegistration {
   std::vector<int> frames;               ///< the sequence's frames used (plus_tracked_frames)
   std::vector<Mat4> image_to_reference;  ///< refined, one per used frame: PLUS's pixels → mm
+  /// The rigid correction C_i of each used frame, reference mm → reference mm:
+  /// image_to_reference[i] = C_i · the frame's own ImageToReference.
+  std::vector<Mat4> corrections;
   /// Calibration mode, when the configuration has an Image → Probe calibration: that calibration
   /// corrected, so that ProbeToReference_i · image_to_probe is every frame's refined matrix.
   std::optional<Mat4> image_to_probe;
@@ -37,6 +40,21 @@ std::optional<Mat4> plus_image_to_probe(const PlusReconstructionConfig& config);
 PlusRegistration register_tracked_frames(const Volume& volume, const PlusTrackedFrames& tracked,
                                          const RegistrationSettings& settings,
                                          const std::optional<Mat4>& image_to_probe = std::nullopt);
+
+/// `sequence` with the tracked transforms of the frames `registration` used corrected, so that
+/// the configuration's chain from its image frame to its reference frame gives each one its
+/// refined matrix: `compound` of it with the same configuration puts the frames where
+/// registration did. In each such frame the first transform of the frame's own (a
+/// `<A>To<B>Transform` field, typically ProbeToTracker) on that chain from the image is replaced:
+/// with A the chain after it (to the reference), L' = A⁻¹ · C · A · L (walked forwards), so the
+/// configuration's calibration and the other transforms stay as they are; the field's status,
+/// the images and the other frames are kept. PLUS refuses a sequence that adds a transform
+/// between frames a chain already joins, so the correction cannot be a field of its own.
+/// InputError naming the sequence and the frame when the chain holds none of the frame's own
+/// transforms or A cannot be inverted.
+PlusSequence corrected_plus_sequence(const PlusSequence& sequence,
+                                     const PlusReconstructionConfig& config,
+                                     const PlusRegistration& registration);
 
 /// plus_tracked_frames(sequence, config), then register_tracked_frames with the configuration's
 /// calibration.
