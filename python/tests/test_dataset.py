@@ -300,6 +300,28 @@ def test_refuses_a_folder_of_another_dataset(mixed, volumes, tmp_path):
     assert shard_bytes(out) == before
 
 
+def test_a_changed_input_file_is_not_mixed_with_shards_of_the_old_one(volumes, tmp_path):
+    import shutil
+    inputs = tmp_path / "inputs"
+    inputs.mkdir()
+    for name in ("ct.nii.gz", "labels.nii.gz"):
+        shutil.copy(volumes / name, inputs / name)
+    spec = write_spec(inputs / "s.json", spec_text(inputs, [dict(SKIN, count=8)]).replace(str(inputs) + "/", ""))
+    out = tmp_path / "out"
+    r = run(spec, "--out", out, "-q")
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["inputs"]) == {"ct.nii.gz", "labels.nii.gz", LUS}
+    assert all(len(sha) == 64 for sha in manifest["inputs"].values())
+    before = shard_bytes(out)
+    ct = sonoslice.Volume.from_file(str(inputs / "ct.nii.gz"))
+    sonoslice.Volume(ct.array + 1, ct.spacing, ct.origin, ct.direction).save(str(inputs / "ct.nii.gz"))
+    one_line_error(run(spec, "--out", out), "holds this SPEC's dataset made from another 'ct.nii.gz'")
+    os.remove(out / "manifest.json")  # an interrupted run of the old inputs: its records say so
+    one_line_error(run(spec, "--out", out), "shard-000000.tar belongs to another SPEC, other input files")
+    assert shard_bytes(out) == before
+
+
 # ---- bad SPECs ---------------------------------------------------------------------------------------
 def bad(volumes, tmp_path, text, name="bad.json"):
     spec = write_spec(tmp_path / name, text)

@@ -114,8 +114,9 @@ class SamplerEntry:
 @dataclass(frozen=True)
 class Spec:
     """A checked SPEC: paths absolute, defaults filled in. ``data`` is the SPEC as written (it goes
-    into the manifest); ``fingerprint`` identifies (SPEC, sonoslice version), the two things a
-    shard's bytes depend on besides the input files."""
+    into the manifest); ``inputs`` maps each input file (as the SPEC names it, relative to its
+    folder) to the sha256 of its content; ``fingerprint`` identifies (SPEC, inputs, sonoslice
+    version), what a shard's bytes depend on."""
     name: str  # the SPEC path as the user gave it, for messages
     path: str
     data: dict = field(hash=False)
@@ -125,6 +126,7 @@ class Spec:
     volumes: Dict[str, VolumeEntry] = field(hash=False)
     probes: Dict[str, ProbeEntry] = field(hash=False)
     samplers: Tuple[SamplerEntry, ...]
+    inputs: Dict[str, str] = field(hash=False)
     fingerprint: str
 
     @property
@@ -162,12 +164,37 @@ def load_spec(path) -> Spec:
         s = _sampler_entry(f"{where}samplers[{i}]: ", entry, i, first, base, volumes, probes, images, image_format)
         samplers.append(s)
         first += s.count
+    files = [v.ct for v in volumes.values()] + [v.labels for v in volumes.values() if v.labels]
+    files += [p.file for p in probes.values()] + [s.mesh for s in samplers if s.mesh]
+    # Keyed as the SPEC names them: relative to its folder, or absolute where they lie elsewhere.
+    named = {f: os.path.relpath(f, base) for f in set(files)}
+    inputs = {(n if not n.startswith("..") else f): _content_sha256(where, f) for f, n in sorted(named.items())}
     try:
-        canonical = json.dumps({"spec": data, "sonoslice": __version__}, sort_keys=True)
+        canonical = json.dumps({"spec": data, "inputs": inputs, "sonoslice": __version__}, sort_keys=True)
     except (TypeError, ValueError) as e:
         raise SpecError(f"{where}a value JSON cannot hold ({e}); quote it") from None
     return Spec(name, os.path.abspath(name), data, seed, shard_samples, image_format, volumes, probes,
-                tuple(samplers), hashlib.sha256(canonical.encode()).hexdigest())
+                tuple(samplers), inputs, hashlib.sha256(canonical.encode()).hexdigest())
+
+
+def _content_sha256(where: str, path: str) -> str:
+    """The sha256 of a file's bytes, or of a folder's (a DICOM series): its files' names relative
+    to it and their bytes, in name order. A shard depends on its inputs' content, so a rerun
+    after an input changed must not keep the shards of the old one (about 1 GB/s)."""
+    sha = hashlib.sha256()
+    if os.path.isdir(path):
+        names = sorted(os.path.relpath(os.path.join(d, f), path) for d, _, fs in os.walk(path) for f in fs)
+    else:
+        names = [""]
+    try:
+        for rel in names:
+            sha.update(rel.encode("utf-8", "surrogateescape") + b"\0")
+            with open(os.path.join(path, rel) if rel else path, "rb") as f:
+                while chunk := f.read(1 << 22):
+                    sha.update(chunk)
+    except OSError as e:
+        raise SpecError(f"{where}cannot read '{path}' ({e.strerror or e})") from None
+    return sha.hexdigest()
 
 
 def _read_spec_file(name: str) -> dict:
@@ -685,7 +712,8 @@ def _read_record(spec: Spec, out_dir: str, name: str) -> Optional[dict]:
     except (OSError, ValueError):  # a damaged record vouches for nothing: the shard is written again
         return None
     if record.get("fingerprint") != spec.fingerprint:
-        raise SpecError(f"--out '{out_dir}': {name} belongs to another SPEC or sonoslice version (its record "
+        raise SpecError(f"--out '{out_dir}': {name} belongs to another SPEC, other input files or another "
+                        f"sonoslice version (its record "
                         f"{CHECKSUMS}/{name}.json differs); write to another folder or empty this one")
     return {k: v for k, v in record.items() if k != "fingerprint"}
 
@@ -858,12 +886,19 @@ def _check_out_dir(spec: Spec, out_dir: str) -> None:
     if os.path.exists(manifest):
         try:
             with open(manifest) as f:
-                fingerprint = json.load(f).get("fingerprint")
+                written = json.load(f)
+            fingerprint, inputs = written.get("fingerprint"), written.get("inputs")
         except (OSError, ValueError, AttributeError):
-            fingerprint = None
+            fingerprint, inputs = None, None
         if fingerprint != spec.fingerprint:
-            raise SpecError(f"--out '{out_dir}': holds the dataset of another SPEC or sonoslice version "
-                            f"({MANIFEST} differs); write to another folder or empty this one")
+            changed = [f for f, sha in spec.inputs.items() if isinstance(inputs, dict) and
+                       f in inputs and inputs[f] != sha and written.get("spec") == spec.data]
+            if changed:
+                raise SpecError(f"--out '{out_dir}': holds this SPEC's dataset made from another '{changed[0]}' "
+                                f"(its content changed since); write to another folder or empty this one")
+            raise SpecError(f"--out '{out_dir}': holds the dataset of another SPEC, other input files or "
+                            f"another sonoslice version ({MANIFEST} differs); write to another folder or empty "
+                            "this one")
     for k in range(spec.shards):
         name = shard_name(k)
         if os.path.exists(os.path.join(out_dir, name)) and _read_record(spec, out_dir, name) is None:
@@ -991,6 +1026,7 @@ def _manifest(spec: Spec, entries: List[dict]) -> dict:
         "spec": spec.data,
         "spec_file": os.path.basename(spec.path),
         "fingerprint": spec.fingerprint,
+        "inputs": spec.inputs,
         "seed": spec.seed,
         "image_format": spec.image_format,
         "shard_samples": spec.shard_samples,
