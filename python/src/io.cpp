@@ -9,6 +9,7 @@
 #include <nanobind/stl/vector.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 
 #include "bindings.h"
@@ -45,6 +46,23 @@ void bind_io(nb::module_& m) {
         return nb::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size());
       },
       "image"_a, "spacing_mm"_a);
+  m.def(
+      "apply_window",
+      [](nb::ndarray<float, nb::c_contig, nb::device::cpu> images, double level, double width) {
+        if (!std::isfinite(level) || !(width > 0) || !std::isfinite(width))
+          throw InputError("window: level and width must be finite and the width > 0");
+        std::vector<size_t> shape(images.ndim());
+        for (size_t k = 0; k < images.ndim(); ++k) shape[k] = images.shape(k);
+        auto out = std::make_shared<std::vector<uint8_t>>(images.size());
+        {
+          nb::gil_scoped_release release;
+          apply_window(images.data(), PixelType::Float32, images.size(), level, width, out->data());
+        }
+        return numpy_view(out->data(), shape, PixelType::UInt8, out);
+      },
+      "images"_a, "level"_a, "width"_a,
+      "float32 images to uint8 through the window (level, width), as `slice --window` writes "
+      "PNGs.");
   m.def(
       "decode_png",
       [](nb::bytes data) {

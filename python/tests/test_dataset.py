@@ -186,6 +186,29 @@ def test_png_images(volumes, tmp_path):
     assert decode_png(files["00000002.colours.png"]).shape == (probe.height, probe.width, 3)
 
 
+def test_png_intensity_through_a_window(volumes, tmp_path):
+    """window [level, width] on uint8 intensity: the CT's values (sliced as float32) from level -
+    width/2 to level + width/2 spread over 0..255, rounded half up and saturated, as `slice
+    --window` writes PNGs; HU below 0 are no longer all 0."""
+    window = [40, 400]
+    samplers = [dict(SKIN, count=3, images=[{"kind": "intensity", "dtype": "uint8", "window": window}])]
+    spec = write_spec(tmp_path / "png.json", spec_text(volumes, samplers, image_format="png"))
+    ds.write_dataset(spec, tmp_path / "out", progress=False)
+    files = dict((m.name, data) for m, data in members(tmp_path / "out" / "shard-000000.tar"))
+    from sonoslice.data import decode_png
+    ct = sonoslice.Volume.from_file(str(volumes / "ct.nii.gz"))
+    probe = sonoslice.Probe.from_json(LUS, 4)
+    for i in range(3):
+        pose = np.array(json.loads(files[f"{i:08d}.json"])["pose"])
+        values = sonoslice.Slicer(ct, probe, dtype="float32").slice(pose)[0].astype(np.float64)
+        want = np.floor(np.clip((values - (window[0] - window[1] / 2)) * (255 / window[1]), 0, 255) + 0.5)
+        got = decode_png(files[f"{i:08d}.intensity.png"])
+        assert got.dtype == np.uint8
+        np.testing.assert_array_equal(got, want.astype(np.uint8))
+        fan = probe.mask.astype(bool)
+        assert len(np.unique(got[fan])) > 20  # a spread of greys inside the fan, not 0 and 255
+
+
 def test_png_codec_round_trip():
     rng = np.random.default_rng(0)
     from sonoslice.data import decode_png
@@ -365,6 +388,12 @@ def test_bad_values(volumes, tmp_path):
         ([dict(SKIN, count=3)], {"image_format": "jpg"}, "image_format 'jpg'"),
         ([dict(SKIN, count=3)], {"images": ["x-ray"]}, "images[0]: kind 'x-ray'"),
         ([dict(SKIN, count=3)], {"image_format": "png", "images": ["intensity"]}, "intensity as png needs"),
+        ([dict(SKIN, count=3)], {"images": [{"kind": "intensity", "dtype": "uint16", "window": [40, 400]}]},
+         "images[0]: window: only intensity images of dtype uint8"),
+        ([dict(SKIN, count=3)], {"images": [{"kind": "intensity", "dtype": "uint8", "window": [40, 0]}]},
+         "images[0]: window [40, 0]: expected [level, width]"),
+        ([dict(SKIN, count=3)], {"images": [{"kind": "labels", "window": [40, 400]}]},
+         "images[0]: window: only intensity images"),
         ([dict(SKIN, count=3, images=["labels"])],
          {"volumes": [{"id": "ph", "ct": str(volumes / "ct.nii.gz")}]}, "'labels' needs labels"),
     ]

@@ -59,7 +59,7 @@ PALETTE = np.array([(0, 0, 0)] + [tuple(_ext.default_label_color(k)) for k in ra
 _TOP_KEYS = {"seed", "shard_samples", "image_format", "volumes", "probes", "images", "samplers"}
 _VOLUME_KEYS = {"id", "ct", "labels"}
 _PROBE_KEYS = {"id", "file", "downsampling"}
-_IMAGE_KEYS = {"kind", "dtype"}
+_IMAGE_KEYS = {"kind", "dtype", "window"}
 # A sampler entry's own keys; everything else is the sampler's parameters (sonoslice.PoseSampler).
 _SAMPLER_DATASET_KEYS = {"volume", "probe", "count", "images", "mesh"}
 # A sampler's count and local:N's workers beyond these are typos: a billion W1 images is about
@@ -79,6 +79,7 @@ class SpecError(ValueError):
 class ImageKind:
     kind: str
     dtype: str  # the image's dtype: intensity's choice; uint8 for the other kinds
+    window: Optional[Tuple[float, float]] = None  # intensity as uint8: (level, width), as slice --window
 
     def extension(self, image_format: str) -> str:
         return f"{self.kind}.{image_format}"
@@ -314,8 +315,22 @@ def _image_kinds(where: str, value, image_format: str) -> Tuple[ImageKind, ...]:
                             f"{dtype or 'float32'}); or use image_format npy")
         if dtype not in INTENSITY_DTYPES:
             raise SpecError(f"{w}dtype {dtype!r}: expected one of {', '.join(INTENSITY_DTYPES)}")
-        kinds.append(ImageKind(kind, dtype))
+        window = _window(w, entry["window"], kind, dtype) if "window" in entry else None
+        kinds.append(ImageKind(kind, dtype, window))
     return tuple(kinds)
+
+
+def _window(where: str, value, kind: str, dtype: str) -> Tuple[float, float]:
+    """An intensity image's window [level, width]: its values from level - width/2 to level +
+    width/2 spread over 0..255 (what ``slice --window`` does to PNGs), for uint8 images."""
+    if kind != "intensity" or dtype != "uint8":
+        raise SpecError(f"{where}window: only intensity images of dtype uint8 have a window ({kind}: {dtype})")
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+            or not value[1] > 0):
+        raise SpecError(f"{where}window {value!r}: expected [level, width], finite numbers, width > 0 "
+                        "(e.g. [40, 400] for soft tissue)")
+    return float(value[0]), float(value[1])
 
 
 def _sampler_entry(where: str, entry, index: int, first: int, base: str, volumes: dict, probes: dict,
@@ -435,8 +450,9 @@ def _renderer(spec: Spec, s: SamplerEntry, kind: ImageKind):
     (colours: the labels' Slicer)."""
     p, inputs = probe(spec, s.probe), (spec.volumes[s.volume], spec.probes[s.probe])
     if kind.kind == "intensity":
-        return _cached(("intensity", kind.dtype) + inputs,
-                       lambda: Slicer(volume(spec, s.volume), p, interpolation="linear", dtype=kind.dtype))
+        dtype = "float32" if kind.window else kind.dtype  # windowed from the CT's values, not rounded ones
+        return _cached(("intensity", dtype) + inputs,
+                       lambda: Slicer(volume(spec, s.volume), p, interpolation="linear", dtype=dtype))
     if kind.kind in ("labels", "colours"):
         return _cached(("labels",) + inputs,
                        lambda: Slicer(labels(spec, s.volume), p, interpolation="nearest", dtype="uint8"))
@@ -474,6 +490,8 @@ def render(spec: Spec, s: SamplerEntry, poses: np.ndarray) -> Dict[str, np.ndarr
             images["colours"] = colorize(label_images, slicer.mask, PALETTE[1:])
         elif kind.kind == "ultrasound":
             images["ultrasound"] = _renderer(spec, s, kind).simulate(poses)
+        elif kind.window:
+            images[kind.kind] = _ext.apply_window(_renderer(spec, s, kind).slice(poses), *kind.window)
         else:
             images[kind.kind] = _renderer(spec, s, kind).slice(poses)
     return images
