@@ -476,8 +476,9 @@ TEST(Register, CalibrationModeFindsOneProbeSideError) {
 // side by side, the ends taken in start order. Poses and reports must not depend on the thread
 // count, also when the stopping rule falls while another start runs (automatic starts stop at
 // the third agreeing one, so two threads optimise a fourth that is dropped).
-// Also for a frame of noise, whose twelve starts end apart, so that most of them stop at the
-// coarse levels (docs/registration.md §3): which ones does not depend on the thread count either.
+// Also for a frame of noise, whose automatic starts (up to default_max_starts) end apart, so that
+// most of them stop at the coarse levels (docs/registration.md §3): which ones does not depend on
+// the thread count either.
 TEST(Register, OneFrameGivesTheSameResultOnAnyThreadCount) {
   const std::vector<Pose> truth = phantom_random_poses(1, 31);
   std::vector<float> noise(size_t(probe().image.pixel_count()));
