@@ -2,9 +2,12 @@
 // exit (and no partial or overwritten output) for every kind of bad input.
 #include <gtest/gtest.h>
 
+#include <fcntl.h>
 #include <signal.h>
+#include <sys/file.h>
 #include <sys/mount.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -17,6 +20,7 @@
 #include <iterator>
 #include <map>
 #include <sstream>
+#include <stdexcept>
 
 #include <nlohmann/json.hpp>
 
@@ -46,8 +50,8 @@ std::string quote(const std::string& s) {
   return "'" + s + "'";
 }
 
-CliRun run(const std::string& args, const test::TempDir& dir) {
-  const std::string out_file = dir.file(".stdout"), err_file = dir.file(".stderr");
+CliRun run(const std::string& args, const fs::path& dir) {
+  const std::string out_file = (dir / ".stdout").string(), err_file = (dir / ".stderr").string();
   const std::string cmd =
       std::string(SONOSLICE_CLI) + " " + args + " >" + quote(out_file) + " 2>" + quote(err_file);
   const int status = std::system(cmd.c_str());
@@ -63,6 +67,43 @@ CliRun run(const std::string& args, const test::TempDir& dir) {
   return r;
 }
 
+CliRun run(const std::string& args, const test::TempDir& dir) {
+  return run(args, dir.path());
+}
+
+// "size:mtime" of a file, to tell a rebuilt program from the one that made a cached input.
+std::string file_stamp(const fs::path& path) {
+  struct stat s {};
+  if (::stat(path.c_str(), &s) != 0) return "missing";
+  return std::to_string(s.st_size) + ":" + std::to_string(s.st_mtim.tv_sec) + "." +
+         std::to_string(s.st_mtim.tv_nsec);
+}
+
+// The inputs the tests read and never write (the small phantom, a fan, twelve poses), in `dir`.
+// ctest runs every test case in its own process, and each would make the same phantom again
+// (0.7 s; 1.8 s under the sanitizers), so they are made once per build under a lock, and made
+// again when the CLI or this program has been rebuilt since.
+fs::path shared_inputs(const fs::path& dir) {
+  fs::create_directories(dir);
+  const int lock = ::open((dir / ".lock").c_str(), O_CREAT | O_RDWR, 0644);
+  if (lock < 0 || ::flock(lock, LOCK_EX) != 0)
+    throw std::runtime_error("cannot lock " + dir.string());
+  const std::string stamp =
+      file_stamp(SONOSLICE_CLI) + " " + file_stamp(fs::read_symlink("/proc/self/exe"));
+  if (test::read_file_bytes((dir / "stamp").string()) != stamp) {
+    fs::remove(dir / "stamp");
+    fs::remove_all(dir / "ph");
+    const CliRun made = run("phantom " + quote((dir / "ph").string()) + " --size small -q", dir);
+    if (made.code != 0) throw std::runtime_error("sonoslice phantom: " + made.err);
+    const ProbeGeometry probe = test::curvilinear_probe(20, 60, 60, 120, 100, 0.7);
+    std::ofstream((dir / "fan.json").string()) << probe_to_json(probe);
+    write_poses_text((dir / "poses.txt").string(), phantom_random_poses(12, 5));
+    std::ofstream((dir / "stamp").string()) << stamp;  // last: the inputs are complete
+  }
+  ::close(lock);  // releases the lock
+  return dir;
+}
+
 // Directory entries other than the ones named (to spot partial or temporary outputs).
 std::vector<std::string> entries(const test::TempDir& dir) {
   std::vector<std::string> names;
@@ -74,23 +115,14 @@ std::vector<std::string> entries(const test::TempDir& dir) {
 
 class Cli : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() {
-    data_ = new test::TempDir();
-    ASSERT_EQ(run("phantom " + quote(data_->file("ph")) + " --size small -q", *data_).code, 0);
-    const ProbeGeometry probe = test::curvilinear_probe(20, 60, 60, 120, 100, 0.7);
-    std::ofstream(data_->file("fan.json")) << probe_to_json(probe);
-    write_poses_text(data_->file("poses.txt"), phantom_random_poses(12, 5));
-  }
-  static void TearDownTestSuite() {
-    delete data_;
-    data_ = nullptr;
-  }
-  static std::string ct() { return quote(data_->file("ph/ct.nii.gz")); }
-  static std::string fan() { return quote(data_->file("fan.json")); }
-  static std::string poses() { return quote(data_->file("poses.txt")); }
-  static test::TempDir* data_;
+  static void SetUpTestSuite() { data_ = shared_inputs(SONOSLICE_CLI_TEST_DATA); }
+  static std::string data_file(const std::string& name) { return (data_ / name).string(); }
+  static std::string ct() { return quote(data_file("ph/ct.nii.gz")); }
+  static std::string fan() { return quote(data_file("fan.json")); }
+  static std::string poses() { return quote(data_file("poses.txt")); }
+  static fs::path data_;
 };
-test::TempDir* Cli::data_ = nullptr;
+fs::path Cli::data_;
 
 TEST_F(Cli, SliceToNpyMatchesLibraryAndWritesMask) {
   test::TempDir out;
@@ -105,9 +137,8 @@ TEST_F(Cli, SliceToNpyMatchesLibraryAndWritesMask) {
   EXPECT_EQ(a.type, PixelType::Float32);
   EXPECT_EQ(a.shape, (std::vector<int64_t>{12, 100, 120}));
   // Same numbers as the library on the same inputs.
-  const Slicer slicer(read_volume(data_->file("ph/ct.nii.gz")),
-                      read_probe(data_->file("fan.json")));
-  const auto expected = slicer.slice<float>(read_poses(data_->file("poses.txt")));
+  const Slicer slicer(read_volume(data_file("ph/ct.nii.gz")), read_probe(data_file("fan.json")));
+  const auto expected = slicer.slice<float>(read_poses(data_file("poses.txt")));
   EXPECT_EQ(0, std::memcmp(expected.data(), a.data.get(), expected.size() * sizeof(float)));
   const Volume mask = read_volume(out.file("mask.png"));
   EXPECT_EQ(mask.grid().dims, (std::array<int64_t, 3>{120, 100, 1}));
@@ -330,7 +361,7 @@ TEST_F(Cli, CompoundSlicedFramesAndBeamFrames) {
           out);
   ASSERT_EQ(r.code, 0) << r.err;
   const Volume v = read_volume(out.file("v.nii.gz")), w = read_volume(out.file("w.nii.gz"));
-  const Volume ct_volume = read_volume(data_->file("ph/ct.nii.gz"));
+  const Volume ct_volume = read_volume(data_file("ph/ct.nii.gz"));
   EXPECT_EQ(v.pixel_type(), PixelType::Float32);  // the frames' type
   // Covered voxels hold the CT values at their centres (within the blur of two resamplings).
   std::vector<double> errors;
@@ -570,7 +601,7 @@ void write_bad_inputs(const test::TempDir& dir, const std::string& good_ct) {
 TEST_P(CliBadInput, OneLineNonZeroExitNoOutput) {
   test::TempDir out;
   const BadCase& c = GetParam();
-  write_bad_inputs(out, data_->file("ph/ct.nii.gz"));
+  write_bad_inputs(out, data_file("ph/ct.nii.gz"));
   // A good output from an earlier run must survive the failed one untouched.
   std::ofstream(out.file("out.npy")) << "previous good data";
   std::string args = c.args;
@@ -961,7 +992,7 @@ TEST_F(Cli, PngFolderNeverDeletesSomeoneElsesFiles) {
   test::TempDir out;
   const std::string work = out.file("work");
   fs::create_directory(work);
-  fs::copy_file(data_->file("ph/ct.nii.gz"), work + "/ct.nii.gz");
+  fs::copy_file(data_file("ph/ct.nii.gz"), work + "/ct.nii.gz");
   std::ofstream(work + "/notes.txt") << "mine";
   const std::string rest = " --probe " + fan() + " --poses " + poses() + " -q";
   // The folder holding the input, named three ways from inside it, and from outside.
