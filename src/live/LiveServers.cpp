@@ -164,6 +164,16 @@ class CompoundServer {
           std::string(kNonFinite) + "')");
   }
   static constexpr const char* kNonFinite = "frames with NaN or infinite pixels";
+  // RGB and RGBA frames are compounded by their first component (first_component(), as PLUS
+  // writes them); colour in them is said once and counted.
+  void note_colour(int64_t differing) {
+    if (differing == 0) return;
+    if (network_counts_[kColour]++ == 0)
+      log("a frame whose pixels' colour components differ: the first component is compounded "
+          "(counted as '" +
+          std::string(kColour) + "')");
+  }
+  static constexpr const char* kColour = "colour frames (first component compounded)";
 
   LiveCompounder* compounder_;
   const LiveCompoundRun& run_;
@@ -178,21 +188,28 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
     return ignore("IMAGE of another device");
   igtl::Image image;
   std::string problem = igtl::parse_image(m.content, image);
-  if (problem.empty() && image.components != 1)
-    problem = "an image of " + std::to_string(image.components) + " components (frames have 1)";
+  if (problem.empty() && image.components != 1 && image.components != 3 && image.components != 4)
+    problem = "an image of " + std::to_string(image.components) +
+              " components (frames have 1, or 3 or 4: RGB, RGBA)";
   if (problem.empty() && image.size[2] != 1) problem = "a 3-D image (frames are 2-D)";
   if (!problem.empty()) {
     endpoint_.reject(problem);
     return;
   }
+  const int64_t count = int64_t(image.size[0]) * image.size[1];
   const uint8_t* pixels = image.pixels;
-  std::vector<uint8_t> swapped;
-  if (image.big_endian && pixel_size(image.type) > 1) {
-    swapped.assign(image.pixels, image.pixels + image.pixel_bytes);
-    byteswap(swapped.data(), swapped.size() / pixel_size(image.type), pixel_size(image.type));
-    pixels = swapped.data();
+  std::vector<uint8_t> copy;  // the frame's own values: swapped, or one component of several
+  if (image.components > 1) {
+    copy.resize(size_t(count) * pixel_size(image.type));
+    note_colour(first_component(image.pixels, image.type, count, image.components, copy.data()));
+    pixels = copy.data();
   }
-  note_non_finite(pixels, image.type, int64_t(image.size[0]) * image.size[1]);
+  if (image.big_endian && pixel_size(image.type) > 1) {
+    if (copy.empty()) copy.assign(image.pixels, image.pixels + image.pixel_bytes);
+    byteswap(copy.data(), copy.size() / pixel_size(image.type), pixel_size(image.type));
+    pixels = copy.data();
+  }
+  note_non_finite(pixels, image.type, count);
   ++frames_;  // --max-frames counts the frames handed to the compounder
   compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
                     igtl::seconds_of_timestamp(m.header.timestamp), arrival);

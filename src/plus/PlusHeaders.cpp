@@ -1,7 +1,9 @@
 // The header parsers of PLUS sequence files, MetaImage (.mha) and NRRD (.nrrd): the header text,
 // the frame fields kept in order, and where and how the pixel data lies (DataLayout).
+#include <algorithm>
 #include <cstdint>
 #include <filesystem>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <string>
@@ -37,9 +39,29 @@ bool FrameFieldSink::add(const std::string& key, const std::string& value,
 
 namespace {
 
-/// Splits a list of sizes (and optional kinds) into frames: W H, W H N or W H 1 N.
-void set_frame_dims(const std::vector<int64_t>& sizes, const std::vector<std::string>& kinds,
+/// Values per pixel: grey (1), RGB (3) or RGBA (4) frames, as a video grabber records them.
+int frame_components(int64_t n, const std::string& what, const std::string& where) {
+  if (n != 1 && n != 3 && n != 4)
+    throw InputError(where + ": " + what + " " + std::to_string(n) +
+                     " (frames of 1, 3 or 4 components are read: grey, RGB, RGBA)");
+  return int(n);
+}
+
+/// Splits a list of sizes (and optional kinds) into frames: W H, W H N or W H 1 N, each after a
+/// component axis C when the first kind says so (IGSIO writes RGB frames as `sizes: 3 W H N`,
+/// `kinds: vector domain domain list`).
+void set_frame_dims(std::vector<int64_t> sizes, std::vector<std::string> kinds,
                     const std::string& where, DataLayout* layout) {
+  static const char* const component_kinds[] = {"vector",     "3-vector", "4-vector", "RGB-color",
+                                                "RGBA-color", "3-color",  "4-color"};
+  if (!kinds.empty() && sizes.size() > 2 &&
+      std::any_of(std::begin(component_kinds), std::end(component_kinds),
+                  [&](const char* k) { return iequals(kinds[0], k); })) {
+    layout->components =
+        frame_components(sizes[0], "a component axis (" + kinds[0] + ") of", where);
+    sizes.erase(sizes.begin());
+    kinds.erase(kinds.begin());
+  }
   for (size_t k = 0; k < kinds.size() && k < 2; ++k)
     if (!iequals(kinds[k], "domain") && !iequals(kinds[k], "space"))
       throw InputError(where + ": axis " + std::to_string(k) + " is of kind " +
@@ -150,9 +172,12 @@ DataLayout read_meta_header(InputFile& in, PlusSequence* seq, FrameFieldSink* si
   if (const std::string* v = get("Kinds")) kinds = split_ws(*v);
   set_frame_dims(sizes, kinds, where, &layout);
   layout.type = meta_pixel_type(require("ElementType"), where);
-  if (const std::string* v = get("ElementNumberOfChannels"); v && trim(*v) != "1")
-    throw InputError(where + ": ElementNumberOfChannels = " + *v +
-                     " (only single-channel frames are supported)");
+  if (const std::string* v = get("ElementNumberOfChannels")) {
+    int64_t n = 0;
+    if (!parse_int64(*v, &n))
+      throw InputError(where + ": ElementNumberOfChannels " + quote_value(*v) + " is not a number");
+    layout.components = frame_components(n, "ElementNumberOfChannels =", where);
+  }
   if (const std::string* v = get("BinaryData"); v && !iequals(*v, "True"))
     throw InputError(where + ": BinaryData = " + *v + " (only binary pixel data is supported)");
   for (const char* key : {"BinaryDataByteOrderMSB", "ElementByteOrderMSB"})

@@ -166,8 +166,8 @@ void inflate_into(InputFile& in, uint64_t compressed_bytes, int window_bits, uin
 #endif
 
 void read_pixels(const DataLayout& layout, InputFile& header_file, PlusSequence* seq) {
-  const uint64_t frame_bytes =
-      uint64_t(layout.width) * uint64_t(layout.height) * pixel_size(layout.type);
+  const uint64_t frame_bytes = uint64_t(layout.width) * uint64_t(layout.height) *
+                               pixel_size(layout.type) * uint64_t(layout.components);
   const uint64_t bytes = frame_bytes * uint64_t(layout.frames);
   if (frame_bytes != 0 && bytes / frame_bytes != uint64_t(layout.frames))
     throw InputError(header_file.path() + ": image size overflows");
@@ -223,6 +223,18 @@ void read_pixels(const DataLayout& layout, InputFile& header_file, PlusSequence*
     case DataLayout::Gzip:
       break;  // refused above: this build has no zlib
 #endif
+  }
+  if (layout.components > 1) {
+    const int64_t pixels = int64_t(bytes / (pixel_size(layout.type) * size_t(layout.components)));
+    const int64_t colour = first_component(seq->pixels.data(), layout.type, pixels,
+                                           layout.components, seq->pixels.data());
+    seq->pixels.resize(size_t(pixels) * pixel_size(layout.type));
+    seq->pixels.shrink_to_fit();
+    if (colour > 0)
+      warn(header_file.path() + ": frames of " + std::to_string(layout.components) +
+           " components: the first is used, as PLUS's reconstruction writes it; " +
+           std::to_string(colour) + " of " + std::to_string(pixels) +
+           " pixels have components that differ (colour in the frames)");
   }
 }
 

@@ -37,6 +37,7 @@ class InputFile {
 struct DataLayout {
   int width = 0, height = 0, frames = 0;
   PixelType type = PixelType::UInt8;
+  int components = 1;  ///< values per pixel: 1, or 3 and 4 (RGB and RGBA frames)
   enum Encoding { Raw, Zlib, Gzip } encoding = Raw;
   uint64_t compressed_size = 0;  ///< Zlib: the CompressedDataSize field (0: to the end)
   std::string data_path;         ///< where the data lies (the header file unless detached)

@@ -1,5 +1,7 @@
 #include "sonoslice/volume/PixelType.h"
 
+#include <cstring>
+
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -43,6 +45,21 @@ PixelType parse_pixel_type(const std::string& name) {
 
 void throw_no_kernel(const char* what, PixelType type) {
   throw Error(std::string(what) + ": no kernel for " + to_string(type) + " values");
+}
+
+int64_t first_component(const uint8_t* in, PixelType type, int64_t count, int components,
+                        uint8_t* out) {
+  const size_t size = pixel_size(type), stride = size * size_t(components);
+  int64_t differing = 0;
+  for (int64_t i = 0; i < count; ++i) {
+    const uint8_t* pixel = in + stride * size_t(i);
+    bool same = true;
+    for (int c = 1; c < components && same; ++c)
+      same = std::memcmp(pixel, pixel + size * size_t(c), size) == 0;
+    differing += same ? 0 : 1;
+    std::memmove(out + size * size_t(i), pixel, size);  // in place: never ahead of the reading
+  }
+  return differing;
 }
 
 }  // namespace sonoslice

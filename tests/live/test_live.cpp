@@ -379,12 +379,22 @@ TEST(LiveServer, MalformedMessagesAreCountedAndTheVolumeStaysCorrect) {
   std::vector<uint8_t> bad = frame_message(0);
   bad.back() ^= 0xFF;
   send_all(a, bad);
-  send_all(a, frame_message(0));
-  // A multi-component image and a 3-D image: rejected frames.
+  // Frame 0 as a video grabber sends it, RGB, with colour in one pixel: compounded by its first
+  // component (the grey frame), and the colour counted.
+  std::vector<uint8_t> rgb =
+      igtl::image_content(test_frame(24, 16, 0).pixels.data(), PixelType::UInt8, size,
+                          test_frame(24, 16, 0).to_reference);
+  rgb[2] = 3;
+  std::vector<uint8_t> grey(rgb.begin() + 72, rgb.end());
+  rgb.resize(72);
+  for (uint8_t v : grey) rgb.insert(rgb.end(), {v, v, v});
+  rgb[72 + 3 * 5 + 2] ^= 0x5a;  // pixel 5's blue
+  send_all(a, igtl::pack("IMAGE", "Image_Reference", 0, rgb));
+  // A two-component image and a 3-D image: rejected frames.
   std::vector<uint8_t> c = igtl::image_content(test_frame(24, 16, 1).pixels.data(),
                                                PixelType::UInt8, size, Mat4::identity());
-  c[2] = 3;  // three components: three times the pixel bytes
-  c.resize(c.size() + 2 * 24 * 16, 0);
+  c[2] = 2;  // two components: twice the pixel bytes
+  c.resize(c.size() + 24 * 16, 0);
   send_all(a, igtl::pack("IMAGE", "x", 0, c));
   const int size3[3] = {4, 3, 2};
   send_all(a, igtl::pack("IMAGE", "x", 0,
@@ -424,7 +434,8 @@ TEST(LiveServer, MalformedMessagesAreCountedAndTheVolumeStaysCorrect) {
     return it == result.network.end() ? 0 : it->second;
   };
   EXPECT_EQ(count("rejected: a CRC that does not match its body"), 1);
-  EXPECT_EQ(count("rejected: an image of 3 components (frames have 1)"), 1);
+  EXPECT_EQ(count("rejected: an image of 2 components (frames have 1, or 3 or 4: RGB, RGBA)"), 1);
+  EXPECT_EQ(count("colour frames (first component compounded)"), 1);
   EXPECT_EQ(count("rejected: a 3-D image (frames are 2-D)"), 1);
   EXPECT_EQ(count("ignored: POINT message"), 1);
   EXPECT_GE(count("connections"), 8);

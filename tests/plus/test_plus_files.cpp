@@ -885,8 +885,8 @@ TEST(PlusSequenceErrors, UnsupportedContents) {
   msb.replace(msb.find("MSB = False"), 11, "MSB = True");
   expect_input_error(msb + px, "big-endian");
   expect_input_error(meta_header(2, 2, 2, "MET_LONG_LONG", "") + px, "ElementType");
-  expect_input_error(meta_header(2, 2, 2, "MET_UCHAR", "ElementNumberOfChannels = 3\n") + px,
-                     "ElementNumberOfChannels");
+  expect_input_error(meta_header(2, 2, 2, "MET_UCHAR", "ElementNumberOfChannels = 2\n") + px,
+                     "ElementNumberOfChannels = 2 (frames of 1, 3 or 4 components are read");
   const std::string nrrd = dir.file("u.nrrd");
   write_file(nrrd,
              "NRRD0004\ndimension: 3\ntype: uint16\nsizes: 2 2 1\nkinds: domain domain list\n"
@@ -899,6 +899,60 @@ TEST(PlusSequenceErrors, UnsupportedContents) {
              "encoding: bzip2\n\n" +
                  std::string(4, '\0'));
   EXPECT_NE(error_of<InputError>([&] { read_plus_sequence(nrrd); }).find("encoding"),
+            std::string::npos);
+}
+
+// RGB and RGBA frames (a video grabber's), laid out as IGSIO writes them: MetaImage with
+// ElementNumberOfChannels, NRRD with a leading `vector` axis. They are read as their first
+// component, what PLUS's reconstruction writes; grey frames stored so lose nothing, and colour
+// in them is said once.
+TEST(PlusSequenceFormats, RgbFramesAreReadAsTheirFirstComponent) {
+  test::TempDir dir;
+  const int w = 5, h = 4, n = 3;
+  const PlusSequence grey = make_sequence(PixelType::UInt16, w, h, n, "MF");
+  const auto interleaved = [&](int components) {
+    std::string bytes;
+    for (size_t i = 0; i < grey.pixels.size(); i += 2)
+      for (int c = 0; c < components; ++c)
+        bytes.append(reinterpret_cast<const char*>(&grey.pixels[i]), 2);
+    return bytes;
+  };
+  const std::string mha = dir.file("rgb.igs.mha"), nrrd = dir.file("rgba.igs.nrrd");
+  const std::string rgb = interleaved(3);
+  write_file(mha, meta_header(w, h, n, "MET_USHORT", "ElementNumberOfChannels = 3\n") + rgb);
+  write_file(nrrd,
+             "NRRD0004\ndimension: 4\ntype: uint16\nsizes: 4 5 4 3\n"
+             "kinds: vector domain domain list\nencoding: raw\nendian: little\n\n" +
+                 interleaved(4));
+  for (const std::string& path : {mha, nrrd}) {
+    const test::CapturedWarnings warnings;
+    const PlusSequence s = read_plus_sequence(path);
+    EXPECT_EQ(s.width, w);
+    EXPECT_EQ(s.height, h);
+    EXPECT_EQ(s.frame_count, n);
+    EXPECT_EQ(s.pixel_type, PixelType::UInt16);
+    EXPECT_TRUE(s.pixels == grey.pixels) << path;
+    EXPECT_TRUE(warnings.messages().empty()) << warnings.messages()[0];
+  }
+  // One pixel with colour: its red value is kept, and the file says so.
+  std::string coloured = rgb;
+  coloured[3 * 2 * 7 + 2] ^= 0x5a;  // pixel 7's green
+  write_file(mha, meta_header(w, h, n, "MET_USHORT", "ElementNumberOfChannels = 3\n") + coloured);
+  const test::CapturedWarnings warnings;
+  EXPECT_TRUE(read_plus_sequence(mha).pixels == grey.pixels);
+  ASSERT_EQ(warnings.messages().size(), 1u);
+  EXPECT_EQ(warnings.messages()[0],
+            mha +
+                ": frames of 3 components: the first is used, as PLUS's reconstruction writes "
+                "it; 1 of 60 pixels have components that differ (colour in the frames)");
+  // Two components are no colour image: refused, naming the axis.
+  write_file(nrrd,
+             "NRRD0004\ndimension: 4\ntype: uint16\nsizes: 2 5 4 3\n"
+             "kinds: vector domain domain list\nencoding: raw\nendian: little\n\n" +
+                 interleaved(2));
+  EXPECT_NE(error_of<InputError>([&] {
+              read_plus_sequence(nrrd);
+            }).find("a component axis (vector) of 2 (frames of 1, 3 or 4 components"),
             std::string::npos);
 }
 

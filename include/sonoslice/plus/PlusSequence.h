@@ -50,7 +50,9 @@ struct PlusSequence {
 /// Errors name the file and say why: FileError when missing, not a PLUS sequence, truncated or
 /// corrupt (short raw data, zlib error, wrong decompressed size); InputError for what sonoslice
 /// does not support (pixel types beyond 8-64 bit scalars, big-endian data, RF orientations, 3D
-/// frames, several channels) and for a transform of frame N that is not 16 numbers;
+/// frames, 2 or more than 4 components a pixel) and for a transform of frame N that is not 16
+/// numbers; RGB and RGBA frames are read as their first component (first_component(), as PLUS's
+/// reconstruction writes them), with a warning when some pixels' components differ;
 /// ResourceError when the frames do not fit in memory; Error for compressed data in a build
 /// without ITK/zlib (raw sequences are read in every build).
 PlusSequence read_plus_sequence(const std::string& path);

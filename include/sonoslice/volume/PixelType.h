@@ -110,4 +110,13 @@ void for_each_value(const void* data, PixelType type, size_t n, F&& f) {
   });
 }
 
+/// Pixels of several components (RGB or RGBA frames from a video grabber) to one intensity: the
+/// first component of each of `count` pixels of `components` interleaved values, from `in` to
+/// `out` (`out` may be `in`: the values move forwards). That is what PLUS's volume
+/// reconstruction writes of such frames (vtkPlusVolumeReconstructor::ExtractGrayLevels keeps
+/// component 0), and grey frames stored as RGB hold it in every component. Returns how many
+/// pixels have components that differ (a colour overlay), for the caller to report.
+int64_t first_component(const uint8_t* in, PixelType type, int64_t count, int components,
+                        uint8_t* out);
+
 }  // namespace sonoslice
