@@ -236,7 +236,7 @@ def main():
                                  for f in report["frames"]], float)
                 u_deg = np.array([np.nan if f["uncertainty_deg"] is None else f["uncertainty_deg"]
                                   for f in report["frames"]], float)
-                if ok.any():
+                if np.isfinite(u_mm[ok]).any():  # the metrics with derivatives (ssd, ncc) give it
                     print(f"  uncertainty of the frames within 1 mm and 1 deg: up to {np.nanmax(u_mm[ok]):.3g} mm, "
                           f"{np.nanmax(u_deg[ok]):.3g} deg", file=sys.stderr)
                 for k in np.nonzero(converged & ~ok)[0]:

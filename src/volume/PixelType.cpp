@@ -1,5 +1,6 @@
 #include "sonoslice/volume/PixelType.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include "sonoslice/core/Error.h"
@@ -54,7 +55,7 @@ int64_t first_component(const uint8_t* in, PixelType type, int64_t count, int co
   for (int64_t i = 0; i < count; ++i) {
     const uint8_t* pixel = in + stride * size_t(i);
     bool same = true;
-    for (int c = 1; c < components && same; ++c)
+    for (int c = 1; c < std::min(components, 3) && same; ++c)  // RGB; an alpha is no colour
       same = std::memcmp(pixel, pixel + size * size_t(c), size) == 0;
     differing += same ? 0 : 1;
     std::memmove(out + size * size_t(i), pixel, size);  // in place: never ahead of the reading

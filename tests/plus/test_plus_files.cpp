@@ -910,11 +910,11 @@ TEST(PlusSequenceFormats, RgbFramesAreReadAsTheirFirstComponent) {
   test::TempDir dir;
   const int w = 5, h = 4, n = 3;
   const PlusSequence grey = make_sequence(PixelType::UInt16, w, h, n, "MF");
-  const auto interleaved = [&](int components) {
+  const auto interleaved = [&](int components) {  // RGBA: an opaque alpha, which is no colour
     std::string bytes;
     for (size_t i = 0; i < grey.pixels.size(); i += 2)
       for (int c = 0; c < components; ++c)
-        bytes.append(reinterpret_cast<const char*>(&grey.pixels[i]), 2);
+        bytes.append(c == 3 ? "\xff\xff" : reinterpret_cast<const char*>(&grey.pixels[i]), 2);
     return bytes;
   };
   const std::string mha = dir.file("rgb.igs.mha"), nrrd = dir.file("rgba.igs.nrrd");

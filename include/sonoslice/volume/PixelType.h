@@ -115,7 +115,7 @@ void for_each_value(const void* data, PixelType type, size_t n, F&& f) {
 /// `out` (`out` may be `in`: the values move forwards). That is what PLUS's volume
 /// reconstruction writes of such frames (vtkPlusVolumeReconstructor::ExtractGrayLevels keeps
 /// component 0), and grey frames stored as RGB hold it in every component. Returns how many
-/// pixels have components that differ (a colour overlay), for the caller to report.
+/// pixels have colour components (the first three) that differ, for the caller to report.
 int64_t first_component(const uint8_t* in, PixelType type, int64_t count, int components,
                         uint8_t* out);
 
