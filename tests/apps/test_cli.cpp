@@ -83,7 +83,7 @@ std::string file_stamp(const fs::path& path) {
 // ctest runs every test case in its own process, and each would make the same phantom again
 // (0.7 s; 1.8 s under the sanitizers), so they are made once per build under a lock, and made
 // again when the CLI or this program has been rebuilt since.
-fs::path shared_inputs(const fs::path& dir) {
+void make_shared_inputs(const fs::path& dir) {
   fs::create_directories(dir);
   const int lock = ::open((dir / ".lock").c_str(), O_CREAT | O_RDWR, 0644);
   if (lock < 0 || ::flock(lock, LOCK_EX) != 0)
@@ -101,7 +101,6 @@ fs::path shared_inputs(const fs::path& dir) {
     std::ofstream((dir / "stamp").string()) << stamp;  // last: the inputs are complete
   }
   ::close(lock);  // releases the lock
-  return dir;
 }
 
 // Directory entries other than the ones named (to spot partial or temporary outputs).
@@ -115,7 +114,10 @@ std::vector<std::string> entries(const test::TempDir& dir) {
 
 class Cli : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() { data_ = shared_inputs(SONOSLICE_CLI_TEST_DATA); }
+  static void SetUpTestSuite() {
+    data_ = SONOSLICE_CLI_TEST_DATA;
+    make_shared_inputs(data_);
+  }
   static std::string data_file(const std::string& name) { return (data_ / name).string(); }
   static std::string ct() { return quote(data_file("ph/ct.nii.gz")); }
   static std::string fan() { return quote(data_file("fan.json")); }

@@ -381,14 +381,14 @@ TEST(LiveServer, MalformedMessagesAreCountedAndTheVolumeStaysCorrect) {
   send_all(a, bad);
   // Frame 0 as a video grabber sends it, RGB, with colour in one pixel: compounded by its first
   // component (the grey frame), and the colour counted.
+  const TestFrame first = test_frame(24, 16, 0);
   std::vector<uint8_t> rgb =
-      igtl::image_content(test_frame(24, 16, 0).pixels.data(), PixelType::UInt8, size,
-                          test_frame(24, 16, 0).to_reference);
+      igtl::image_content(first.pixels.data(), PixelType::UInt8, size, first.to_reference);
+  const size_t header = rgb.size() - first.pixels.size();  // the IMAGE header (72 bytes)
   rgb[2] = 3;
-  std::vector<uint8_t> grey(rgb.begin() + 72, rgb.end());
-  rgb.resize(72);
-  for (uint8_t v : grey) rgb.insert(rgb.end(), {v, v, v});
-  rgb[72 + 3 * 5 + 2] ^= 0x5a;  // pixel 5's blue
+  rgb.resize(header);
+  for (uint8_t v : first.pixels) rgb.insert(rgb.end(), {v, v, v});
+  rgb[header + 3 * 5 + 2] ^= 0x5a;  // pixel 5's blue
   send_all(a, igtl::pack("IMAGE", "Image_Reference", 0, rgb));
   // A two-component image and a 3-D image: rejected frames.
   std::vector<uint8_t> c = igtl::image_content(test_frame(24, 16, 1).pixels.data(),
