@@ -84,7 +84,7 @@ void run_view(const ViewFlags& f) {
   // The image at a pose: the stack's, else sliced as `sonoslice slice` slices (its defaults).
   std::shared_ptr<Slicer> slicer;
   if (!f.images.empty()) {
-    auto stack = std::make_shared<Volume>(read_volume(f.images, VolumeReadOptions{}));
+    auto stack = std::make_shared<Volume>(read_image_stack(f.images, "--images"));
     const auto& d = stack->grid().dims;
     if (d[0] != c.probe->image.width || d[1] != c.probe->image.height ||
         d[2] != int64_t(c.poses.size()))

@@ -238,6 +238,52 @@ def test_png_frames_and_a_user_mask(cli, case, tmp_path):
     assert r.returncode == 0, r.stderr
 
 
+def write_png(path, pixels):
+    """An 8-bit PNG of (H, W) grey or (H, W, 3|4) RGB/RGBA pixels, written by zlib alone."""
+    import struct
+    import zlib
+
+    h, w = pixels.shape[:2]
+    kind = {1: 0, 2: 4, 3: 2, 4: 6}[1 if pixels.ndim == 2 else pixels.shape[2]]  # PNG colour types
+
+    def chunk(tag, data):
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    rows = b"".join(b"\0" + row.tobytes() for row in pixels.astype(np.uint8).reshape(h, -1))
+    header = struct.pack(">IIBBBBB", w, h, 8, kind, 0, 0, 0)
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows)) +
+                chunk(b"IEND", b""))
+
+
+def test_colour_png_frames_register_as_their_first_component(cli, case, tmp_path):
+    """A scanner's screen capture is RGB: its first (red) component is registered, as PLUS
+    reconstructs colour frames, with one warning when the colours differ."""
+    frames = np.load(case / "frames.npy")
+    grey = np.clip(frames / 4000 * 255, 0, 255).astype(np.uint8)
+    results = {}
+    for name, make in [("grey", lambda g: g), ("rgb", lambda g: np.stack([g, g, g], -1)),
+                       ("coloured", lambda g: np.stack([g, g // 2, 255 - g, np.full_like(g, 255)], -1))]:
+        (tmp_path / name).mkdir()
+        for k, g in enumerate(grey):
+            write_png(tmp_path / name / f"f{k:02d}.png", make(g))
+        args = base_args(case, f"{name}.npy")
+        args[args.index("--frames") + 1] = str(tmp_path / name)
+        r = run(cli, *args, "-q")
+        assert r.returncode == 0, r.stderr
+        warned = [line for line in r.stderr.splitlines() if "first (red) component" in line]
+        assert len(warned) == (1 if name == "coloured" else 0), r.stderr
+        results[name] = np.load(case / f"{name}.npy")
+    assert np.array_equal(results["rgb"], results["grey"])
+    assert np.array_equal(results["coloured"], results["grey"])
+    # A grey-and-alpha PNG has no colour to take the first of: refused, named.
+    (tmp_path / "ga").mkdir()
+    write_png(tmp_path / "ga" / "f.png", np.stack([grey[0], grey[0]], -1))
+    args = base_args(case, "ga.npy")
+    args[args.index("--frames") + 1] = str(tmp_path / "ga")
+    one_line_error(run(cli, *args), "f.png': 2 components (frames have 1, or 3 or 4: RGB, RGBA)")
+
+
 def test_missing_required_flags_are_usage_errors(cli, case):
     full = base_args(case, "never.npy")
     assert_each_flag_required(cli, full, ("--volume", "--probe", "--frames", "--poses", "--out"))

@@ -392,6 +392,26 @@ def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
         viewer.stop()
 
 
+def test_images_of_a_stack_or_a_png_folder_are_served_as_given(cli, phantom_dir, tmp_path):
+    import urllib.request
+    poses = phantom_dir / "surface_poses.txt"
+    common = ["--volume", str(phantom_dir / "ct.nii.gz"), "--probe", LUS, "--downsampling", "2",
+              "--poses", str(poses)]
+    subprocess.run([cli, "slice", *common, "--out", str(tmp_path / "s.npy"), "-q"], check=True)
+    subprocess.run([cli, "slice", *common, "--out", str(tmp_path / "png") + "/", "--window", "40,400", "-q"],
+                   check=True)
+    stack = np.load(tmp_path / "s.npy")
+    for given, expected in ((tmp_path / "s.npy", stack), (tmp_path / "png", windowed(stack, 40, 400))):
+        viewer = start_view(cli, *common, "--images", given)
+        try:
+            for k in (0, len(stack) - 1):
+                body = urllib.request.urlopen(viewer.url + f"api/image?pose={k}", timeout=10).read()
+                shown = np.frombuffer(body, np.float32).reshape(stack.shape[1:])
+                np.testing.assert_array_equal(shown, expected[k], err_msg=f"{given} pose {k}")
+        finally:
+            viewer.stop()
+
+
 @pytest.fixture
 def timed_browser():
     """A browser without the network log, for the tests that time the page."""

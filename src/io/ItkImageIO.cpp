@@ -370,6 +370,59 @@ Volume read_typed(const std::string& path, itk::ImageIOBase* io) {
   return to_volume<T>(reader->GetOutput());
 }
 
+// The geometry a header describes, as ITK's reader gives it to a 3-D image: the missing axes of a
+// 2-D image have unit spacing, zero origin and the identity's direction.
+VolumeGrid grid_of(itk::ImageIOBase* io) {
+  const unsigned dims = io->GetNumberOfDimensions();
+  VolumeGrid grid;
+  for (unsigned a = 0; a < 3; ++a) {
+    grid.dims[a] = a < dims ? int64_t(io->GetDimensions(a)) : 1;
+    grid.spacing_mm[a] = a < dims ? io->GetSpacing(a) : 1.0;
+    grid.origin_mm[a] = a < dims ? io->GetOrigin(a) : 0.0;
+    const auto axis = io->GetDirection(a < dims ? a : 0);
+    for (unsigned b = 0; b < 3; ++b)
+      grid.direction.m[b][a] = a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
+  }
+  return grid;
+}
+
+// An RGB or RGBA image as its first component (first_component(): what PLUS reconstructs of
+// colour frames); a warning says when the colour components differ, so that the image was not
+// grey stored as colour.
+Volume read_first_component(const std::string& path, itk::ImageIOBase* io, PixelType type,
+                            int64_t* colour_pixels) {
+  const VolumeGrid grid = grid_of(io);
+  const int components = int(io->GetNumberOfComponents());
+  const int64_t count = grid.voxel_count();
+  std::vector<uint8_t> pixels(size_t(count) * size_t(components) * pixel_size(type));
+  std::string complaint;
+  itk::ImageIORegion region(io->GetNumberOfDimensions());
+  for (unsigned d = 0; d < io->GetNumberOfDimensions(); ++d) {
+    region.SetIndex(d, 0);
+    region.SetSize(d, io->GetDimensions(d));
+  }
+  io->SetIORegion(region);
+  {
+    CerrCapture capture;
+    io->Read(pixels.data());
+    complaint = capture.text();
+  }
+  if (!complaint.empty())
+    throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + complaint +
+                    ")");
+  Volume volume = Volume::allocate(type, grid);
+  const int64_t differing =
+      first_component(pixels.data(), type, count, components, static_cast<uint8_t*>(volume.data()));
+  if (colour_pixels)
+    *colour_pixels += differing;
+  else if (differing > 0)
+    warn("'" + path + "': a colour image (" + std::to_string(components) +
+         " components) read as "
+         "its first (red) component; " +
+         std::to_string(differing) + " of " + std::to_string(count) + " pixels have other colours");
+  return volume;
+}
+
 template <typename T>
 Volume read_series_typed(const std::vector<std::string>& files) {
   auto reader = itk::ImageSeriesReader<Image3<T>>::New();
@@ -576,7 +629,7 @@ void check_nifti_length(const std::string& path, uint64_t data_bytes) {
 
 }  // namespace
 
-Volume read_image_file(const std::string& path) {
+Volume read_image_file(const std::string& path, ImageChannels channels, int64_t* colour_pixels) {
   register_factories();
   const ImageFormat format = image_format(path, "volume");
   if (format == ImageFormat::Nifti) check_nifti_header(path);
@@ -603,25 +656,22 @@ Volume read_image_file(const std::string& path) {
           throw InputError("volume '" + path + "': " + std::to_string(dims) +
                            "-D image (sonoslice slices 3-D volumes)");
     }
-    if (io->GetNumberOfComponents() != 1)
+    const unsigned components = io->GetNumberOfComponents();
+    const bool colour =
+        channels == ImageChannels::FirstOfColour && (components == 3 || components == 4);
+    if (components != 1 && channels == ImageChannels::FirstOfColour && !colour)
+      throw InputError("image '" + path + "': " + std::to_string(components) +
+                       " components (frames have 1, or 3 or 4: RGB, RGBA)");
+    if (components != 1 && !colour)
       throw InputError("volume '" + path + "': unsupported pixel type " +
                        itk::ImageIOBase::GetPixelTypeAsString(io->GetPixelType()) + " with " +
                        std::to_string(io->GetNumberOfComponents()) +
                        " components (sonoslice slices scalar volumes)");
     const PixelType type = to_pixel_type(io->GetComponentType(), path);
-    if (std::string(io->GetNameOfClass()) == "NiftiImageIO") {
-      VolumeGrid grid;
-      for (unsigned a = 0; a < 3; ++a) {
-        grid.dims[a] = a < dims ? int64_t(io->GetDimensions(a)) : 1;
-        grid.spacing_mm[a] = a < dims ? io->GetSpacing(a) : 1.0;
-        grid.origin_mm[a] = a < dims ? io->GetOrigin(a) : 0.0;
-        const auto axis = io->GetDirection(a < dims ? a : 0);
-        for (unsigned b = 0; b < 3; ++b)
-          grid.direction.m[b][a] =
-              a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
-      }
-      volume = read_nifti_voxels(path, grid, type);
-    }
+    if (colour)
+      volume = read_first_component(path, io, type, colour_pixels);
+    else if (std::string(io->GetNameOfClass()) == "NiftiImageIO")
+      volume = read_nifti_voxels(path, grid_of(io), type);
     if (!volume)
       volume =
           visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });

@@ -1,5 +1,6 @@
 #pragma once
 // Internal: the ITK side of the IO library (compiled only when ITK is found).
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -8,7 +9,14 @@
 namespace sonoslice {
 namespace itk_io {
 
-Volume read_image_file(const std::string& path);
+/// How an image of several components is read: refused (volumes are scalar), or, for images that
+/// are frames, an RGB/RGBA image as its first component (as PLUS reconstructs colour frames).
+enum class ImageChannels { ScalarOnly, FirstOfColour };
+
+/// With FirstOfColour, a warning says how many pixels of a colour image have colour (R, G and B
+/// differ: not grey stored as colour), or that count is added to `*colour_pixels` if given.
+Volume read_image_file(const std::string& path, ImageChannels channels = ImageChannels::ScalarOnly,
+                       int64_t* colour_pixels = nullptr);
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid);
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
 /// Writes to exactly `path` (the caller handles temporary names). ITK's writers do not all report

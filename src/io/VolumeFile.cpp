@@ -323,7 +323,10 @@ Volume warn_non_finite(Volume v, const std::string& path) {
 }  // namespace
 
 namespace {
-Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& options) {
+// `frames`: the file holds images (frames), whose RGB or RGBA pixels are read as their first
+// component; a volume's components are refused.
+Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& options,
+                             bool frames = false) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileError("cannot read volume '" + path + "': no such file");
   const ImageFormat format = image_format(path, "volume");
@@ -338,8 +341,10 @@ Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& o
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
     throw ParameterError("series_uid", "applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
-  Volume v = fs::is_directory(path, ec) ? itk_io::read_dicom_directory(path, options.series_uid)
-                                        : itk_io::read_image_file(path);
+  Volume v = fs::is_directory(path, ec)
+                 ? itk_io::read_dicom_directory(path, options.series_uid)
+                 : itk_io::read_image_file(path, frames ? itk_io::ImageChannels::FirstOfColour
+                                                        : itk_io::ImageChannels::ScalarOnly);
   v.grid().validate("volume '" + path + "'");
   return v;
 #else
@@ -385,7 +390,7 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
       if (read_npy_header(path).shape.size() == 2) return read_npy_image(path, what);
     }
     // Images are not sampled: what their NaN pixels mean is the caller's to say.
-    return read_volume_as_stored(path, options);
+    return read_volume_as_stored(path, options, true);
   }
   std::vector<std::string> files;
   for (const auto& entry : fs::directory_iterator(path, ec))
@@ -396,8 +401,10 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
   std::sort(files.begin(), files.end());
 #ifdef SONOSLICE_HAVE_ITK
   Volume stack;
+  int64_t colour_pixels = 0;
   for (size_t k = 0; k < files.size(); ++k) {
-    const Volume image = itk_io::read_image_file(files[k]);
+    const Volume image =
+        itk_io::read_image_file(files[k], itk_io::ImageChannels::FirstOfColour, &colour_pixels);
     const VolumeGrid& g = image.grid();
     if (g.dims[2] != 1) throw InputError(what + " '" + files[k] + "': not a 2-D image");
     if (k == 0) {
@@ -414,6 +421,10 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
     const size_t bytes = size_t(g.dims[0] * g.dims[1]) * pixel_size(image.pixel_type());
     std::memcpy(static_cast<uint8_t*>(stack.data()) + k * bytes, image.data(), bytes);
   }
+  if (colour_pixels > 0)
+    warn(what + " '" + path + "': colour images read as their first (red) component; " +
+         std::to_string(colour_pixels) + " of " + std::to_string(stack.grid().voxel_count()) +
+         " pixels have other colours");
   return stack;
 #else
   no_itk(path);
