@@ -179,6 +179,9 @@ class CompoundServer {
   const LiveCompoundRun& run_;
   IgtlEndpoint endpoint_;
   std::map<std::string, int64_t> network_counts_;  // ignored messages, NaN frames
+  // A frame's own values when they are not the message's: byte-swapped, or the first component
+  // of several; kept between frames so that a stream of such frames allocates once.
+  std::vector<uint8_t> frame_copy_;
   int64_t frames_ = 0;
   std::string stopped_by_;
 };
@@ -198,14 +201,14 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
   }
   const int64_t count = int64_t(image.size[0]) * image.size[1];
   const uint8_t* pixels = image.pixels;
-  std::vector<uint8_t> copy;  // the frame's own values: swapped, or one component of several
+  std::vector<uint8_t>& copy = frame_copy_;
   if (image.components > 1) {
     copy.resize(size_t(count) * pixel_size(image.type));
     note_colour(first_component(image.pixels, image.type, count, image.components, copy.data()));
     pixels = copy.data();
   }
   if (image.big_endian && pixel_size(image.type) > 1) {
-    if (copy.empty()) copy.assign(image.pixels, image.pixels + image.pixel_bytes);
+    if (pixels != copy.data()) copy.assign(image.pixels, image.pixels + image.pixel_bytes);
     byteswap(copy.data(), copy.size() / pixel_size(image.type), pixel_size(image.type));
     pixels = copy.data();
   }
