@@ -96,6 +96,7 @@ std::string flag_of(const std::string& parameter) {
   static const std::map<std::string, std::string> renamed = {
       {"spacing_mm", "--spacing"},
       {"margin_mm", "--margin"},
+      {"probe_downsampling", "--downsampling"},
       {"origin_mm", "--origin"},
       {"series_uid", "--series"},
       {"interpolation", "--interp"},

@@ -26,6 +26,7 @@ struct CompoundFlags {
   ReconstructionFlags recon;
   std::string image_to_reference, world = "LPS";
   std::optional<int> skip;
+  int downsampling = 1;
   bool quiet = false, verbose = false, plus_exact = false;
   std::string plus_optimization;
   std::string plus_grid;
@@ -80,6 +81,7 @@ void run_compound(const CompoundFlags& f) {
   files.frames = f.frames;
   files.poses = f.poses;
   files.probe = f.probe;
+  files.probe_downsampling = f.downsampling;
   files.beam_frames = f.beam_frames;
   files.beam_geometry = f.beam_geometry;
   files.world = parse_world_frame(f.world);
@@ -153,6 +155,8 @@ void add_compound_command(CLI::App& app) {
                   "Pixel (i,j) -> probe mm: 16 numbers, or a file with one 4x4 matrix");
   cmd->add_option("--probe", flags->probe,
                   "--frames from `sonoslice slice`: its probe file (pixel grid and fan)");
+  cmd->add_option("--downsampling", flags->downsampling,
+                  "The --downsampling the frames were sliced at (divides --probe's image size)");
   cmd->add_option("--beam-frames", flags->beam_frames,
                   "3-D beam-space frames: .npy (N, n_elevation, n_azimuth, n_samples)");
   cmd->add_option("--beam-geometry", flags->beam_geometry,

@@ -740,5 +740,31 @@ def test_a_probe_that_does_not_fit_the_frames_names_both_files(cli, tmp_path):
     assert r.returncode == 1, r.stderr
     last = r.stderr.splitlines()[-1]
     assert last == f"sonoslice: error: --probe '{w1}': its mask is 668x544, the frames of '{frames}' are 167x136 " \
-                   "(the probe the frames were sliced with, at the same downsampling)", r.stderr
+                   "(the probe the frames were sliced with, and the --downsampling they were sliced at)", r.stderr
     assert not (tmp_path / "v.nii").exists()
+
+
+def test_a_png_folder_as_slice_writes_it_compounds_as_its_pixels(cli, tmp_path):
+    """`slice --out pngs/` writes PNGs and their poses.txt; `compound --frames pngs/` reads them
+    back as a stack, the same bytes as the same pixels given as a .npy."""
+    w1 = os.path.join(DATA, "fanslicer", "models_intensity_LUS_config.json")
+    r = subprocess.run([cli, "phantom", str(tmp_path / "ph"), "--poses", "6", "-q"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    common = ["--volume", str(tmp_path / "ph" / "ct.nii.gz"), "--probe", w1, "--downsampling", "4",
+              "--poses", str(tmp_path / "ph" / "poses.npy"), "-q"]
+    for out in (["--out", str(tmp_path / "f.npy")], ["--out", str(tmp_path / "png") + "/", "--window", "40,400"]):
+        r = subprocess.run([cli, "slice", *common, *out], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+    g = (np.load(tmp_path / "f.npy").astype(np.float64) - (40 - 200)) * (255.0 / 400)  # the PNG window
+    np.save(tmp_path / "png.npy", np.floor(np.clip(np.nan_to_num(g), 0, 255) + 0.5).astype(np.uint8))
+    volumes = []
+    for frames, poses in ((tmp_path / "png", tmp_path / "png" / "poses.txt"),
+                          (tmp_path / "png.npy", tmp_path / "ph" / "poses.npy")):
+        out = tmp_path / f"{frames.stem}_v.nii"
+        r = subprocess.run([cli, "compound", "--frames", str(frames), "--poses", str(poses), "--probe", w1,
+                            "--downsampling", "4", "--spacing", "1", "--out", str(out), "-q"],
+                           capture_output=True, text=True)
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+        volumes.append(sonoslice.Volume.from_file(str(out)).array)
+    assert volumes[0].any()
+    np.testing.assert_array_equal(volumes[0], volumes[1])

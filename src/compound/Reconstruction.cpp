@@ -140,10 +140,19 @@ LoadedFrames read_frame_files(const FrameFiles& f, const ParameterNames& names) 
     out.source = FrameSource::plus(*out.sequence);
   } else if (!f.frames.empty()) {
     if (f.poses.empty()) throw InputError(name("frames") + " needs " + name("poses"));
-    out.stack = read_volume(f.frames);
+    // The frames' own voxel geometry is not used (the probe or image-to-probe places the
+    // pixels), so they are read as any image stack: a folder of PNGs as `slice` writes it too.
+    out.stack = read_image_stack(f.frames, name("frames"));
+    if (const int64_t bad = out.stack.non_finite_count())
+      warn(name("frames") + " '" + f.frames + "': " + std::to_string(bad) + " of " +
+           std::to_string(out.stack.grid().voxel_count()) +
+           " pixels are NaN or infinite; they are compounded as they are");
     std::vector<Pose> poses = read_poses(f.poses, f.world);
     out.source = FrameSource::images(out.stack, std::move(poses), f.frames);
-    if (!f.probe.empty()) out.source.probe = read_probe(f.probe);
+    if (!f.probe.empty())
+      out.source.probe = read_probe(f.probe, f.probe_downsampling);
+    else if (f.probe_downsampling != 1)
+      throw InputError(name("probe_downsampling") + " applies to " + name("probe"));
   } else {
     if (f.poses.empty() || f.beam_geometry.empty())
       throw InputError(name("beam_frames") + " needs " + name("poses") + " and " +
@@ -266,13 +275,15 @@ void Reconstruction::Impl::resolve_settings(const PlusReconstructionConfig* conf
   }
   if (!clip.custom_mask.empty() && source.kind == FrameSource::Kind::Images &&
       clip.custom_mask.size() != source.samples_per_frame())
-    throw InputError(
-        name(o.clip ? "clip" : "probe") + ": its mask is " +
-        (o.clip || !source.probe
-             ? std::to_string(clip.custom_mask.size()) + " pixels"
-             : dims_text(source.probe->image.width, source.probe->image.height)) +
-        ", the frames of '" + source.name + "' are " + dims_text(source.width, source.height) +
-        (o.clip ? "" : " (the probe the frames were sliced with, at the same downsampling)"));
+    throw InputError(name(o.clip ? "clip" : "probe") + ": its mask is " +
+                     (o.clip || !source.probe
+                          ? std::to_string(clip.custom_mask.size()) + " pixels"
+                          : dims_text(source.probe->image.width, source.probe->image.height)) +
+                     ", the frames of '" + source.name + "' are " +
+                     dims_text(source.width, source.height) +
+                     (o.clip ? ""
+                             : " (the probe the frames were sliced with, and the " +
+                                   name("probe_downsampling") + " they were sliced at)"));
 
   output_type = o.output_type ? *o.output_type : default_output_type(source.type);
   if (o.plus_exact) resolve_plus_exact(config, o);

@@ -69,12 +69,13 @@ struct FrameSource {
 /// `poses` and a `probe` or an image_to_probe option) or `beam_frames` (with `poses` and
 /// `beam_geometry`).
 struct FrameFiles {
-  std::string sequence;       ///< PLUS sequence (.igs.mha, .seq.mha, .mha, .igs.nrrd, .nrrd)
-  std::string frames;         ///< 2D frames: .nii/.mha/.nrrd (W×H×N) or .npy (N, H, W)
-  std::string poses;          ///< probe → reference poses, one per frame
-  std::string probe;          ///< the probe JSON or fan-slicer config the frames were made with
-  std::string beam_frames;    ///< .npy (N, n_elevation, n_azimuth, n_samples)
-  std::string beam_geometry;  ///< its geometry JSON
+  std::string sequence;        ///< PLUS sequence (.igs.mha, .seq.mha, .mha, .igs.nrrd, .nrrd)
+  std::string frames;          ///< 2D frames: .nii/.mha/.nrrd (W×H×N) or .npy (N, H, W)
+  std::string poses;           ///< probe → reference poses, one per frame
+  std::string probe;           ///< the probe JSON or fan-slicer config the frames were made with
+  int probe_downsampling = 1;  ///< the downsampling they were made at (`slice --downsampling`)
+  std::string beam_frames;     ///< .npy (N, n_elevation, n_azimuth, n_samples)
+  std::string beam_geometry;   ///< its geometry JSON
   WorldFrame world = WorldFrame::LPS;  ///< the frame `poses` are given in
 };
 
