@@ -220,6 +220,7 @@ void bind_registration(nb::module_& m) {
         if (poses.size() != frames.shape(0))
           throw InputError("poses: expected one per frame (" + std::to_string(frames.shape(0)) +
                            "), got " + std::to_string(poses.size()));
+        validate_poses(poses, "poses");  // as register and Slicer.slice check them
         std::vector<double> costs(poses.size());
         {
           nb::gil_scoped_release release;

@@ -3,6 +3,7 @@ views changes under it, clear errors for arrays nanobind would turn away with "i
 function arguments", nothing complex cast to real in silence, thread counts and --skip checked,
 one exit code per kind of CLI failure."""
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -442,6 +443,46 @@ def test_python_volumes_tables_and_seeds_are_checked_like_the_files(cli, tmp_pat
         r = run_cli(cli, "voxelize", mesh, *flags, "--out", str(tmp_path / "v.nii.gz"))
         assert r.returncode == 1 and r.stderr.count("\n") == 1 and needle in r.stderr, (flags, r.stderr)
     assert sorted(os.listdir(tmp_path)) == ["adir"]
+
+
+def test_writers_refuse_what_the_readers_would_refuse_and_leave_nothing(cli, tmp_path):
+    """A stack of spacing NaN once aborted the interpreter (NIfTI, NRRD) and left a temporary
+    behind; poses and PLUS transforms of NaN were written and then refused by every reader."""
+    images = np.zeros((2, 4, 5), np.float32)
+    for spacing, needle in (((float("nan"), 1), "spacing along axis 0 is nan mm"),
+                            ((1, float("inf")), "spacing along axis 1 is inf mm"),
+                            ((1e300, 1), "beyond any scanner's extent"), ((0, 1), "is 0 mm (must be > 0)")):
+        for name in ("s.nii", "s.nii.gz", "s.mha", "s.nrrd", "s.npy", "pngs/"):
+            with pytest.raises(ValueError, match=re.escape(needle)):
+                sonoslice.write_stack(tmp_path / name, images, spacing)
+    nan_poses = np.full((2, 4, 4), np.nan)
+    with pytest.raises(ValueError, match=r"poses for '.*p.npy': pose 0: has a non-finite entry"):
+        sonoslice.write_poses(tmp_path / "p.npy", nan_poses)
+    with pytest.raises(ValueError, match=r"poses for '.*pngs': pose 0: has a non-finite entry"):
+        sonoslice.write_stack(tmp_path / "pngs/", images, (1, 1), poses=nan_poses)
+    with pytest.raises(ValueError, match="frame 0: ProbeToTrackerTransform: expected 16 finite numbers"):
+        sonoslice.write_plus_sequence(tmp_path / "q.igs.mha", np.zeros((2, 4, 4), np.uint8),
+                                      [{"ProbeToTrackerTransform": np.full((4, 4), np.nan)}])
+    assert os.listdir(tmp_path) == []
+    # Costs at NaN poses are refused like slicing at them, not +inf.
+    probe = sonoslice.Probe.linear(**SMALL_PROBE)
+    volume = sonoslice.Volume(np.zeros((8, 8, 8), np.float32))
+    frames = np.zeros((2, probe.height, probe.width), np.float32)
+    with pytest.raises(ValueError, match="poses: pose 0: has a non-finite entry"):
+        sonoslice.registration_cost(volume, probe, frames, nan_poses)
+    # One reason, said once.
+    with pytest.raises(ValueError) as e:
+        sonoslice.Volume(np.zeros((4, 4, 4), np.float32), direction=np.full((3, 3), np.nan))
+    assert str(e.value).count("direction matrix is not finite") == 1, str(e.value)
+    # A header whose geometry overflows on ITK's way (the norm of a 1e300 NRRD direction) is
+    # refused, not read as 1 mm.
+    (tmp_path / "h.nrrd").write_bytes(
+        b"NRRD0004\ntype: uint8\ndimension: 3\nspace: left-posterior-superior\nsizes: 2 2 2\n"
+        b"space directions: (1e300,0,0) (0,1,0) (0,0,1)\nendian: little\nencoding: raw\n"
+        b"space origin: (0,0,0)\n\n" + bytes(8))
+    r = run_cli(cli, "info", str(tmp_path / "h.nrrd"))
+    assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert "h.nrrd': space directions" in r.stderr and "beyond any scanner's extent" in r.stderr, r.stderr
 
 
 # ---- what a library below says, in one line and in our words ----------------------------------------------

@@ -26,10 +26,12 @@ void VolumeGrid::validate(const std::string& what) const {
     if (!why.str().empty()) break;
   }
   if (why.str().empty()) {
+    bool finite = true;
     for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c)
-        if (!std::isfinite(direction.m[r][c])) why << "direction matrix is not finite";
-    if (why.str().empty() && std::fabs(direction.determinant()) < 1e-6)
+      for (int c = 0; c < 3; ++c) finite = finite && std::isfinite(direction.m[r][c]);
+    if (!finite)
+      why << "direction matrix is not finite";
+    else if (std::fabs(direction.determinant()) < 1e-6)
       why << "direction matrix is singular";
   }
   if (!why.str().empty()) throw InputError(what + ": " + why.str());

@@ -44,6 +44,7 @@
 #include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/core/Memory.h"
+#include "sonoslice/geometry/Math.h"
 
 namespace sonoslice {
 namespace itk_io {
@@ -213,6 +214,11 @@ void check_numbers(const std::string& path, const std::string& field, const std:
       throw InputError(
           "volume '" + path + "': " + field + " " + text::quote_value(value) + ": " +
           (positive ? "spacings must be positive numbers of mm" : "expected finite numbers"));
+    // ITK's readers turn what overflows on the way (the norm of a 1e300 NRRD space direction)
+    // into a 1 mm spacing without a word.
+    if (std::fabs(x) > kMaxGeometryMm)
+      throw InputError("volume '" + path + "': " + field + " " + text::quote_value(value) +
+                       ": beyond any scanner's extent (at most 1e9 mm)");
   }
 }
 
@@ -337,7 +343,7 @@ template <typename T>
 using Image3 = itk::Image<T, 3>;
 
 template <typename T>
-Volume to_volume(typename Image3<T>::Pointer image) {
+Volume to_volume(typename Image3<T>::Pointer image, const std::string& path) {
   VolumeGrid g;
   const auto size = image->GetLargestPossibleRegion().GetSize();
   for (int a = 0; a < 3; ++a) {
@@ -346,6 +352,7 @@ Volume to_volume(typename Image3<T>::Pointer image) {
     g.origin_mm[a] = image->GetOrigin()[a];
     for (int b = 0; b < 3; ++b) g.direction.m[a][b] = image->GetDirection()[a][b];
   }
+  g.validate("volume '" + path + "'");
   T* data = image->GetBufferPointer();
   // The ITK image owns the voxels; the Volume keeps it alive (no copy).
   auto holder = std::make_shared<typename Image3<T>::Pointer>(image);
@@ -367,12 +374,12 @@ Volume read_typed(const std::string& path, itk::ImageIOBase* io) {
   if (!complaint.empty())
     throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + complaint +
                     ")");
-  return to_volume<T>(reader->GetOutput());
+  return to_volume<T>(reader->GetOutput(), path);
 }
 
 // The geometry a header describes, as ITK's reader gives it to a 3-D image: the missing axes of a
 // 2-D image have unit spacing, zero origin and the identity's direction.
-VolumeGrid grid_of(itk::ImageIOBase* io) {
+VolumeGrid grid_of(itk::ImageIOBase* io, const std::string& path) {
   const unsigned dims = io->GetNumberOfDimensions();
   VolumeGrid grid;
   for (unsigned a = 0; a < 3; ++a) {
@@ -383,6 +390,7 @@ VolumeGrid grid_of(itk::ImageIOBase* io) {
     for (unsigned b = 0; b < 3; ++b)
       grid.direction.m[b][a] = a < dims ? (b < axis.size() ? axis[b] : 0.0) : (a == b ? 1.0 : 0.0);
   }
+  grid.validate("volume '" + path + "'");
   return grid;
 }
 
@@ -391,7 +399,7 @@ VolumeGrid grid_of(itk::ImageIOBase* io) {
 // grey stored as colour.
 Volume read_first_component(const std::string& path, itk::ImageIOBase* io, PixelType type,
                             int64_t* colour_pixels) {
-  const VolumeGrid grid = grid_of(io);
+  const VolumeGrid grid = grid_of(io, path);
   const int components = int(io->GetNumberOfComponents());
   const int64_t count = grid.voxel_count();
   std::vector<uint8_t> pixels(size_t(count) * size_t(components) * pixel_size(type));
@@ -424,13 +432,13 @@ Volume read_first_component(const std::string& path, itk::ImageIOBase* io, Pixel
 }
 
 template <typename T>
-Volume read_series_typed(const std::vector<std::string>& files) {
+Volume read_series_typed(const std::vector<std::string>& files, const std::string& directory) {
   auto reader = itk::ImageSeriesReader<Image3<T>>::New();
   auto io = itk::GDCMImageIO::New();
   reader->SetImageIO(io);
   reader->SetFileNames(files);
   reader->Update();
-  return to_volume<T>(reader->GetOutput());
+  return to_volume<T>(reader->GetOutput(), directory);
 }
 
 template <typename T, unsigned Dim>
@@ -671,7 +679,7 @@ Volume read_image_file(const std::string& path, ImageChannels channels, int64_t*
     if (colour)
       volume = read_first_component(path, io, type, colour_pixels);
     else if (std::string(io->GetNameOfClass()) == "NiftiImageIO")
-      volume = read_nifti_voxels(path, grid_of(io), type);
+      volume = read_nifti_voxels(path, grid_of(io, path), type);
     if (!volume)
       volume =
           visit_pixel_type(type, [&](auto zero) { return read_typed<decltype(zero)>(path, io); });
@@ -739,8 +747,8 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
     const PixelType type = to_pixel_type(io->GetComponentType(), directory);
     if (io->GetNumberOfComponents() != 1)
       throw InputError("DICOM directory '" + directory + "': colour images are not supported");
-    return visit_pixel_type(type,
-                            [&](auto zero) { return read_series_typed<decltype(zero)>(files); });
+    return visit_pixel_type(
+        type, [&](auto zero) { return read_series_typed<decltype(zero)>(files, directory); });
   } catch (const itk::ExceptionObject& e) {
     throw FileError("cannot read DICOM directory '" + directory + "': " + describe(e));
   }

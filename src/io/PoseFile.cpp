@@ -206,7 +206,15 @@ std::vector<Pose> read_poses(const std::string& path, WorldFrame frame, bool war
   return poses;
 }
 
+namespace {
+// What is written must read back: poses the readers would refuse are refused here.
+void check_poses_to_write(const std::string& path, const std::vector<Pose>& poses) {
+  validate_poses(poses.data(), poses.size(), "poses for '" + path + "'", 0, false);
+}
+}  // namespace
+
 void write_poses_text(const std::string& path, const std::vector<Pose>& poses) {
+  check_poses_to_write(path, poses);
   std::ostringstream out;
   out << "# sonoslice poses: one 4x4 probe-to-world (LPS, mm) matrix per line, row-major\n";
   out << std::setprecision(17);
@@ -218,6 +226,7 @@ void write_poses_text(const std::string& path, const std::vector<Pose>& poses) {
 }
 
 void write_poses_npy(const std::string& path, const std::vector<Pose>& poses) {
+  check_poses_to_write(path, poses);
   std::vector<double> flat;
   flat.reserve(poses.size() * 16);
   for (const Pose& p : poses)

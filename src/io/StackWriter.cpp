@@ -11,6 +11,7 @@
 
 #include "PngFile.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/VolumeGrid.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
 #include "sonoslice/io/PoseFile.h"
@@ -172,6 +173,14 @@ StackFormat stack_format(const std::string& path) {
 }
 
 std::unique_ptr<StackWriter> StackWriter::create(const std::string& path, const StackSpec& spec) {
+  // The pixel grid's rules are a volume's (the formats' writers abort or write nonsense on a
+  // spacing of NaN or 1e300), checked before anything is created.
+  VolumeGrid grid;
+  grid.dims = {spec.width, spec.height, std::max<int64_t>(spec.count, 1)};
+  grid.spacing_mm = {spec.spacing_mm[0], spec.spacing_mm[1], 1.0};
+  grid.validate("output '" + path + "'");
+  if (!spec.poses.empty())
+    validate_poses(spec.poses.data(), spec.poses.size(), "poses for '" + path + "'", 0, false);
   std::string clean = path;
   while (clean.size() > 1 && clean.back() == '/') clean.pop_back();
   switch (stack_format(path)) {

@@ -230,6 +230,15 @@ void write_plus_sequence(const std::string& path, const PlusSequence& s, bool co
           (nrrd ? field.find(":=") != std::string::npos : field.find('=') != std::string::npos))
         throw InputError("cannot write PLUS sequence '" + path + "': frame field name " +
                          quote_value(field) + " cannot be written");
+      // What the reader would refuse is refused here, before anything is written.
+      const auto status = fields.find(key + "Status");
+      Mat4 m;
+      if (ends_with(field, "Transform") &&
+          (status == fields.end() || iequals(trim(status->second), "OK")) &&
+          !parse_matrix16(value, &m))
+        throw InputError(
+            "cannot write PLUS sequence '" + path + "': frame " + std::to_string(f) + ": " + field +
+            ": expected 16 finite numbers (a row-major 4x4 matrix), got " + quote_value(value));
       h << "Seq_Frame" << frame_label(int(f)) << "_" << field << (nrrd ? ":=" : " = ") << value
         << "\n";
     }
