@@ -700,6 +700,22 @@ def test_bad_plus_input(tmp_path, nwire, nwire_config):
         nwire.transform(97, "ProbeToTracker")
     with pytest.raises(ValueError, match="skip"):
         sonoslice.plus_image_to_reference(nwire, nwire_config, skip=0)
+    # A clip that leaves nothing of the frames names where it came from and the frames' size.
+    small = tmp_path / "small.igs.mha"
+    sonoslice.write_plus_sequence(small, np.ascontiguousarray(nwire.frames[:3, :80, :100]), nwire.frame_fields[:3],
+                                  orientation=nwire.orientation)
+    with pytest.raises(ValueError, match=r"the configuration's clip rectangle \(origin 167,62, size 496 x 489\) "
+                                         r"leaves no pixel of the 100x80 frames of '.*small.igs.mha'"):
+        sonoslice.reconstruct_plus(small, NWIRE_XML)
+    with pytest.raises(ValueError, match=r"clip \(origin 900,0, size 10 x 10\) leaves no pixel of the "
+                                         r"820x616 frames"):
+        sonoslice.reconstruct_plus(NWIRE_MHA, NWIRE_XML, clip=dict(rect=(900, 0, 10, 10)))
+    # A header field given twice is refused, not the last one taken.
+    text = small.read_bytes()
+    (tmp_path / "twice.igs.mha").write_bytes(text.replace(b"DimSize = 100 80 3\n",
+                                                           b"DimSize = 100 80 3\nDimSize = 10 10 3\n", 1))
+    with pytest.raises(OSError, match=r"twice.igs.mha: header field 'DimSize' given twice"):
+        sonoslice.read_plus_sequence(tmp_path / "twice.igs.mha")
 
 
 def test_absurd_spacing_and_a_broken_transform_are_named(cli, tmp_path):
@@ -768,3 +784,19 @@ def test_a_png_folder_as_slice_writes_it_compounds_as_its_pixels(cli, tmp_path):
         volumes.append(sonoslice.Volume.from_file(str(out)).array)
     assert volumes[0].any()
     np.testing.assert_array_equal(volumes[0], volumes[1])
+
+
+def test_a_given_grid_that_no_frame_reaches_is_said(cli, tmp_path, plus_data):
+    """--origin/--extent (or the XML's OutputOrigin/Extent) that miss every frame give an empty
+    volume: one warning names the axis and both spans; a grid that frames reach gets none."""
+    base = [cli, "compound", "--sequence", NWIRE_MHA, "--config", NWIRE_XML, "-q"]
+    r = subprocess.run(base + ["--origin", "1e8,0,0", "--extent", "10,10,10", "--out", str(tmp_path / "far.nii")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and r.stderr.count("\n") == 1, r.stderr
+    assert ("no frame reaches the output grid (along x the grid spans 99999999.75 to 100000004.75 mm, "
+            "the frames -22.26 to 27.74 mm)") in r.stderr, r.stderr
+    assert not sonoslice.Volume.from_file(str(tmp_path / "far.nii")).array.any()
+    r = subprocess.run(base + ["--origin", "-22,-137,-58", "--extent", "100,100,70", "--out", str(tmp_path / "near.nii")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert sonoslice.Volume.from_file(str(tmp_path / "near.nii")).array.any()

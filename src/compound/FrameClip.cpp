@@ -62,6 +62,17 @@ std::array<int, 4> FrameClip::rectangle(int frame_width, int frame_height) const
   return {x0, y0, std::max(x0, x1), std::max(y0, y1)};
 }
 
+void FrameClip::require_pixels(int frame_width, int frame_height, const std::string& what,
+                               const std::string& frames) const {
+  const auto r = rectangle(frame_width, frame_height);
+  if (r[0] < r[2] && r[1] < r[3]) return;
+  const auto size = [](int n) { return n < 0 ? std::string("to the edge") : std::to_string(n); };
+  throw InputError(what + " (origin " + std::to_string(x) + "," + std::to_string(y) + ", size " +
+                   size(width) + " x " + size(height) + ") leaves no pixel of the " +
+                   std::to_string(frame_width) + "x" + std::to_string(frame_height) +
+                   " frames of '" + frames + "'");
+}
+
 void FrameClip::validate(const std::string& what) const {
   if (x < 0 || y < 0)
     throw InputError(what + ": clip rectangle x, y = " + std::to_string(x) + ", " +

@@ -7,6 +7,7 @@
 #include <cctype>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <sstream>
 
 #include "PlusExact.h"
@@ -222,6 +223,7 @@ struct Reconstruction::Impl {
   void select_frames(const PlusReconstructionConfig* config, const ReconstructionOptions& o);
   void fit_grid(const PlusReconstructionConfig* config, const ReconstructionOptions& o,
                 const std::optional<Vec3>& spacing);
+  void warn_if_no_frame_reaches(const VolumeGrid& fixed) const;
   const void* frame_data(int64_t k) const {
     return source.kind == FrameSource::Kind::PlusSequence
                ? source.sequence->frame_pixels(int(k))
@@ -284,6 +286,13 @@ void Reconstruction::Impl::resolve_settings(const PlusReconstructionConfig* conf
                      (o.clip ? ""
                              : " (the probe the frames were sliced with, and the " +
                                    name("probe_downsampling") + " they were sliced at)"));
+
+  if (source.kind != FrameSource::Kind::Beams && clip.custom_mask.empty())
+    clip.require_pixels(source.width, source.height,
+                        o.clip             ? name("clip")
+                        : o.clip_rectangle ? name("clip_rectangle")
+                                           : std::string("the configuration's clip rectangle"),
+                        source.name);
 
   output_type = o.output_type ? *o.output_type : default_output_type(source.type);
   if (o.plus_exact) resolve_plus_exact(config, o);
@@ -507,9 +516,10 @@ void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
                                     const std::optional<Vec3>& spacing) {
   const std::optional<VolumeGrid> fixed = fixed_grid(config, o, *spacing);
   report.grid_from_config = fixed && !o.origin_mm;
-  if (fixed)
+  if (fixed) {
     grid = *fixed;
-  else if (source.kind == FrameSource::Kind::Beams)
+    warn_if_no_frame_reaches(grid);
+  } else if (source.kind == FrameSource::Kind::Beams)
     grid = Compounder::grid_around_beams(to_reference, source.beam_geometry, *spacing);
   else
     // PLUS's rules fit the box around every usable frame, also those a skip interval leaves out
@@ -518,6 +528,37 @@ void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
         grid_fit != Compounder::GridFit::Round && !all_to_reference.empty() ? all_to_reference
                                                                             : to_reference,
         source.width, source.height, clip, *spacing, grid_fit);
+}
+
+// A grid that is given (flags, the configuration) and that no frame reaches gives an empty volume:
+// said, with both boxes, rather than written as if it were a result.
+void Reconstruction::Impl::warn_if_no_frame_reaches(const VolumeGrid& fixed) const {
+  std::optional<VolumeGrid> around;
+  try {
+    around =
+        source.kind == FrameSource::Kind::Beams
+            ? Compounder::grid_around_beams(to_reference, source.beam_geometry, fixed.spacing_mm)
+            : Compounder::grid_around(to_reference, source.width, source.height, clip,
+                                      fixed.spacing_mm, Compounder::GridFit::Round);
+  } catch (const Error&) {
+    return;  // frames whose box cannot be taken: the grid is the caller's to judge
+  }
+  std::ostringstream why;
+  why << std::fixed << std::setprecision(2);
+  for (int a = 0; a < 3 && why.str().empty(); ++a) {
+    const double half = fixed.spacing_mm[a] / 2;
+    const double lo = fixed.origin_mm[a] - half;
+    const double hi = fixed.origin_mm[a] + double(fixed.dims[a] - 1) * fixed.spacing_mm[a] + half;
+    const double frames_lo = around->origin_mm[a];
+    const double frames_hi = frames_lo + double(around->dims[a] - 1) * around->spacing_mm[a];
+    if (frames_hi < lo || frames_lo > hi)
+      why << "along "
+          << "xyz"[a] << " the grid spans " << lo << " to " << hi << " mm, the frames " << frames_lo
+          << " to " << frames_hi << " mm";
+  }
+  if (!why.str().empty())
+    warn("compounding: no frame reaches the output grid (" + why.str() +
+         "): the volume will be empty; check the grid's origin and extent");
 }
 
 Reconstruction::Reconstruction(const FrameSource& frames, const PlusReconstructionConfig* config,

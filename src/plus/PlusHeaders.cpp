@@ -127,6 +127,10 @@ DataLayout read_meta_header(InputFile& in, PlusSequence* seq, FrameFieldSink* si
     const size_t eq = line.find('=');
     if (eq == std::string::npos) {
       if (line_number == 1) throw FileError(where + ": not a PLUS sequence file (no text header)");
+      if (std::any_of(line.begin(), line.end(),
+                      [](char c) { return (unsigned char)c < 32 && c != '\t' && c != '\r'; }))
+        throw FileError(where + ": binary data at header line " + std::to_string(line_number) +
+                        " before the header's ElementDataFile line (it ends a MetaImage header)");
       throw FileError(where + ": malformed header line " + std::to_string(line_number) + " " +
                       quote_value(line) + " (expected Key = Value)");
     }
@@ -135,7 +139,9 @@ DataLayout read_meta_header(InputFile& in, PlusSequence* seq, FrameFieldSink* si
       throw FileError(where + ": not a PLUS sequence file (malformed header line " +
                       std::to_string(line_number) + ")");
     if (sink->add(key, value, where)) continue;
-    fields[lower(key)] = value;
+    if (!fields.emplace(lower(key), value).second)
+      throw FileError(where + ": header field " + quote_value(key) +
+                      " given twice (again at line " + std::to_string(line_number) + ")");
     if (lower(key) == "elementdatafile") {
       ended = true;
       break;
@@ -236,7 +242,10 @@ DataLayout read_nrrd_header(InputFile& in, PlusSequence* seq, FrameFieldSink* si
       const std::string key = line.substr(0, colon), value = trim(line.substr(colon + 2));
       if (!sink->add(key, value, where)) key_values[key] = value;
     } else {
-      fields[lower(trim(line.substr(0, colon)))] = trim(line.substr(colon + 1));
+      const std::string field = trim(line.substr(0, colon));
+      if (!fields.emplace(lower(field), trim(line.substr(colon + 1))).second)
+        throw FileError(where + ": header field " + quote_value(field) +
+                        " given twice (again at line " + std::to_string(line_number) + ")");
     }
   }
   auto get = [&](const std::string& key) -> const std::string* {

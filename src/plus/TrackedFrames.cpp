@@ -85,6 +85,8 @@ PlusTrackedFrames plus_tracked_frames(const PlusSequence& sequence,
   grid.spacing_mm[1] = spacing[1];
   grid.origin_mm[0] = grid.origin_mm[1] = 0;
   out.probe = ProbeGeometry::linear(grid);
+  config.clip.require_pixels(sequence.width, sequence.height, "the configuration's clip rectangle",
+                             sequence.path);
   out.mask = config.clip.mask(sequence.width, sequence.height);
   const size_t frame_pixels = size_t(sequence.width) * size_t(sequence.height);
   out.pixels.resize(out.frames.size() * frame_pixels);

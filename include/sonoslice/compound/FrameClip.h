@@ -29,6 +29,10 @@ struct FrameClip {
   /// InputError naming `what` and the field for a negative x, y or size, NaN angles or radii,
   /// angles outside (-90°, 90°).
   void validate(const std::string& what) const;
+  /// InputError when the rectangle leaves no pixel of `frames`' W×H frames: "<what> (origin x,y,
+  /// size w×h) leaves no pixel of the W×H frames of '<frames>'".
+  void require_pixels(int frame_width, int frame_height, const std::string& what,
+                      const std::string& frames) const;
 };
 
 }  // namespace sonoslice
