@@ -315,7 +315,36 @@ void write_fully(int fd, const void* data, size_t n, const std::string& path) {
 
 // --- checks before any work ----------------------------------------------------------------------
 
+namespace {
+void check_output_location(const std::string& path, bool directory);
+
+// Permission bits do not tell (root passes access() on /sys and /proc, where nothing can be
+// created): a hidden file is created beside the output and removed at once, so that an output
+// nobody can write is refused before the work rather than after it.
+void try_creating_beside(const std::string& path, const fs::path& target) {
+  const std::string probe = temp_name_beside(target).string();
+  const int slot = registry_add(kRemoveFile, probe);
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
+  const int error_number = errno;
+  if (fd >= 0) {
+    ::close(fd);
+    ::unlink(probe.c_str());
+  }
+  registry_remove(slot);
+  if (fd < 0 && error_number != EEXIST)
+    throw FileError("cannot write '" + path + "': cannot create files in folder '" +
+                    parent_of(target.string()).string() + "' (" + write_error_reason(error_number) +
+                    ")");
+}
+}  // namespace
+
 void check_output_path(const std::string& path, bool directory) {
+  check_output_location(path, directory);
+  try_creating_beside(path, directory ? folder_target(path) : fs::path(path));
+}
+
+namespace {
+void check_output_location(const std::string& path, bool directory) {
   if (path.empty()) throw FileError("output path is empty");
   std::error_code ec;
   if (directory) {
@@ -353,11 +382,13 @@ void check_output_path(const std::string& path, bool directory) {
   if (fs::is_directory(path, ec))
     throw FileError("cannot write '" + path + "': it is an existing directory");
 }
+}  // namespace
 
 // --- AtomicFile ----------------------------------------------------------------------------------
 
 AtomicFile::AtomicFile(std::string path, OutputKind kind) : path_(std::move(path)), kind_(kind) {
-  check_output_path(path_, kind_ == OutputKind::Folder);
+  check_output_location(path_,
+                        kind_ == OutputKind::Folder);  // creating the temporary tries the rest
   target_ = kind_ == OutputKind::Folder ? folder_target(path_).string() : path_;
   for (int attempt = 0;; ++attempt) {
     temp_ = temp_name_beside(target_).string();

@@ -890,16 +890,30 @@ def _parse_scheduler(scheduler: Optional[str]) -> Optional[int]:
     return int(n)
 
 
+def _try_creating_in(folder: str, out_dir: str) -> None:
+    """Permission bits do not tell (root passes os.access on /sys and /proc, where nothing can be
+    created): a hidden file is created in ``folder`` and removed at once."""
+    import tempfile
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".sonoslice-probe-", dir=folder)
+    except OSError as e:
+        raise OSError(f"--out '{out_dir}': cannot create files in '{folder}' ({e.strerror or e})") from None
+    os.close(fd)
+    os.remove(probe)
+
+
 def _check_out_dir(spec: Spec, out_dir: str) -> None:
     """Refuses, before anything is loaded or written, an ``out_dir`` that cannot be created or that
     holds another dataset (a manifest or a shard that is not this SPEC's)."""
     if not os.path.isdir(out_dir):
         parent = out_dir
         while not os.path.exists(parent):
-            parent = os.path.dirname(parent)
+            parent = os.path.dirname(parent) or "."
         if not os.path.isdir(parent) or not os.access(parent, os.W_OK | os.X_OK):
             raise OSError(f"--out '{out_dir}': cannot create it ('{parent}' is not a writable folder)")
+        _try_creating_in(parent, out_dir)
         return
+    _try_creating_in(out_dir, out_dir)
     manifest = os.path.join(out_dir, MANIFEST)
     if os.path.exists(manifest):
         try:
