@@ -115,6 +115,10 @@ Inputs read_frame_inputs(const RegisterFlags& f, WorldFrame world) {
       throw InputError("--mask '" + f.user_mask + "': expected one " +
                        std::to_string(in.probe.image.width) + "x" +
                        std::to_string(in.probe.image.height) + " image");
+    if (const int64_t nan = m.non_finite_count())
+      throw InputError("--mask '" + f.user_mask + "': " + std::to_string(nan) +
+                       " pixels are NaN or infinite (a mask is zero where pixels are left out, "
+                       "non-zero where they are compared)");
     in.user_mask.resize(size_t(in.probe.image.pixel_count()));
     visit_pixel_type(m.pixel_type(), [&](auto zero) {
       using T = decltype(zero);

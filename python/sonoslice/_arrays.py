@@ -235,7 +235,12 @@ def pose_to_lps(poses: np.ndarray, world: str) -> np.ndarray:
 
 
 def mask_array(mask, what: str) -> Optional[np.ndarray]:
-    """An (H, W) mask as C-contiguous uint8 (None stays None); complex refused."""
+    """An (H, W) mask as C-contiguous uint8, 1 where ``mask`` is non-zero (None stays None); complex
+    refused, and NaN, which is neither zero nor a choice."""
     if mask is None:
         return None
-    return np.ascontiguousarray(no_complex(np.asarray(numpy_of(mask)), what), dtype=np.uint8)
+    m = no_complex(np.asarray(numpy_of(mask)), what)
+    if m.dtype.kind == "f" and np.isnan(m).any():
+        raise ValueError(f"{what}: {int(np.isnan(m).sum())} NaN pixels (a mask is zero where pixels are "
+                         "left out, non-zero where they are used)")
+    return np.ascontiguousarray(m != 0, dtype=np.uint8)

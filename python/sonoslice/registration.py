@@ -117,7 +117,7 @@ def register(volume: Volume, probe: Probe, frames, poses, *, metric: Optional[st
                                  search_rot_deg=search_rot_deg, search_trans_mm=search_trans_mm, seed=seed,
                                  pyramid=pyramid, smoothness=smoothness))
     f, p = _frames_and_poses(volume, probe, frames, poses, world)
-    m = None if mask is None else np.ascontiguousarray(_arrays.real_array(mask, "mask") != 0, dtype=np.uint8)
+    m = None if mask is None else _arrays.mask_array(_arrays.real_array(mask, "mask"), "mask")
     refined, report = _ext.register_frames(volume._cpp, probe._cpp, f, p, mask=m, settings=s)
     return np.ascontiguousarray(_arrays.pose_to_lps(refined, world)), _report(report)
 

@@ -284,6 +284,19 @@ def test_colour_png_frames_register_as_their_first_component(cli, case, tmp_path
     one_line_error(run(cli, *args), "f.png': 2 components (frames have 1, or 3 or 4: RGB, RGBA)")
 
 
+def test_a_mask_of_nan_is_refused_not_taken_as_non_zero(cli, case, tmp_path):
+    frames = np.load(case / "frames.npy")
+    np.save(tmp_path / "nan.npy", np.full(frames.shape[1:], np.nan, np.float32))
+    one_line_error(run(cli, *base_args(case, "nan_mask.npy"), "--mask", str(tmp_path / "nan.npy")),
+                   f"--mask '{tmp_path / 'nan.npy'}': {frames[0].size} pixels are NaN or infinite")
+    assert not (case / "nan_mask.npy").exists()
+    import sonoslice
+    ct = sonoslice.Volume.from_file(str(case / "ph" / "ct.nii.gz"))
+    probe = sonoslice.Probe.from_fanslicer(W1, downsampling=4)
+    with pytest.raises(ValueError, match=f"mask: {frames[0].size} NaN pixels"):
+        sonoslice.register(ct, probe, frames, np.load(case / "init.npy"), mask=np.full(frames.shape[1:], np.nan))
+
+
 def test_missing_required_flags_are_usage_errors(cli, case):
     full = base_args(case, "never.npy")
     assert_each_flag_required(cli, full, ("--volume", "--probe", "--frames", "--poses", "--out"))
@@ -300,6 +313,7 @@ def test_missing_required_flags_are_usage_errors(cli, case):
     (["--mode", "smooth-sweep", "--smoothness", "-1"], "--smoothness"),
     (["--starts", "0"], "--starts 0"),
     (["--search-trans-mm", "nan"], "--search-trans-mm"),
+    (["--search-trans-mm", "1e300"], "--search-trans-mm 1e+300: must be a distance from 0 to 1e9 mm"),
     (["--pyramid", "4,0"], "--pyramid 4,0"),
     (["--downsampling", "2"], "--frames"),
 ])

@@ -119,9 +119,9 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
   if (!(search_rot_deg >= 0 && search_rot_deg <= 180))
     throw InputError(name("search_rot_deg") + " " + number(search_rot_deg) +
                      ": must be in [0, 180] degrees");
-  if (!(search_trans_mm >= 0 && std::isfinite(search_trans_mm)))
+  if (!(search_trans_mm >= 0 && search_trans_mm <= kMaxGeometryMm))
     throw InputError(name("search_trans_mm") + " " + number(search_trans_mm) +
-                     ": must be a finite distance >= 0 mm");
+                     ": must be a distance from 0 to 1e9 mm");
   if (pyramid && pyramid->empty()) throw InputError(name("pyramid") + ": needs at least one level");
   if (pyramid)
     for (int f : *pyramid)
