@@ -90,8 +90,8 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   options.names = flag_of;
   f.recon.apply(options);
   options.device = setup_device(f.recon.device, f.recon.threads);
-  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0");
-  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0");
+  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0 (0: no limit)");
+  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0 (0: no limit)");
   check_distinct_outputs({{"--out", f.out}, {"--record", f.record}, {"--stats", f.stats}},
                          {{"--config", f.config}});
   check_volume_output(f.out, "--out");
@@ -190,8 +190,8 @@ struct VirtualProbeFlags {
     cmd.add_option("--pose-device", pose_device,
                    "Only TRANSFORM messages of this device name (default: every one)");
     cmd.add_option("--image-device", image_device, "Device name of the images sent (Image)");
-    cmd.add_option("--max-frames", max_frames, "Stop after N images");
-    cmd.add_option("--max-seconds", max_seconds, "Stop after S seconds");
+    cmd.add_option("--max-frames", max_frames, "Stop after N images (default 0: no limit)");
+    cmd.add_option("--max-seconds", max_seconds, "Stop after S seconds (default 0: no limit)");
     cmd.add_option("--stats", stats, "Write the counts and latencies here (JSON)");
     add_view_option(cmd, view);
   }
@@ -259,8 +259,8 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
 }
 
 void check_probe_flags(const VirtualProbeFlags& f) {
-  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0");
-  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0");
+  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0 (0: no limit)");
+  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0 (0: no limit)");
   if (!f.stats.empty()) check_output_path(f.stats);
 }
 
@@ -359,8 +359,8 @@ void add_live_command(CLI::App& app) {
                   "all (default: every frame, the sender waits when --queue-size wait) or newest "
                   "(only the newest waiting frame; the others are dropped and counted)");
   cmd->add_option("--queue-size", c->queue_size, "Frames that may wait with --queue all (16)");
-  cmd->add_option("--max-frames", c->max_frames, "Stop after N frames");
-  cmd->add_option("--max-seconds", c->max_seconds, "Stop after S seconds");
+  cmd->add_option("--max-frames", c->max_frames, "Stop after N frames (default 0: no limit)");
+  cmd->add_option("--max-seconds", c->max_seconds, "Stop after S seconds (default 0: no limit)");
   cmd->add_option("--out", c->out, "The volume: .nii/.nii.gz/.mha/.nrrd/.npy")->required();
   cmd->add_option("--record", c->record,
                   "Also write the compounded frames as a PLUS sequence (.igs.mha/.igs.nrrd)");

@@ -145,6 +145,12 @@ def test_a_start_without_grid_attributes_keeps_the_grid(cli, tmp_path, frames):
     peer.send(command(3, '<Command Name="StartVolumeReconstruction" OutputSpacing="0.5 0.5 0.5" '
                          'OutputOrigin="0 0 0" OutputExtent="0 9 0 9 5 1" />'))
     assert 'Status="FAIL"' in peer.receive()[2].string
+    # A grid beyond any scanner is named by the command's attributes, not by flags this client never gave.
+    peer.send(command(5, '<Command Name="StartVolumeReconstruction" OutputSpacing="1 1 1" '
+                         'OutputOrigin="1e300 0 0" OutputExtent="0 10 0 10 0 10" />'))
+    reply = peer.receive()[2].string
+    assert 'Status="FAIL"' in reply and "OutputOrigin/OutputExtent: origin along axis 0" in reply, reply
+    assert "--origin" not in reply, reply
     for pixels, matrix, t in frames[:5]:
         peer.send(image_message(pixels, matrix, t))
     peer.send(command(4, '<Command Name="StopVolumeReconstruction" />'))

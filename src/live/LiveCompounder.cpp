@@ -352,6 +352,14 @@ std::string LiveCompounder::push(const void* pixels, PixelType type, int width, 
   } catch (const InputError& e) {
     return im.reject(e.what());
   }
+  // Beyond any scanner: a broken transform, said as such rather than as the grid it would need.
+  for (int r = 0; r < 3; ++r)
+    if (std::fabs(m.m[r][3]) > kMaxGeometryMm) {
+      char at[64];
+      std::snprintf(at, sizeof at, "%g mm along %c", m.m[r][3], "xyz"[r]);
+      return im.reject(std::string("a frame at ") + at +
+                       " (beyond any scanner's extent, at most 1e9 mm): a broken transform");
+    }
   if (im.type && (*im.type != type || im.width != width || im.height != height))
     return im.reject("a frame of " + std::to_string(width) + "x" + std::to_string(height) + " " +
                      to_string(type) + " after frames of " + std::to_string(im.width) + "x" +

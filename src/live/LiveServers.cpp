@@ -132,6 +132,17 @@ std::string apply_grid_attributes(const PlusCommand& c, ReconstructionOptions& o
     if (!o.spacing_mm) return "OutputOrigin/OutputExtent need OutputSpacing";
     given.output_spacing_mm = o.spacing_mm;
     const VolumeGrid grid = *given.output_grid();
+    // Checked here, so that the reply names the command's attributes (the grid's own check
+    // would name the command line's --origin/--extent, which this client never gave).
+    try {
+      grid.validate("OutputOrigin/OutputExtent");
+    } catch (const Error& e) {
+      return e.what();
+    }
+    for (int a = 0; a < 3; ++a)
+      if (grid.dims[a] > (int64_t(1) << 20))
+        return "OutputExtent: at most 1048576 voxels per axis, got " +
+               std::to_string(grid.dims[a]) + " along " + "xyz"[a];
     o.origin_mm = grid.origin_mm;
     o.extent = grid.dims;
   }
@@ -202,9 +213,10 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
   const int64_t count = int64_t(image.size[0]) * image.size[1];
   const uint8_t* pixels = image.pixels;
   std::vector<uint8_t>& copy = frame_copy_;
+  int64_t coloured = 0;
   if (image.components > 1) {
     copy.resize(size_t(count) * pixel_size(image.type));
-    note_colour(first_component(image.pixels, image.type, count, image.components, copy.data()));
+    coloured = first_component(image.pixels, image.type, count, image.components, copy.data());
     pixels = copy.data();
   }
   if (image.big_endian && pixel_size(image.type) > 1) {
@@ -212,10 +224,14 @@ void CompoundServer::on_image(const igtl::Message& m, double arrival) {
     byteswap(copy.data(), copy.size() / pixel_size(image.type), pixel_size(image.type));
     pixels = copy.data();
   }
-  note_non_finite(pixels, image.type, count);
   ++frames_;  // --max-frames counts the frames handed to the compounder
-  compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
-                    igtl::seconds_of_timestamp(m.header.timestamp), arrival);
+  const std::string refused =
+      compounder_->push(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world,
+                        igtl::seconds_of_timestamp(m.header.timestamp), arrival);
+  if (refused.empty()) {  // what is said of a frame's pixels is said of frames compounded
+    note_colour(coloured);
+    note_non_finite(pixels, image.type, count);
+  }
   if (run_.on_frame)
     run_.on_frame(pixels, image.type, image.size[0], image.size[1], image.ijk_to_world);
 }

@@ -292,12 +292,18 @@ TEST(LiveCompounder, RefusesFramesItCannotPlaceAndCountsWhy) {
   EXPECT_NE(
       live.push(floats.data(), PixelType::Float32, 6, 4, f.to_reference).find("after frames of"),
       std::string::npos);
+  // A transform beyond any scanner is named as broken, not as the grid it would need.
+  Mat4 far = f.to_reference;
+  far.m[0][3] = 1e38;
+  EXPECT_EQ(live.push(f.pixels.data(), PixelType::UInt8, 6, 4, far),
+            "a frame at 1e+38 mm along x (beyond any scanner's extent, at most 1e9 mm): a broken "
+            "transform");
   live.drain();
   const LiveStats s = live.stats();
-  EXPECT_EQ(s.received, 5);
+  EXPECT_EQ(s.received, 6);
   EXPECT_EQ(s.compounded, 1);
-  EXPECT_EQ(s.rejected, 4);
-  EXPECT_EQ(s.rejected_by_reason.size(), 4u);
+  EXPECT_EQ(s.rejected, 5);
+  EXPECT_EQ(s.rejected_by_reason.size(), 5u);
   EXPECT_THROW(LiveCompounder(nullptr, ReconstructionOptions{}), InputError);  // no spacing
   ReconstructionOptions half = grid_options({{0, 0, 0}}, {{8, 8, 8}});
   half.extent.reset();
