@@ -276,6 +276,13 @@ def test_colour_png_frames_register_as_their_first_component(cli, case, tmp_path
         results[name] = np.load(case / f"{name}.npy")
     assert np.array_equal(results["rgb"], results["grey"])
     assert np.array_equal(results["coloured"], results["grey"])
+    # The same frames as an (N, H, W, 3) .npy, as `slice --colors` writes colour stacks.
+    np.save(tmp_path / "rgb.npy", np.stack([grey, grey // 2, grey], -1))
+    args = base_args(case, "rgb_npy.npy")
+    args[args.index("--frames") + 1] = str(tmp_path / "rgb.npy")
+    r = run(cli, *args, "-q")
+    assert r.returncode == 0 and "--frames '" + str(tmp_path / "rgb.npy") + "': colour images" in r.stderr, r.stderr
+    assert np.array_equal(np.load(case / "rgb_npy.npy"), results["grey"])
     # A grey-and-alpha PNG has no colour to take the first of: refused, named.
     (tmp_path / "ga").mkdir()
     write_png(tmp_path / "ga" / "f.png", np.stack([grey[0], grey[0]], -1))

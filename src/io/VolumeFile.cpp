@@ -358,22 +358,40 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
 }
 
 namespace {
-/// A 2-D .npy (H, W) as a (W, H, 1) volume of unit spacing, in C order whatever the file's.
-Volume read_npy_image(const std::string& path, const std::string& what) {
+/// A .npy of frames that is not a plain (N, H, W) stack: one 2-D image (H, W), or colour frames
+/// (N, H, W, 3|4) read as their first component (first_component(): what PLUS reconstructs of
+/// colour frames; one warning when the colours differ). A (W, H, N) volume of unit spacing, in C
+/// order whatever the file's.
+Volume read_npy_frames(const std::string& path, const std::string& what) {
   const NpyArray a = read_npy(path);
-  const int64_t h = a.shape[0], w = a.shape[1];
-  if (h <= 0 || w <= 0) throw InputError(what + " '" + path + "': empty array");
+  const bool colour = a.shape.size() == 4;
+  const int64_t n = colour ? a.shape[0] : 1, h = a.shape[colour ? 1 : 0],
+                w = a.shape[colour ? 2 : 1], components = colour ? a.shape[3] : 1;
+  if (n <= 0 || h <= 0 || w <= 0) throw InputError(what + " '" + path + "': empty array");
   VolumeGrid g;
-  g.dims = {w, h, 1};
+  g.dims = {w, h, n};
   Volume image = Volume::allocate(a.type, g);
   const std::vector<int64_t> strides = npy_element_strides(a);
   const size_t size = pixel_size(a.type);
   const auto* from = static_cast<const char*>(a.data.get());
-  auto* to = static_cast<char*>(image.data());
-  for (int64_t v = 0; v < h; ++v)
-    for (int64_t u = 0; u < w; ++u)
-      std::memcpy(to + size_t(v * w + u) * size,
-                  from + size_t(v * strides[0] + u * strides[1]) * size, size);
+  auto* to = static_cast<uint8_t*>(image.data());
+  std::vector<uint8_t> pixel(size * size_t(components));
+  int64_t differing = 0;
+  for (int64_t k = 0; k < n; ++k)
+    for (int64_t v = 0; v < h; ++v)
+      for (int64_t u = 0; u < w; ++u) {
+        const int64_t at = colour ? k * strides[0] + v * strides[1] + u * strides[2]
+                                  : v * strides[0] + u * strides[1];
+        for (int64_t c = 0; c < components; ++c)
+          std::memcpy(pixel.data() + size * size_t(c),
+                      from + size_t(at + (colour ? c * strides[3] : 0)) * size, size);
+        differing += first_component(pixel.data(), a.type, 1, int(components),
+                                     to + size_t((k * h + v) * w + u) * size);
+      }
+  if (differing > 0)
+    warn(what + " '" + path + "': colour images read as their first (red) component; " +
+         std::to_string(differing) + " of " + std::to_string(g.voxel_count()) +
+         " pixels have other colours");
   return image;
 }
 }  // namespace
@@ -386,8 +404,15 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
     VolumeReadOptions options;
     if (image_format(path, what) == ImageFormat::Npy) {
       options.spacing_mm = Vec3{1, 1, 1};
-      // One 2-D image (H, W), as `slice --mask` writes it: a stack of one.
-      if (read_npy_header(path).shape.size() == 2) return read_npy_image(path, what);
+      // One 2-D image (H, W), as `slice --mask` writes it: a stack of one; (N, H, W, 3|4):
+      // colour frames, as `slice --colors` writes them.
+      const std::vector<int64_t> shape = read_npy_header(path).shape;
+      if (shape.size() == 2 || (shape.size() == 4 && (shape[3] == 3 || shape[3] == 4)))
+        return read_npy_frames(path, what);
+      if (shape.size() != 3)
+        throw InputError(what + " '" + path + "': expected (N, H, W) frames, (N, H, W, 3|4) " +
+                         "colour frames or one (H, W) image; got a " +
+                         std::to_string(shape.size()) + "-D array");
     }
     // Images are not sampled: what their NaN pixels mean is the caller's to say.
     return read_volume_as_stored(path, options, true);
