@@ -440,7 +440,7 @@ def test_virtual_probe_answers_each_pose_with_the_slice_image(cli, tmp_path):
     s = json.loads(stats.read_text())
     assert s["poses_received"] == len(poses) + 1 and s["images_sent"] == len(poses), s
     assert [k for k in s["network"] if k.startswith("rejected")] == [
-        "rejected: TRANSFORM ProbeToReference: not a rigid frame (a mirror image, deviation 2.000000 from "
+        "rejected: TRANSFORM ProbeToReference: not a rigid frame (a mirror image, deviation 2 from "
         "orthonormal and right-handed)"], s
     # --world RAS (3D Slicer's frame): RAS poses in, the same images, matrices in RAS.
     ras = np.diag([-1.0, -1.0, 1.0, 1.0])

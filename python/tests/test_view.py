@@ -388,6 +388,28 @@ def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
                 assert e.code == code, host
         body = urllib.request.urlopen(viewer.url + "api/image?pose=0", timeout=10).read()
         assert len(body) == 4 * 334 * 272
+        # A probe is placed rigidly: a scaled or mirrored matrix is refused, as live slice refuses it.
+        for matrix in ("2,0,0,0,0,2,0,0,0,0,2,0,0,0,0,1", "-1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(viewer.url + "api/image?matrix=" + matrix, timeout=10)
+            assert e.value.code == 400 and "image: matrix: not a rigid frame" in e.value.read().decode(), matrix
+        # What cpp-httplib turns away, and what a GET must not carry, answered in one line.
+        port = int(viewer.url.rsplit(":", 1)[1].strip("/"))
+        for request, status, line in (
+                (b"GET /" + b"a" * 200000 + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n", b"414", b"view: 414: the URI is too long"),
+                (b"GET /api/scene HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 5\r\n\r\nhello", b"413",
+                 b"view: a request body is not taken here"),
+                (b"GET /api/scene HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: evil.example\r\n\r\n", b"400",
+                 b"view: more than one Host header")):
+            with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
+                raw.sendall(request)
+                answer = b""
+                while not answer.endswith(line):
+                    chunk = raw.recv(65536)
+                    if not chunk:
+                        break
+                    answer += chunk
+            assert answer.split(b"\r\n", 1)[0].split(b" ")[1] == status and answer.endswith(line), answer[-200:]
     finally:
         viewer.stop()
 

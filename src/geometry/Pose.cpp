@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
 #include "../core/Text.h"
@@ -74,6 +75,17 @@ void validate_poses(const Pose* poses, size_t count, const std::string& source, 
     s << source << ": poses are not orthonormal (largest deviation " << worst_deviation
       << " at pose " << worst_index << "); they are used as given";
     warn(s.str());
+  }
+}
+
+void require_rigid_pose(const Pose& pose, const std::string& what) {
+  validate_poses(&pose, 1, what, 0, false);
+  if (const double d = rigid_deviation(pose); d > 1e-3) {
+    char deviation[32];
+    std::snprintf(deviation, sizeof deviation, "%.3g", d);
+    throw InputError(what + ": not a rigid frame (" +
+                     (pose.linear().determinant() < 0 ? "a mirror image, " : "") + "deviation " +
+                     deviation + " from orthonormal and right-handed)");
   }
 }
 

@@ -450,13 +450,9 @@ VirtualProbeResult run_virtual_probe(const ProbeRenderer& renderer, const Virtua
     if (problem.empty()) {
       pose = pose_to_lps(pose, run.world);
       try {
-        validate_poses(&pose, 1, "TRANSFORM " + m.header.device, 0, false);
-        // A probe's pose is rigid: a mirror image (determinant -1), a scale or a shear is a
-        // tracker or calibration fault, not a place to image (a float32 matrix deviates ~1e-7).
-        if (const double d = rigid_deviation(pose); d > 1e-3)
-          problem = "TRANSFORM " + m.header.device + ": not a rigid frame (" +
-                    (pose.linear().determinant() < 0 ? "a mirror image, " : "") + "deviation " +
-                    std::to_string(d) + " from orthonormal and right-handed)";
+        // A mirror image, a scale or a shear is a tracker or calibration fault, not a place to
+        // image.
+        require_rigid_pose(pose, "TRANSFORM " + m.header.device);
       } catch (const InputError& e) {
         problem = e.what();
       }

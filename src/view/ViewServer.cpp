@@ -383,7 +383,7 @@ struct ViewServer::Impl {
       if (m.size() != 16) throw InputError("image: matrix has 16 numbers");
       for (int r = 0; r < 4; ++r)
         for (int c = 0; c < 4; ++c) pose.m[r][c] = m[size_t(4 * r + c)];
-      validate_poses(&pose, 1, "image matrix", 0, false);
+      require_rigid_pose(pose, "image: matrix");  // as live slice takes a probe's pose
     }
     std::vector<float> out(size_t(content.probe->image.pixel_count()));
     const double t0 = now_seconds();
@@ -468,7 +468,10 @@ struct ViewServer::Impl {
     };
     if (req.method != "GET" && req.method != "HEAD")
       return refuse(405, "only GET is served, not " + text::quote_value(req.method));
-    if (req.has_header("Transfer-Encoding")) return refuse(413, "a request body is not taken here");
+    if (req.has_header("Transfer-Encoding") ||
+        (req.has_header("Content-Length") && req.get_header_value("Content-Length") != "0"))
+      return refuse(413, "a request body is not taken here");
+    if (req.get_header_value_count("Host") > 1) return refuse(400, "more than one Host header");
     if (is_loopback_name(host)) {
       // Served on loopback, a page of any web site could still reach it by DNS rebinding (its
       // own name re-pointed at 127.0.0.1); its requests carry that name as Host, and are refused.
@@ -559,11 +562,12 @@ struct ViewServer::Impl {
     http.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
       if (!res.body.empty()) return;
       const std::string path = text::quote_value(req.path);
-      const std::string why = req.method != "GET" && req.method != "HEAD"
+      // The status first: a refused request line (414) has no method to name.
+      const std::string why = res.status == 414   ? "the URI is too long"
+                              : res.status == 413 ? "a request body is not taken here"
+                              : req.method != "GET" && req.method != "HEAD"
                                   ? "only GET is served, not " + text::quote_value(req.method)
                               : res.status == 404 ? "no such page " + path
-                              : res.status == 413 ? "a request body is not taken here"
-                              : res.status == 414 ? "the URI is too long"
                                                   : "a bad request";
       res.set_content("view: " + std::to_string(res.status) + ": " + why, "text/plain");
     });

@@ -30,6 +30,12 @@ Pose pose_to_lps(const Pose& pose, WorldFrame frame);
 void validate_poses(const Pose* poses, size_t count, const std::string& source,
                     size_t first_index = 0, bool warn_non_orthonormal = true);
 
+/// For a pose a probe is placed at live (a tracker's TRANSFORM, a viewer's drag), where nothing
+/// says to use it as given: validate_poses, and InputError "<what>: not a rigid frame (...)" for a
+/// mirror image, a scale or a shear (deviation from orthonormal and right-handed above 1e-3; a
+/// float32 matrix deviates ~1e-7).
+void require_rigid_pose(const Pose& pose, const std::string& what);
+
 inline void validate_poses(const std::vector<Pose>& poses, const std::string& source) {
   validate_poses(poses.data(), poses.size(), source);
 }
