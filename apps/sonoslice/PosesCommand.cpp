@@ -60,6 +60,7 @@ nlohmann::json sampler_json(const PosesFlags& f) {
   }
   const auto range = [](const std::string& text, const std::string& flag) {
     const std::vector<double> v = parse_numbers(text, 2, flag);
+    if (!(v[0] <= v[1])) throw InputError(flag + " " + text + ": expected lo,hi with lo <= hi");
     return nlohmann::json::array({v[0], v[1]});
   };
   if (!f.tilt.empty()) j["tilt_deg"] = range(f.tilt, "--tilt-deg");

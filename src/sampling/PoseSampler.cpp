@@ -206,7 +206,9 @@ void SamplerSettings::validate(const std::string& where) const {
   if (!(norm(direction) > 0) || !std::isfinite(norm(direction)))
     throw InputError(where + ": direction: must be a non-zero vector");
   if (type == SamplerType::Region && label < 0 && !intensity)
-    throw InputError(where + ": region: give a label or an intensity range");
+    throw InputError(where + ": region: give its \"label\" or \"intensity\" range (for example " +
+                     "{\"type\": \"region\", \"label\": 3}; a label among the rejection rules does "
+                     "not choose the region)");
   if (type == SamplerType::Sweep) {
     if (frames < 1 || frames > 100000)
       throw InputError(where + ": frames: must be from 1 to 100000");
@@ -214,9 +216,10 @@ void SamplerSettings::validate(const std::string& where) const {
     if (!(jitter_mm >= 0 && std::isfinite(jitter_mm)) ||
         !(jitter_deg >= 0 && std::isfinite(jitter_deg)))
       throw InputError(where + ": jitter_mm and jitter_deg: must be finite and >= 0");
-    if (!start && !base) throw InputError(where + ": sweep: give a start pose or a base sampler");
-    if (start && base)
-      throw InputError(where + ": sweep: give a start pose or a base sampler, not both");
+    if (!start && !base)
+      throw InputError(where + ": sweep: give its \"start\" pose or a base sampler as \"from\" " +
+                       "(for example {\"type\": \"sweep\", \"from\": {\"type\": \"skin\"}})");
+    if (start && base) throw InputError(where + ": sweep: give \"start\" or \"from\", not both");
     if (base) {
       if (base->type == SamplerType::Sweep)
         throw InputError(where + ": sweep: its base sampler cannot be another sweep");

@@ -355,8 +355,11 @@ TEST(PoseSampler, BadSettingsAreNamed) {
             std::string::npos);
   EXPECT_NE(message(R"({"type": "skin", "reject": {"min_bdy": 1}})").find("min_bdy"),
             std::string::npos);
-  EXPECT_NE(message(R"({"type": "sweep"})").find("start pose or a base"), std::string::npos);
-  EXPECT_NE(message(R"({"type": "region"})").find("label or an intensity"), std::string::npos);
+  EXPECT_NE(
+      message(R"({"type": "sweep"})").find("give its \"start\" pose or a base sampler as \"from\""),
+      std::string::npos);
+  EXPECT_NE(message(R"({"type": "region"})").find("give its \"label\" or \"intensity\" range"),
+            std::string::npos);
   EXPECT_NE(message("{not json").find("not valid JSON"), std::string::npos);
   // Inputs a sampler needs.
   EXPECT_THROW(PoseSampler(skin(), probe()), InputError);  // skin without a CT
