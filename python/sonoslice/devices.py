@@ -41,7 +41,7 @@ def set_threads(n: Optional[int]) -> None:
                       DeprecationWarning, stacklevel=2)
         _ext.reset_cpu_threads()
         return
-    _ext.set_cpu_threads(int(n))
+    _ext.set_cpu_threads(_arrays.whole(n, "set_threads: n"))
 
 
 def threads() -> int:

@@ -62,7 +62,9 @@ class LiveCompounder:
         """Queues an (H, W) frame (uint8, int8, uint16, int16 or float32; copied) placed by
         ``image_to_reference`` (pixel (i, j, 0) → mm). Returns None when queued, else why it was
         refused (also counted in :meth:`stats`)."""
-        frame = np.ascontiguousarray(frame)
+        if frame is None:
+            raise TypeError("push: frame: expected an (H, W) array, got None")
+        frame = np.ascontiguousarray(_arrays.numpy_of(frame))
         matrix = _arrays.matrices(image_to_reference, "image_to_reference", 1, single=True)[0]
         why = self._cpp.push(frame, np.ascontiguousarray(matrix, dtype=np.float64), _arrays.number(timestamp, "timestamp"))
         return why or None

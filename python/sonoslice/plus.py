@@ -3,7 +3,6 @@ XMLs and transform repositories; and the reconstruction recipe for a PLUS sequen
 recipe as ``sonoslice compound --sequence S --config X`` (docs/compounding.md)."""
 from __future__ import annotations
 
-import os
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -123,7 +122,7 @@ def read_plus_sequence(path: PathLike) -> PlusSequence:
     """Reads a PLUS sequence (MetaImage or NRRD, zlib/gzip-compressed or raw). OSError when missing,
     truncated or corrupt; ValueError for what sonoslice does not support (RF orientations, 3D
     frames, several channels, a transform that is not 16 numbers)."""
-    return PlusSequence(_ext.read_plus_sequence(os.fspath(path)))
+    return PlusSequence(_ext.read_plus_sequence(_arrays.path(path, "sequence")))
 
 
 def _field_value(value) -> str:
@@ -150,7 +149,7 @@ def write_plus_sequence(path: PathLike, frames, fields: Optional[Sequence[Dict[s
         if not isinstance(f, dict):
             raise ValueError(f"write_plus_sequence: fields[{k}] must be a dict, got {type(f).__name__}")
         out.append({str(key): _field_value(v) for key, v in f.items()})
-    _ext.write_plus_sequence(os.fspath(path), a, out, str(orientation), bool(compress))
+    _ext.write_plus_sequence(_arrays.path(path), a, out, str(orientation), bool(compress))
 
 
 class PlusConfig:
@@ -213,7 +212,7 @@ class PlusConfig:
 def read_plus_config(path: PathLike) -> PlusConfig:
     """Reads a PLUS configuration XML. OSError for a missing or malformed file; ValueError naming
     the element and attribute for a bad value; warnings for deprecated/unknown attributes."""
-    return PlusConfig(_ext.read_plus_config(os.fspath(path)))
+    return PlusConfig(_ext.read_plus_config(_arrays.path(path, "config")))
 
 
 def _as_sequence(sequence) -> PlusSequence:

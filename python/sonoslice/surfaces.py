@@ -2,7 +2,7 @@
 of their cross-sections, colouring labels, and fan-slicer's surface configurations."""
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 
@@ -63,7 +63,7 @@ def voxelize(meshes, spacing: Optional[float] = None, margin: Optional[float] = 
     winning where they overlap; uint8, or uint16 past 255. The grid is ``reference``'s, or an
     isotropic ``spacing`` (mm) around the meshes plus ``margin`` (default one voxel). Voxel centres
     are inside when the mesh contains them (docs/conventions.md §1); open meshes warn and are voted best-effort."""
-    meshes = [meshes] if isinstance(meshes, Mesh) else list(meshes)
+    meshes = _mesh_list(meshes, "meshes")
     if reference is None and spacing is None:
         raise ValueError("voxelize: give spacing (mm) or a reference volume")
     if reference is not None and (spacing is not None or margin is not None):
@@ -75,13 +75,27 @@ def voxelize(meshes, spacing: Optional[float] = None, margin: Optional[float] = 
                                       [] if labels is None else _arrays.wholes(labels, "labels")))
 
 
+def _mesh_list(meshes, what: str) -> List["Mesh"]:
+    """A Mesh or a sequence of them, as a list; TypeError naming ``what`` otherwise."""
+    if isinstance(meshes, Mesh):
+        return [meshes]
+    try:
+        out = list(meshes)
+    except TypeError:
+        raise TypeError(f"{what}: expected a Mesh or a list of Mesh, got {type(meshes).__name__}") from None
+    for m in out:
+        if not isinstance(m, Mesh):
+            raise TypeError(f"{what}: expected a Mesh or a list of Mesh, got a list holding {type(m).__name__}")
+    return out
+
+
 class SurfaceSlicer(_ImageSlicer):
     """Exact label images: each image plane cuts the meshes' triangles and the cross-sections are
     filled (even-odd), with no voxelisation: exact at any pixel size. Mesh k paints label k+1 (or
     ``labels[k]``), later meshes over earlier ones; outside the probe shape 0. CPU threads."""
 
     def __init__(self, meshes, probe: Probe, labels: Optional[Sequence[int]] = None, dtype: str = "uint8"):
-        meshes = [meshes] if isinstance(meshes, Mesh) else list(meshes)
+        meshes = _mesh_list(meshes, "meshes")
         self.meshes, self.probe = meshes, probe
         self._cpp = _ext.SurfaceSlicer([m._cpp for m in meshes], probe._cpp,
                                        [] if labels is None else _arrays.wholes(labels, "labels"),
@@ -111,6 +125,8 @@ def colorize(labels, mask, colors: Optional[Sequence[Sequence[int]]] = None) -> 
         colors = [_ext.default_label_color(k) for k in range(1, max(top, 1) + 1)]
     if isinstance(colors, (str, bytes)) or np.ndim(colors) != 2 or np.shape(colors)[1] != 3:
         raise ValueError(f"colors: expected (r, g, b) triples, got {colors!r:.60}")
+    if mask is None:
+        raise TypeError("colorize: mask: expected the (H, W) probe mask (Probe.mask), got None")
     return _ext.colorize(labels, _arrays.mask_array(mask, "mask"), [tuple(_arrays.wholes(c, "colors")) for c in colors])
 
 

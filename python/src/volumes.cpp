@@ -75,6 +75,12 @@ ArrayVolume volume_from_array(nb::handle array, const Vec3& spacing, const Vec3&
     a = nb::ndarray<nb::ro>(writable);
   } else if (nb::try_cast(array, a, false)) {
     read_only = true;
+  } else if (nb::hasattr(array, "dtype") && nb::hasattr(array.attr("dtype"), "name")) {
+    // A NumPy array whose values have no buffer to share (object, str).
+    throw InputError("volume array: dtype '" +
+                     nb::cast<std::string>(nb::str(array.attr("dtype").attr("name"))) +
+                     "' is not supported (supported: uint8, int8, uint16, int16, uint32, int32, "
+                     "float32, float64)");
   } else {
     throw InputError(
         "volume array: expected a NumPy array or a torch tensor (any object with __dlpack__ or "

@@ -485,6 +485,25 @@ def test_writers_refuse_what_the_readers_would_refuse_and_leave_nothing(cli, tmp
     assert "h.nrrd': space directions" in r.stderr and "beyond any scanner's extent" in r.stderr, r.stderr
 
 
+def test_none_and_odd_types_are_named_in_our_words():
+    """What nanobind or Python would otherwise say ("incompatible function arguments", "expected
+    str, bytes or os.PathLike object", "'NoneType' object is not iterable")."""
+    ct = sonoslice.Volume(np.zeros((4, 4, 4), np.float32))
+    for call, error, needle in (
+            (lambda: sonoslice.read_plus_sequence(None), TypeError, "sequence: expected a file path"),
+            (lambda: sonoslice.reconstruct_plus(None), TypeError, "sequence: expected a file path"),
+            (lambda: sonoslice.register_sequence(ct, None, None), TypeError, "sequence: expected a file path"),
+            (lambda: sonoslice.read_plus_config(None), TypeError, "config: expected a file path"),
+            (lambda: sonoslice.voxelize(None, spacing=1), TypeError, "meshes: expected a Mesh or a list of Mesh"),
+            (lambda: sonoslice.set_threads(10**12), ValueError, "set_threads: n 1000000000000: out of range"),
+            (lambda: sonoslice.colorize(np.zeros((2, 3, 3), np.uint8), None), TypeError, "colorize: mask"),
+            (lambda: sonoslice.LiveCompounder(spacing=0.5).push(None, np.eye(4)), TypeError, "push: frame"),
+            (lambda: sonoslice.Volume(np.zeros((4, 4, 4), object)), ValueError,
+             "volume array: dtype 'object' is not supported")):
+        with pytest.raises(error, match=re.escape(needle)):
+            call()
+
+
 # ---- what a library below says, in one line and in our words ----------------------------------------------
 def test_messages_from_vtk_nanobind_and_numpy_files_are_ours_in_one_line(cli, tmp_path):
     # A VTK reader's failure came with the pipeline's ten-line vtkInformation dump; a truncated .npy
