@@ -189,9 +189,8 @@ struct Bounds {
 VolumeGrid Compounder::grid_around(const std::vector<Mat4>& image_to_reference, int width,
                                    int height, const FrameClip& clip, const Vec3& spacing_mm,
                                    GridFit fit) {
+  clip.require_pixels(width, height, "compounding: the clip rectangle");
   const auto r = clip.rectangle(width, height);
-  if (r[0] >= r[2] || r[1] >= r[3])
-    throw InputError("compounding: the clip rectangle leaves no pixel of the frame");
   // Corner pixel centres: first and last pixel of the clip rectangle.
   const double xs[2] = {double(r[0]), double(r[2] - 1)}, ys[2] = {double(r[1]), double(r[3] - 1)};
   Bounds box;

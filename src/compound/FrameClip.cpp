@@ -69,8 +69,8 @@ void FrameClip::require_pixels(int frame_width, int frame_height, const std::str
   const auto size = [](int n) { return n < 0 ? std::string("to the edge") : std::to_string(n); };
   throw InputError(what + " (origin " + std::to_string(x) + "," + std::to_string(y) + ", size " +
                    size(width) + " x " + size(height) + ") leaves no pixel of the " +
-                   std::to_string(frame_width) + "x" + std::to_string(frame_height) +
-                   " frames of '" + frames + "'");
+                   std::to_string(frame_width) + "x" + std::to_string(frame_height) + " frames" +
+                   (frames.empty() ? "" : " of '" + frames + "'"));
 }
 
 void FrameClip::validate(const std::string& what) const {

@@ -395,8 +395,7 @@ VolumeGrid grid_of(itk::ImageIOBase* io, const std::string& path) {
 }
 
 // An RGB or RGBA image as its first component (first_component(): what PLUS reconstructs of
-// colour frames); a warning says when the colour components differ, so that the image was not
-// grey stored as colour.
+// colour frames); the pixels whose colour components differ are counted into `colour_pixels`.
 Volume read_first_component(const std::string& path, itk::ImageIOBase* io, PixelType type,
                             int64_t* colour_pixels) {
   const VolumeGrid grid = grid_of(io, path);
@@ -419,15 +418,8 @@ Volume read_first_component(const std::string& path, itk::ImageIOBase* io, Pixel
     throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" + complaint +
                     ")");
   Volume volume = Volume::allocate(type, grid);
-  const int64_t differing =
+  *colour_pixels +=
       first_component(pixels.data(), type, count, components, static_cast<uint8_t*>(volume.data()));
-  if (colour_pixels)
-    *colour_pixels += differing;
-  else if (differing > 0)
-    warn("'" + path + "': a colour image (" + std::to_string(components) +
-         " components) read as "
-         "its first (red) component; " +
-         std::to_string(differing) + " of " + std::to_string(count) + " pixels have other colours");
   return volume;
 }
 
@@ -637,7 +629,7 @@ void check_nifti_length(const std::string& path, uint64_t data_bytes) {
 
 }  // namespace
 
-Volume read_image_file(const std::string& path, ImageChannels channels, int64_t* colour_pixels) {
+Volume read_image_file(const std::string& path, int64_t* colour_pixels) {
   register_factories();
   const ImageFormat format = image_format(path, "volume");
   if (format == ImageFormat::Nifti) check_nifti_header(path);
@@ -665,9 +657,8 @@ Volume read_image_file(const std::string& path, ImageChannels channels, int64_t*
                            "-D image (sonoslice slices 3-D volumes)");
     }
     const unsigned components = io->GetNumberOfComponents();
-    const bool colour =
-        channels == ImageChannels::FirstOfColour && (components == 3 || components == 4);
-    if (components != 1 && channels == ImageChannels::FirstOfColour && !colour)
+    const bool colour = colour_pixels && (components == 3 || components == 4);
+    if (components != 1 && colour_pixels && !colour)
       throw InputError("image '" + path + "': " + std::to_string(components) +
                        " components (frames have 1, or 3 or 4: RGB, RGBA)");
     if (components != 1 && !colour)

@@ -9,14 +9,11 @@
 namespace sonoslice {
 namespace itk_io {
 
-/// How an image of several components is read: refused (volumes are scalar), or, for images that
-/// are frames, an RGB/RGBA image as its first component (as PLUS reconstructs colour frames).
-enum class ImageChannels { ScalarOnly, FirstOfColour };
-
-/// With FirstOfColour, a warning says how many pixels of a colour image have colour (R, G and B
-/// differ: not grey stored as colour), or that count is added to `*colour_pixels` if given.
-Volume read_image_file(const std::string& path, ImageChannels channels = ImageChannels::ScalarOnly,
-                       int64_t* colour_pixels = nullptr);
+/// `colour_pixels` null: a volume, of one component. Otherwise the image is a frame: an RGB/RGBA
+/// image is read as its first component (as PLUS reconstructs colour frames) and the count of its
+/// pixels whose R, G and B differ (not grey stored as colour) is added to `*colour_pixels`, for
+/// the caller to say once.
+Volume read_image_file(const std::string& path, int64_t* colour_pixels = nullptr);
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid);
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
 /// Writes to exactly `path` (the caller handles temporary names). ITK's writers do not all report

@@ -323,10 +323,10 @@ Volume warn_non_finite(Volume v, const std::string& path) {
 }  // namespace
 
 namespace {
-// `frames`: the file holds images (frames), whose RGB or RGBA pixels are read as their first
-// component; a volume's components are refused.
+// `colour_pixels` given: the file holds frames, whose RGB or RGBA pixels are read as their first
+// component (itk_io::read_image_file); otherwise a volume, whose components are refused.
 Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& options,
-                             bool frames = false) {
+                             int64_t* colour_pixels = nullptr) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileError("cannot read volume '" + path + "': no such file");
   const ImageFormat format = image_format(path, "volume");
@@ -341,12 +341,9 @@ Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& o
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
     throw ParameterError("series_uid", "applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
-  Volume v = fs::is_directory(path, ec)
-                 ? itk_io::read_dicom_directory(path, options.series_uid)
-                 : itk_io::read_image_file(path, frames ? itk_io::ImageChannels::FirstOfColour
-                                                        : itk_io::ImageChannels::ScalarOnly);
-  v.grid().validate("volume '" + path + "'");
-  return v;
+  // The ITK readers check the grid they read, naming the file.
+  return fs::is_directory(path, ec) ? itk_io::read_dicom_directory(path, options.series_uid)
+                                    : itk_io::read_image_file(path, colour_pixels);
 #else
   no_itk(path);
 #endif
@@ -358,6 +355,15 @@ Volume read_volume(const std::string& path, const VolumeReadOptions& options) {
 }
 
 namespace {
+/// Frames read as their first component say once how many pixels had colour.
+void warn_colour_frames(const std::string& what, const std::string& path, int64_t colour_pixels,
+                        int64_t pixels) {
+  if (colour_pixels > 0)
+    warn(what + " '" + path + "': colour images read as their first (red) component; " +
+         std::to_string(colour_pixels) + " of " + std::to_string(pixels) +
+         " pixels have other colours");
+}
+
 /// A .npy of frames that is not a plain (N, H, W) stack: one 2-D image (H, W), or colour frames
 /// (N, H, W, 3|4) read as their first component (first_component(): what PLUS reconstructs of
 /// colour frames; one warning when the colours differ). A (W, H, N) volume of unit spacing, in C
@@ -388,10 +394,7 @@ Volume read_npy_frames(const std::string& path, const std::string& what) {
         differing += first_component(pixel.data(), a.type, 1, int(components),
                                      to + size_t((k * h + v) * w + u) * size);
       }
-  if (differing > 0)
-    warn(what + " '" + path + "': colour images read as their first (red) component; " +
-         std::to_string(differing) + " of " + std::to_string(g.voxel_count()) +
-         " pixels have other colours");
+  warn_colour_frames(what, path, differing, g.voxel_count());
   return image;
 }
 }  // namespace
@@ -415,7 +418,10 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
                          std::to_string(shape.size()) + "-D array");
     }
     // Images are not sampled: what their NaN pixels mean is the caller's to say.
-    return read_volume_as_stored(path, options, true);
+    int64_t colour_pixels = 0;
+    Volume stack = read_volume_as_stored(path, options, &colour_pixels);
+    warn_colour_frames(what, path, colour_pixels, stack.grid().voxel_count());
+    return stack;
   }
   std::vector<std::string> files;
   for (const auto& entry : fs::directory_iterator(path, ec))
@@ -428,8 +434,7 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
   Volume stack;
   int64_t colour_pixels = 0;
   for (size_t k = 0; k < files.size(); ++k) {
-    const Volume image =
-        itk_io::read_image_file(files[k], itk_io::ImageChannels::FirstOfColour, &colour_pixels);
+    const Volume image = itk_io::read_image_file(files[k], &colour_pixels);
     const VolumeGrid& g = image.grid();
     if (g.dims[2] != 1) throw InputError(what + " '" + files[k] + "': not a 2-D image");
     if (k == 0) {
@@ -446,10 +451,7 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
     const size_t bytes = size_t(g.dims[0] * g.dims[1]) * pixel_size(image.pixel_type());
     std::memcpy(static_cast<uint8_t*>(stack.data()) + k * bytes, image.data(), bytes);
   }
-  if (colour_pixels > 0)
-    warn(what + " '" + path + "': colour images read as their first (red) component; " +
-         std::to_string(colour_pixels) + " of " + std::to_string(stack.grid().voxel_count()) +
-         " pixels have other colours");
+  warn_colour_frames(what, path, colour_pixels, stack.grid().voxel_count());
   return stack;
 #else
   no_itk(path);

@@ -30,9 +30,10 @@ struct FrameClip {
   /// angles outside (-90°, 90°).
   void validate(const std::string& what) const;
   /// InputError when the rectangle leaves no pixel of `frames`' W×H frames: "<what> (origin x,y,
-  /// size w×h) leaves no pixel of the W×H frames of '<frames>'".
+  /// size w×h) leaves no pixel of the W×H frames of '<frames>'" (without "of '…'" when `frames`
+  /// is empty).
   void require_pixels(int frame_width, int frame_height, const std::string& what,
-                      const std::string& frames) const;
+                      const std::string& frames = "") const;
 };
 
 }  // namespace sonoslice
