@@ -320,7 +320,7 @@ void run_live_simulate_command(const LiveSimulateFlags& f) {
   const WorldFrame world = parse_world_frame(s.world);
   const std::vector<Tissue> tissues = tissues_of(s);
   const SimulationInput input = read_simulation_input(s);
-  const Simulator sim(input.volume, input.source, probe, tissues, settings);
+  const Simulator sim = simulator_of(s, input, probe, tissues, settings);
 
   ProbeRenderer renderer;
   renderer.width = sim.width();

@@ -69,6 +69,25 @@ std::vector<Tissue> tissues_of(const SimulateFlags& f) {
   return f.tissues.empty() ? default_tissues() : read_tissue_table(f.tissues);
 }
 
+Simulator simulator_of(const SimulateFlags& f, const SimulationInput& input,
+                       const std::optional<ProbeGeometry>& probe,
+                       const std::vector<Tissue>& tissues, const SimulationSettings& settings) {
+  try {
+    return Simulator(input.volume, input.source, probe, tissues, settings);
+  } catch (const UnlistedLabelError& e) {
+    const std::string table = f.tissues.empty()
+                                  ? "the default tissue table (--print-tissues; give --tissues)"
+                                  : "--tissues '" + f.tissues + "'";
+    const std::string label = "label " + std::to_string(e.label());
+    const std::string holder =
+        !f.labels.empty() ? "--labels '" + f.labels + "' holds " + label
+        : e.label() == 0 || size_t(e.label()) > f.meshes.size()
+            ? "outside every mesh of --meshes is " + label
+            : "--meshes '" + f.meshes[size_t(e.label() - 1)] + "' is " + label;
+    throw InputError(holder + ", which " + table + " does not list");
+  }
+}
+
 SimulationInput read_simulation_input(const SimulateFlags& f) {
   const WorldFrame frame = parse_world_frame(f.world);
   SimulationInput in;
@@ -171,7 +190,7 @@ void run_simulate(const SimulateFlags& f) {
   const SimulationSource source = input.source;
   const std::string& description = input.description;
   const double load_seconds = load.seconds();
-  const Simulator sim(volume, source, given_probe, tissues, settings);
+  const Simulator sim = simulator_of(f, input, given_probe, tissues, settings);
   const ProbeGeometry& probe = sim.probe();
 
   StackSpec spec = probe_stack_spec(

@@ -49,6 +49,11 @@ struct SimulationInput {
   std::string description;
 };
 SimulationInput read_simulation_input(const SimulateFlags& flags);
+/// The simulator of `input`; a label the tissue table lacks is named with the table's file (or
+/// the default table) and the input that holds it.
+Simulator simulator_of(const SimulateFlags& flags, const SimulationInput& input,
+                       const std::optional<ProbeGeometry>& probe,
+                       const std::vector<Tissue>& tissues, const SimulationSettings& settings);
 
 }  // namespace cli
 }  // namespace sonoslice

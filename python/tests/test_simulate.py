@@ -137,7 +137,9 @@ def test_bad_input_one_line_nothing_written(cli, ph, tmp_path):
         (["--volume", ct, "--tissues", str(partial), "--poses", poses], "--tissues is for --labels"),
         (["--labels", labels, "--tissues", str(tmp_path / "none.json"), "--poses", poses], "none.json"),
         (["--labels", labels, "--tissues", str(bad_table), "--poses", poses], 'missing "scatter_mean"'),
-        (["--labels", labels, "--tissues", str(partial), "--poses", poses], "holds label 0, which the tissue table does not list"),
+        (["--labels", labels, "--tissues", str(partial), "--poses", poses],
+         f"--labels '{labels}' holds label 0, which --tissues '{partial}' does not list"),
+        (["--labels", labels, "--poses", poses], "which the default tissue table (--print-tissues; give --tissues)"),
         (["--labels", ct, "--poses", poses], "uint8 or uint16, this one is int16"),
         (["--meshes", str(tmp_path / "a.stl"), "--poses", poses], "--meshes: give --tissues"),
         (["--volume", ct, "--poses", str(tmp_path / "nan.npy")], "pose 1"),
@@ -243,6 +245,13 @@ def test_simulate_meshes(cli, shared, tmp_path):
     assert r.returncode == 0, r.stderr
     img = np.load(tmp_path / "m.npy")
     assert img.shape == (1, 272, 334) and img.std() > 5
+    # A mesh the table has no tissue for is named by its file.
+    short = tmp_path / "short.json"
+    short.write_text(json.dumps({"tissues": json.loads(table.read_text())["tissues"][:2]}))
+    r = run(cli, "simulate", "--meshes", liver, os.path.join(shared, "arteries.vtk"), "--tissues", str(short),
+            "--preset", "lus", "--poses", str(tmp_path / "p.npy"), "--out", str(tmp_path / "m2.npy"), "-q")
+    one_line_error(r, f"--meshes '{os.path.join(shared, 'arteries.vtk')}' is label 2, which --tissues '{short}'")
+    assert not (tmp_path / "m2.npy").exists()
 
 
 def test_python_simulator_takes_settings_or_keywords(phantom, poses):

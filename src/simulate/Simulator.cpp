@@ -227,9 +227,7 @@ void set_label_source(Model& m, Volume& volume, const std::vector<Tissue>& tissu
     known[size_t(t.label)] = 1;
   }
   for (int l = 0; l < 65536; ++l)
-    if (present[size_t(l)] && !known[size_t(l)])
-      throw InputError("tissues: the label volume holds label " + std::to_string(l) +
-                       ", which the tissue table does not list");
+    if (present[size_t(l)] && !known[size_t(l)]) throw UnlistedLabelError(l);
   if (!wide) {  // the kernel reads uint16 labels
     Volume widened = Volume::allocate(PixelType::UInt16, grid);
     std::copy(volume.data_as<uint8_t>(), volume.data_as<uint8_t>() + voxels,

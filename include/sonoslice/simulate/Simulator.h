@@ -27,6 +27,20 @@ struct Tissue {
   double scatter_density = 10.0;  ///< scatterers per resolution cell (10 and more: fully developed)
 };
 
+/// A label the label volume holds and the tissue table lacks. Front ends that know where the
+/// table and the labels came from (the CLI's files) reword it from label().
+class UnlistedLabelError : public InputError {
+ public:
+  explicit UnlistedLabelError(int label)
+      : InputError("tissues: the label volume holds label " + std::to_string(label) +
+                   ", which the tissue table does not list"),
+        label_(label) {}
+  int label() const { return label_; }
+
+ private:
+  int label_;
+};
+
 /// The default table (water, blood, fat, liver, kidney, muscle, soft tissue, vessel wall, bone,
 /// gas; labels 1..10), with the literature values docs/simulation.md cites.
 std::vector<Tissue> default_tissues();
