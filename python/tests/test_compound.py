@@ -716,6 +716,15 @@ def test_bad_plus_input(tmp_path, nwire, nwire_config):
                                                            b"DimSize = 100 80 3\nDimSize = 10 10 3\n", 1))
     with pytest.raises(OSError, match=r"twice.igs.mha: header field 'DimSize' given twice"):
         sonoslice.read_plus_sequence(tmp_path / "twice.igs.mha")
+    # A header line of megabytes is named by its number (the first: not a text header at all).
+    first_end = text.index(b"\n") + 1
+    (tmp_path / "long.igs.mha").write_bytes(text[:first_end] + b"Comment = " + b"x" * (2 << 20) + b"\n" +
+                                            text[first_end:])
+    with pytest.raises(OSError, match=r"long.igs.mha: header line 2 is longer than 1 MiB"):
+        sonoslice.read_plus_sequence(tmp_path / "long.igs.mha")
+    (tmp_path / "blob.igs.mha").write_bytes(b"x" * (2 << 20))
+    with pytest.raises(OSError, match=r"blob.igs.mha: not a PLUS sequence file \(no text header\)"):
+        sonoslice.read_plus_sequence(tmp_path / "blob.igs.mha")
 
 
 def test_absurd_spacing_and_a_broken_transform_are_named(cli, tmp_path):

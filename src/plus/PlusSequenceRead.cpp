@@ -52,11 +52,14 @@ InputFile::~InputFile() {
 
 bool InputFile::line(std::string* out) {
   out->clear();
+  ++lines_;
   int c;
   while ((c = std::getc(file_)) != EOF) {
     if (c == '\n') break;
     if (out->size() >= kMaxHeaderLine)
-      throw FileError(path_ + ": not a PLUS sequence file (no text header)");
+      throw FileError(lines_ == 1 ? path_ + ": not a PLUS sequence file (no text header)"
+                                  : path_ + ": header line " + std::to_string(lines_) +
+                                        " is longer than 1 MiB (not a text header line)");
     out->push_back(static_cast<char>(c));
   }
   if (c == EOF && out->empty()) return false;

@@ -31,6 +31,7 @@ class InputFile {
   std::string path_;
   FILE* file_ = nullptr;
   uint64_t size_ = 0;
+  int64_t lines_ = 0;  ///< lines read so far, for messages
 };
 
 /// What a header says about the pixel data.
