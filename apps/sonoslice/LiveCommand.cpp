@@ -67,6 +67,15 @@ void write_text_file(const std::string& path, const std::string& text) {
   f.commit();
 }
 
+// --view's [HOST:]PORT, checked before the endpoint listens (the viewer starts after it, so
+// that the endpoint's line comes first on stdout).
+void check_view_option(const std::string& view) {
+  if (view.empty()) return;
+  std::string host = "127.0.0.1";
+  int port = 0;
+  parse_host_port(view, "--view", host, port);
+}
+
 void add_view_option(CLI::App& cmd, std::string& view) {
   cmd.add_option("--view", view,
                  "[HOST:]PORT: also serve the browser viewer there (docs/view.md; port 0: a free "
@@ -92,6 +101,7 @@ void run_live_compound_command(const LiveCompoundFlags& f) {
   options.device = setup_device(f.recon.device, f.recon.threads);
   if (f.max_frames < 0) throw InputError("--max-frames must be >= 0 (0: no limit)");
   if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0 (0: no limit)");
+  check_view_option(f.view);
   check_distinct_outputs({{"--out", f.out}, {"--record", f.record}, {"--stats", f.stats}},
                          {{"--config", f.config}});
   check_volume_output(f.out, "--out");
@@ -262,6 +272,7 @@ void check_probe_flags(const VirtualProbeFlags& f) {
   if (f.max_frames < 0) throw InputError("--max-frames must be >= 0 (0: no limit)");
   if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0 (0: no limit)");
   if (!f.stats.empty()) check_output_path(f.stats);
+  check_view_option(f.view);
 }
 
 struct LiveSliceFlags {

@@ -38,6 +38,9 @@ Volume read_labels(const std::string& path, const VolumeReadOptions& options) {
 }
 
 void run_view(const ViewFlags& f) {
+  // Checked before anything loads; out of range is bad input (1), as `live --view` says it.
+  if (f.port < 0 || f.port > 65535)
+    throw InputError("--port " + std::to_string(f.port) + ": expected a port 0-65535");
   setup_threads(f.threads);
   if (!f.volume.path.empty() && !f.compound.empty())
     throw UsageError("view: give --volume or --compound, not both (the planes show one volume)");
@@ -156,8 +159,7 @@ void add_view_command(CLI::App& app) {
   cmd->add_option("--world", f->world, "Frame of the poses and meshes: LPS (default) or RAS");
   cmd->add_option("--downsampling", f->downsampling, "Divide the probe image size by K");
   cmd->add_option("--host", f->host, "Address to serve on (127.0.0.1)");
-  cmd->add_option("--port", f->port, "Port (default: a free one)")
-      ->check(CLI::Range(0, 65535));  // checked before the volume loads
+  cmd->add_option("--port", f->port, "Port (default: a free one)");
   cmd->add_flag("--no-browser", f->no_browser, "Do not open a browser");
   add_threads_option(*cmd, f->threads);
   cmd->callback([f] { run_view(*f); });

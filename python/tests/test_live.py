@@ -383,11 +383,13 @@ def test_no_frame_no_volume_and_a_named_reason(cli, tmp_path):
                        (["--listen", "99999"], "--listen 99999"),
                        (["--listen", "0", "--queue", "some"], "--queue"),
                        (["--listen", "0", "--queue-size", "0"], "--queue-size"),
-                       (["--listen", "0", "--origin", "1,2,3"], "--origin")]:
+                       (["--listen", "0", "--origin", "1,2,3"], "--origin"),
+                       (["--listen", "0", "--view", "70000"], "--view 70000: expected [HOST:]PORT")]:
         r = subprocess.run([cli, "live", "compound", *args, "--spacing", "1", "--out", str(out)],
-                           capture_output=True, text=True)
+                           capture_output=True, text=True, timeout=30)
         assert r.returncode != 0 and what in r.stderr, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1
+        assert r.stdout == "", (args, r.stdout)  # refused before listening
 
 
 def test_queue_newest_counts_every_frame_it_drops(cli, tmp_path, frames):

@@ -338,6 +338,10 @@ def test_bad_view_inputs_are_named(cli, tmp_path):
         r = subprocess.run([cli, "view", "--no-browser", "--compound", NWIRE, "--port", str(port)],
                            capture_output=True, text=True, timeout=30)
     assert r.returncode == 1 and str(port) in r.stderr
+    # A port out of range is bad input (1) before anything loads, as `live ... --view` says it.
+    r = subprocess.run([cli, "view", "--no-browser", "--compound", str(tmp_path / "missing.nii"), "--port", "70000"],
+                       capture_output=True, text=True, timeout=30)
+    assert (r.returncode, r.stderr) == (1, "sonoslice: error: --port 70000: expected a port 0-65535\n"), r.stderr
 
 
 def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
