@@ -147,8 +147,8 @@ void add_compound_command(CLI::App& app) {
       "--config", flags->config,
       "PLUS configuration XML: calibration (Image->Probe) and VolumeReconstruction settings");
   cmd->add_option("--frames", flags->frames,
-                  "A stack of 2D frames (.nii/.mha/.nrrd/.npy (N,H,W)), with --poses and "
-                  "--image-to-probe or --probe");
+                  "A stack of 2D frames (.nii/.mha/.nrrd/.npy (N,H,W), a multi-frame DICOM .dcm, a "
+                  "folder of PNGs), with --poses and --image-to-probe or --probe");
   cmd->add_option("--poses", flags->poses,
                   "Probe-to-reference poses, one per frame (.npy/.txt/.json)");
   cmd->add_option("--image-to-probe", flags->image_to_probe,

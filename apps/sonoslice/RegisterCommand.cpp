@@ -297,8 +297,10 @@ void add_register_command(CLI::App& app) {
   flags->volume.add_to(*cmd, /*path_required=*/false);
   cmd->add_option("--probe", flags->probe, "Probe JSON (native or fan-slicer config)");
   cmd->add_option("--downsampling", flags->downsampling, "Divide the probe image size by K");
-  cmd->add_option("--frames", flags->frames,
-                  "Frames: .npy (N,H,W), .nii/.mha/.nrrd stack, or a folder of PNGs");
+  cmd->add_option(
+      "--frames", flags->frames,
+      "Frames: .npy (N,H,W), .nii/.mha/.nrrd stack, a multi-frame DICOM .dcm, or a folder "
+      "of PNGs");
   cmd->add_option("--poses", flags->poses, "Initial poses, one per frame: .npy, .txt/.csv, .json");
   cmd->add_option("--out", flags->out,
                   "Refined poses: .npy (N,4,4); with --sequence, the refined ImageToReference "

@@ -150,7 +150,8 @@ void add_view_command(CLI::App& app) {
   cmd->add_option("--probe", f->probe, "Probe JSON (native or fan-slicer config)");
   cmd->add_option("--poses", f->poses, "Pose file: .npy, .txt/.csv, .json");
   cmd->add_option("--images", f->images,
-                  "A stack of images at the poses (.npy (N,H,W), .nii, .mha, .nrrd) shown instead "
+                  "A stack of images at the poses (.npy (N,H,W), .nii, .mha, .nrrd, a multi-frame "
+                  "DICOM .dcm, a folder of PNGs) shown instead "
                   "of slicing");
   cmd->add_option("--compound", f->compound, "A compounded volume, shown in the planes");
   cmd->add_flag(

@@ -484,10 +484,10 @@ std::string file_name(const std::string& path) {
 }
 
 // The pixel data element whose value starts at `value_offset` of `file` (where GDCM stopped,
-// having read its header): its declared length must fit in the file and hold the slice's pixels.
-void check_pixel_data(const std::string& directory, const std::string& file, uint64_t value_offset,
+// having read its header): its declared length must fit in the file and hold the image's pixels.
+// `where` names the file in messages.
+void check_pixel_data(const std::string& where, const std::string& file, uint64_t value_offset,
                       uint64_t pixel_bytes) {
-  const std::string where = "DICOM series in '" + directory + "': slice '" + file_name(file) + "'";
   std::error_code ec;
   const uint64_t size = std::filesystem::file_size(file, ec);
   // Implicit VR: tag, 32-bit length; explicit VR (OB, OW): tag, VR, 2 reserved bytes, 32-bit
@@ -517,24 +517,31 @@ void check_pixel_data(const std::string& directory, const std::string& file, uin
   }
 }
 
+// Reads the elements of `file` before its pixel data (and that element's header, not its value)
+// into `reader`, and checks the pixel data: it must fit in the file and hold the image's pixels
+// (every frame of a multi-frame file). `where` names the file in messages.
+void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
+                               const std::string& where) {
+  reader.SetFileName(file.c_str());
+  const gdcm::Tag pixel_data(0x7fe0, 0x0010);
+  if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
+    throw FileError("cannot read " + where + ": not a readable DICOM file");
+  const gdcm::File& f = reader.GetFile();
+  const std::vector<unsigned int> dims = gdcm::ImageHelper::GetDimensionsValue(f);
+  const gdcm::PixelFormat format = gdcm::ImageHelper::GetPixelFormatValue(f);
+  uint64_t pixel_bytes =
+      (uint64_t(format.GetBitsAllocated()) + 7) / 8 * format.GetSamplesPerPixel();
+  for (unsigned int d : dims) pixel_bytes *= d;
+  check_pixel_data(where, file, reader.GetStreamCurrentPosition(), pixel_bytes);
+}
+
 void check_dicom_slices(const std::string& directory, const std::vector<std::string>& files) {
   const std::string where = "DICOM series in '" + directory + "'";
   std::vector<DicomSlice> slices;
   for (const std::string& file : files) {
     gdcm::Reader reader;
-    reader.SetFileName(file.c_str());
-    // Reads every element before the pixel data and that element's header, not its value.
-    const gdcm::Tag pixel_data(0x7fe0, 0x0010);
-    if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
-      throw FileError("cannot read " + where + ": slice '" + file_name(file) +
-                      "' is not a readable DICOM file");
+    read_checked_dicom_header(reader, file, where + ": slice '" + file_name(file) + "'");
     const gdcm::File& f = reader.GetFile();
-    const std::vector<unsigned int> dims = gdcm::ImageHelper::GetDimensionsValue(f);
-    const gdcm::PixelFormat format = gdcm::ImageHelper::GetPixelFormatValue(f);
-    uint64_t pixel_bytes =
-        (uint64_t(format.GetBitsAllocated()) + 7) / 8 * format.GetSamplesPerPixel();
-    for (unsigned int d : dims) pixel_bytes *= d;
-    check_pixel_data(directory, file, reader.GetStreamCurrentPosition(), pixel_bytes);
     DicomSlice slice;
     slice.file = file;
     slice.has_position = f.GetDataSet().FindDataElement(gdcm::Tag(0x0020, 0x0032)) &&
@@ -634,6 +641,10 @@ Volume read_image_file(const std::string& path, int64_t* colour_pixels) {
   const ImageFormat format = image_format(path, "volume");
   if (format == ImageFormat::Nifti) check_nifti_header(path);
   check_text_header(path, format);
+  if (format == ImageFormat::Dicom) {  // GDCM reads pixel data cut short with zeros
+    gdcm::Reader reader;
+    read_checked_dicom_header(reader, path, "volume '" + path + "'");
+  }
   // ITK's libraries print to std::cerr (MetaIO's header errors, VNL's remarks on a near-singular
   // orientation): held here, to become the error's cause or one warning.
   std::optional<Volume> volume;

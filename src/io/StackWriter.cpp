@@ -165,6 +165,10 @@ StackFormat stack_format(const std::string& path) {
       return StackFormat::ItkImage;
     case ImageFormat::Directory:
       return StackFormat::PngDirectory;
+    case ImageFormat::Dicom:
+      throw InputError("output '" + path +
+                       "': sonoslice reads DICOM but does not write it; write a stack as "
+                       ".nii.gz, .mha, .nrrd, .npy or a directory of PNGs");
     case ImageFormat::Png:
       break;
   }

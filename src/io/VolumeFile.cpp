@@ -250,6 +250,8 @@ const char* to_string(ImageFormat format) {
       return "NRRD";
     case ImageFormat::Png:
       return "PNG";
+    case ImageFormat::Dicom:
+      return "DICOM";
     case ImageFormat::Directory:
       return "directory";
   }
@@ -264,11 +266,13 @@ ImageFormat image_format(const std::string& path, const std::string& what) {
   if (ext == ".mha" || ext == ".mhd") return ImageFormat::MetaImage;
   if (ext == ".nrrd" || ext == ".nhdr") return ImageFormat::Nrrd;
   if (ext == ".png") return ImageFormat::Png;
+  if (ext == ".dcm") return ImageFormat::Dicom;
   std::error_code ec;
   if (ext.empty() || (!path.empty() && path.back() == '/') || fs::is_directory(path, ec))
     return ImageFormat::Directory;
   throw InputError(what + " '" + path + "': unknown format '" + ext +
-                   "' (expected .nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr, .npy or .png)");
+                   "' (expected .nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr, .npy or .png; .dcm to "
+                   "read)");
 }
 
 bool needs_itk(ImageFormat format) {
@@ -279,6 +283,7 @@ bool needs_itk(ImageFormat format) {
     case ImageFormat::MetaImage:
     case ImageFormat::Nrrd:
     case ImageFormat::Png:
+    case ImageFormat::Dicom:
     case ImageFormat::Directory:
       return true;
   }
@@ -286,11 +291,18 @@ bool needs_itk(ImageFormat format) {
 }
 
 namespace {
+[[noreturn]] void throw_dicom_is_read_only(const std::string& path, const std::string& what) {
+  throw InputError(what + " '" + path +
+                   "': sonoslice reads DICOM but does not write it; write .nii.gz, .mha, .nrrd "
+                   "or .npy");
+}
+
 void check_writable(const std::string& path, const std::string& what, bool two_d) {
   const ImageFormat format = image_format(path, what);
   if (format == ImageFormat::Directory)
     throw InputError(what + " '" + path + "': give a file name with an extension (.nii.gz, " +
                      ".mha, .nrrd, .npy" + (two_d ? ", .png" : "") + ")");
+  if (format == ImageFormat::Dicom) throw_dicom_is_read_only(path, what);
   if (format == ImageFormat::Png && !two_d)
     throw InputError(what + " '" + path + "': PNG holds 2-D images; write a volume as .nii.gz, " +
                      ".mha, .nrrd or .npy");
@@ -474,6 +486,7 @@ void write_image(const std::string& path, const void* data, PixelType type,
   const ImageFormat format = image_format(path, "output");
   if (format == ImageFormat::Directory)
     throw InputError("output '" + path + "': give a file name with an extension");
+  if (format == ImageFormat::Dicom) throw_dicom_is_read_only(path, "output");
   if (format == ImageFormat::Npy) {
     std::vector<int64_t> shape(dims.rbegin(), dims.rend());  // C order: slowest axis first
     if (components == 3) shape.push_back(3);
@@ -509,6 +522,7 @@ void write_volume(const std::string& path, const Volume& volume, OutputSet* toge
   const VolumeGrid& g = volume.grid();
   g.validate("output '" + path + "'");  // a file that can be read back (ITK aborts on some)
   const ImageFormat format = image_format(path, "output");
+  if (format == ImageFormat::Dicom) throw_dicom_is_read_only(path, "output");
   if (format == ImageFormat::Directory || format == ImageFormat::Png)
     throw InputError("output '" + path + "': write a volume as .nii.gz, .mha, .nrrd or .npy");
   if (format == ImageFormat::Npy) {

@@ -1,10 +1,12 @@
 // Volumes in and out with their full geometry: NIfTI, MetaImage, NRRD, DICOM series, .npy.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <limits>
 #include <sstream>
@@ -22,6 +24,7 @@
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/Npy.h"
+#include "sonoslice/io/StackWriter.h"
 #include "sonoslice/io/VolumeFile.h"
 
 namespace sonoslice {
@@ -223,6 +226,77 @@ TEST(DicomSeries, BrokenSeriesAreRefused) {
     write_dicom_series(hu, dir.path().string(), uid, 1.0, 0.0, {0, 1, 2, 3, 4, 5.5});
     EXPECT_NE(error_of(dir.path().string()).find("spacing"), std::string::npos);
   }
+}
+
+// Writes `frames` (W x H x N, T = uint8_t or itk::RGBPixel<uint8_t>) as one multi-frame DICOM
+// file, as an ultrasound scanner stores a clip.
+template <typename T>
+void write_dicom_clip(const std::string& path, int w, int h, int n,
+                      const std::function<T(int, int, int)>& value) {
+  using Image = itk::Image<T, 3>;
+  auto image = Image::New();
+  typename Image::SizeType size;
+  size[0] = itk::SizeValueType(w);
+  size[1] = itk::SizeValueType(h);
+  size[2] = itk::SizeValueType(n);
+  image->SetRegions(typename Image::RegionType(size));
+  image->Allocate();
+  for (int k = 0; k < n; ++k)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) image->SetPixel({{x, y, k}}, value(x, y, k));
+  itk::EncapsulateMetaData<std::string>(image->GetMetaDataDictionary(), "0008|0060", "US");
+  auto writer = itk::ImageFileWriter<Image>::New();
+  writer->SetImageIO(itk::GDCMImageIO::New());
+  writer->SetInput(image);
+  writer->SetFileName(path);
+  writer->Update();
+}
+
+// A recorded clip is one DICOM file of N frames: read as a stack of N frames (colour ones as their
+// first component, as every frame reader does); truncated pixel data is refused, not read as
+// zeros; sonoslice does not write DICOM.
+TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
+  test::TempDir dir;
+  const auto grey = [](int x, int y, int k) { return uint8_t((x * 7 + y * 3 + k * 50) % 256); };
+  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 30, 20, 4, grey);
+  const Volume clip = read_image_stack(dir.file("clip.dcm"), "--frames");
+  ASSERT_EQ(clip.pixel_type(), PixelType::UInt8);
+  ASSERT_EQ(clip.grid().dims, (std::array<int64_t, 3>{30, 20, 4}));
+  for (int k = 0; k < 4; ++k)
+    for (int y = 0; y < 20; ++y)
+      for (int x = 0; x < 30; ++x)
+        ASSERT_EQ(clip.data_as<uint8_t>()[(k * 20 + y) * 30 + x], grey(x, y, k));
+  using Rgb = itk::RGBPixel<uint8_t>;
+  write_dicom_clip<Rgb>(dir.file("colour.dcm"), 30, 20, 3, [&](int x, int y, int k) {
+    Rgb p;
+    p[0] = grey(x, y, k);
+    p[1] = p[2] = uint8_t(x < 5 ? 255 : p[0]);  // a coloured overlay on the left
+    return p;
+  });
+  const Volume colour = read_image_stack(dir.file("colour.dcm"), "--frames");
+  ASSERT_EQ(colour.grid().dims, (std::array<int64_t, 3>{30, 20, 3}));
+  EXPECT_EQ(colour.data_as<uint8_t>()[(2 * 20 + 7) * 30 + 11], grey(11, 7, 2));
+  // Cut short inside the pixel data.
+  fs::copy_file(dir.file("clip.dcm"), dir.file("short.dcm"));
+  fs::resize_file(dir.file("short.dcm"), fs::file_size(dir.file("short.dcm")) - 700);
+  try {
+    read_image_stack(dir.file("short.dcm"), "--frames");
+    ADD_FAILURE() << "a truncated clip was read";
+  } catch (const FileError& e) {
+    EXPECT_NE(std::string(e.what()).find("short.dcm': truncated or corrupt file"),
+              std::string::npos)
+        << e.what();
+  }
+  try {
+    write_volume(dir.file("out.dcm"), clip);
+    ADD_FAILURE() << "a DICOM file was written";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("sonoslice reads DICOM but does not write it"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dir.file("out.dcm")));
+  EXPECT_THROW(stack_format(dir.file("stack.dcm")), InputError);
 }
 
 // A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path

@@ -73,6 +73,7 @@ enum class ImageFormat {
   MetaImage,  ///< .mha, .mhd (ITK)
   Nrrd,       ///< .nrrd, .nhdr (ITK)
   Png,        ///< .png, 2-D only (ITK)
+  Dicom,      ///< .dcm: one DICOM file (a multi-frame ultrasound clip, a slice), read only (ITK)
   Directory   ///< no extension: a DICOM series to read, or a folder of PNGs to write
 };
 const char* to_string(ImageFormat format);  ///< "npy", "NIfTI", "MetaImage", "NRRD", ...
