@@ -500,9 +500,40 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
   if (value_offset > size || in.gcount() < 12 ||
       (std::memcmp(h + 4, kTag, 4) != 0 && std::memcmp(h, kTag, 4) != 0))
     throw FileError("cannot read " + where + ": truncated or corrupt file (no pixel data)");
-  const uint64_t length =
-      uint64_t(h[8]) | uint64_t(h[9]) << 8 | uint64_t(h[10]) << 16 | uint64_t(h[11]) << 24;
-  if (length == 0xffffffffu) return;  // encapsulated (compressed) fragments: GDCM decodes them
+  const auto le32 = [](const unsigned char* b) {
+    return uint64_t(b[0]) | uint64_t(b[1]) << 8 | uint64_t(b[2]) << 16 | uint64_t(b[3]) << 24;
+  };
+  const uint64_t length = le32(h + 8);
+  if (length == 0xffffffffu) {
+    // Encapsulated (compressed) frames, which GDCM decodes: every item (FFFE,E000) must fit in
+    // the file, up to the sequence delimiter (FFFE,E0DD). (GDCM's words for a file cut inside
+    // them: "Failed to change to Implicit Transfer Syntax".)
+    uint64_t at = value_offset;
+    for (;;) {
+      unsigned char item[8] = {0};
+      in.clear();
+      in.seekg(std::streamoff(at));
+      in.read(reinterpret_cast<char*>(item), sizeof item);
+      if (in.gcount() < 8)
+        throw FileError("cannot read " + where +
+                        ": truncated file (its compressed pixel data ends at byte " +
+                        std::to_string(size) + ", before its last fragment)");
+      const unsigned group = item[0] | item[1] << 8, element = item[2] | item[3] << 8;
+      if (group != 0xfffe || (element != 0xe000 && element != 0xe0dd))
+        throw FileError("cannot read " + where +
+                        ": corrupt file (compressed pixel data without its fragment items)");
+      at += 8;
+      if (element == 0xe0dd) return;
+      const uint64_t n = le32(item + 4);
+      if (at + n > size) {
+        std::ostringstream s;
+        s << "cannot read " << where << ": truncated file (a fragment of its compressed pixel "
+          << "data needs " << at + n << " bytes, the file has " << size << ")";
+        throw FileError(s.str());
+      }
+      at += n;
+    }
+  }
   if (value_offset + length > size) {
     std::ostringstream s;
     s << "cannot read " << where << ": truncated or corrupt file (its pixel data needs "

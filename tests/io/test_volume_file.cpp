@@ -232,7 +232,7 @@ TEST(DicomSeries, BrokenSeriesAreRefused) {
 // file, as an ultrasound scanner stores a clip.
 template <typename T>
 void write_dicom_clip(const std::string& path, int w, int h, int n,
-                      const std::function<T(int, int, int)>& value) {
+                      const std::function<T(int, int, int)>& value, bool compressed = false) {
   using Image = itk::Image<T, 3>;
   auto image = Image::New();
   typename Image::SizeType size;
@@ -245,8 +245,13 @@ void write_dicom_clip(const std::string& path, int w, int h, int n,
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) image->SetPixel({{x, y, k}}, value(x, y, k));
   itk::EncapsulateMetaData<std::string>(image->GetMetaDataDictionary(), "0008|0060", "US");
+  auto io = itk::GDCMImageIO::New();
   auto writer = itk::ImageFileWriter<Image>::New();
-  writer->SetImageIO(itk::GDCMImageIO::New());
+  if (compressed) {  // lossless JPEG, encapsulated in fragments
+    io->SetCompressionType(itk::GDCMImageIO::JPEG);
+    writer->UseCompressionOn();
+  }
+  writer->SetImageIO(io);
   writer->SetInput(image);
   writer->SetFileName(path);
   writer->Update();
@@ -297,6 +302,19 @@ TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
   }
   EXPECT_FALSE(fs::exists(dir.file("out.dcm")));
   EXPECT_THROW(stack_format(dir.file("stack.dcm")), InputError);
+  // Compressed frames: the same pixels; cut inside a fragment: refused, not decoded short.
+  write_dicom_clip<uint8_t>(dir.file("jpeg.dcm"), 30, 20, 4, grey, /*compressed=*/true);
+  const Volume jpeg = read_image_stack(dir.file("jpeg.dcm"), "--frames");
+  ASSERT_EQ(jpeg.grid().dims, clip.grid().dims);
+  EXPECT_EQ(std::memcmp(jpeg.data(), clip.data(), clip.byte_size()), 0);
+  fs::resize_file(dir.file("jpeg.dcm"), fs::file_size(dir.file("jpeg.dcm")) - 100);
+  try {
+    read_image_stack(dir.file("jpeg.dcm"), "--frames");
+    ADD_FAILURE() << "a truncated compressed clip was read";
+  } catch (const FileError& e) {
+    EXPECT_NE(std::string(e.what()).find("jpeg.dcm': truncated file"), std::string::npos)
+        << e.what();
+  }
 }
 
 // A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path
