@@ -38,7 +38,7 @@ from ._version import __version__
 from .compounding import (BeamGeometry, Compounder, FrameClip, Grid, HoleFillingElement, clip_mask, grid_around,
                           grid_around_beams)
 from .devices import cuda_available, devices, set_threads, threads
-from .files import read_poses, validate_poses, write_poses, write_stack
+from .files import read_poses, read_stack, validate_poses, write_poses, write_stack
 from .live import LiveCompounder, LiveCompoundServer
 from .phantom import PHANTOM_LABELS, phantom, phantom_poses, surface_poses
 from .plus import (PlusConfig, PlusSequence, TransformRepository, plus_image_to_reference, read_plus_config,
@@ -54,7 +54,7 @@ from .volume import Volume
 
 __all__ = [
     "Volume", "Probe", "Slicer", "devices", "cuda_available", "set_threads", "threads",
-    "read_poses", "write_poses", "validate_poses", "write_stack", "phantom", "phantom_poses",
+    "read_poses", "write_poses", "validate_poses", "read_stack", "write_stack", "phantom", "phantom_poses",
     "surface_poses", "PHANTOM_LABELS", "Mesh", "voxelize", "SurfaceSlicer", "colorize", "cut_polygons",
     "fanslicer_models", "__version__",
     # freehand reconstruction (sonoslice.compounding) and PLUS files (sonoslice.plus)

@@ -9,7 +9,7 @@ import numpy as np
 from . import _arrays
 from . import _sonoslice as _ext
 
-__all__ = ["read_poses", "write_poses", "validate_poses", "write_stack"]
+__all__ = ["read_poses", "write_poses", "validate_poses", "read_stack", "write_stack"]
 
 
 def read_poses(path, world: str = "LPS") -> np.ndarray:
@@ -26,6 +26,15 @@ def write_poses(path, poses) -> None:
 def validate_poses(poses, source: str = "poses") -> None:
     """Raises ValueError naming the first bad pose (docs/conventions.md §2); warns once for non-orthonormal ones."""
     _ext.validate_poses(_arrays.pose_array(poses), source)
+
+
+def read_stack(path) -> np.ndarray:
+    """An (N, H, W) stack of 2-D frames, as ``compound --frames``, ``register --frames`` and
+    ``view --images`` read them: any stack :func:`write_stack` writes (.nii[.gz]/.mha/.nrrd W×H×N,
+    .npy, a folder of PNGs read in name order), a scanner's multi-frame DICOM clip (.dcm), one 2-D
+    .npy image as a stack of one; colour frames as their first component (one warning when the
+    colours differ). The pixels keep their stored dtype."""
+    return _ext.read_stack(_arrays.path(path, "path"))
 
 
 def write_stack(path, images, spacing_mm: Sequence[float], window: Optional[Sequence[float]] = None,

@@ -96,6 +96,19 @@ void bind_io(nb::module_& m) {
       },
       "path"_a, "poses"_a);
   m.def(
+      "read_stack",
+      [](const std::string& path) {
+        auto stack = std::make_shared<Volume>();
+        {
+          nb::gil_scoped_release release;
+          *stack = read_image_stack(path, "stack");
+        }
+        const auto& d = stack->grid().dims;
+        return numpy_view(stack->data(), {size_t(d[2]), size_t(d[1]), size_t(d[0])},
+                          stack->pixel_type(), stack);
+      },
+      "path"_a);
+  m.def(
       "write_stack",
       [](const std::string& path, HostPixels images, std::pair<double, double> spacing,
          std::optional<std::pair<double, double>> window, std::optional<Matrices> poses,

@@ -186,6 +186,12 @@ def test_write_stack_and_poses(tmp_path, phantom, poses):
     assert back.shape == (12, 80, 96) and np.array_equal(back.array, images)
     sonoslice.write_stack(tmp_path / "pngs", images, (0.8, 0.8), window=(40, 400), poses=poses)
     assert (tmp_path / "pngs" / "img_00011.png").exists()
+    # read_stack reads back what write_stack writes, as the commands' frame readers do.
+    assert np.array_equal(sonoslice.read_stack(tmp_path / "s.nii.gz"), images)
+    pngs = sonoslice.read_stack(tmp_path / "pngs")
+    assert pngs.shape == images.shape and pngs.dtype == np.uint8
+    with pytest.raises(OSError, match="stack '.*missing.dcm': no such file"):
+        sonoslice.read_stack(tmp_path / "missing.dcm")
     sonoslice.write_poses(tmp_path / "p.txt", poses)
     assert np.allclose(sonoslice.read_poses(tmp_path / "p.txt"), poses)
     with pytest.warns(UserWarning, match="not orthonormal"):
