@@ -25,6 +25,7 @@ import pyigtl
 
 import sonoslice
 from sonoslice.live import plus_frames, serve
+from benchcommon import CLI
 
 ROOT = Path(__file__).resolve().parent.parent
 SEQUENCE = ROOT / "data/plus/BoneUltrasound_L14.igs.mha"
@@ -53,7 +54,7 @@ def run(label, frames, args, extra):
         out, stats = os.path.join(tmp, "volume.mha"), os.path.join(tmp, "stats.json")
         server = serve("compound", "--config", str(CONFIG), "--out", out, "--stats", stats,
                        "--max-frames", str(args.frames), "--queue", args.queue, "-q",
-                       "--threads", str(args.threads), *extra, stderr=subprocess.DEVNULL)
+                       "--threads", str(args.threads), *extra, cli=CLI, stderr=subprocess.DEVNULL)
         seconds = send(server.port, frames, args.frames, args.rate)
         if server.wait(timeout=120) != 0:
             sys.exit(f"{label}: sonoslice live compound failed")

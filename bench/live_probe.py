@@ -26,6 +26,7 @@ from pyigtl.messages import MessageBase
 
 import sonoslice
 from sonoslice.live import serve
+from benchcommon import CLI
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PROBE = os.path.join(ROOT, "data", "fanslicer", "models_intensity_LUS_config.json")
@@ -78,10 +79,10 @@ def main(argv=None):
         common = ["--threads", str(a.threads), "--stats", stats_path]
         if a.simulate:
             server = serve("simulate", "--volume", ct_path, "--preset", "lus", *common,
-                           stderr=subprocess.DEVNULL)
+                           cli=CLI, stderr=subprocess.DEVNULL)
         else:
             server = serve("slice", "--volume", ct_path, "--probe", PROBE, "--downsampling", "2", *common,
-                           stderr=subprocess.DEVNULL)
+                           cli=CLI, stderr=subprocess.DEVNULL)
         with server:
             sock = socket.create_connection(("127.0.0.1", server.port))
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
