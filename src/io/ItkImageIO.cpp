@@ -40,6 +40,7 @@
 
 #include <itkOutputWindow.h>
 
+#include "DicomStructure.h"
 #include "NiftiData.h"
 #include "TextParse.h"
 #include "sonoslice/core/Error.h"
@@ -500,40 +501,10 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
   if (value_offset > size || in.gcount() < 12 ||
       (std::memcmp(h + 4, kTag, 4) != 0 && std::memcmp(h, kTag, 4) != 0))
     throw FileError("cannot read " + where + ": truncated or corrupt file (no pixel data)");
-  const auto le32 = [](const unsigned char* b) {
-    return uint64_t(b[0]) | uint64_t(b[1]) << 8 | uint64_t(b[2]) << 16 | uint64_t(b[3]) << 24;
-  };
-  const uint64_t length = le32(h + 8);
-  if (length == 0xffffffffu) {
-    // Encapsulated (compressed) frames, which GDCM decodes: every item (FFFE,E000) must fit in
-    // the file, up to the sequence delimiter (FFFE,E0DD). (GDCM's words for a file cut inside
-    // them: "Failed to change to Implicit Transfer Syntax".)
-    uint64_t at = value_offset;
-    for (;;) {
-      unsigned char item[8] = {0};
-      in.clear();
-      in.seekg(std::streamoff(at));
-      in.read(reinterpret_cast<char*>(item), sizeof item);
-      if (in.gcount() < 8)
-        throw FileError("cannot read " + where +
-                        ": truncated file (its compressed pixel data ends at byte " +
-                        std::to_string(size) + ", before its last fragment)");
-      const unsigned group = item[0] | item[1] << 8, element = item[2] | item[3] << 8;
-      if (group != 0xfffe || (element != 0xe000 && element != 0xe0dd))
-        throw FileError("cannot read " + where +
-                        ": corrupt file (compressed pixel data without its fragment items)");
-      at += 8;
-      if (element == 0xe0dd) return;
-      const uint64_t n = le32(item + 4);
-      if (at + n > size) {
-        std::ostringstream s;
-        s << "cannot read " << where << ": truncated file (a fragment of its compressed pixel "
-          << "data needs " << at + n << " bytes, the file has " << size << ")";
-        throw FileError(s.str());
-      }
-      at += n;
-    }
-  }
+  const uint64_t length =
+      uint64_t(h[8]) | uint64_t(h[9]) << 8 | uint64_t(h[10]) << 16 | uint64_t(h[11]) << 24;
+  // Encapsulated (compressed) frames: dicom::check_structure() has walked their fragments.
+  if (length == 0xffffffffu) return;
   if (value_offset + length > size) {
     std::ostringstream s;
     s << "cannot read " << where << ": truncated or corrupt file (its pixel data needs "
@@ -548,11 +519,22 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
   }
 }
 
+// Every DICOM file of a folder, before GDCM's scan for series parses them all (one broken file
+// aborts it): named in the folder's words.
+void check_dicom_folder(const std::string& directory) {
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator(directory, ec))
+    if (entry.is_regular_file(ec))
+      dicom::check_structure(entry.path().string(), "DICOM directory '" + directory + "': file '" +
+                                                        entry.path().filename().string() + "'");
+}
+
 // Reads the elements of `file` before its pixel data (and that element's header, not its value)
 // into `reader`, and checks the pixel data: it must fit in the file and hold the image's pixels
 // (every frame of a multi-frame file). `where` names the file in messages.
 void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
                                const std::string& where) {
+  dicom::check_structure(file, where);  // before GDCM, which aborts on broken structure
   reader.SetFileName(file.c_str());
   const gdcm::Tag pixel_data(0x7fe0, 0x0010);
   if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
@@ -730,6 +712,7 @@ Volume read_image_file(const std::string& path, int64_t* colour_pixels) {
 
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
   register_factories();
+  check_dicom_folder(directory);
   try {
     auto names = itk::GDCMSeriesFileNames::New();
     names->SetUseSeriesDetails(true);
@@ -745,6 +728,7 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
 
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid) {
   register_factories();
+  check_dicom_folder(directory);
   try {
     auto names = itk::GDCMSeriesFileNames::New();
     names->SetUseSeriesDetails(true);

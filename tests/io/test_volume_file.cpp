@@ -317,6 +317,67 @@ TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
   }
 }
 
+// GDCM asserts (aborting the process) on broken DICOM structure; sonoslice walks the file first
+// and refuses it, for one file and for a folder of a series alike.
+TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
+  test::TempDir dir;
+  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2,
+                            [](int x, int y, int k) { return uint8_t(x + y + k); });
+  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
+  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto corrupted = [&](const std::string& name, const std::string& element,
+                             const std::string& replacement) {
+    std::string bytes = good;
+    const size_t at = bytes.find(element);
+    EXPECT_NE(at, std::string::npos) << name;
+    bytes.replace(at, replacement.size(), replacement);
+    std::ofstream(dir.file(name), std::ios::binary) << bytes;
+    return dir.file(name);
+  };
+  const auto error_of_stack = [](const std::string& path) {
+    try {
+      read_image_stack(path, "--frames");
+    } catch (const FileError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no FileError");
+  };
+  // The transfer syntax's length (file meta group) beyond the end of the file.
+  const std::string syntax("\x02\x00\x10\x00UI", 6);
+  const std::string meta = corrupted("meta.dcm", syntax, syntax + std::string("\xf0\xff", 2));
+  EXPECT_NE(error_of_stack(meta).find("meta.dcm': truncated or corrupt file (element (0002,0010)"),
+            std::string::npos)
+      << error_of_stack(meta);
+  // ITK writes implicit VR little endian: tag, 32-bit length, value.
+  // Samples per pixel 2.
+  const std::string samples("\x28\x00\x02\x00\x02\x00\x00\x00", 8);
+  const std::string two = corrupted("samples.dcm", samples, samples + std::string("\x02\x00", 2));
+  EXPECT_NE(error_of_stack(two).find("samples per pixel 2"), std::string::npos)
+      << error_of_stack(two);
+  // A length past the end of the file.
+  const std::string columns("\x28\x00\x11\x00", 4);
+  const std::string length =
+      corrupted("length.dcm", columns, columns + std::string("\xf0\xff\xff\x00", 4));
+  EXPECT_NE(error_of_stack(length).find("element (0028,0011) needs"), std::string::npos)
+      << error_of_stack(length);
+  // The ultrasound region without its vertical delta (GDCM asserts reading the spacing).
+  const std::string delta = corrupted("delta.dcm", std::string("\x18\x00\x2e\x60\x08\x00", 6),
+                                      std::string("\x18\x00\x2e\xef", 4));
+  EXPECT_NE(error_of_stack(delta).find("lacks the physical delta (0018,602E)"), std::string::npos)
+      << error_of_stack(delta);
+  // A folder holding one such file: every series read is refused, naming it.
+  test::TempDir folder;
+  fs::copy_file(meta, folder.file("broken.dcm"));
+  try {
+    read_volume(folder.path().string());
+    ADD_FAILURE() << "a folder with a broken DICOM file was read";
+  } catch (const FileError& e) {
+    EXPECT_NE(std::string(e.what()).find("file 'broken.dcm': truncated or corrupt"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
 // A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path
 // steps aside for it.
 TEST(VolumeFile, NiftiRescaleSlopeAndIntercept) {

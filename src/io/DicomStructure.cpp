@@ -1,0 +1,352 @@
+// DICOM Part 10 structure, walked before GDCM reads a file (DicomStructure.h says why).
+#include "DicomStructure.h"
+
+#include <sys/types.h>
+
+#include <cctype>
+#include <cerrno>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <sstream>
+
+#include "sonoslice/core/Error.h"
+
+namespace sonoslice {
+namespace dicom {
+namespace {
+
+constexpr uint32_t kUndefined = 0xffffffffu;
+constexpr int kMaxDepth = 32;  // sequences within sequences; deeper is not an image's header
+
+std::string hex4(unsigned v) {
+  char s[8];
+  std::snprintf(s, sizeof s, "%04X", v & 0xffffu);
+  return s;
+}
+
+std::string tag_text(unsigned group, unsigned element) {
+  return "(" + hex4(group) + "," + hex4(element) + ")";
+}
+
+bool known_vr(const char* vr) {
+  static const char* const kVrs[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FD", "FL",
+                                     "IS", "LO", "LT", "OB", "OD", "OF", "OL", "OV", "OW",
+                                     "PN", "SH", "SL", "SQ", "SS", "ST", "SV", "TM", "UC",
+                                     "UI", "UL", "UN", "UR", "US", "UT", "UV"};
+  for (const char* k : kVrs)
+    if (vr[0] == k[0] && vr[1] == k[1]) return true;
+  return false;
+}
+
+// Explicit VRs whose length is 32 bits, after two reserved bytes.
+bool long_vr(const char* vr) {
+  static const char* const kLong[] = {"OB", "OD", "OF", "OL", "OV", "OW", "SQ",
+                                      "SV", "UC", "UN", "UR", "UT", "UV"};
+  for (const char* k : kLong)
+    if (vr[0] == k[0] && vr[1] == k[1]) return true;
+  return false;
+}
+
+struct Element {
+  unsigned group = 0, element = 0;
+  char vr[2] = {0, 0};  // explicit VR only
+  uint32_t length = 0;
+  uint64_t value_at = 0;
+};
+
+class Walker {
+ public:
+  Walker(std::FILE* f, uint64_t size, std::string where)
+      : f_(f), size_(size), where_(std::move(where)) {}
+
+  void check() {
+    // The file meta group (0002): explicit VR little endian, whatever the data set's syntax.
+    uint64_t at = 132;
+    std::string syntax;
+    bool have_syntax = false;
+    for (;;) {
+      uint8_t tag[4];
+      if (!read(at, tag, 4)) fail("truncated file (it ends in its file meta information)");
+      if ((tag[0] | tag[1] << 8) != 0x0002) break;
+      const Element e = header(at, size_, /*explicit_vr=*/true, /*little=*/true);
+      if (e.length == kUndefined) fail("corrupt file (a file meta element of undefined length)");
+      fits(e, size_);
+      if (e.element == 0x0010) {
+        syntax.assign(e.length, '\0');
+        if (e.length && !read(e.value_at, &syntax[0], e.length)) fail("truncated file");
+        while (!syntax.empty() && (syntax.back() == '\0' || syntax.back() == ' '))
+          syntax.pop_back();
+        have_syntax = true;
+      }
+      at = e.value_at + e.length;
+    }
+    if (syntax == "1.2.840.10008.1.2.1.99") return;  // deflated: GDCM inflates, then reads
+    rle_ = syntax == "1.2.840.10008.1.2.5";
+    bool explicit_vr = syntax != "1.2.840.10008.1.2";
+    little_ = syntax != "1.2.840.10008.1.2.2";
+    if (!have_syntax) {  // no transfer syntax: explicit when the first VR reads as one
+      uint8_t first[6];
+      explicit_vr =
+          read(at, first, 6) && std::isupper(int(first[4])) && std::isupper(int(first[5]));
+    }
+    walk(at, size_, explicit_vr, 0, /*top=*/true, /*until_delimiter=*/false);
+  }
+
+ private:
+  std::FILE* f_;
+  uint64_t size_;
+  std::string where_;
+  bool little_ = true;
+  bool rle_ = false;  // RLE Lossless: each frame's fragment starts with its segment table
+
+  [[noreturn]] void fail(const std::string& why) const {
+    throw FileError("cannot read " + where_ + ": " + why);
+  }
+
+  bool read(uint64_t at, void* out, size_t n) const {
+    if (at > size_ || n > size_ - at) return false;
+    if (::fseeko(f_, off_t(at), SEEK_SET) != 0) return false;
+    return std::fread(out, 1, n, f_) == n;
+  }
+  unsigned u16(const uint8_t* b, bool little) const {
+    return little ? unsigned(b[0] | b[1] << 8) : unsigned(b[0] << 8 | b[1]);
+  }
+  uint32_t u32(const uint8_t* b, bool little) const {
+    return little
+               ? uint32_t(b[0]) | uint32_t(b[1]) << 8 | uint32_t(b[2]) << 16 | uint32_t(b[3]) << 24
+               : uint32_t(b[3]) | uint32_t(b[2]) << 8 | uint32_t(b[1]) << 16 | uint32_t(b[0]) << 24;
+  }
+
+  // The element header at `at`, which must end before `end`. Items and delimiters (group FFFE)
+  // have no VR in either syntax.
+  Element header(uint64_t at, uint64_t end, bool explicit_vr, bool little) const {
+    uint8_t h[12];
+    const auto need = [&](uint64_t n) {
+      if (at + n > end || !read(at, h, size_t(n)))
+        fail(end == size_ ? "truncated file (it ends inside an element's header at byte " +
+                                std::to_string(at) + ")"
+                          : "corrupt file (an element's header at byte " + std::to_string(at) +
+                                " crosses the end of its item)");
+    };
+    need(8);
+    Element e;
+    e.group = u16(h, little);
+    e.element = u16(h + 2, little);
+    if (e.group == 0xfffe || !explicit_vr) {
+      e.length = u32(h + 4, little);
+      e.value_at = at + 8;
+      return e;
+    }
+    e.vr[0] = char(h[4]);
+    e.vr[1] = char(h[5]);
+    if (!known_vr(e.vr))
+      fail("corrupt file (element " + tag_text(e.group, e.element) + " at byte " +
+           std::to_string(at) + " has no valid value representation)");
+    if (long_vr(e.vr)) {
+      need(12);
+      e.length = u32(h + 8, little);
+      e.value_at = at + 12;
+    } else {
+      e.length = u16(h + 6, little);
+      e.value_at = at + 8;
+    }
+    return e;
+  }
+
+  // A defined length must end within `end`: the file, or the item holding the element.
+  void fits(const Element& e, uint64_t end) const {
+    if (e.value_at + e.length <= end) return;
+    std::ostringstream s;
+    if (e.group == 0x7fe0 && e.element == 0x0010)
+      s << "truncated or corrupt file (its pixel data needs " << e.value_at + e.length
+        << " bytes, the file has " << size_ << ")";
+    else if (end == size_)
+      s << "truncated or corrupt file (element " << tag_text(e.group, e.element) << " needs "
+        << e.value_at + e.length << " bytes, the file has " << size_ << ")";
+    else
+      s << "corrupt file (element " << tag_text(e.group, e.element) << " at byte " << e.value_at
+        << " runs past the end of its item)";
+    fail(s.str());
+  }
+
+  // Elements from `at` to `end` (or, `until_delimiter`, to an item delimiter); returns where the
+  // walk stopped. `top`: the data set itself, whose image attributes are checked. `children`:
+  // where to note each element's tag (group << 16 | element) and length.
+  uint64_t walk(uint64_t at, uint64_t end, bool explicit_vr, int depth, bool top,
+                bool until_delimiter, std::map<uint32_t, uint32_t>* children = nullptr) {
+    if (depth > kMaxDepth) fail("corrupt file (sequences nested deeper than 32)");
+    while (at < end) {
+      const Element e = header(at, end, explicit_vr, little_);
+      if (e.group == 0xfffe) {
+        if (until_delimiter && e.element == 0xe00d) return e.value_at;
+        fail("corrupt file (a delimiter " + tag_text(e.group, e.element) + " at byte " +
+             std::to_string(at) + " out of place)");
+      }
+      if (children) (*children)[uint32_t(e.group) << 16 | e.element] = e.length;
+      const bool pixel_data = e.group == 0x7fe0 && e.element == 0x0010;
+      const bool regions = top && e.group == 0x0018 && e.element == 0x6011;
+      Regions first_region;
+      const bool sequence =
+          !explicit_vr || (e.vr[0] == 'S' && e.vr[1] == 'Q') || (e.vr[0] == 'U' && e.vr[1] == 'N');
+      if (e.length == kUndefined) {
+        if (pixel_data) {
+          at = fragments(e.value_at, end);
+          if (top) return at;
+        } else if (sequence) {
+          // An undefined-length UN is a sequence in implicit VR (PS3.5 6.2.2).
+          at = items(e.value_at, end, explicit_vr && e.vr[0] != 'U', depth + 1, true,
+                     regions ? &first_region : nullptr);
+          if (regions) check_regions(first_region);
+        } else {
+          fail("corrupt file (element " + tag_text(e.group, e.element) +
+               " has an undefined length)");
+        }
+        continue;
+      }
+      fits(e, end);
+      if ((explicit_vr && e.vr[0] == 'S' && e.vr[1] == 'Q') || (regions && !explicit_vr)) {
+        items(e.value_at, e.value_at + e.length, explicit_vr, depth + 1, false,
+              regions ? &first_region : nullptr);
+        if (regions) check_regions(first_region);
+      }
+      if (top && e.group == 0x0028 && e.element == 0x0002 && e.length >= 2) {
+        uint8_t v[2];
+        if (!read(e.value_at, v, 2)) fail("truncated file");
+        const unsigned samples = u16(v, little_);
+        if (samples != 1 && samples != 3 && samples != 4)
+          fail("corrupt file (samples per pixel " + std::to_string(samples) +
+               ": DICOM images have 1, 3 or 4)");
+      }
+      at = e.value_at + e.length;
+      // What follows the pixel data (padding, at times junk) is not read for the image.
+      if (top && pixel_data) return at;
+    }
+    if (until_delimiter) fail("truncated file (an item without its delimiter)");
+    return at;
+  }
+
+  // The first item of a sequence: whether there is one, and its elements' tags and lengths.
+  struct Regions {
+    bool found = false;
+    std::map<uint32_t, uint32_t> children;
+  };
+
+  // An ultrasound image's regions (0018,6011): GDCM reads the physical size of a pixel from the
+  // first one and asserts unless it holds both deltas, (0018,602C) and (0018,602E), FD of one
+  // value each.
+  void check_regions(const Regions& first) const {
+    if (!first.found) fail("corrupt file (its ultrasound regions (0018,6011) hold no item)");
+    for (const uint32_t tag : {0x0018602cu, 0x0018602eu}) {
+      const auto it = first.children.find(tag);
+      if (it == first.children.end() || it->second != 8)
+        fail("corrupt file (its first ultrasound region lacks the physical delta " +
+             tag_text(tag >> 16, tag & 0xffff) + ", one 8-byte value)");
+    }
+  }
+
+  // The items of a sequence from `at`: to `end` (a defined length), or, `undefined`, to the
+  // sequence delimiter. Returns the position after the sequence. `first`: where to note the
+  // first item's elements.
+  uint64_t items(uint64_t at, uint64_t end, bool explicit_vr, int depth, bool undefined,
+                 Regions* first = nullptr) {
+    while (at < end) {
+      const Element item = header(at, end, explicit_vr, little_);
+      if (item.group == 0xfffe && item.element == 0xe0dd) return item.value_at;
+      if (item.group != 0xfffe || item.element != 0xe000)
+        fail("corrupt file (a sequence holds " + tag_text(item.group, item.element) + " at byte " +
+             std::to_string(at) + " where an item belongs)");
+      std::map<uint32_t, uint32_t>* children = nullptr;
+      if (first && !first->found) {
+        first->found = true;
+        children = &first->children;
+      }
+      if (item.length == kUndefined) {
+        at =
+            walk(item.value_at, end, explicit_vr, depth, false, /*until_delimiter=*/true, children);
+      } else {
+        fits(item, end);
+        walk(item.value_at, item.value_at + item.length, explicit_vr, depth, false, false,
+             children);
+        at = item.value_at + item.length;
+      }
+    }
+    if (undefined)
+      fail(end == size_ ? "truncated file (a sequence without its delimiter)"
+                        : "corrupt file (a sequence runs past the end of its item)");
+    return at;
+  }
+
+  // Encapsulated (compressed) pixel data: items to the sequence delimiter, each within the file.
+  uint64_t fragments(uint64_t at, uint64_t end) {
+    bool first_item = true;  // the basic offset table
+    for (;;) {
+      uint8_t h[8];
+      if (at + 8 > end || !read(at, h, 8))
+        fail("truncated file (its compressed pixel data ends at byte " + std::to_string(size_) +
+             ", before its last fragment)");
+      const unsigned group = u16(h, true), element = u16(h + 2, true);
+      if (group != 0xfffe || (element != 0xe000 && element != 0xe0dd))
+        fail("corrupt file (compressed pixel data without its fragment items)");
+      at += 8;
+      if (element == 0xe0dd) return at;
+      const uint64_t n = u32(h + 4, true);
+      if (at + n > end) {
+        std::ostringstream s;
+        s << "truncated file (a fragment of its compressed pixel data needs " << at + n
+          << " bytes, the file has " << size_ << ")";
+        fail(s.str());
+      }
+      if (rle_ && !first_item) rle_segments(at, n);
+      first_item = false;
+      at += n;
+    }
+  }
+
+  // An RLE frame's header (PS3.5 G.3.1): the segment count (1 to 15) and their offsets, the
+  // first 64, ascending, within the fragment, the unused ones 0. GDCM's decoder reads past its
+  // buffers on a broken one.
+  void rle_segments(uint64_t at, uint64_t length) const {
+    uint8_t h[64];
+    if (length < 64 || !read(at, h, 64))
+      fail("corrupt file (an RLE frame shorter than its 64-byte header)");
+    const uint32_t segments = u32(h, true);
+    bool ok = segments >= 1 && segments <= 15 && u32(h + 4, true) == 64;
+    for (uint32_t i = 1; ok && i < 15; ++i) {
+      const uint32_t offset = u32(h + 4 + 4 * i, true);
+      ok = i < segments ? offset > u32(h + 4 * i, true) && offset < length : offset == 0;
+    }
+    if (!ok)
+      fail("corrupt file (an RLE frame's segment table at byte " + std::to_string(at) +
+           " is broken)");
+  }
+};
+
+}  // namespace
+
+bool has_part10_preamble(const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) return false;
+  char magic[4] = {0};
+  const bool ok = std::fseek(f, 128, SEEK_SET) == 0 && std::fread(magic, 1, 4, f) == 4 &&
+                  std::memcmp(magic, "DICM", 4) == 0;
+  std::fclose(f);
+  return ok;
+}
+
+void check_structure(const std::string& path, const std::string& where) {
+  if (!has_part10_preamble(path)) return;
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) throw FileError("cannot read " + where + ": " + std::strerror(errno));
+  struct Close {
+    std::FILE* f;
+    ~Close() { std::fclose(f); }
+  } close{f};
+  if (::fseeko(f, 0, SEEK_END) != 0) throw FileError("cannot read " + where + ": cannot seek");
+  const uint64_t size = uint64_t(::ftello(f));
+  Walker(f, size, where).check();
+}
+
+}  // namespace dicom
+}  // namespace sonoslice
