@@ -11,6 +11,8 @@
 #include <csetjmp>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #endif
 
 namespace sonoslice {
@@ -127,7 +129,10 @@ extern "C" void on_png_read_error(png_structp png, png_const_charp message) {
 }
 
 // 0 on success. Plain C between setjmp and the end (see PngState); `out` is sized first.
-int decode(PngSource* src, DecodedPng* out) {
+// `any_layout`: also palette, grey+alpha, RGBA, 1- to 4-bit grey and interlaced images, as
+// libpng expands them (palette to RGB, transparency to alpha); otherwise the grey and RGB
+// images of 8 or 16 bits that sonoslice writes.
+int decode(PngSource* src, DecodedPng* out, bool any_layout) {
   png_structp png =
       png_create_read_struct(PNG_LIBPNG_VER_STRING, src, on_png_read_error, on_png_warning);
   png_infop info = png ? png_create_info_struct(png) : nullptr;
@@ -143,19 +148,35 @@ int decode(PngSource* src, DecodedPng* out) {
   png_set_read_fn(png, src, on_png_read);
   png_read_info(png, info);
   const int color = png_get_color_type(png, info), depth = png_get_bit_depth(png, info);
-  if ((color != PNG_COLOR_TYPE_GRAY && color != PNG_COLOR_TYPE_RGB) || depth < 8 ||
-      png_get_interlace_type(png, info) != PNG_INTERLACE_NONE)
+  int passes = 1;
+  if (any_layout) {
+    if (color == PNG_COLOR_TYPE_PALETTE) png_set_palette_to_rgb(png);
+    if (color == PNG_COLOR_TYPE_GRAY && depth < 8) png_set_expand_gray_1_2_4_to_8(png);
+    if (png_get_valid(png, info, PNG_INFO_tRNS)) png_set_tRNS_to_alpha(png);
+    passes = png_set_interlace_handling(png);
+  } else if ((color != PNG_COLOR_TYPE_GRAY && color != PNG_COLOR_TYPE_RGB) || depth < 8 ||
+             png_get_interlace_type(png, info) != PNG_INTERLACE_NONE) {
     png_error(png, "not an 8- or 16-bit grey or RGB PNG");
+  }
   if (depth == 16) png_set_swap(png);  // to native (little-endian) order
+  png_read_update_info(png, info);
   out->width = int(png_get_image_width(png, info));
   out->height = int(png_get_image_height(png, info));
-  out->components = color == PNG_COLOR_TYPE_RGB ? 3 : 1;
-  out->bit_depth = depth;
+  out->components = png_get_channels(png, info);
+  out->bit_depth = png_get_bit_depth(png, info);
+  int unit = 0;
+  double sx = 0, sy = 0;
+  // ITK's convention for the pixel spacing (write_png writes it so): the sCAL values in mm.
+  if (png_get_sCAL(png, info, &unit, &sx, &sy) && sx > 0 && sy > 0 && sx < 1e9 && sy < 1e9) {
+    out->spacing_mm[0] = sx;
+    out->spacing_mm[1] = sy;
+  }
   const size_t row = png_get_rowbytes(png, info);
   if (size_t(out->height) * row > size_t(1) << 31) png_error(png, "image too large");
   out->pixels.resize(size_t(out->height) * row);
-  for (int r = 0; r < out->height; ++r)
-    png_read_row(png, out->pixels.data() + size_t(r) * row, nullptr);
+  for (int pass = 0; pass < passes; ++pass)
+    for (int r = 0; r < out->height; ++r)
+      png_read_row(png, out->pixels.data() + size_t(r) * row, nullptr);
   png_read_end(png, nullptr);
   png_destroy_read_struct(&png, &info, nullptr);
   return 0;
@@ -193,8 +214,23 @@ DecodedPng decode_png(const uint8_t* data, size_t size, const std::string& what)
     throw InputError(what + ": not a PNG (no PNG signature)");
   PngSource src{data, size, 0, {}};
   DecodedPng out;
-  if (decode(&src, &out) != 0)
+  if (decode(&src, &out, false) != 0)
     throw InputError(what + ": cannot decode the PNG (" + src.message + ")");
+  return out;
+}
+
+DecodedPng read_png_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw FileError("cannot read image '" + path + "': " + std::strerror(errno));
+  const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
+                                   std::istreambuf_iterator<char>());
+  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (bytes.size() < 8 || std::memcmp(bytes.data(), kSignature, 8) != 0)
+    throw FileError("cannot read image '" + path + "': not a PNG (no PNG signature)");
+  PngSource src{bytes.data(), bytes.size(), 0, {}};
+  DecodedPng out;
+  if (decode(&src, &out, true) != 0)
+    throw FileError("cannot read image '" + path + "': corrupt PNG (" + src.message + ")");
   return out;
 }
 
@@ -214,6 +250,10 @@ std::vector<uint8_t> encode_png(const void*, PixelType, int, int, int, const dou
 
 DecodedPng decode_png(const uint8_t*, size_t, const std::string& what) {
   throw Error(what + ": this sonoslice was built without libpng");
+}
+
+DecodedPng read_png_file(const std::string& path) {
+  throw Error("'" + path + "': this sonoslice was built without libpng");
 }
 
 #endif

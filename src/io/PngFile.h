@@ -18,4 +18,10 @@ namespace sonoslice {
 void write_png(int fd, const std::string& path, const void* pixels, PixelType type, int width,
                int height, int components, const double spacing_mm[2]);
 
+/// A PNG file of any layout (grey, grey+alpha, RGB, RGBA; palettes expanded to RGB, transparency
+/// to alpha, 1- to 4-bit grey to 8 bits, interlacing undone), through libpng with its errors
+/// caught: FileError naming the file for a corrupt one. (ITK's PNG reader lets libpng abort the
+/// process on a corrupt header.)
+DecodedPng read_png_file(const std::string& path);
+
 }  // namespace sonoslice

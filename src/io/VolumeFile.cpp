@@ -278,11 +278,11 @@ ImageFormat image_format(const std::string& path, const std::string& what) {
 bool needs_itk(ImageFormat format) {
   switch (format) {
     case ImageFormat::Npy:
+    case ImageFormat::Png:  // libpng
       return false;
     case ImageFormat::Nifti:
     case ImageFormat::MetaImage:
     case ImageFormat::Nrrd:
-    case ImageFormat::Png:
     case ImageFormat::Dicom:
     case ImageFormat::Directory:
       return true;
@@ -308,7 +308,7 @@ void check_writable(const std::string& path, const std::string& what, bool two_d
                      ".mha, .nrrd or .npy");
   if (format == ImageFormat::Png && !built_with_png())
     throw Error(what + " '" + path + "': this sonoslice was built without libpng; write .npy");
-  if (format != ImageFormat::Png && needs_itk(format) && !built_with_itk())
+  if (needs_itk(format) && !built_with_itk())
     throw Error(what + " '" + path + "': this sonoslice was built without ITK; write .npy");
   check_output_path(path);
 }
@@ -337,6 +337,32 @@ Volume warn_non_finite(Volume v, const std::string& path) {
 namespace {
 // `colour_pixels` given: the file holds frames, whose RGB or RGBA pixels are read as their first
 // component (itk_io::read_image_file); otherwise a volume, whose components are refused.
+/// A PNG as a W×H×1 image through libpng (read_png_file: its errors caught, which ITK's PNG reader
+/// does not do): with `colour_pixels` (frames), RGB and RGBA as their first component; a volume
+/// has one.
+Volume read_png_image(const std::string& path, int64_t* colour_pixels) {
+  const DecodedPng png = read_png_file(path);
+  const bool colour = png.components == 3 || png.components == 4;
+  if (png.components != 1 && colour_pixels && !colour)
+    throw InputError("image '" + path + "': " + std::to_string(png.components) +
+                     " components (frames have 1, or 3 or 4: RGB, RGBA)");
+  if (png.components != 1 && !colour_pixels)
+    throw InputError("volume '" + path + "': a PNG of " + std::to_string(png.components) +
+                     " components (sonoslice slices scalar volumes)");
+  VolumeGrid g;
+  g.dims = {png.width, png.height, 1};
+  g.spacing_mm = {png.spacing_mm[0], png.spacing_mm[1], 1.0};
+  g.validate("volume '" + path + "'");
+  const PixelType type = png.bit_depth == 16 ? PixelType::UInt16 : PixelType::UInt8;
+  Volume image = Volume::allocate(type, g);
+  if (png.components == 1)
+    std::memcpy(image.data(), png.pixels.data(), image.byte_size());
+  else
+    *colour_pixels += first_component(png.pixels.data(), type, g.voxel_count(), png.components,
+                                      static_cast<uint8_t*>(image.data()));
+  return image;
+}
+
 Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& options,
                              int64_t* colour_pixels = nullptr) {
   std::error_code ec;
@@ -350,6 +376,7 @@ Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& o
         "': spacing, origin, direction and a fan-slicer npy config apply to .npy volumes only "
         "(this file carries its own geometry)");
   if (format == ImageFormat::Npy) return read_npy_volume(path, options);
+  if (format == ImageFormat::Png) return read_png_image(path, colour_pixels);
   if (!options.series_uid.empty() && !fs::is_directory(path, ec))
     throw ParameterError("series_uid", "applies to DICOM directories; '" + path + "' is a file");
 #ifdef SONOSLICE_HAVE_ITK
@@ -442,13 +469,11 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
   if (ec) throw FileError(what + " '" + path + "': cannot list the folder (" + ec.message() + ")");
   if (files.empty()) throw InputError(what + " '" + path + "': a folder without .png images");
   std::sort(files.begin(), files.end());
-#ifdef SONOSLICE_HAVE_ITK
   Volume stack;
   int64_t colour_pixels = 0;
   for (size_t k = 0; k < files.size(); ++k) {
-    const Volume image = itk_io::read_image_file(files[k], &colour_pixels);
+    const Volume image = read_png_image(files[k], &colour_pixels);
     const VolumeGrid& g = image.grid();
-    if (g.dims[2] != 1) throw InputError(what + " '" + files[k] + "': not a 2-D image");
     if (k == 0) {
       VolumeGrid grid = g;
       grid.dims[2] = int64_t(files.size());
@@ -465,9 +490,6 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
   }
   warn_colour_frames(what, path, colour_pixels, stack.grid().voxel_count());
   return stack;
-#else
-  no_itk(path);
-#endif
 }
 
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {

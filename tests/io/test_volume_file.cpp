@@ -378,6 +378,31 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   }
 }
 
+// libpng aborts the process on a corrupt PNG header unless its caller catches the error (ITK's
+// PNG reader does not): frames in a folder and PNG images are read through sonoslice's libpng
+// code, which names the file.
+TEST(PngFile, CorruptImagesInAFolderAreNamed) {
+  test::TempDir dir;
+  const std::vector<uint8_t> pixels(12 * 10, 7);
+  for (const char* name : {"a.png", "b.png"})
+    write_image(dir.file(name), pixels.data(), PixelType::UInt8, {12, 10}, {0.5, 0.5});
+  EXPECT_EQ(read_image_stack(dir.path().string(), "--frames").grid().dims,
+            (std::array<int64_t, 3>{12, 10, 2}));
+  EXPECT_DOUBLE_EQ(read_volume(dir.file("a.png")).grid().spacing_mm[0], 0.5);  // sCAL, as ITK
+  std::fstream f(dir.file("b.png"), std::ios::binary | std::ios::in | std::ios::out);
+  f.seekp(29);  // IHDR's CRC
+  f.write("\xde\xad", 2);
+  f.close();
+  try {
+    read_image_stack(dir.path().string(), "--frames");
+    ADD_FAILURE() << "a corrupt PNG was read";
+  } catch (const FileError& e) {
+    EXPECT_NE(std::string(e.what()).find("b.png': corrupt PNG (IHDR: CRC error)"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
 // A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path
 // steps aside for it.
 TEST(VolumeFile, NiftiRescaleSlopeAndIntercept) {

@@ -23,6 +23,7 @@ std::vector<uint8_t> encode_png(const void* pixels, PixelType type, int width, i
 struct DecodedPng {
   int width = 0, height = 0, components = 1, bit_depth = 8;
   std::vector<uint8_t> pixels;
+  double spacing_mm[2] = {1, 1};  ///< the sCAL chunk's values (ITK's convention), else 1
 };
 /// Decodes PNG bytes (palette and grey-alpha images are refused: no sonoslice writes them);
 /// InputError naming `what` for bytes that are not a PNG it can read.

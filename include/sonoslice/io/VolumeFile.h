@@ -80,7 +80,7 @@ const char* to_string(ImageFormat format);  ///< "npy", "NIfTI", "MetaImage", "N
 /// The format of `path` from its extension (an existing directory, a path ending in '/' or one
 /// without extension: Directory). InputError naming `what` and the path otherwise.
 ImageFormat image_format(const std::string& path, const std::string& what = "file");
-/// True for formats that need ITK (all but .npy).
+/// True for formats that need ITK (all but .npy and .png).
 bool needs_itk(ImageFormat format);
 
 /// Checks, before any work, that `path` names a volume file this build can write (a 3-D format)
