@@ -325,24 +325,18 @@ class Walker {
 
 }  // namespace
 
-bool has_part10_preamble(const std::string& path) {
-  std::FILE* f = std::fopen(path.c_str(), "rb");
-  if (!f) return false;
-  char magic[4] = {0};
-  const bool ok = std::fseek(f, 128, SEEK_SET) == 0 && std::fread(magic, 1, 4, f) == 4 &&
-                  std::memcmp(magic, "DICM", 4) == 0;
-  std::fclose(f);
-  return ok;
-}
-
 void check_structure(const std::string& path, const std::string& where) {
-  if (!has_part10_preamble(path)) return;
   std::FILE* f = std::fopen(path.c_str(), "rb");
   if (!f) throw FileError("cannot read " + where + ": " + std::strerror(errno));
   struct Close {
     std::FILE* f;
     ~Close() { std::fclose(f); }
   } close{f};
+  // A Part 10 file: a 128-byte preamble, then "DICM".
+  char magic[4] = {0};
+  if (std::fseek(f, 128, SEEK_SET) != 0 || std::fread(magic, 1, 4, f) != 4 ||
+      std::memcmp(magic, "DICM", 4) != 0)
+    return;
   if (::fseeko(f, 0, SEEK_END) != 0) throw FileError("cannot read " + where + ": cannot seek");
   const uint64_t size = uint64_t(::ftello(f));
   Walker(f, size, where).check();

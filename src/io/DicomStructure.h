@@ -15,9 +15,6 @@
 namespace sonoslice {
 namespace dicom {
 
-/// True when `path` starts as a DICOM Part 10 file: a 128-byte preamble, then "DICM".
-bool has_part10_preamble(const std::string& path);
-
 /// FileError "cannot read <where>: ..." for a Part 10 file whose elements do not fit together
 /// (truncated, a length beyond its item or file, a missing delimiter, an unknown VR) or whose
 /// samples per pixel GDCM would assert on. A file without the preamble is left to GDCM, which

@@ -531,10 +531,10 @@ void check_dicom_folder(const std::string& directory) {
 
 // Reads the elements of `file` before its pixel data (and that element's header, not its value)
 // into `reader`, and checks the pixel data: it must fit in the file and hold the image's pixels
-// (every frame of a multi-frame file). `where` names the file in messages.
+// (every frame of a multi-frame file). `where` names the file in messages. The caller has had
+// dicom::check_structure() walk the file first (GDCM aborts on broken structure).
 void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
                                const std::string& where) {
-  dicom::check_structure(file, where);  // before GDCM, which aborts on broken structure
   reader.SetFileName(file.c_str());
   const gdcm::Tag pixel_data(0x7fe0, 0x0010);
   if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
@@ -548,6 +548,7 @@ void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
   check_pixel_data(where, file, reader.GetStreamCurrentPosition(), pixel_bytes);
 }
 
+// The series' files have been walked by check_dicom_folder().
 void check_dicom_slices(const std::string& directory, const std::vector<std::string>& files) {
   const std::string where = "DICOM series in '" + directory + "'";
   std::vector<DicomSlice> slices;
@@ -655,6 +656,7 @@ Volume read_image_file(const std::string& path, int64_t* colour_pixels) {
   if (format == ImageFormat::Nifti) check_nifti_header(path);
   check_text_header(path, format);
   if (format == ImageFormat::Dicom) {  // GDCM reads pixel data cut short with zeros
+    dicom::check_structure(path, "volume '" + path + "'");
     gdcm::Reader reader;
     read_checked_dicom_header(reader, path, "volume '" + path + "'");
   }

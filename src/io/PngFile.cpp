@@ -11,8 +11,10 @@
 #include <csetjmp>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
-#include <iterator>
+#include <filesystem>
+#include <memory>
+
+#include "MappedFile.h"
 #endif
 
 namespace sonoslice {
@@ -220,14 +222,15 @@ DecodedPng decode_png(const uint8_t* data, size_t size, const std::string& what)
 }
 
 DecodedPng read_png_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw FileError("cannot read image '" + path + "': " + std::strerror(errno));
-  const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)),
-                                   std::istreambuf_iterator<char>());
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(path, ec);
+  if (ec) throw FileError("cannot read image '" + path + "': " + ec.message());
   static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  if (bytes.size() < 8 || std::memcmp(bytes.data(), kSignature, 8) != 0)
+  const std::shared_ptr<void> mapped = size < 8 ? nullptr : map_file_region(path, 0, size);
+  const auto* bytes = static_cast<const uint8_t*>(mapped.get());
+  if (!bytes || std::memcmp(bytes, kSignature, 8) != 0)
     throw FileError("cannot read image '" + path + "': not a PNG (no PNG signature)");
-  PngSource src{bytes.data(), bytes.size(), 0, {}};
+  PngSource src{bytes, size_t(size), 0, {}};
   DecodedPng out;
   if (decode(&src, &out, true) != 0)
     throw FileError("cannot read image '" + path + "': corrupt PNG (" + src.message + ")");

@@ -335,8 +335,6 @@ Volume warn_non_finite(Volume v, const std::string& path) {
 }  // namespace
 
 namespace {
-// `colour_pixels` given: the file holds frames, whose RGB or RGBA pixels are read as their first
-// component (itk_io::read_image_file); otherwise a volume, whose components are refused.
 /// A PNG as a W×H×1 image through libpng (read_png_file: its errors caught, which ITK's PNG reader
 /// does not do): with `colour_pixels` (frames), RGB and RGBA as their first component; a volume
 /// has one.
@@ -363,6 +361,8 @@ Volume read_png_image(const std::string& path, int64_t* colour_pixels) {
   return image;
 }
 
+// `colour_pixels` given: the file holds frames, whose RGB or RGBA pixels are read as their first
+// component; otherwise a volume, whose components are refused.
 Volume read_volume_as_stored(const std::string& path, const VolumeReadOptions& options,
                              int64_t* colour_pixels = nullptr) {
   std::error_code ec;
