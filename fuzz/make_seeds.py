@@ -105,6 +105,118 @@ def igtl_seeds():
                                          image[12:] + bytes(2 * w * h) * 3))
 
 
+# DICOM Part 10 (PS3.10): a 128-byte preamble, "DICM", the meta group (always explicit VR little
+# endian), then the data set in the transfer syntax the meta group names.
+EXPLICIT, IMPLICIT, RLE = "1.2.840.10008.1.2.1", "1.2.840.10008.1.2", "1.2.840.10008.1.2.5"
+LONG_VRS = {"OB", "OD", "OF", "OL", "OV", "OW", "SQ", "SV", "UC", "UN", "UR", "UT", "UV"}
+
+
+def dicom_element(group, element, vr, value, explicit=True, undefined=False):
+    if isinstance(value, str):
+        value = value.encode()
+        value += (b"\0" if vr == "UI" else b" ") * (len(value) % 2)
+    length = 0xFFFFFFFF if undefined else len(value)
+    tag = struct.pack("<HH", group, element)
+    if not explicit or group == 0xFFFE:
+        return tag + struct.pack("<I", length) + value
+    if vr in LONG_VRS:
+        return tag + vr.encode() + b"\0\0" + struct.pack("<I", length) + value
+    return tag + vr.encode() + struct.pack("<H", length) + value
+
+
+def dicom_item(content, undefined=False):
+    if undefined:
+        return dicom_element(0xFFFE, 0xE000, "", content, undefined=True) + struct.pack("<HHI", 0xFFFE, 0xE00D, 0)
+    return dicom_element(0xFFFE, 0xE000, "", content)
+
+
+def rle_frame(pixels, samples):
+    """One RLE Lossless frame (PS3.5 G): one segment per byte plane, literal runs of <= 128."""
+    planes = [pixels[s::samples] for s in range(samples)]
+    segments = []
+    for plane in planes:
+        seg = b"".join(bytes([len(plane[i:i + 128]) - 1]) + plane[i:i + 128] for i in range(0, len(plane), 128))
+        segments.append(seg + b"\0" * (len(seg) % 2))
+    offsets, at = [], 64
+    for seg in segments:
+        offsets.append(at)
+        at += len(seg)
+    return struct.pack("<16I", len(segments), *(offsets + [0] * (15 - len(offsets)))) + b"".join(segments)
+
+
+def dicom_clip(w, h, frames, samples=1, bits=8, syntax=EXPLICIT, regions=True, big=False):
+    """A multi-frame ultrasound clip in `syntax`, with a regions sequence holding the deltas."""
+    explicit = syntax != IMPLICIT
+    e = lambda g, el, vr, v, **kw: dicom_element(g, el, vr, v, explicit=explicit, **kw)
+    us = lambda v: struct.pack("<H", v)
+    meta_body = (dicom_element(2, 1, "OB", b"\0\1") +
+                 dicom_element(2, 2, "UI", "1.2.840.10008.5.1.4.1.1.3.1") +
+                 dicom_element(2, 3, "UI", "1.2.826.0.1.3680043.2.1125.9.%d.%d" % (w, frames)) +
+                 dicom_element(2, 0x10, "UI", syntax) + dicom_element(2, 0x12, "UI", "1.2.826.0.1.3680043.2.1125"))
+    meta = dicom_element(2, 0, "UL", struct.pack("<I", len(meta_body))) + meta_body
+    body = (e(8, 0x16, "UI", "1.2.840.10008.5.1.4.1.1.3.1") + e(8, 0x18, "UI", "1.2.826.0.1.3680043.2.1125.9.1") +
+            e(8, 0x60, "CS", "US"))
+    if regions:
+        region = (e(0x18, 0x6012, "US", us(1)) + e(0x18, 0x6014, "US", us(1)) + e(0x18, 0x6024, "US", us(3)) +
+                  e(0x18, 0x6026, "US", us(3)) + e(0x18, 0x602C, "FD", struct.pack("<d", 0.02)) +
+                  e(0x18, 0x602E, "FD", struct.pack("<d", 0.03)))
+        body += e(0x18, 0x6011, "SQ", dicom_item(region, undefined=big), undefined=big) + \
+            (struct.pack("<HHI", 0xFFFE, 0xE0DD, 0) if big else b"")
+    body += e(0x28, 2, "US", us(samples)) + e(0x28, 4, "CS", "MONOCHROME2" if samples == 1 else "RGB")
+    if samples == 3:
+        body += e(0x28, 6, "US", us(0))
+    body += (e(0x28, 8, "IS", str(frames)) + e(0x28, 0x10, "US", us(h)) + e(0x28, 0x11, "US", us(w)) +
+             e(0x28, 0x30, "DS", "0.3\\0.2") + e(0x28, 0x100, "US", us(bits)) + e(0x28, 0x101, "US", us(bits)) +
+             e(0x28, 0x102, "US", us(bits - 1)) + e(0x28, 0x103, "US", us(0)))
+    size = w * h * samples * bits // 8
+    frame = [bytes((x * 5 + y * 3 + k * 11 + i) % 256 for i in range(size)) for k in range(frames)
+             for x, y in [(k, k)]]
+    if syntax == RLE:
+        items = dicom_item(b"") + b"".join(dicom_item(rle_frame(f, samples)) for f in frame)
+        body += e(0x7FE0, 0x10, "OB", items, undefined=True) + struct.pack("<HHI", 0xFFFE, 0xE0DD, 0)
+    else:
+        pixels = b"".join(frame)
+        body += e(0x7FE0, 0x10, "OB" if bits == 8 else "OW", pixels + b"\0" * (len(pixels) % 2))
+    return b"\0" * 128 + b"DICM" + meta + body
+
+
+def dicom_seeds():
+    put("dicom", "clip-u8-explicit.dcm", dicom_clip(6, 4, 3))
+    put("dicom", "clip-u8-implicit.dcm", dicom_clip(6, 4, 2, syntax=IMPLICIT))
+    put("dicom", "clip-u8-undefined-regions.dcm", dicom_clip(5, 4, 2, big=True))
+    put("dicom", "clip-rgb-explicit.dcm", dicom_clip(4, 3, 2, samples=3))
+    put("dicom", "clip-u16-noregions.dcm", dicom_clip(4, 3, 2, bits=16, regions=False))
+    put("dicom", "clip-u8-rle.dcm", dicom_clip(6, 4, 2, syntax=RLE))
+    put("dicom", "clip-rgb-rle.dcm", dicom_clip(4, 3, 2, samples=3, syntax=RLE))
+    put("dicom", "single-frame.dcm", dicom_clip(6, 4, 1, regions=False))
+    put("dicom", "truncated.dcm", dicom_clip(6, 4, 3)[:-9])
+
+
+# PNG (ISO/IEC 15948): the signature, then chunks (length, type, data, CRC-32).
+def png_chunk(kind, data):
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def png(w, h, colour, depth, rows, extra=b"", palette=None):
+    """A PNG of `rows` (packed scanlines, filter 0 each) in colour type `colour`, bit depth `depth`."""
+    out = b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, colour, 0, 0, 0))
+    out += extra + (png_chunk(b"PLTE", palette) if palette else b"")
+    return out + png_chunk(b"IDAT", zlib.compress(b"".join(b"\0" + r for r in rows))) + png_chunk(b"IEND", b"")
+
+
+def png_seeds():
+    grey = [bytes((x * 40 + y * 7) % 256 for x in range(6)) for y in range(4)]
+    put("png", "grey8.png", png(6, 4, 0, 8, grey))
+    put("png", "grey8-scal.png", png(6, 4, 0, 8, grey, extra=png_chunk(b"sCAL", b"\x02" + b"0.0003\x000.0002")))
+    put("png", "grey16.png", png(3, 2, 0, 16, [struct.pack(">3H", 1, 300, 65535), struct.pack(">3H", 7, 0, 9)]))
+    put("png", "rgb8.png", png(2, 2, 2, 8, [bytes(range(6)), bytes(range(6, 12))]))
+    put("png", "rgba8.png", png(2, 2, 6, 8, [bytes(range(8)), bytes(range(8, 16))]))
+    put("png", "grey-alpha8.png", png(2, 2, 4, 8, [bytes(range(4)), bytes(range(4, 8))]))
+    put("png", "palette4.png", png(4, 2, 3, 4, [b"\x01\x23", b"\x20\x10"], palette=bytes(range(12))))
+    put("png", "grey1.png", png(9, 2, 0, 1, [b"\xa5\x80", b"\x5a\x00"]))
+    put("png", "truncated.png", png(6, 4, 0, 8, grey)[:-20])
+
+
 def main():
     if os.path.isdir(OUT):
         shutil.rmtree(OUT)
@@ -323,6 +435,8 @@ def main():
     put("mesh_obj", "garbage.obj", "v 1 2\nf 0 0 0\nf 1 2 999999\nv nan inf -inf\nvt\nmtllib x.mtl\n")
 
     igtl_seeds()
+    dicom_seeds()
+    png_seeds()
 
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(OUT) for f in fs)
     print("fuzz/corpus: %d files, %d KB" % (sum(len(fs) for _, _, fs in os.walk(OUT)), total // 1024))

@@ -3,6 +3,7 @@
 
 #include <sys/types.h>
 
+#include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <cstdint>
@@ -49,6 +50,29 @@ bool long_vr(const char* vr) {
   return false;
 }
 
+// Attributes GDCM reads into typed values when it reads an image, with their value
+// representations (PS3.6); an explicit VR it does not find compatible is an assertion in GDCM.
+struct TypedAttribute {
+  uint32_t tag;
+  const char* vrs;  // the VRs allowed, two characters each
+};
+constexpr TypedAttribute kTypedAttributes[] = {
+    {0x00180050, "DS"},   {0x00180088, "DS"},   {0x00181164, "DS"},   {0x0018602c, "FD"},
+    {0x0018602e, "FD"},   {0x00200032, "DS"},   {0x00200037, "DS"},   {0x00280002, "US"},
+    {0x00280006, "US"},   {0x00280008, "IS"},   {0x00280009, "AT"},   {0x00280010, "US"},
+    {0x00280011, "US"},   {0x00280030, "DS"},   {0x00280034, "IS"},   {0x00280100, "US"},
+    {0x00280101, "US"},   {0x00280102, "US"},   {0x00280103, "US"},   {0x00280106, "USSS"},
+    {0x00280107, "USSS"}, {0x00281050, "DS"},   {0x00281051, "DS"},   {0x00281052, "DS"},
+    {0x00281053, "DS"},   {0x00281101, "USSS"}, {0x00281102, "USSS"}, {0x00281103, "USSS"},
+    {0x3004000c, "DS"}};
+
+// The VRs `tag` may have when GDCM reads it typed, or nullptr for any.
+const char* typed_vrs(uint32_t tag) {
+  for (const TypedAttribute& a : kTypedAttributes)
+    if (a.tag == tag) return a.vrs;
+  return nullptr;
+}
+
 struct Element {
   unsigned group = 0, element = 0;
   char vr[2] = {0, 0};  // explicit VR only
@@ -61,17 +85,44 @@ class Walker {
   Walker(std::FILE* f, uint64_t size, std::string where)
       : f_(f), size_(size), where_(std::move(where)) {}
 
-  void check() {
-    // The file meta group (0002): explicit VR little endian, whatever the data set's syntax.
-    uint64_t at = 132;
+  // `part10`: the file has the preamble and "DICM"; otherwise its first element starts it.
+  void check(bool part10) {
+    uint64_t at = part10 ? 132 : 0;
+    uint8_t first[6];
+    if (!read(at, first, 6)) fail("truncated file (shorter than one element)");
+    const unsigned group = u16(first, true), element = u16(first + 2, true);
+    const bool first_vr = known_vr(reinterpret_cast<const char*>(first + 4));
+    if (!part10 && group != 0x0002) {
+      // No file meta information: the syntax guessed from the first element, as GDCM does.
+      if (group == 0x0800 ||
+          (first_vr && group != 0x0008 && element != 0x0010 && (group > 0xff || element > 0xff)))
+        little_ = false;
+      if (!first_vr && group != 0x0008 && group != 0x0800 && element != 0x0010)
+        fail("not a DICOM file (no \"DICM\" at byte 128, and it does not start with an element)");
+      check_tail(walk(0, size_, first_vr, 0, /*top=*/true, /*until_delimiter=*/false), first_vr);
+      check_pixel_format();
+      return;
+    }
+    // GDCM takes a Part 10 file's meta group to start with its group length, (0002,0000) UL, and
+    // reads one that does not by guesswork that this walk cannot follow.
+    if (part10 && !(group == 0x0002 && element == 0x0000 && first[4] == 'U' && first[5] == 'L'))
+      fail(
+          "corrupt file (its file meta information does not start with its group length "
+          "(0002,0000))");
+    // The file meta group (0002): explicit VR little endian, whatever the data set's syntax
+    // (implicit in some files without the preamble, which GDCM reads).
+    const bool meta_explicit = part10 || first_vr;
     std::string syntax;
     bool have_syntax = false;
     for (;;) {
       uint8_t tag[4];
       if (!read(at, tag, 4)) fail("truncated file (it ends in its file meta information)");
       if ((tag[0] | tag[1] << 8) != 0x0002) break;
-      const Element e = header(at, size_, /*explicit_vr=*/true, /*little=*/true);
+      const Element e = header(at, size_, meta_explicit, /*little=*/true);
       if (e.length == kUndefined) fail("corrupt file (a file meta element of undefined length)");
+      if (e.vr[0] == 'S' && e.vr[1] == 'Q')
+        fail("corrupt file (a sequence " + tag_text(e.group, e.element) +
+             " in its file meta information)");
       fits(e, size_);
       if (e.element == 0x0010) {
         syntax.assign(e.length, '\0');
@@ -87,11 +138,12 @@ class Walker {
     bool explicit_vr = syntax != "1.2.840.10008.1.2";
     little_ = syntax != "1.2.840.10008.1.2.2";
     if (!have_syntax) {  // no transfer syntax: explicit when the first VR reads as one
-      uint8_t first[6];
-      explicit_vr =
-          read(at, first, 6) && std::isupper(int(first[4])) && std::isupper(int(first[5]));
+      uint8_t next[6];
+      explicit_vr = read(at, next, 6) && known_vr(reinterpret_cast<const char*>(next + 4));
     }
-    walk(at, size_, explicit_vr, 0, /*top=*/true, /*until_delimiter=*/false);
+    check_tail(walk(at, size_, explicit_vr, 0, /*top=*/true, /*until_delimiter=*/false),
+               explicit_vr);
+    check_pixel_format();
   }
 
  private:
@@ -173,9 +225,9 @@ class Walker {
 
   // Elements from `at` to `end` (or, `until_delimiter`, to an item delimiter); returns where the
   // walk stopped. `top`: the data set itself, whose image attributes are checked. `children`:
-  // where to note each element's tag (group << 16 | element) and length.
+  // where to note each element (its header) by tag (group << 16 | element).
   uint64_t walk(uint64_t at, uint64_t end, bool explicit_vr, int depth, bool top,
-                bool until_delimiter, std::map<uint32_t, uint32_t>* children = nullptr) {
+                bool until_delimiter, std::map<uint32_t, Element>* children = nullptr) {
     if (depth > kMaxDepth) fail("corrupt file (sequences nested deeper than 32)");
     while (at < end) {
       const Element e = header(at, end, explicit_vr, little_);
@@ -184,8 +236,10 @@ class Walker {
         fail("corrupt file (a delimiter " + tag_text(e.group, e.element) + " at byte " +
              std::to_string(at) + " out of place)");
       }
-      if (children) (*children)[uint32_t(e.group) << 16 | e.element] = e.length;
+      if (children) (*children)[uint32_t(e.group) << 16 | e.element] = e;
+      if (explicit_vr) check_typed_vr(e);
       const bool pixel_data = e.group == 0x7fe0 && e.element == 0x0010;
+      if (top && pixel_data) pixel_data_ = true;
       const bool regions = top && e.group == 0x0018 && e.element == 0x6011;
       Regions first_region;
       const bool sequence =
@@ -211,26 +265,107 @@ class Walker {
               regions ? &first_region : nullptr);
         if (regions) check_regions(first_region);
       }
-      if (top && e.group == 0x0028 && e.element == 0x0002 && e.length >= 2) {
-        uint8_t v[2];
-        if (!read(e.value_at, v, 2)) fail("truncated file");
-        const unsigned samples = u16(v, little_);
-        if (samples != 1 && samples != 3 && samples != 4)
-          fail("corrupt file (samples per pixel " + std::to_string(samples) +
-               ": DICOM images have 1, 3 or 4)");
-      }
+      if (top && e.group == 0x0028 && e.length >= 2) note_pixel_format(e);
       at = e.value_at + e.length;
-      // What follows the pixel data (padding, at times junk) is not read for the image.
+      // What follows the pixel data is not the image's: check_tail() walks it.
       if (top && pixel_data) return at;
     }
     if (until_delimiter) fail("truncated file (an item without its delimiter)");
     return at;
   }
 
-  // The first item of a sequence: whether there is one, and its elements' tags and lengths.
+  // The pixel format attributes (0028,xxxx) of the data set, -1 where absent.
+  int samples_ = -1, bits_allocated_ = -1, bits_stored_ = -1, representation_ = -1;
+  int rows_ = -1, columns_ = -1;
+  bool pixel_data_ = false;
+
+  void note_pixel_format(const Element& e) {
+    int* value = e.element == 0x0002   ? &samples_
+                 : e.element == 0x0010 ? &rows_
+                 : e.element == 0x0011 ? &columns_
+                 : e.element == 0x0100 ? &bits_allocated_
+                 : e.element == 0x0101 ? &bits_stored_
+                 : e.element == 0x0103 ? &representation_
+                                       : nullptr;
+    if (!value) return;
+    uint8_t v[2];
+    if (!read(e.value_at, v, 2)) fail("truncated file");
+    *value = int(u16(v, little_));
+  }
+
+  // The pixel format GDCM asserts on (its PixelFormat): samples per pixel other than 1, 3 or 4;
+  // bits allocated not a whole number of bytes (but 1 and 12); more bits stored than allocated,
+  // or more than 32; a pixel representation other than 0 (unsigned) or 1 (signed); RLE frames of
+  // a format its decoder does not take.
+  void check_pixel_format() const {
+    const auto bad = [&](const std::string& what) {
+      fail("corrupt file (" + what + ": not a DICOM pixel format)");
+    };
+    if (pixel_data_ && (rows_ < 0 || columns_ < 0 || bits_allocated_ < 0))
+      fail(
+          "corrupt file (pixel data without the rows, columns and bits allocated of its image, "
+          "(0028,0010), (0028,0011) and (0028,0100))");
+    if (samples_ >= 0 && samples_ != 1 && samples_ != 3 && samples_ != 4)
+      fail("corrupt file (samples per pixel " + std::to_string(samples_) +
+           ": DICOM images have 1, 3 or 4)");
+    if (bits_allocated_ >= 0 && bits_allocated_ % 8 && bits_allocated_ != 1 &&
+        bits_allocated_ != 12)
+      bad("bits allocated " + std::to_string(bits_allocated_));
+    if (bits_stored_ > 32) bad("bits stored " + std::to_string(bits_stored_));
+    if (bits_stored_ >= 0 && bits_allocated_ >= 0 && bits_stored_ > bits_allocated_)
+      bad("bits stored " + std::to_string(bits_stored_) + " of " + std::to_string(bits_allocated_) +
+          " allocated");
+    if (representation_ > 1) bad("pixel representation " + std::to_string(representation_));
+    // GDCM's RLE decoder asserts on other formats.
+    if (rle_ && pixel_data_ &&
+        (!(bits_allocated_ == 8 || bits_allocated_ == 16 || bits_allocated_ == 32) ||
+         !(samples_ < 0 || samples_ == 1 || samples_ == 3)))
+      fail("corrupt file (RLE Lossless frames of " + std::to_string(bits_allocated_) +
+           " bits allocated and " + std::to_string(samples_ < 0 ? 1 : samples_) +
+           " samples per pixel: RLE holds 8, 16 or 32 bits of 1 or 3 samples)");
+  }
+
+  // An attribute GDCM reads typed (kTypedAttributes) in a value representation it asserts on.
+  void check_typed_vr(const Element& e) const {
+    const char* vrs = typed_vrs(uint32_t(e.group) << 16 | e.element);
+    if (!vrs) return;
+    for (const char* v = vrs; *v; v += 2)
+      if (v[0] == e.vr[0] && v[1] == e.vr[1]) return;
+    fail("corrupt file (element " + tag_text(e.group, e.element) +
+         " has the value representation " + text_vr(e.vr) + "; DICOM defines " +
+         std::string(vrs, 2) + ")");
+  }
+  static std::string text_vr(const char* vr) {
+    std::string t;
+    for (int i = 0; i < 2; ++i)
+      t += std::isprint(static_cast<unsigned char>(vr[i])) ? std::string(1, vr[i]) : "?";
+    return t;
+  }
+
+  // What follows the image's pixel data: GDCM reads it as elements too, and asserts on some that
+  // are cut short. Elements, or zero bytes that GDCM passes over (fewer than 4, or 8 and more).
+  void check_tail(uint64_t at, bool explicit_vr) {
+    if (at >= size_) return;
+    const uint64_t n = size_ - at;
+    if (n < 4 || (n >= 8 && all_zero(at, n))) return;
+    walk(at, size_, explicit_vr, 0, /*top=*/false, /*until_delimiter=*/false);
+  }
+  bool all_zero(uint64_t at, uint64_t n) const {
+    uint8_t chunk[4096];
+    for (uint64_t done = 0; done < n;) {
+      const size_t k = size_t(std::min<uint64_t>(sizeof chunk, n - done));
+      if (!read(at + done, chunk, k)) return false;
+      for (size_t i = 0; i < k; ++i)
+        if (chunk[i]) return false;
+      done += k;
+    }
+    return true;
+  }
+
+  // The first item of a sequence: whether there is one, and its elements' headers by tag.
   struct Regions {
     bool found = false;
-    std::map<uint32_t, uint32_t> children;
+    std::map<uint32_t, Element> children;
   };
 
   // An ultrasound image's regions (0018,6011): GDCM reads the physical size of a pixel from the
@@ -240,9 +375,11 @@ class Walker {
     if (!first.found) fail("corrupt file (its ultrasound regions (0018,6011) hold no item)");
     for (const uint32_t tag : {0x0018602cu, 0x0018602eu}) {
       const auto it = first.children.find(tag);
-      if (it == first.children.end() || it->second != 8)
+      const char* vr = it == first.children.end() ? "" : it->second.vr;
+      if (it == first.children.end() || it->second.length != 8 ||
+          (vr[0] && !(vr[0] == 'F' && vr[1] == 'D')))
         fail("corrupt file (its first ultrasound region lacks the physical delta " +
-             tag_text(tag >> 16, tag & 0xffff) + ", one 8-byte value)");
+             tag_text(tag >> 16, tag & 0xffff) + ", one FD value)");
     }
   }
 
@@ -257,7 +394,7 @@ class Walker {
       if (item.group != 0xfffe || item.element != 0xe000)
         fail("corrupt file (a sequence holds " + tag_text(item.group, item.element) + " at byte " +
              std::to_string(at) + " where an item belongs)");
-      std::map<uint32_t, uint32_t>* children = nullptr;
+      std::map<uint32_t, Element>* children = nullptr;
       if (first && !first->found) {
         first->found = true;
         children = &first->children;
@@ -332,14 +469,13 @@ void check_structure(const std::string& path, const std::string& where) {
     std::FILE* f;
     ~Close() { std::fclose(f); }
   } close{f};
-  // A Part 10 file: a 128-byte preamble, then "DICM".
+  // A Part 10 file: a 128-byte preamble, then "DICM"; GDCM also reads files without them.
   char magic[4] = {0};
-  if (std::fseek(f, 128, SEEK_SET) != 0 || std::fread(magic, 1, 4, f) != 4 ||
-      std::memcmp(magic, "DICM", 4) != 0)
-    return;
+  const bool part10 = std::fseek(f, 128, SEEK_SET) == 0 && std::fread(magic, 1, 4, f) == 4 &&
+                      std::memcmp(magic, "DICM", 4) == 0;
   if (::fseeko(f, 0, SEEK_END) != 0) throw FileError("cannot read " + where + ": cannot seek");
   const uint64_t size = uint64_t(::ftello(f));
-  Walker(f, size, where).check();
+  Walker(f, size, where).check(part10);
 }
 
 }  // namespace dicom

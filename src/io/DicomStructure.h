@@ -15,10 +15,12 @@
 namespace sonoslice {
 namespace dicom {
 
-/// FileError "cannot read <where>: ..." for a Part 10 file whose elements do not fit together
-/// (truncated, a length beyond its item or file, a missing delimiter, an unknown VR) or whose
-/// samples per pixel GDCM would assert on. A file without the preamble is left to GDCM, which
-/// refuses what is not DICOM without asserting.
+/// FileError "cannot read <where>: ..." for a DICOM file whose elements do not fit together
+/// (truncated, a length beyond its item or file, a missing delimiter, an unknown VR, a sequence
+/// in the file meta group) or whose samples per pixel or ultrasound regions GDCM would assert on.
+/// A file without the preamble (which GDCM also reads) is walked in the syntax GDCM guesses for
+/// it, its file meta group explicit or implicit; one that does not start with an element is not
+/// DICOM.
 void check_structure(const std::string& path, const std::string& where);
 
 }  // namespace dicom
