@@ -436,6 +436,28 @@ Volume read_npy_frames(const std::string& path, const std::string& what) {
   warn_colour_frames(what, path, differing, g.voxel_count());
   return image;
 }
+
+/// The readers call their file a volume; a file of frames is named in their errors as the caller
+/// names it (`what`: "--frames", "stack"), with the same error type.
+template <typename Read>
+Volume naming_frames(const std::string& path, const std::string& what, Read&& read) {
+  const auto renamed = [&](const Error& e) {
+    std::string message = e.what();
+    const std::string volume = "volume '" + path + "'";
+    const size_t at = message.find(volume);
+    if (at != std::string::npos) message.replace(at, volume.size(), what + " '" + path + "'");
+    return message;
+  };
+  try {
+    return read();
+  } catch (const FileError& e) {
+    throw FileError(renamed(e));
+  } catch (const ResourceError& e) {
+    throw ResourceError(renamed(e));
+  } catch (const InputError& e) {
+    throw InputError(renamed(e));
+  }
+}
 }  // namespace
 
 Volume read_image_stack(const std::string& path, const std::string& what) {
@@ -458,7 +480,8 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
     }
     // Images are not sampled: what their NaN pixels mean is the caller's to say.
     int64_t colour_pixels = 0;
-    Volume stack = read_volume_as_stored(path, options, &colour_pixels);
+    Volume stack = naming_frames(
+        path, what, [&] { return read_volume_as_stored(path, options, &colour_pixels); });
     warn_colour_frames(what, path, colour_pixels, stack.grid().voxel_count());
     return stack;
   }

@@ -294,8 +294,12 @@ TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
   // Cut short inside the pixel data.
   fs::copy_file(dir.file("clip.dcm"), dir.file("short.dcm"));
   fs::resize_file(dir.file("short.dcm"), fs::file_size(dir.file("short.dcm")) - 700);
-  EXPECT_NE(error_of_stack(dir.file("short.dcm")).find("short.dcm': truncated or corrupt file"),
-            std::string::npos);
+  // Named as the caller names the frames, not as a volume.
+  const std::string shortened = error_of_stack(dir.file("short.dcm"));
+  EXPECT_EQ(shortened.find("cannot read --frames '" + dir.file("short.dcm") +
+                           "': truncated or corrupt file"),
+            0u)
+      << shortened;
   try {
     write_volume(dir.file("out.dcm"), clip);
     ADD_FAILURE() << "a DICOM file was written";
@@ -361,6 +365,39 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   fs::copy_file(meta, folder.file("broken.dcm"));
   EXPECT_NE(error_of(folder.path().string()).find("file 'broken.dcm': truncated or corrupt"),
             std::string::npos);
+}
+
+// GDCM reads what follows the pixel data, and files without the 128-byte preamble and "DICM":
+// both are walked first too.
+TEST(DicomFile, TailAndFilesWithoutPreambleAreWalked) {
+  test::TempDir dir;
+  const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
+  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2, grey);
+  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
+  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto written = [&](const std::string& name, const std::string& bytes) {
+    std::ofstream(dir.file(name), std::ios::binary) << bytes;
+    return dir.file(name);
+  };
+  // Zero padding after the pixel data reads; an element cut short there (GDCM asserted) does not.
+  const Volume padded = read_image_stack(written("padded.dcm", good + std::string(16, '\0')), "f");
+  EXPECT_EQ(padded.data_as<uint8_t>()[(10 + 4) * 12 + 5], grey(5, 4, 1));
+  const std::string cut =
+      error_of_stack(written("cut.dcm", good + std::string("\x10\x00\x10\x00", 4)));
+  EXPECT_NE(cut.find("cut.dcm': truncated file (it ends inside an element's header"),
+            std::string::npos)
+      << cut;
+  // Without the preamble: ITK's reader does not take it as an image (GDCM's series scan does);
+  // with its file meta group cut short, the walk refuses it before GDCM reads it.
+  const std::string raw = error_of_stack(written("raw.dcm", good.substr(132)));
+  EXPECT_NE(raw.find("raw.dcm': not a readable image format"), std::string::npos) << raw;
+  const std::string meta = error_of_stack(written("raw-meta.dcm", good.substr(132, 20)));
+  EXPECT_NE(
+      meta.find("raw-meta.dcm': truncated file (it ends inside an element's header at byte 12)"),
+      std::string::npos)
+      << meta;
+  const std::string text = error_of_stack(written("text.dcm", "not DICOM at all, just text"));
+  EXPECT_NE(text.find("text.dcm': not a DICOM file"), std::string::npos) << text;
 }
 
 // libpng aborts the process on a corrupt PNG header unless its caller catches the error (ITK's
