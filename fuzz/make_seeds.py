@@ -215,6 +215,7 @@ def png_seeds():
     put("png", "palette4.png", png(4, 2, 3, 4, [b"\x01\x23", b"\x20\x10"], palette=bytes(range(12))))
     put("png", "grey1.png", png(9, 2, 0, 1, [b"\xa5\x80", b"\x5a\x00"]))
     put("png", "truncated.png", png(6, 4, 0, 8, grey)[:-20])
+    put("png", "claims-30000x30000.png", png(30000, 30000, 0, 8, grey))
 
 
 def main():

@@ -232,7 +232,7 @@ class Walker {
     while (at < end) {
       const Element e = header(at, end, explicit_vr, little_);
       if (e.group == 0xfffe) {
-        if (until_delimiter && e.element == 0xe00d) return e.value_at;
+        if (until_delimiter && e.element == 0xe00d) return delimiter(e, at);
         fail("corrupt file (a delimiter " + tag_text(e.group, e.element) + " at byte " +
              std::to_string(at) + " out of place)");
       }
@@ -266,6 +266,7 @@ class Walker {
         if (regions) check_regions(first_region);
       }
       if (top && e.group == 0x0028 && e.length >= 2) note_pixel_format(e);
+      if (top && e.group == 0x0008 && e.element == 0x0010 && e.length > 0) recognition_code(e);
       at = e.value_at + e.length;
       // What follows the pixel data is not the image's: check_tail() walks it.
       if (top && pixel_data) return at;
@@ -276,11 +277,12 @@ class Walker {
 
   // The pixel format attributes (0028,xxxx) of the data set, -1 where absent.
   int samples_ = -1, bits_allocated_ = -1, bits_stored_ = -1, representation_ = -1;
-  int rows_ = -1, columns_ = -1;
+  int rows_ = -1, columns_ = -1, planar_ = -1;
   bool pixel_data_ = false;
 
   void note_pixel_format(const Element& e) {
     int* value = e.element == 0x0002   ? &samples_
+                 : e.element == 0x0006 ? &planar_
                  : e.element == 0x0010 ? &rows_
                  : e.element == 0x0011 ? &columns_
                  : e.element == 0x0100 ? &bits_allocated_
@@ -295,8 +297,9 @@ class Walker {
 
   // The pixel format GDCM asserts on (its PixelFormat): samples per pixel other than 1, 3 or 4;
   // bits allocated not a whole number of bytes (but 1 and 12); more bits stored than allocated,
-  // or more than 32; a pixel representation other than 0 (unsigned) or 1 (signed); RLE frames of
-  // a format its decoder does not take.
+  // or more than 32, or fewer than 8 of 8; a pixel representation other than 0 (unsigned) or 1
+  // (signed); a planar configuration other than 0 or 1; RLE frames of a format its decoder does
+  // not take.
   void check_pixel_format() const {
     const auto bad = [&](const std::string& what) {
       fail("corrupt file (" + what + ": not a DICOM pixel format)");
@@ -316,6 +319,10 @@ class Walker {
       bad("bits stored " + std::to_string(bits_stored_) + " of " + std::to_string(bits_allocated_) +
           " allocated");
     if (representation_ > 1) bad("pixel representation " + std::to_string(representation_));
+    if (planar_ > 1) bad("planar configuration " + std::to_string(planar_));
+    // GDCM's decoder clears unused high bits only in pixels of more than 8 bits.
+    if (bits_allocated_ == 8 && bits_stored_ > 0 && bits_stored_ != 8)
+      bad("bits stored " + std::to_string(bits_stored_) + " of 8 allocated");
     // GDCM's RLE decoder asserts on other formats.
     if (rle_ && pixel_data_ &&
         (!(bits_allocated_ == 8 || bits_allocated_ == 16 || bits_allocated_ == 32) ||
@@ -362,6 +369,25 @@ class Walker {
     return true;
   }
 
+  // ACR-NEMA's recognition code (0008,0010), which GDCM asserts is "ACR-NEMA" or "ACRNEMA" when
+  // an image has one.
+  void recognition_code(const Element& e) const {
+    char v[8] = {0};
+    const size_t n = std::min<size_t>(e.length, 8);
+    if (!read(e.value_at, v, n)) fail("truncated file");
+    if (std::strncmp(v, "ACR-NEMA", 8) != 0 && std::strncmp(v, "ACRNEMA", 7) != 0)
+      fail("corrupt file (its recognition code (0008,0010) is not ACR-NEMA's)");
+  }
+
+  // A delimiter (item or sequence) at `at`: its length must be 0 (PS3.5 7.5), which GDCM takes
+  // as the length of a value to allocate. Returns where it ends.
+  uint64_t delimiter(const Element& e, uint64_t at) const {
+    if (e.length != 0)
+      fail("corrupt file (the delimiter " + tag_text(e.group, e.element) + " at byte " +
+           std::to_string(at) + " has the length " + std::to_string(e.length) + ", not 0)");
+    return e.value_at;
+  }
+
   // The first item of a sequence: whether there is one, and its elements' headers by tag.
   struct Regions {
     bool found = false;
@@ -390,7 +416,7 @@ class Walker {
                  Regions* first = nullptr) {
     while (at < end) {
       const Element item = header(at, end, explicit_vr, little_);
-      if (item.group == 0xfffe && item.element == 0xe0dd) return item.value_at;
+      if (item.group == 0xfffe && item.element == 0xe0dd) return delimiter(item, at);
       if (item.group != 0xfffe || item.element != 0xe000)
         fail("corrupt file (a sequence holds " + tag_text(item.group, item.element) + " at byte " +
              std::to_string(at) + " where an item belongs)");
@@ -426,9 +452,16 @@ class Walker {
       const unsigned group = u16(h, true), element = u16(h + 2, true);
       if (group != 0xfffe || (element != 0xe000 && element != 0xe0dd))
         fail("corrupt file (compressed pixel data without its fragment items)");
-      at += 8;
-      if (element == 0xe0dd) return at;
       const uint64_t n = u32(h + 4, true);
+      if (element == 0xe0dd) {
+        Element e;
+        e.group = group;
+        e.element = element;
+        e.length = uint32_t(n);
+        e.value_at = at + 8;
+        return delimiter(e, at);
+      }
+      at += 8;
       if (at + n > end) {
         std::ostringstream s;
         s << "truncated file (a fragment of its compressed pixel data needs " << at + n

@@ -150,6 +150,12 @@ int decode(PngSource* src, DecodedPng* out, bool any_layout) {
   png_set_read_fn(png, src, on_png_read);
   png_read_info(png, info);
   const int color = png_get_color_type(png, info), depth = png_get_bit_depth(png, info);
+  // Deflate packs at most 1032 bytes into one: a header that claims more (filtered) rows than
+  // the whole file could hold compressed is corrupt, refused before its pixels are allocated.
+  const uint64_t stored_row =
+      (uint64_t(png_get_image_width(png, info)) * png_get_channels(png, info) * depth + 7) / 8 + 1;
+  if (stored_row * png_get_image_height(png, info) > 1032 * uint64_t(src->size) + 4096)
+    png_error(png, "its header claims more pixels than its bytes can hold");
   int passes = 1;
   if (any_layout) {
     if (color == PNG_COLOR_TYPE_PALETTE) png_set_palette_to_rgb(png);
