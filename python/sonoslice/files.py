@@ -31,8 +31,8 @@ def validate_poses(poses, source: str = "poses") -> None:
 def read_stack(path) -> np.ndarray:
     """An (N, H, W) stack of 2-D frames, as ``compound --frames``, ``register --frames`` and
     ``view --images`` read them: any stack :func:`write_stack` writes (.nii[.gz]/.mha/.nrrd W×H×N,
-    .npy, a folder of PNGs read in name order), a scanner's multi-frame DICOM clip (.dcm), one 2-D
-    .npy image as a stack of one; colour frames as their first component (one warning when the
+    .npy, a folder of PNGs read in name order), a scanner's multi-frame DICOM clip (.dcm) or a
+    folder of single-frame DICOM images (name order), one 2-D .npy image as a stack of one; colour frames as their first component (one warning when the
     colours differ). The pixels keep their stored dtype."""
     return _ext.read_stack(_arrays.path(path, "path"))
 

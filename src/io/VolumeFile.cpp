@@ -485,18 +485,34 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
     warn_colour_frames(what, path, colour_pixels, stack.grid().voxel_count());
     return stack;
   }
+  // A folder of frames: PNG images, or single-frame DICOM images (as some scanners export a
+  // clip), one frame a file, in name order.
   std::vector<std::string> files;
-  for (const auto& entry : fs::directory_iterator(path, ec))
-    if (entry.is_regular_file() && file_extension(entry.path().string()) == ".png")
-      files.push_back(entry.path().string());
+  bool png = false, dicom = false;
+  for (const auto& entry : fs::directory_iterator(path, ec)) {
+    const std::string extension = file_extension(entry.path().string());
+    if (!entry.is_regular_file() || (extension != ".png" && extension != ".dcm")) continue;
+    files.push_back(entry.path().string());
+    (extension == ".png" ? png : dicom) = true;
+  }
   if (ec) throw FileError(what + " '" + path + "': cannot list the folder (" + ec.message() + ")");
-  if (files.empty()) throw InputError(what + " '" + path + "': a folder without .png images");
+  if (files.empty())
+    throw InputError(what + " '" + path + "': a folder without .png or .dcm images");
+  if (png && dicom)
+    throw InputError(what + " '" + path + "': a folder of both .png and .dcm images (frames are " +
+                     "one kind)");
   std::sort(files.begin(), files.end());
   Volume stack;
   int64_t colour_pixels = 0;
   for (size_t k = 0; k < files.size(); ++k) {
-    const Volume image = read_png_image(files[k], &colour_pixels);
+    const Volume image =
+        png ? read_png_image(files[k], &colour_pixels) : naming_frames(files[k], what, [&] {
+          return read_volume_as_stored(files[k], VolumeReadOptions{}, &colour_pixels);
+        });
     const VolumeGrid& g = image.grid();
+    if (g.dims[2] != 1)
+      throw InputError(what + " '" + files[k] + "': " + std::to_string(g.dims[2]) +
+                       " frames in one file of a folder of frames (give the clip itself)");
     if (k == 0) {
       VolumeGrid grid = g;
       grid.dims[2] = int64_t(files.size());

@@ -322,6 +322,35 @@ TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
 
 // GDCM asserts (aborting the process) on broken DICOM structure; sonoslice walks the file first
 // and refuses it, for one file and for a folder of a series alike.
+// A folder of single-frame DICOM images (some scanners export a clip so) is a stack of frames in
+// name order, as a folder of PNGs.
+TEST(DicomFile, FolderOfSingleFrameImagesIsAStackOfFrames) {
+  test::TempDir dir;
+  const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
+  for (int k = 0; k < 3; ++k)
+    write_dicom_clip<uint8_t>(dir.file("IM_000" + std::to_string(k) + ".dcm"), 12, 10, 1,
+                              [&](int x, int y, int) { return grey(x, y, k); });
+  const Volume frames = read_image_stack(dir.path().string(), "--frames");
+  ASSERT_EQ(frames.grid().dims, (std::array<int64_t, 3>{12, 10, 3}));
+  EXPECT_EQ(frames.data_as<uint8_t>()[(2 * 10 + 4) * 12 + 5], grey(5, 4, 2));
+  // A clip among them, a PNG among them, a broken file among them: refused, naming the file.
+  write_dicom_clip<uint8_t>(dir.file("IM_0003.dcm"), 12, 10, 2, grey);
+  EXPECT_NE(error_of_stack(dir.path().string()).find("IM_0003.dcm': 2 frames in one file"),
+            std::string::npos)
+      << error_of_stack(dir.path().string());
+  fs::remove(dir.file("IM_0003.dcm"));
+  const std::vector<uint8_t> pixels(12 * 10, 7);
+  write_image(dir.file("IM_0004.png"), pixels.data(), PixelType::UInt8, {12, 10}, {1, 1}, 1);
+  EXPECT_NE(error_of_stack(dir.path().string()).find("a folder of both .png and .dcm images"),
+            std::string::npos);
+  fs::remove(dir.file("IM_0004.png"));
+  fs::resize_file(dir.file("IM_0001.dcm"), fs::file_size(dir.file("IM_0001.dcm")) - 50);
+  EXPECT_NE(error_of_stack(dir.path().string())
+                .find("cannot read --frames '" + dir.file("IM_0001.dcm") + "': truncated"),
+            std::string::npos)
+      << error_of_stack(dir.path().string());
+}
+
 TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   test::TempDir dir;
   write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2,
@@ -417,6 +446,24 @@ TEST(PngFile, CorruptImagesInAFolderAreNamed) {
   f.close();
   EXPECT_NE(error_of_stack(dir.path().string()).find("b.png': corrupt PNG (IHDR: CRC error)"),
             std::string::npos);
+  // A header that claims 30000 x 30000 pixels in a file of a hundred bytes (a valid CRC): refused
+  // before 900 MB are allocated for it.
+  std::ifstream in(dir.file("a.png"), std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const char claim[8] = {0, 0, 0x75, 0x30, 0, 0, 0x75, 0x30};
+  bytes.replace(16, 8, claim, 8);
+  uint32_t crc = 0xffffffffu;  // CRC-32 of the chunk type and data (ISO 3309, as PNG uses)
+  for (size_t i = 12; i < 29; ++i) {
+    crc ^= uint8_t(bytes[i]);
+    for (int k = 0; k < 8; ++k) crc = crc & 1 ? 0xedb88320u ^ (crc >> 1) : crc >> 1;
+  }
+  crc ^= 0xffffffffu;
+  for (int k = 0; k < 4; ++k) bytes[29 + k] = char(crc >> (24 - 8 * k));
+  std::ofstream(dir.file("b.png"), std::ios::binary) << bytes;
+  EXPECT_NE(error_of_stack(dir.path().string())
+                .find("b.png': corrupt PNG (its header claims more pixels than its bytes"),
+            std::string::npos)
+      << error_of_stack(dir.path().string());
 }
 
 // A NIfTI with scl_slope/scl_inter: ITK applies them (as float32), sonoslice's own voxel path
