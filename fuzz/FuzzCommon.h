@@ -66,15 +66,16 @@ inline std::string write_input(const uint8_t* data, size_t size, const std::stri
 
 inline void quiet(const std::string&) {}
 
-// Reads every byte of a volume a reader returned: a reader that hands back fewer bytes than its
-// grid claims is then an AddressSanitizer report, not a silent over-read later in a kernel.
-inline void touch(const Volume& volume) {
-  const auto* bytes = static_cast<const uint8_t*>(volume.data());
+// Reads every byte a reader returned: a reader that hands back fewer bytes than its header claims
+// is then an AddressSanitizer report, not a silent over-read later in a kernel.
+inline void touch(const void* data, size_t size) {
+  const auto* bytes = static_cast<const uint8_t*>(data);
   uint8_t sum = 0;
-  for (size_t i = 0; i < volume.byte_size(); ++i) sum ^= bytes[i];
+  for (size_t i = 0; i < size; ++i) sum ^= bytes[i];
   volatile uint8_t keep = sum;
   (void)keep;
 }
+inline void touch(const Volume& volume) { touch(volume.data(), volume.byte_size()); }
 
 // A foreign exception aborts: a finding. With SONOSLICE_FUZZ_FOREIGN_DIR set (long runs that
 // should look past a known one), each kind of exception has its first
