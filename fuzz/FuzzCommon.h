@@ -75,7 +75,9 @@ inline void touch(const void* data, size_t size) {
   volatile uint8_t keep = sum;
   (void)keep;
 }
-inline void touch(const Volume& volume) { touch(volume.data(), volume.byte_size()); }
+inline void touch(const Volume& volume) {
+  touch(volume.data(), volume.byte_size());
+}
 
 // A foreign exception aborts: a finding. With SONOSLICE_FUZZ_FOREIGN_DIR set (long runs that
 // should look past a known one), each kind of exception has its first
