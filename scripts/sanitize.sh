@@ -15,8 +15,6 @@
 #   scripts/sanitize.sh [extra cmake -D options]
 #   JOBS=N       parallel build and test jobs (default: nproc)
 #   CTEST_ARGS   extra ctest arguments, e.g. CTEST_ARGS="-R Cli" for a quick look
-#   SANITIZE_STEPS=build|test|all   configure and build only, run the tests of an existing build
-#                only, or both (default). CI builds beside its other stages and tests after them.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 root=$PWD
@@ -25,39 +23,24 @@ jobs=${JOBS:-$(nproc)}
 launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
 start=$(date +%s)
-steps=${SANITIZE_STEPS:-all}
-if [[ ! $steps =~ ^(all|build|test)$ ]]; then
-  echo "sanitize: SANITIZE_STEPS is all, build or test, not '$steps'" >&2
-  exit 2
+mkdir -p "$build"
+cxx=${SANITIZE_CXX:-$(command -v clang++ || command -v g++)}
+compiler=(-DCMAKE_CXX_COMPILER="$cxx")
+if [[ $(basename "$cxx") == clang* ]]; then
+  compiler+=(-DCMAKE_C_COMPILER="${cxx%++}" -DSONOSLICE_BUILD_FUZZERS=ON)
+else
+  compiler+=(-DSONOSLICE_BUILD_FUZZERS=OFF)
 fi
-if [[ $steps != test ]]; then
-  mkdir -p "$build"
-  cxx=${SANITIZE_CXX:-$(command -v clang++ || command -v g++)}
-  compiler=(-DCMAKE_CXX_COMPILER="$cxx")
-  if [[ $(basename "$cxx") == clang* ]]; then
-    compiler+=(-DCMAKE_C_COMPILER="${cxx%++}" -DSONOSLICE_BUILD_FUZZERS=ON)
-  else
-    compiler+=(-DSONOSLICE_BUILD_FUZZERS=OFF)
-  fi
 
-  # -O1 (and line tables, CMakeLists.txt): readable stacks at a bearable speed; assertions stay on
-  # (no NDEBUG).
-  cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1" "${compiler[@]}" "${launcher[@]}" \
-    -DSONOSLICE_SANITIZE=ON -DSONOSLICE_WITH_CUDA=OFF -DSONOSLICE_BUILD_BENCHMARKS=OFF \
-    -DSONOSLICE_BUILD_PYTHON=OFF -DSONOSLICE_BUILD_TESTS=ON "$@" >"$build/configure.log" \
-    || { cat "$build/configure.log"; exit 1; }
-  grep -E "^-- sonoslice:" "$build/configure.log" || true
-  cmake --build "$build" -j "$jobs"
-fi
-if [[ $steps == build ]]; then
-  echo "sanitize: $build built in $(($(date +%s) - start)) s"
-  exit 0
-fi
-if [[ ! -f $build/CTestTestfile.cmake ]]; then
-  echo "sanitize: $build/ is not built (SANITIZE_STEPS=build first)" >&2
-  exit 1
-fi
+# -O1 (and line tables, CMakeLists.txt): readable stacks at a bearable speed; assertions stay on
+# (no NDEBUG).
+cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1" "${compiler[@]}" "${launcher[@]}" \
+  -DSONOSLICE_SANITIZE=ON -DSONOSLICE_WITH_CUDA=OFF -DSONOSLICE_BUILD_BENCHMARKS=OFF \
+  -DSONOSLICE_BUILD_PYTHON=OFF -DSONOSLICE_BUILD_TESTS=ON "$@" >"$build/configure.log" \
+  || { cat "$build/configure.log"; exit 1; }
+grep -E "^-- sonoslice:" "$build/configure.log" || true
+cmake --build "$build" -j "$jobs"
 
 logs=$root/$build/sanitizer-logs
 rm -rf "$logs"
