@@ -265,7 +265,10 @@ class Walker {
               regions ? &first_region : nullptr);
         if (regions) check_regions(first_region);
       }
-      if (top && e.group == 0x0028 && e.length >= 2) note_pixel_format(e);
+      if (top && e.group == 0x0028 && e.element == 0x0008)
+        number_of_frames(e);
+      else if (top && e.group == 0x0028 && e.length >= 2)
+        note_pixel_format(e);
       if (top && e.group == 0x0008 && e.element == 0x0010 && e.length > 0) recognition_code(e);
       at = e.value_at + e.length;
       // What follows the pixel data is not the image's: check_tail() walks it.
@@ -275,10 +278,15 @@ class Walker {
     return at;
   }
 
-  // The pixel format attributes (0028,xxxx) of the data set, -1 where absent.
+  // The pixel format attributes (0028,xxxx) of the data set, -1 where absent. Of an attribute
+  // given twice the first counts: GDCM keeps the first and skips the duplicates.
   int samples_ = -1, bits_allocated_ = -1, bits_stored_ = -1, representation_ = -1;
   int rows_ = -1, columns_ = -1, planar_ = -1;
+  int64_t frames_ = -1;
   bool pixel_data_ = false;
+  // RLE Lossless: the frames' fragments (the basic offset table not counted) and the shortest.
+  int64_t rle_fragments_ = 0;
+  uint64_t rle_shortest_ = 0;
 
   void note_pixel_format(const Element& e) {
     int* value = e.element == 0x0002   ? &samples_
@@ -289,10 +297,28 @@ class Walker {
                  : e.element == 0x0101 ? &bits_stored_
                  : e.element == 0x0103 ? &representation_
                                        : nullptr;
-    if (!value) return;
+    if (!value || *value >= 0) return;
     uint8_t v[2];
     if (!read(e.value_at, v, 2)) fail("truncated file");
     *value = int(u16(v, little_));
+  }
+
+  // Number of frames (0028,0008), an integer string: GDCM reads its leading number and sizes the
+  // image's buffer by it; 0 (or none) asserts in its decoder.
+  void number_of_frames(const Element& e) {
+    if (frames_ >= 0) return;
+    std::string text(std::min<uint32_t>(e.length, 16), '\0');
+    if (!text.empty() && !read(e.value_at, &text[0], text.size())) fail("truncated file");
+    size_t i = text.find_first_not_of(" \0");
+    if (i != std::string::npos && text[i] == '+') ++i;
+    int64_t n = 0;
+    size_t digits = 0;
+    for (; i < text.size() && std::isdigit(static_cast<unsigned char>(text[i])) && n < (1 << 30);
+         ++i, ++digits)
+      n = n * 10 + (text[i] - '0');
+    if (digits == 0 || n < 1 || n >= (1 << 30))
+      fail("corrupt file (its number of frames (0028,0008) is not a count of frames)");
+    frames_ = n;
   }
 
   // The pixel format GDCM asserts on (its PixelFormat): samples per pixel other than 1, 3 or 4;
@@ -323,6 +349,22 @@ class Walker {
     // GDCM's decoder clears unused high bits only in pixels of more than 8 bits.
     if (bits_allocated_ == 8 && bits_stored_ > 0 && bits_stored_ != 8)
       bad("bits stored " + std::to_string(bits_stored_) + " of 8 allocated");
+    // RLE Lossless holds one frame a fragment, and a fragment at most 64 bytes of pixels a byte
+    // (a run of 128 equal bytes in 2): a header claiming more is refused before GDCM allocates
+    // what it claims.
+    if (rle_ && pixel_data_ && rows_ > 0 && columns_ > 0 && bits_allocated_ > 0) {
+      const int64_t frames = frames_ > 0 ? frames_ : 1;
+      if (frames > rle_fragments_)
+        fail("corrupt file (RLE Lossless pixel data of " + std::to_string(frames) + " frames in " +
+             std::to_string(rle_fragments_) + " fragments, one a frame)");
+      const uint64_t frame_bytes = uint64_t(rows_) * uint64_t(columns_) *
+                                   uint64_t(samples_ > 0 ? samples_ : 1) *
+                                   uint64_t((bits_allocated_ + 7) / 8);
+      if (frame_bytes > 64 * rle_shortest_)
+        fail("corrupt file (its header claims frames of " + std::to_string(frame_bytes) +
+             " bytes, more than an RLE fragment of " + std::to_string(rle_shortest_) +
+             " bytes can hold)");
+    }
     // GDCM's RLE decoder asserts on other formats.
     if (rle_ && pixel_data_ &&
         (!(bits_allocated_ == 8 || bits_allocated_ == 16 || bits_allocated_ == 32) ||
@@ -468,7 +510,10 @@ class Walker {
           << " bytes, the file has " << size_ << ")";
         fail(s.str());
       }
-      if (rle_ && !first_item) rle_segments(at, n);
+      if (rle_ && !first_item) {
+        rle_segments(at, n);
+        rle_shortest_ = rle_fragments_++ ? std::min(rle_shortest_, n) : n;
+      }
       first_item = false;
       at += n;
     }

@@ -486,9 +486,11 @@ std::string file_name(const std::string& path) {
 
 // The pixel data element whose value starts at `value_offset` of `file` (where GDCM stopped,
 // having read its header): its declared length must fit in the file and hold the image's pixels.
-// `where` names the file in messages.
+// `packed12`: 12 bits allocated, two pixels in three bytes, which GDCM unpacks only from exactly
+// as many bytes as the pixels need (its decoder asserts otherwise); `pixel_bytes` then counts
+// the unpacked pixels, two bytes each. `where` names the file in messages.
 void check_pixel_data(const std::string& where, const std::string& file, uint64_t value_offset,
-                      uint64_t pixel_bytes) {
+                      uint64_t pixel_bytes, bool packed12) {
   std::error_code ec;
   const uint64_t size = std::filesystem::file_size(file, ec);
   // Implicit VR: tag, 32-bit length; explicit VR (OB, OW): tag, VR, 2 reserved bytes, 32-bit
@@ -511,7 +513,13 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
       << value_offset + length << " bytes, the file has " << size << ")";
     throw FileError(s.str());
   }
-  if (length < pixel_bytes) {
+  if (packed12 && length * 16 / 12 != pixel_bytes) {
+    std::ostringstream s;
+    s << "cannot read " << where << ": corrupt file (" << length << " bytes of pixel data for "
+      << pixel_bytes / 2 << " pixels of 12 bits, packed two in three bytes)";
+    throw FileError(s.str());
+  }
+  if (length < pixel_bytes && !packed12) {
     std::ostringstream s;
     s << "cannot read " << where << ": corrupt file (" << length << " bytes of pixel data for "
       << pixel_bytes << " bytes of pixels)";
@@ -545,7 +553,8 @@ void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
   uint64_t pixel_bytes =
       (uint64_t(format.GetBitsAllocated()) + 7) / 8 * format.GetSamplesPerPixel();
   for (unsigned int d : dims) pixel_bytes *= d;
-  check_pixel_data(where, file, reader.GetStreamCurrentPosition(), pixel_bytes);
+  check_pixel_data(where, file, reader.GetStreamCurrentPosition(), pixel_bytes,
+                   format.GetBitsAllocated() == 12);
 }
 
 // The series' files have been walked by check_dicom_folder().

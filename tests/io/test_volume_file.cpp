@@ -378,6 +378,18 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   const std::string two = corrupted("samples.dcm", samples, samples + std::string("\x02\x00", 2));
   EXPECT_NE(error_of_stack(two).find("samples per pixel 2"), std::string::npos)
       << error_of_stack(two);
+  // Given twice, first 5 then 1: GDCM keeps the first (and asserted on it), so the walk does.
+  std::string twice = good;
+  twice.insert(twice.find(samples), samples + std::string("\x05\x00", 2));
+  std::ofstream(dir.file("twice.dcm"), std::ios::binary) << twice;
+  EXPECT_NE(error_of_stack(dir.file("twice.dcm")).find("samples per pixel 5"), std::string::npos)
+      << error_of_stack(dir.file("twice.dcm"));
+  // No frames (GDCM sized the pixels by the count, and its decoder asserted).
+  const std::string frames("\x28\x00\x08\x00\x02\x00\x00\x00", 8);
+  const std::string none = corrupted("frames.dcm", frames + "2", frames + "0");
+  EXPECT_NE(error_of_stack(none).find("its number of frames (0028,0008) is not a count"),
+            std::string::npos)
+      << error_of_stack(none);
   // A length past the end of the file.
   const std::string columns("\x28\x00\x11\x00", 4);
   const std::string length =
