@@ -11,20 +11,16 @@
 #include <unistd.h>
 
 #include <cerrno>
-#include <chrono>
 #include <cstring>
 #include <deque>
 
+#include "../core/Clock.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
 namespace {
 
 constexpr size_t kMaxPendingSend = size_t(256) << 20;
-
-double now_seconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
 
 void set_nonblocking(int fd) {
   const int flags = fcntl(fd, F_GETFL, 0);

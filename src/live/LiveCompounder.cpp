@@ -3,7 +3,6 @@
 #include "sonoslice/live/LiveCompounder.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
@@ -15,16 +14,13 @@
 #include <nlohmann/json.hpp>
 
 #include "../compound/CompoundGrid.h"
+#include "../core/Clock.h"
 #include "../core/Text.h"
 #include "../io/TextParse.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
 namespace {
-
-double now_seconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
 
 struct Frame {
   std::vector<uint8_t> pixels;

@@ -16,6 +16,7 @@
 #include <pugixml.hpp>
 #endif
 
+#include "../core/Clock.h"
 #include "../io/ByteOrder.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/VolumeFile.h"
@@ -23,10 +24,6 @@
 
 namespace sonoslice {
 namespace {
-
-double now_seconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
 
 uint64_t wall_timestamp() {
   return igtl::timestamp_of_seconds(

@@ -63,7 +63,7 @@ const SamplerType kTypes[] = {SamplerType::Skin, SamplerType::Mesh, SamplerType:
 const SweepMotion kMotions[] = {SweepMotion::Linear, SweepMotion::Fan, SweepMotion::Rotational};
 
 /// The keys each type takes (besides type, reject and max_tries).
-const std::map<SamplerType, std::set<std::string>> kKeys = {
+const std::map<SamplerType, std::set<std::string>> kSamplerKeys = {
     {SamplerType::Skin, {"threshold_hu", "rotation_deg", "tilt_deg", "heel_toe_deg", "depth_mm"}},
     {SamplerType::Mesh, {"rotation_deg", "tilt_deg", "heel_toe_deg", "depth_mm", "threshold_hu"}},
     {SamplerType::Region,
@@ -114,7 +114,7 @@ SamplerSettings from_json(const json& j, const std::string& where) {
   if (!t) throw InputError(where + ": type '" + type + "': expected " + text::spellings(kTypes));
   SamplerSettings s;
   s.type = *t;
-  const std::set<std::string>& keys = kKeys.at(s.type);
+  const std::set<std::string>& keys = kSamplerKeys.at(s.type);
   for (const auto& [key, value] : j.items()) {
     const std::string at = where + "." + key;
     if (key == "type") continue;
@@ -128,7 +128,7 @@ SamplerSettings from_json(const json& j, const std::string& where) {
     }
     if (!keys.count(key)) {
       bool known = false;
-      for (const auto& [other, other_keys] : kKeys) known = known || other_keys.count(key);
+      for (const auto& [other, other_keys] : kSamplerKeys) known = known || other_keys.count(key);
       throw InputError(where + ": " +
                        (known ? "key '" + key + "' does not apply to a " + type + " sampler"
                               : "unknown key '" + key + "'") +

@@ -11,6 +11,7 @@
 #include "SimulateModel.h"
 #include "sonoslice/backend/Device.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/Math.h"
 #include "sonoslice/volume/PixelType.h"
 
 namespace sonoslice {
@@ -316,7 +317,7 @@ void set_beams(ImageModel& b, const ProbeGeometry& probe) {
   const double last_row_y = img.origin_mm[1] + (img.height - 1) * img.spacing_mm[1];
   if (probe.type == ProbeType::Curvilinear) {
     b.curvilinear = true;
-    const double sector = probe.sector_deg * 3.141592653589793 / 180;
+    const double sector = probe.sector_deg * kPi / 180;
     b.beam_step = sector / b.beams;
     b.beam0 = -sector / 2 + b.beam_step / 2;
     b.start = probe.radius_mm;

@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "../core/Clock.h"
 #include "sonoslice/view/ViewServer.h"
 
 namespace sonoslice {
@@ -19,9 +20,6 @@ namespace view_detail {
 
 /// World positions of the 8 corner voxel centres, index bits (i, j, k) = (1, 2, 4).
 std::array<Vec3, 8> box_corners(const VolumeGrid& grid);
-
-/// Steady-clock seconds.
-double now_seconds();
 
 }  // namespace view_detail
 
@@ -63,14 +61,14 @@ struct LiveFeed::Impl {
       // browser, the sender) would otherwise hold the next one back as long.
       const double gap =
           std::max(min_interval, kSnapshotSpacing * took + std::max(0.0, took - kShortSnapshot));
-      const double wait = gap - (view_detail::now_seconds() - last);
+      const double wait = gap - (now_seconds() - last);
       if (seq == frames_at_snapshot || !wanted || wait > 0) {
         // Woken by a new frame, by a page taking the last snapshot, or when the interval ends.
         wake.wait_for(lock, std::chrono::duration<double>(std::max(wait, 0.005)));
         continue;
       }
       const int64_t at = seq;
-      last = view_detail::now_seconds();
+      last = now_seconds();
       lock.unlock();
       std::shared_ptr<Volume> v;
       try {
@@ -78,7 +76,7 @@ struct LiveFeed::Impl {
       } catch (const std::exception&) {
         // nothing compounded yet (every frame so far rejected): no volume to show
       }
-      const double length = view_detail::now_seconds() - last;
+      const double length = now_seconds() - last;
       took = took == 0 ? length : 0.7 * took + 0.3 * length;
       lock.lock();
       frames_at_snapshot = at;

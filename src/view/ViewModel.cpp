@@ -2,7 +2,6 @@
 // snapshot thread) and opening a browser. Built in every configuration, so the live commands
 // link with or without cpp-httplib.
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdlib>
 
@@ -19,10 +18,6 @@ std::array<Vec3, 8> box_corners(const VolumeGrid& g) {
         g.index_to_world({double((b & 1) ? g.dims[0] - 1 : 0), double((b & 2) ? g.dims[1] - 1 : 0),
                           double((b & 4) ? g.dims[2] - 1 : 0)});
   return c;
-}
-
-double now_seconds() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
 }  // namespace view_detail

@@ -33,7 +33,6 @@ namespace sonoslice {
 
 using nlohmann::json;
 using view_detail::box_corners;
-using view_detail::now_seconds;
 
 namespace {
 

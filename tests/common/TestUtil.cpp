@@ -102,7 +102,7 @@ std::string data_dir() {
 
 Mat3 rotation(Vec3 axis, double degrees) {
   axis = normalized(axis);
-  const double a = degrees * 3.14159265358979323846 / 180.0, c = std::cos(a), s = std::sin(a);
+  const double a = degrees * kPi / 180.0, c = std::cos(a), s = std::sin(a);
   const double x = axis[0], y = axis[1], z = axis[2];
   Mat3 r;
   r.m[0][0] = c + x * x * (1 - c);

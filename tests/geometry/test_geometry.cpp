@@ -9,6 +9,7 @@
 
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/Math.h"
 #include "sonoslice/geometry/Pose.h"
 #include "sonoslice/geometry/Probe.h"
 #include "sonoslice/geometry/VolumeGrid.h"
@@ -16,8 +17,6 @@
 
 namespace sonoslice {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 ProbeGeometry w1_fan() {
   return workload_w1_fan_probe();

@@ -27,7 +27,7 @@ void write_text(const std::string& path, const std::string& text) {
   std::ofstream(path) << text;
 }
 
-std::string error_of(const std::string& path) {
+std::string pose_file_error(const std::string& path) {
   try {
     read_poses(path);
   } catch (const Error& e) {
@@ -115,35 +115,36 @@ TEST(PoseFile, Errors) {
   // Wrong .npy shape.
   std::vector<double> bad(3 * 5, 0.0);
   write_npy(dir.file("shape.npy"), PixelType::Float64, {3, 5}, bad.data());
-  EXPECT_NE(error_of(dir.file("shape.npy")).find("shape (3, 5)"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("shape.npy")).find("shape (3, 5)"), std::string::npos);
   // Wrong dtype.
   std::vector<int32_t> ints(16, 0);
   write_npy(dir.file("int.npy"), PixelType::Int32, {1, 4, 4}, ints.data());
-  EXPECT_NE(error_of(dir.file("int.npy")).find("dtype int32"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("int.npy")).find("dtype int32"), std::string::npos);
   // Text line with 15 numbers.
   write_text(dir.file("short.txt"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0\n");
-  EXPECT_NE(error_of(dir.file("short.txt")).find("line 1 has 15 numbers"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("short.txt")).find("line 1 has 15 numbers"),
+            std::string::npos);
   write_text(dir.file("word.txt"), "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 x1\n");
-  EXPECT_NE(error_of(dir.file("word.txt")).find("'x1' is not a number"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("word.txt")).find("'x1' is not a number"), std::string::npos);
   // Non-finite entry, index named.
   write_text(dir.file("nan.txt"),
              "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n1 0 0 nan 0 1 0 0 0 0 1 0 0 0 0 1\n");
-  EXPECT_NE(error_of(dir.file("nan.txt")).find("pose 1"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("nan.txt")).find("pose 1"), std::string::npos);
   // Degenerate axes.
   write_text(dir.file("flat.txt"), "1 1 0 0 0 0 0 0 0 0 1 0 0 0 0 1\n");
-  EXPECT_NE(error_of(dir.file("flat.txt")).find("pose 0"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("flat.txt")).find("pose 0"), std::string::npos);
   // Empty file, unknown extension, unknown JSON key, missing file, truncated npy.
   write_text(dir.file("empty.txt"), "# nothing\n");
-  EXPECT_NE(error_of(dir.file("empty.txt")).find("no poses"), std::string::npos);
-  EXPECT_NE(error_of(dir.file("p.xyz")).find("unknown extension"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("empty.txt")).find("no poses"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("p.xyz")).find("unknown extension"), std::string::npos);
   write_text(dir.file("k.json"), R"({"poses": [], "frame": "RAS"})");
-  EXPECT_NE(error_of(dir.file("k.json")).find("unknown key 'frame'"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("k.json")).find("unknown key 'frame'"), std::string::npos);
   EXPECT_THROW(read_poses(dir.file("missing.txt")), FileError);
   write_poses_npy(dir.file("t.npy"), two_poses());
   std::filesystem::resize_file(dir.file("t.npy"), 200);
-  EXPECT_NE(error_of(dir.file("t.npy")).find("truncated"), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("t.npy")).find("truncated"), std::string::npos);
   // Every message names the file.
-  EXPECT_NE(error_of(dir.file("flat.txt")).find(dir.file("flat.txt")), std::string::npos);
+  EXPECT_NE(pose_file_error(dir.file("flat.txt")).find(dir.file("flat.txt")), std::string::npos);
 }
 
 // A bad-input probe found this: "--image-to-probe" with 7 numbers was taken for a file name and

@@ -58,10 +58,6 @@ const Volume& ball() {
   return v;
 }
 
-ProbeGeometry probe() {
-  return workload_w1_fan_probe();
-}
-
 SamplerSettings skin(const char* json = "{\"type\": \"skin\"}") {
   return parse_sampler_json(json, "test");
 }
@@ -84,7 +80,7 @@ double ks(std::vector<double> values, const F& cdf) {
 }
 
 TEST(PoseSampler, SkinFaceTouchesTheSurfaceAndLooksAlongTheInwardNormal) {
-  const ProbeGeometry p = probe();
+  const ProbeGeometry p = workload_w1_fan_probe();
   const PoseSampler sampler(skin(), p, &ball());
   // Every surface point is on the outer sphere (the cavity is not skin).
   for (const Vec3& q : sampler.surface_points()) ASSERT_NEAR(norm(q - kCentre), kRadius, 0.5);
@@ -106,7 +102,7 @@ TEST(PoseSampler, SkinFaceTouchesTheSurfaceAndLooksAlongTheInwardNormal) {
 }
 
 TEST(PoseSampler, TiltAndHeelToeStayInTheirRanges) {
-  const ProbeGeometry p = probe();
+  const ProbeGeometry p = workload_w1_fan_probe();
   for (const bool heel_toe : {false, true}) {
     const PoseSampler sampler(
         skin(heel_toe ? R"({"type": "skin", "heel_toe_deg": [-8, -3]})"
@@ -133,7 +129,7 @@ TEST(PoseSampler, TiltAndHeelToeStayInTheirRanges) {
 }
 
 TEST(PoseSampler, DepthShiftPushesTheFaceAlongTheBeam) {
-  const ProbeGeometry p = probe();
+  const ProbeGeometry p = workload_w1_fan_probe();
   const PoseSampler sampler(skin(R"({"type": "skin", "depth_mm": 10})"), p, &ball());
   const std::vector<uint64_t> s = seeds(200);
   for (const Pose& pose : sampler.sample(s.data(), s.size()))
@@ -143,8 +139,8 @@ TEST(PoseSampler, DepthShiftPushesTheFaceAlongTheBeam) {
 TEST(PoseSampler, UniformRotationsPassKolmogorovSmirnov) {
   // A region sampler in the tissue ball (intensity range), uniform rotations.
   const PoseSampler sampler(
-      parse_sampler_json(R"({"type": "region", "intensity": [-100, 100]})", "test"), probe(),
-      &ball());
+      parse_sampler_json(R"({"type": "region", "intensity": [-100, 100]})", "test"),
+      workload_w1_fan_probe(), &ball());
   const size_t n = 20000;
   const std::vector<uint64_t> s = seeds(n);
   std::vector<double> axis[3], angle;
@@ -152,7 +148,7 @@ TEST(PoseSampler, UniformRotationsPassKolmogorovSmirnov) {
     for (int a = 0; a < 3; ++a) axis[a].push_back(pose.m[2][a]);  // row z: uniform in [−1, 1]
     const double trace = pose.m[0][0] + pose.m[1][1] + pose.m[2][2];
     angle.push_back(std::acos(std::max(-1.0, std::min(1.0, (trace - 1) / 2))));
-    const Vec3 at = pose.transform_point({0, probe().face_y_mm, 0});
+    const Vec3 at = pose.transform_point({0, workload_w1_fan_probe().face_y_mm, 0});
     const double r = norm(at - kCentre);
     ASSERT_TRUE(r < kRadius + 2 && r > kCavity - 2) << r;
   }
@@ -173,7 +169,7 @@ TEST(PoseSampler, ConeKeepsTheBeamNearItsDirection) {
       parse_sampler_json(
           R"({"type": "region", "intensity": [-100, 100], "cone_deg": 20, "direction": [0, 0, 2]})",
           "test"),
-      probe(), &ball());
+      workload_w1_fan_probe(), &ball());
   const std::vector<uint64_t> s = seeds(3000);
   double widest = 0;
   for (const Pose& pose : sampler.sample(s.data(), s.size()))
@@ -208,12 +204,12 @@ TEST(PoseSampler, MeshSamplerUsesOutwardNormalsOfAClosedMesh) {
     TriangleMesh m = mesh;
     if (inward_winding)
       for (auto& t : m.triangles) std::swap(t[1], t[2]);
-    const PoseSampler sampler(parse_sampler_json(R"({"type": "mesh"})", "test"), probe(), nullptr,
-                              nullptr, &m);
+    const PoseSampler sampler(parse_sampler_json(R"({"type": "mesh"})", "test"),
+                              workload_w1_fan_probe(), nullptr, nullptr, &m);
     const std::vector<uint64_t> s = seeds(2000);
     double worst_deg = 0, worst_mm = 0;
     for (const Pose& pose : sampler.sample(s.data(), s.size())) {
-      const Vec3 face = pose.transform_point({0, probe().face_y_mm, 0});
+      const Vec3 face = pose.transform_point({0, workload_w1_fan_probe().face_y_mm, 0});
       worst_mm = std::max(worst_mm, std::fabs(norm(face) - 30));
       worst_deg = std::max(
           worst_deg,
@@ -227,7 +223,7 @@ TEST(PoseSampler, MeshSamplerUsesOutwardNormalsOfAClosedMesh) {
 }
 
 TEST(PoseSampler, SweepsStepAsAskedAndJitterIsSeeded) {
-  const ProbeGeometry p = probe();
+  const ProbeGeometry p = workload_w1_fan_probe();
   Pose start = Mat4::from_rotation_translation(Mat3::identity(), {0, -80, 0});
   for (const char* motion : {"linear", "fan", "rotational"}) {
     SamplerSettings s;
@@ -276,7 +272,7 @@ TEST(PoseSampler, SweepsStepAsAskedAndJitterIsSeeded) {
 }
 
 TEST(PoseSampler, SweepFromTheSkin) {
-  const ProbeGeometry p = probe();
+  const ProbeGeometry p = workload_w1_fan_probe();
   const SamplerSettings s = parse_sampler_json(
       R"({"type": "sweep", "motion": "fan", "step": 3, "frames": 7, "from": {"type": "skin"}})",
       "test");
@@ -289,7 +285,7 @@ TEST(PoseSampler, SweepFromTheSkin) {
 }
 
 TEST(PoseSampler, RejectionRulesHoldAndImpossibleRulesFailInBoundedTries) {
-  const ProbeGeometry p = probe();
+  const ProbeGeometry p = workload_w1_fan_probe();
   const PoseSampler strict(
       skin(
           R"({"type": "skin", "tilt_deg": [-40, 40], "reject": {"min_body": 0.95, "no_gas": true}})"),
@@ -320,8 +316,8 @@ TEST(PoseSampler, RejectionRulesHoldAndImpossibleRulesFailInBoundedTries) {
 
 TEST(PoseSampler, SamePosesOnAnyThreadCount) {
   const PoseSampler sampler(
-      skin(R"({"type": "skin", "tilt_deg": [-10, 10], "reject": {"min_body": 0.5}})"), probe(),
-      &ball());
+      skin(R"({"type": "skin", "tilt_deg": [-10, 10], "reject": {"min_body": 0.5}})"),
+      workload_w1_fan_probe(), &ball());
   const std::vector<uint64_t> s = seeds(5000);
   const test::ScopedCpuSettings restore;
   set_cpu_threads(1);
@@ -362,10 +358,10 @@ TEST(PoseSampler, BadSettingsAreNamed) {
             std::string::npos);
   EXPECT_NE(message("{not json").find("not valid JSON"), std::string::npos);
   // Inputs a sampler needs.
-  EXPECT_THROW(PoseSampler(skin(), probe()), InputError);  // skin without a CT
-  EXPECT_THROW(
-      PoseSampler(parse_sampler_json(R"({"type": "region", "label": 3})", "t"), probe(), &ball()),
-      InputError);  // a label without a label volume
+  EXPECT_THROW(PoseSampler(skin(), workload_w1_fan_probe()), InputError);  // skin without a CT
+  EXPECT_THROW(PoseSampler(parse_sampler_json(R"({"type": "region", "label": 3})", "t"),
+                           workload_w1_fan_probe(), &ball()),
+               InputError);  // a label without a label volume
 }
 
 }  // namespace

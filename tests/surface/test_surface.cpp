@@ -8,13 +8,12 @@
 
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
+#include "sonoslice/geometry/Math.h"
 #include "sonoslice/surface/SurfaceSlicer.h"
 #include "sonoslice/surface/Voxelize.h"
 
 namespace sonoslice {
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // A UV sphere with `rings` latitude bands and `segments` longitudes, outward-facing.
 TriangleMesh sphere(const Vec3& c, double r, int rings = 64, int segments = 128) {
