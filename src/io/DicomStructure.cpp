@@ -303,13 +303,14 @@ class Walker {
     *value = int(u16(v, little_));
   }
 
-  // Number of frames (0028,0008), an integer string: GDCM reads its leading number and sizes the
-  // image's buffer by it; 0 (or none) asserts in its decoder.
+  // Number of frames (0028,0008), an integer string: GDCM reads its leading number (leading
+  // spaces, an optional '+', digits; trailing padding or a second value after a backslash do not
+  // count) and sizes the image's buffer by it; 0 (or none) asserts in its decoder.
   void number_of_frames(const Element& e) {
     if (frames_ >= 0) return;
     std::string text(std::min<uint32_t>(e.length, 16), '\0');
     if (!text.empty() && !read(e.value_at, &text[0], text.size())) fail("truncated file");
-    size_t i = text.find_first_not_of(" \0");
+    size_t i = text.find_first_not_of(' ');
     if (i != std::string::npos && text[i] == '+') ++i;
     int64_t n = 0;
     size_t digits = 0;
