@@ -34,6 +34,18 @@ inline void compound_cpu(CpuIsa isa, const AccumulatorView& grid, const FrameBat
   }
 }
 
+/// CPU: the finished values without hole filling of voxels [begin, end) into `out` (the whole
+/// grid's voxel_count values of `type`), with the code built for each instruction set.
+void finish_values_generic(const FinishInput& in, PixelType type, int64_t begin, int64_t end,
+                           void* out);
+void finish_values_avx2(const FinishInput& in, PixelType type, int64_t begin, int64_t end,
+                        void* out);
+inline void finish_values_cpu(CpuIsa isa, const FinishInput& in, PixelType type, int64_t begin,
+                              int64_t end, void* out) {
+  if (isa == CpuIsa::Avx2) return finish_values_avx2(in, type, begin, end, out);
+  finish_values_generic(in, type, begin, end, out);
+}
+
 #ifdef SONOSLICE_HAVE_CUDA
 /// CUDA: the batch's pointers and the grid's are device pointers.
 void compound_cuda_launch(const AccumulatorView& grid, const FrameBatch& batch, Mode mode,

@@ -10,6 +10,7 @@
 
 #include "../backend/Convert.h"
 #include "../backend/ParallelFor.h"
+#include "CompoundBackends.h"
 #include "FillCandidates.h"
 
 namespace sonoslice {
@@ -63,13 +64,12 @@ std::vector<float> plus_kernel(const HoleFillingKernel& k) {
 template <typename TOut>
 void finish_typed(const FinishInput& in, TOut* out) {
   const AccumulatorView& g = in.g;
-  if (in.element_count == 0) {
-    backend::parallel_for(g.nz, [&](int64_t z) {
-      for (int y = 0; y < g.ny; ++y) {
-        const int64_t base = g.offset(0, y, int(z));
-        for (int x = 0; x < g.nx; ++x) out[base + x] = finished_voxel<TOut>(in, x, y, int(z));
-      }
-    });
+  if (in.element_count == 0) {  // the values alone: the vectorised pass of each instruction set
+    const CpuIsa isa = cpu_kernel_isa();
+    backend::parallel_for_chunks(int64_t(g.nx) * g.ny * g.nz, int64_t(1) << 16,
+                                 [&](int64_t, int64_t b, int64_t e) {
+                                   finish_values_cpu(isa, in, PixelTypeOf<TOut>::value, b, e, out);
+                                 });
     return;
   }
   // With hole filling: voxel by voxel only where a voxel is known or an element may fill it.

@@ -8,7 +8,9 @@
 #include <map>
 #include <random>
 
+#include "../../src/compound/CompoundBackends.h"
 #include "../../src/compound/Finish.h"
+#include "../../src/compound/FinishImpl.h"
 #include "../../src/compound/PlusExactImpl.h"
 #include "../common/TestUtil.h"
 #include "sonoslice/compound/Compounder.h"
@@ -723,6 +725,57 @@ TEST(Compound, GenericAndAvx2KernelsGiveTheSameBits) {
         results[isa[0] == 'g'].insert(results[isa[0] == 'g'].end(), w.begin(), w.end());
       }
       EXPECT_EQ(std::memcmp(results[0].data(), results[1].data(), results[0].size() * 4), 0);
+    }
+  }
+}
+
+// The finishing pass without hole filling (written with selects so that it vectorises) gives, on
+// each instruction set and for every output type, what the per-voxel rule gives: accumulators
+// that round to ties, saturate both ways, reach ±inf or NaN, and carry weight 0.
+TEST(Compound, VectorisedFinishingGivesThePerVoxelRule) {
+  using namespace compound_impl;
+  const test::ScopedCpuSettings restore;
+  std::mt19937 rng(11);
+  const float specials[] = {0.f,   0.5f,    -0.5f,    1.5f,      -1.5f,    2.4999998f, 127.5f,
+                            128.f, 255.49f, 255.5f,   -128.5f,   32767.5f, -32768.6f,  65535.5f,
+                            3e9f,  -3e9f,   INFINITY, -INFINITY, NAN,      1e-30f,     -1e-30f};
+  const int n = 4000;
+  std::vector<Accumulator> cells(n);
+  std::uniform_real_distribution<float> wide(-70000.f, 70000.f), weight(0.f, 4.f);
+  for (int i = 0; i < n; ++i) {
+    const int kind = i % 4;
+    cells[i].value = kind == 0 ? specials[i / 4 % (sizeof(specials) / sizeof(float))] : wide(rng);
+    cells[i].weight = kind == 3 ? 0.f : (kind == 0 ? 1.f : weight(rng));
+  }
+  FinishInput in;
+  in.g.nx = 100;
+  in.g.ny = 8;
+  in.g.nz = 5;
+  in.g.cells = cells.data();
+  std::vector<std::string> isas{"generic"};
+  try {
+    set_cpu_kernel_isa("avx2");
+    isas.push_back("avx2");
+  } catch (const InputError&) {
+  }
+  for (Mode mode : {Mode::Mean, Mode::Max}) {
+    in.mode = mode;
+    for (PixelType type :
+         {PixelType::UInt8, PixelType::Int8, PixelType::UInt16, PixelType::Int16, PixelType::UInt32,
+          PixelType::Int32, PixelType::Float32, PixelType::Float64}) {
+      visit_pixel_type(type, [&](auto zero) {
+        using T = decltype(zero);
+        std::vector<T> expected(n);
+        for (int i = 0; i < n; ++i)
+          expected[i] = finished_voxel<T>(in, i % 100, i / 100 % 8, i / 800);
+        for (const std::string& isa : isas) {
+          std::vector<T> got(n);
+          finish_values_cpu(isa == "avx2" ? CpuIsa::Avx2 : CpuIsa::Generic, in, type, 0, n,
+                            got.data());
+          EXPECT_EQ(std::memcmp(got.data(), expected.data(), n * sizeof(T)), 0)
+              << isa << " " << to_string(type) << " mode " << int(mode);
+        }
+      });
     }
   }
 }
