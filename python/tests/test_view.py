@@ -344,6 +344,23 @@ def test_bad_view_inputs_are_named(cli, tmp_path):
     assert (r.returncode, r.stderr) == (1, "sonoslice: error: --port 70000: expected a port 0-65535\n"), r.stderr
 
 
+def test_three_planes_at_once_are_the_three_planes(cli, phantom_dir):
+    import urllib.request
+    viewer = start_view(cli, "--volume", phantom_dir / "ct.nii.gz", "--labels", phantom_dir / "labels.nii.gz")
+    try:
+        get = lambda path: urllib.request.urlopen(viewer.url + path, timeout=10).read()  # noqa: E731
+        scene = json.loads(get("api/scene"))
+        # Off-centre positions, one between two voxel layers.
+        pos = [p["position"] + k * 7.25 for k, p in enumerate(scene["planes"])]
+        for layer in ("volume", "labels"):
+            together = get(f"api/planes?pos={pos[0]!r},{pos[1]!r},{pos[2]!r}&layer={layer}")
+            one_by_one = b"".join(get(f"api/plane?axis={a}&pos={pos[a]!r}&layer={layer}") for a in range(3))
+            assert len(together) == 4 * sum(p["width"] * p["height"] for p in scene["planes"])
+            assert together == one_by_one, layer
+    finally:
+        viewer.stop()
+
+
 def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
     import urllib.error
     import urllib.request
@@ -363,7 +380,14 @@ def test_server_answers_bad_requests_and_keeps_serving(cli, phantom_dir):
                              ("api/image?pose=-1", "image: pose -1 out of range"),
                              ("api/image?pose=1e3", "image: pose '1e3' is not a whole number"),
                              ("api/image?pose=2.7", "image: pose '2.7' is not a whole number"),
-                             ("api/image?matrix=1,2,3", "image: matrix has 16 numbers"),
+                             ("api/image?matrix=1,2,3", "image: matrix '1,2,3': 16 finite numbers"),
+                             ("api/image?matrix=" + ",".join(["1"] * 17), "image: matrix"),
+                             ("api/planes?pos=1,2", "planes: pos '1,2': 3 finite numbers"),
+                             ("api/planes?pos=1,2,3,", "planes: pos '1,2,3,': 3 finite numbers"),
+                             ("api/planes?pos=0,0,1e308", "planes: pos '0,0,1e308' is beyond any scanner"),
+                             ("api/planes?pos=0,0,0&layer=x", "planes: layer 'x': volume or labels"),
+                             ("api/planes?pos=0,0,0&layer=labels", "planes: no labels to show"),
+                             ("api/planes", "planes: pos '': 3 finite numbers"),
                              ("api/image?matrix=1,,0", "image: matrix '1,,0': 16 finite numbers"),
                              ("api/image?matrix=" + ",".join(["nan"] * 16), "image: matrix"),
                              ("api/mesh/3", "mesh"), ("api/mesh/99999999999999999999", "view: 404: no such page"),

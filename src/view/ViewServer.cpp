@@ -130,6 +130,25 @@ double number_param(const httplib::Request& req, const char* name, const std::st
   return value;
 }
 
+// A query parameter of `count` finite numbers separated by commas.
+std::vector<double> numbers_param(const httplib::Request& req, const char* name,
+                                  const std::string& what, size_t count) {
+  const std::string text = req.get_param_value(name);
+  std::vector<double> values;
+  for (size_t at = 0; at <= text.size();) {
+    const size_t comma = std::min(text.find(',', at), text.size());
+    double value = 0;
+    if (!text::parse_double(text.substr(at, comma - at), &value)) break;
+    values.push_back(value);
+    at = comma + 1;
+  }
+  if (!req.has_param(name) || values.size() != count ||
+      std::count(text.begin(), text.end(), ',') != std::ptrdiff_t(count - 1))
+    throw InputError(what + ": " + name + " " + text::quote_value(text) + ": " +
+                     std::to_string(count) + " finite numbers separated by commas");
+  return values;
+}
+
 // "name:port" or "[v6]:port" to the name.
 std::string host_without_port(const std::string& h) {
   if (!h.empty() && h[0] == '[') return h.substr(0, h.find(']') + 1);
@@ -333,26 +352,62 @@ struct ViewServer::Impl {
     return j;
   }
 
+  // The layer a plane shows: 0 the volume (a live run's newest snapshot), 1 the labels.
+  static int layer_param(const httplib::Request& req, const std::string& what) {
+    const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "volume";
+    if (layer != "volume" && layer != "labels")
+      throw InputError(what + ": layer " + text::quote_value(layer) + ": volume or labels");
+    return layer == "volume" ? 0 : 1;
+  }
+  // The plane's place, not a pose: beyond any scanner it is no place in the volume.
+  static void check_plane_position(double pos, const std::string& shown, const std::string& what) {
+    if (std::fabs(pos) > kMaxGeometryMm)
+      throw InputError(what + ": pos " + text::quote_value(shown) +
+                       " is beyond any scanner (at most 1e9 mm)");
+  }
+
+  // Plane `axis` at `pos` into out (under slice_mutex; `v` from current_volume).
+  void slice_plane(int layer, int axis, double pos, const std::shared_ptr<const Volume>& v,
+                   float* out, const std::string& what) {
+    const Volume* source = layer == 0 ? v.get() : content.labels ? &*content.labels : nullptr;
+    if (!source) throw InputError(what + ": no " + (layer == 0 ? "volume" : "labels") + " to show");
+    const Pose pose = planes[size_t(axis)].pose_at(pos);
+    plane_slicer(layer, axis, *source).slice(&pose, 1, out);
+  }
+
   void plane(const httplib::Request& req, httplib::Response& res) {
     const int64_t axis = whole_param(req, "axis", "plane");
     const double pos = number_param(req, "pos", "plane");
-    const std::string layer = req.has_param("layer") ? req.get_param_value("layer") : "volume";
-    if (axis < 0 || axis > 2 || (layer != "volume" && layer != "labels"))
-      throw InputError("plane: axis 0..2, a finite pos and layer volume|labels");
-    // The plane's place, not a pose: beyond any scanner it is no place in the volume.
-    if (std::fabs(pos) > kMaxGeometryMm)
-      throw InputError("plane: pos " + text::quote_value(req.get_param_value("pos")) +
-                       " is beyond any scanner (at most 1e9 mm)");
+    const int layer = layer_param(req, "plane");
+    if (axis < 0 || axis > 2) throw InputError("plane: axis 0..2, not " + std::to_string(axis));
+    check_plane_position(pos, req.get_param_value("pos"), "plane");
     std::lock_guard<std::mutex> lock(slice_mutex);
     int64_t version = 0;
     const std::shared_ptr<const Volume> v = current_volume(&version);
-    const int index = layer == "volume" ? 0 : 1;
-    const Volume* source = index == 0 ? v.get() : content.labels ? &*content.labels : nullptr;
-    if (!source) throw InputError("plane: no " + layer + " to show");
     const ViewPlane& p = planes[size_t(axis)];
     std::vector<float> out(size_t(p.width) * size_t(p.height));
-    const Pose pose = p.pose_at(pos);
-    plane_slicer(index, axis, *source).slice(&pose, 1, out.data());
+    slice_plane(layer, int(axis), pos, v, out.data(), "plane");
+    res.set_header("X-Volume-Version", std::to_string(version));
+    send_floats(res, std::move(out));
+  }
+
+  // The three planes at once, one after another (axis 0, 1, 2), all of one volume version: a
+  // live page refreshes them with one request instead of three.
+  void all_planes(const httplib::Request& req, httplib::Response& res) {
+    const std::vector<double> pos = numbers_param(req, "pos", "planes", 3);
+    const int layer = layer_param(req, "planes");
+    for (double p : pos) check_plane_position(p, req.get_param_value("pos"), "planes");
+    std::lock_guard<std::mutex> lock(slice_mutex);
+    int64_t version = 0;
+    const std::shared_ptr<const Volume> v = current_volume(&version);
+    size_t total = 0;
+    for (const ViewPlane& p : planes) total += size_t(p.width) * size_t(p.height);
+    std::vector<float> out(total);
+    float* at = out.data();
+    for (int axis = 0; axis < 3; ++axis) {
+      slice_plane(layer, axis, pos[size_t(axis)], v, at, "planes");
+      at += size_t(planes[size_t(axis)].width) * size_t(planes[size_t(axis)].height);
+    }
     res.set_header("X-Volume-Version", std::to_string(version));
     send_floats(res, std::move(out));
   }
@@ -368,18 +423,7 @@ struct ViewServer::Impl {
       pose = content.poses[size_t(k)];
       index = k;
     } else {
-      std::vector<double> m;
-      std::string text = req.get_param_value("matrix");
-      for (size_t at = 0; at <= text.size();) {
-        const size_t comma = std::min(text.find(',', at), text.size());
-        double value = 0;
-        if (!text::parse_double(text.substr(at, comma - at), &value))
-          throw InputError("image: matrix " + text::quote_value(text) +
-                           ": 16 finite numbers separated by commas");
-        m.push_back(value);
-        at = comma + 1;
-      }
-      if (m.size() != 16) throw InputError("image: matrix has 16 numbers");
+      const std::vector<double> m = numbers_param(req, "matrix", "image", 16);
       for (int r = 0; r < 4; ++r)
         for (int c = 0; c < 4; ++c) pose.m[r][c] = m[size_t(4 * r + c)];
       require_rigid_pose(pose, "image: matrix");  // as live slice takes a probe's pose
@@ -520,6 +564,8 @@ struct ViewServer::Impl {
     });
     http.Get("/api/plane",
              [this](const httplib::Request& q, httplib::Response& r) { plane(q, r); });
+    http.Get("/api/planes",
+             [this](const httplib::Request& q, httplib::Response& r) { all_planes(q, r); });
     http.Get("/api/image",
              [this](const httplib::Request& q, httplib::Response& r) { image(q, r); });
     http.Get("/api/poses", [this](const httplib::Request&, httplib::Response& res) {

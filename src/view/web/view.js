@@ -104,13 +104,22 @@ function cmMul(a, b) {
 
 // ---- windowing: the contract's formula, evaluated in exactly its order (lo, scale, clamp, round),
 // so that the tests can compare pixels bit for bit.
+// One 32-bit store a pixel (RGBA bytes in memory order); 8-bit values (live frames as received)
+// through a 256-entry table of the same formula. A live page does this for every frame, so it is
+// the page's main cost per frame.
+const LITTLE_ENDIAN = new Uint8Array(new Uint32Array([1]).buffer)[0] === 1;
+const grayPixel = (g) => LITTLE_ENDIAN ? (0xff000000 | (g << 16) | (g << 8) | g) >>> 0 : ((g << 24) | (g << 16) | (g << 8) | 0xff) >>> 0;
 function windowInto(rgba, values, level, width) {
   const lo = level - width / 2, scale = 255 / width, n = values.length;
-  for (let i = 0, o = 0; i < n; i++, o += 4) {
-    const v = values[i];
-    const g = v !== v ? 0 : Math.round(Math.min(255, Math.max(0, (v - lo) * scale)));
-    rgba[o] = g; rgba[o + 1] = g; rgba[o + 2] = g; rgba[o + 3] = 255;
+  const gray = (v) => v !== v ? 0 : Math.round(Math.min(255, Math.max(0, (v - lo) * scale)));
+  const out = new Uint32Array(rgba.buffer, rgba.byteOffset, n);
+  if (values instanceof Uint8Array) {
+    const table = new Uint32Array(256);
+    for (let v = 0; v < 256; v++) table[v] = grayPixel(gray(v));
+    for (let i = 0; i < n; i++) out[i] = table[values[i]];
+    return;
   }
+  for (let i = 0; i < n; i++) out[i] = grayPixel(gray(values[i]));
 }
 // Labels over gray: 50/50 blend; over nothing (labels-only scene): the label colours on black.
 function blendLabels(rgba, labels, colors, onBlack) {
@@ -263,7 +272,7 @@ function applyPlane(pl, res, t0) {
   pl.drawnPos = res.pos;
   drawPlane(pl);
   pushStat(stats.planeMs, now() - t0);
-  drawOverlays();
+  drawOverlay(pl);  // the others' crosshairs moved when the position did (movePlane)
   markDirty();
 }
 
@@ -295,6 +304,28 @@ function scrollPlane(axis, dir) {
   if (d) quiet(movePlane(axis, state.positions[axis] + dir * d.step));
 }
 const refreshPlanes = () => Promise.all(planes.filter((pl) => pl.def).map((pl) => pl.loader.request(state.positions[pl.axis])));
+
+// A live volume's three planes in one request (/api/planes: one snapshot, one round trip): while
+// a stream runs, much of the page's cost is per request. A plane whose position moved meanwhile
+// is left to its own loader (movePlane asked it), so a scroll is never undone by an older answer.
+async function fetchAllPlanes() {
+  const pos = planes.map((pl) => state.positions[pl.axis]), defs = planes.map((pl) => pl.def);
+  const sizes = defs.map((d) => d.width * d.height), total = sizes[0] + sizes[1] + sizes[2];
+  const url = `/api/planes?pos=${pos.join(',')}&layer=`;
+  const wantLabels = !!(scene.labels && state.showLabels);
+  const [vol, lab] = await Promise.all([
+    labelsOnly ? null : fetchF32(url + 'volume', total),
+    wantLabels ? fetchF32(url + 'labels', total) : null]);
+  const part = (a, k) => a && a.subarray(sizes.slice(0, k).reduce((x, y) => x + y, 0), sizes.slice(0, k + 1).reduce((x, y) => x + y, 0));
+  return planes.map((pl, k) => ({def: defs[k], pos: pos[k], vol: part(vol, k), lab: part(lab, k)}));
+}
+function applyAllPlanes(results, key, t0) {
+  planes.forEach((pl, k) => {
+    if (!pl.loader.busy && results[k].pos === state.positions[pl.axis]) applyPlane(pl, results[k], t0);
+  });
+}
+const allPlanes = new Latest('planes', fetchAllPlanes, applyAllPlanes);
+const refreshLivePlanes = () => planes.every((pl) => pl.def) ? allPlanes.request(null) : refreshPlanes();
 const planesSettled = () => Promise.all(planes.map((pl) => pl.loader.settled()));
 
 // World point of plane pixel (i, j) (pixel centres at integers).
@@ -401,7 +432,8 @@ function applyImageResult(res, key, t0) {
 // Show an image (pose image or live frame): panel pixels, and the texture for the fan in 3D.
 // pixToWorld maps pixel (u, v, 0, 1) to world (row-major).
 function showImage(data, W, H, pixToWorld, caption) {
-  if (W !== image.W || H !== image.H || !image.img) {
+  const resized = W !== image.W || H !== image.H || !image.img;
+  if (resized) {
     image.W = W;
     image.H = H;
     image.canvas.width = W;
@@ -413,12 +445,15 @@ function showImage(data, W, H, pixToWorld, caption) {
   image.pixToWorld = pixToWorld;
   const sx = Math.abs(scene.probe && W === scene.probe.width ? scene.probe.pixel_to_probe[0] : 0) || rmColumnNorm(pixToWorld, 0) || 1;
   const sy = Math.abs(scene.probe && H === scene.probe.height ? scene.probe.pixel_to_probe[5] : 0) || rmColumnNorm(pixToWorld, 1) || 1;
-  image.aspect = (W * sx) / (H * sy);
+  const aspect = (W * sx) / (H * sy), relayout = resized || aspect !== image.aspect || image.stage.hidden;
+  image.aspect = aspect;
   image.caption = caption;
   $('image-caption').textContent = caption;
   image.note.hidden = true;
   image.stage.hidden = false;
-  layoutImage();
+  // Laid out again only when the shape changed (a resize lays out through queueLayout): reading
+  // the panel's size forces the browser's layout, which a live stream would pay every frame.
+  if (relayout) layoutImage();
   drawImage();
 }
 
@@ -426,12 +461,16 @@ function drawImage() {
   if (!image.data) return;
   windowInto(image.img.data, image.data, state.imageWindow[0], state.imageWindow[1]);
   image.ctx.putImageData(image.img, 0, 0);
-  // Texture for the fan: same pixels, alpha 0 outside the mask so only the fan shows in 3D.
+  image.texDirty = true;  // the 3D view's texture is made when it next draws (imageTexturePixels)
+  markDirty();
+}
+
+// Texture for the fan: the panel's pixels, alpha 0 outside the mask so only the fan shows in 3D.
+function imageTexturePixels() {
   const rgba = image.rgba, n = image.W * image.H;
   rgba.set(image.img.data);
   if (mask && mask.length === n) for (let i = 0; i < n; i++) rgba[4 * i + 3] = mask[i] ? 255 : 0;
-  image.texDirty = true;
-  markDirty();
+  return rgba;
 }
 
 function requestPose(k) {
@@ -749,7 +788,7 @@ function render3d() {
 
   // The shown image (pose image or live frame) in place; alpha from the mask keeps only the fan.
   if (image.data && image.pixToWorld) {
-    if (image.texDirty) { uploadTexture(image.tex, image.W, image.H, image.rgba); image.texDirty = false; }
+    if (image.texDirty) { uploadTexture(image.tex, image.W, image.H, imageTexturePixels()); image.texDirty = false; }
     const m = image.pixToWorld;
     drawQuad(vp, image.tex, imageCorners((u, v) => rmApply(m, u, v, 0), image.W, image.H));
   }
@@ -1091,7 +1130,7 @@ async function handleLive(st) {
   if ((volumeChanged || sceneChanged) && !live.planesInFlight) {
     live.planesInFlight = true;
     const version = st.volume_version;
-    refreshPlanes()
+    refreshLivePlanes()
       .then(() => {
         live.volVer = version;
         if (planes.some((pl) => pl.def)) stats.liveUpdates++;
