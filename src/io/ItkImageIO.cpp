@@ -737,6 +737,24 @@ std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
   }
 }
 
+std::optional<int64_t> dicom_instance_number(const std::string& file, const std::string& where) {
+  register_factories();
+  dicom::check_structure(file, where);
+  gdcm::Reader reader;
+  read_checked_dicom_header(reader, file, where);
+  const gdcm::DataSet& data = reader.GetFile().GetDataSet();
+  const gdcm::Tag instance_number(0x0020, 0x0013);
+  if (!data.FindDataElement(instance_number)) return std::nullopt;
+  const gdcm::ByteValue* value = data.GetDataElement(instance_number).GetByteValue();
+  if (!value) return std::nullopt;
+  // An IS value: a decimal integer, padded with spaces (or a NUL) to an even length.
+  std::string text(value->GetPointer(), value->GetLength());
+  while (!text.empty() && text.back() == '\0') text.pop_back();
+  int64_t number = 0;
+  if (!text::parse_int64(text::trim(text), &number)) return std::nullopt;
+  return number;
+}
+
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid) {
   register_factories();
   check_dicom_folder(directory);

@@ -1,6 +1,7 @@
 #pragma once
 // Internal: the ITK side of the IO library (compiled only when ITK is found).
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -16,6 +17,9 @@ namespace itk_io {
 Volume read_image_file(const std::string& path, int64_t* colour_pixels = nullptr);
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid);
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory);
+/// The InstanceNumber (0020,0013) of a DICOM file, if it has one that is a whole number (its
+/// structure is walked first, dicom::check_structure; `where` names it in errors).
+std::optional<int64_t> dicom_instance_number(const std::string& file, const std::string& where);
 /// Writes to exactly `path` (the caller handles temporary names). ITK's writers do not all report
 /// failed writes (NIfTI and MetaImage print a line and carry on), so the caller must check the
 /// file with verify_image_file(); returns what the libraries printed meanwhile, as one line.

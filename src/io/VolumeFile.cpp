@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -16,6 +17,7 @@
 #include "JsonFile.h"
 #include "MappedFile.h"
 #include "PngFile.h"
+#include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
 #include "sonoslice/io/Npy.h"
@@ -458,6 +460,31 @@ Volume naming_frames(const std::string& path, const std::string& what, Read&& re
     throw InputError(renamed(e));
   }
 }
+
+// The order of a folder's frames (docs/conventions.md §6): DICOM images by InstanceNumber when
+// each has its own, else every folder by name in natural order, so that an unpadded numbering
+// (frame2 before frame10) keeps its order; byte order would interleave it without a word.
+void frame_order(std::vector<std::string>& files, bool dicom, const std::string& what) {
+  std::sort(files.begin(), files.end(), text::natural_less);
+#ifdef SONOSLICE_HAVE_ITK
+  if (!dicom) return;
+  std::vector<std::pair<int64_t, std::string>> numbered;
+  for (const std::string& file : files) {
+    const std::optional<int64_t> n = itk_io::dicom_instance_number(file, what + " '" + file + "'");
+    if (!n) return;
+    numbered.emplace_back(*n, file);
+  }
+  std::stable_sort(numbered.begin(), numbered.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  for (size_t k = 0; k + 1 < numbered.size(); ++k)
+    if (numbered[k].first == numbered[k + 1].first) return;  // not one frame a number
+  for (size_t k = 0; k < files.size(); ++k) files[k] = numbered[k].second;
+#else
+  (void)dicom;
+  (void)what;
+#endif
+}
+
 }  // namespace
 
 Volume read_image_stack(const std::string& path, const std::string& what) {
@@ -486,7 +513,7 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
     return stack;
   }
   // A folder of frames: PNG images, or single-frame DICOM images (as some scanners export a
-  // clip), one frame a file, in name order.
+  // clip), one frame a file, in frame order (frame_order).
   std::vector<std::string> files;
   bool png = false, dicom = false;
   for (const auto& entry : fs::directory_iterator(path, ec)) {
@@ -501,7 +528,7 @@ Volume read_image_stack(const std::string& path, const std::string& what) {
   if (png && dicom)
     throw InputError(what + " '" + path + "': a folder of both .png and .dcm images (frames are " +
                      "one kind)");
-  std::sort(files.begin(), files.end());
+  frame_order(files, dicom, what);
   Volume stack;
   int64_t colour_pixels = 0;
   for (size_t k = 0; k < files.size(); ++k) {

@@ -21,6 +21,7 @@
 #include <itkMetaDataObject.h>
 #include <itkRGBPixel.h>
 
+#include "../../src/io/TextParse.h"
 #include "../common/TestUtil.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/Npy.h"
@@ -242,7 +243,8 @@ TEST(DicomSeries, BrokenSeriesAreRefused) {
 // file, as an ultrasound scanner stores a clip.
 template <typename T>
 void write_dicom_clip(const std::string& path, int w, int h, int n,
-                      const std::function<T(int, int, int)>& value, bool compressed = false) {
+                      const std::function<T(int, int, int)>& value, bool compressed = false,
+                      const std::string& instance_number = "") {
   using Image = itk::Image<T, 3>;
   auto image = Image::New();
   typename Image::SizeType size;
@@ -255,6 +257,9 @@ void write_dicom_clip(const std::string& path, int w, int h, int n,
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) image->SetPixel({{x, y, k}}, value(x, y, k));
   itk::EncapsulateMetaData<std::string>(image->GetMetaDataDictionary(), "0008|0060", "US");
+  if (!instance_number.empty())
+    itk::EncapsulateMetaData<std::string>(image->GetMetaDataDictionary(), "0020|0013",
+                                          instance_number);
   auto io = itk::GDCMImageIO::New();
   auto writer = itk::ImageFileWriter<Image>::New();
   if (compressed) {  // lossless JPEG, encapsulated in fragments
@@ -320,10 +325,8 @@ TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
             std::string::npos);
 }
 
-// GDCM asserts (aborting the process) on broken DICOM structure; sonoslice walks the file first
-// and refuses it, for one file and for a folder of a series alike.
 // A folder of single-frame DICOM images (some scanners export a clip so) is a stack of frames in
-// name order, as a folder of PNGs.
+// name order, as a folder of PNGs; broken files are refused naming them.
 TEST(DicomFile, FolderOfSingleFrameImagesIsAStackOfFrames) {
   test::TempDir dir;
   const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
@@ -351,6 +354,50 @@ TEST(DicomFile, FolderOfSingleFrameImagesIsAStackOfFrames) {
       << error_of_stack(dir.path().string());
 }
 
+// A folder's frames come in natural name order (an unpadded numbering keeps its order), single-
+// frame DICOM images in InstanceNumber order when each has its own.
+TEST(FrameFolder, FramesComeInNaturalNameOrderOrByInstanceNumber) {
+  EXPECT_TRUE(text::natural_less("frame2.png", "frame10.png"));
+  EXPECT_FALSE(text::natural_less("frame10.png", "frame2.png"));
+  EXPECT_TRUE(text::natural_less("a9b", "a10a"));
+  EXPECT_TRUE(text::natural_less("img_007.png", "img_7.png"));  // equal numbers: byte order
+  EXPECT_FALSE(text::natural_less("img_7.png", "img_007.png"));
+  EXPECT_TRUE(text::natural_less("x", "x1"));
+  EXPECT_TRUE(text::natural_less("IM_0009.dcm", "IM_0010.dcm"));
+  EXPECT_TRUE(text::natural_less("f99999999999999999999999", "f100000000000000000000000"));
+  EXPECT_FALSE(text::natural_less("same", "same"));
+  {
+    test::TempDir dir;  // frame1.png ... frame12.png, pixel value = frame number
+    for (int k = 1; k <= 12; ++k) {
+      const std::vector<uint8_t> pixels(6 * 4, uint8_t(k));
+      write_image(dir.file("frame" + std::to_string(k) + ".png"), pixels.data(), PixelType::UInt8,
+                  {6, 4}, {1, 1}, 1);
+    }
+    const Volume frames = read_image_stack(dir.path().string(), "--frames");
+    ASSERT_EQ(frames.grid().dims[2], 12);
+    for (int k = 0; k < 12; ++k) EXPECT_EQ(frames.data_as<uint8_t>()[k * 24], k + 1) << k;
+  }
+  test::TempDir dir;  // names in one order, instance numbers in the other
+  const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 40 * k); };
+  for (int k = 0; k < 4; ++k)
+    write_dicom_clip<uint8_t>(
+        dir.file("IM" + std::to_string(k) + ".dcm"), 12, 10, 1,
+        [&](int x, int y, int) { return grey(x, y, k); }, false, std::to_string(10 - k));
+  const Volume frames = read_image_stack(dir.path().string(), "--frames");
+  ASSERT_EQ(frames.grid().dims[2], 4);
+  for (int k = 0; k < 4; ++k)
+    EXPECT_EQ(frames.data_as<uint8_t>()[(k * 10 + 4) * 12 + 5], grey(5, 4, 3 - k)) << k;
+  // Two images of one number: not an order, so names decide.
+  write_dicom_clip<uint8_t>(
+      dir.file("IM4.dcm"), 12, 10, 1, [&](int x, int y, int) { return grey(x, y, 4); }, false, "7");
+  const Volume by_name = read_image_stack(dir.path().string(), "--frames");
+  ASSERT_EQ(by_name.grid().dims[2], 5);
+  for (int k = 0; k < 5; ++k)
+    EXPECT_EQ(by_name.data_as<uint8_t>()[(k * 10 + 4) * 12 + 5], grey(5, 4, k)) << k;
+}
+
+// GDCM asserts (aborting the process) on broken DICOM structure; sonoslice walks the file first
+// and refuses it, for one file and for a folder of a series alike.
 TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   test::TempDir dir;
   write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2,
