@@ -53,6 +53,11 @@ async function fetchF32(url, count) {
   return new Float32Array(buf);
 }
 
+// Writes an element's text only when it changed: a write invalidates the page's layout.
+function setText(el, text) {
+  if (el.textContent !== text) el.textContent = text;
+}
+
 // ---- 3-vectors
 const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
 const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
@@ -314,12 +319,15 @@ async function fetchAllPlanes() {
   const url = `/api/planes?pos=${pos.join(',')}&layer=`;
   const wantLabels = !!(scene.labels && state.showLabels);
   const [vol, lab] = await Promise.all([
-    labelsOnly ? null : fetchF32(url + 'volume', total),
-    wantLabels ? fetchF32(url + 'labels', total) : null]);
+    labelsOnly ? null : fetchF32(url + 'volume'),
+    wantLabels ? fetchF32(url + 'labels') : null]);
+  // A growing grid that changed in flight: nothing to draw; the next poll brings the new scene.
+  if ((vol && vol.length !== total) || (lab && lab.length !== total)) return null;
   const part = (a, k) => a && a.subarray(sizes.slice(0, k).reduce((x, y) => x + y, 0), sizes.slice(0, k + 1).reduce((x, y) => x + y, 0));
   return planes.map((pl, k) => ({def: defs[k], pos: pos[k], vol: part(vol, k), lab: part(lab, k)}));
 }
 function applyAllPlanes(results, key, t0) {
+  if (!results) return;
   planes.forEach((pl, k) => {
     if (!pl.loader.busy && results[k].pos === state.positions[pl.axis]) applyPlane(pl, results[k], t0);
   });
@@ -448,9 +456,9 @@ function showImage(data, W, H, pixToWorld, caption) {
   const aspect = (W * sx) / (H * sy), relayout = resized || aspect !== image.aspect || image.stage.hidden;
   image.aspect = aspect;
   image.caption = caption;
-  $('image-caption').textContent = caption;
-  image.note.hidden = true;
-  image.stage.hidden = false;
+  setText($('image-caption'), caption);
+  if (!image.note.hidden) image.note.hidden = true;
+  if (image.stage.hidden) image.stage.hidden = false;
   // Laid out again only when the shape changed (a resize lays out through queueLayout): reading
   // the panel's size forces the browser's layout, which a live stream would pay every frame.
   if (relayout) layoutImage();
@@ -1074,18 +1082,19 @@ async function loadMesh(info) {
 
 // ========================================================================================= live
 
+// Polled every 25 ms: only a text that changed is written (each write costs the browser a layout).
 function updateLiveBox(st) {
-  const show = (id, v) => { $(id).textContent = v == null ? '–' : String(v); };
+  const show = (id, v) => setText($(id), v == null ? '–' : String(v));
   show('live-received', st.received);
   show('live-compounded', st.compounded);
   show('live-dropped', st.dropped);
   show('live-rejected', st.rejected);
   const lat = st.latency_ms || {};
   const ms = (x) => (Number.isFinite(x) ? x.toFixed(1) : '–');
-  $('live-latency').textContent = `${ms(lat.p50)}/${ms(lat.p95)}/${ms(lat.p99)}`;
+  setText($('live-latency'), `${ms(lat.p50)}/${ms(lat.p95)}/${ms(lat.p99)}`);
   const count = scene && scene.mode === 'live-probe' ? st.images : st.compounded;
-  $('frame-counter').textContent = String(count == null ? 0 : count);
-  $('live-state').textContent = st.running === false ? 'live (stopped)' : 'live';
+  setText($('frame-counter'), String(count == null ? 0 : count));
+  setText($('live-state'), st.running === false ? 'live (stopped)' : 'live');
   live.running = st.running !== false;
 }
 
