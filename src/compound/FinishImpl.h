@@ -74,15 +74,25 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T saturate_select(double v) {
   }
 }
 
-/// Whether voxel i was reached (without hole filling: any weight at all).
+/// Whether a voxel of splat weight w was reached, without hole filling: any weight at all.
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool reached(float w) {
+  return w > 0.f;
+}
+
+/// Whether voxel i was reached.
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE bool is_known(const FinishInput& in, int64_t i) {
   const float w = in.g.cells[i].weight;
-  return in.element_count > 0 ? reached_for_filling(w) : w > 0.f;
+  return in.element_count > 0 ? reached_for_filling(w) : reached(w);
+}
+
+/// The value of a reached voxel in modes mean and latest (max keeps the value itself).
+SONOSLICE_HOST_DEVICE SONOSLICE_INLINE double mean_value(const Accumulator& a) {
+  return double(a.value) / double(a.weight);
 }
 
 SONOSLICE_HOST_DEVICE SONOSLICE_INLINE double known_value(const FinishInput& in, int64_t i) {
   const Accumulator& a = in.g.cells[i];
-  return in.mode == Mode::Max ? double(a.value) : double(a.value) / double(a.weight);
+  return in.mode == Mode::Max ? double(a.value) : mean_value(a);
 }
 
 /// A value converted to the output type T as PLUS's C casts do it (integers: toward zero,
@@ -285,21 +295,21 @@ SONOSLICE_HOST_DEVICE SONOSLICE_INLINE T finished_voxel(const FinishInput& in, i
 }
 
 /// finished_voxel without hole filling, for voxels [begin, end) of the grid: the quotient is
-/// computed for every voxel, also where it is then dropped (weight 0), so the loop has no branch
-/// and vectorises (CompoundCPUAvx2.cpp: four voxels a step). A live view finishes the whole grid
-/// several times a second, offline `compound` once.
+/// computed for every voxel, also where it is then dropped (weight 0), and the mode is decided
+/// outside the loops, so each loop has no branch and vectorises (CompoundCPUAvx2.cpp: four voxels
+/// a step). A live view finishes the whole grid several times a second, offline `compound` once.
 template <typename T>
 SONOSLICE_INLINE void finished_values(const FinishInput& in, int64_t begin, int64_t end, T* out) {
   const Accumulator* c = in.g.cells;
   if (in.mode == Mode::Max) {
     for (int64_t i = begin; i < end; ++i) {
       const T v = saturate_select<T>(double(c[i].value));
-      out[i] = c[i].weight > 0.f ? v : T(0);
+      out[i] = reached(c[i].weight) ? v : T(0);
     }
   } else {
     for (int64_t i = begin; i < end; ++i) {
-      const T v = saturate_select<T>(double(c[i].value) / double(c[i].weight));
-      out[i] = c[i].weight > 0.f ? v : T(0);
+      const T v = saturate_select<T>(mean_value(c[i]));
+      out[i] = reached(c[i].weight) ? v : T(0);
     }
   }
 }
