@@ -135,6 +135,9 @@ std::vector<double> parse_numbers(const std::string& text, size_t count, const s
       throw InputError(flag + " '" + text + "': '" + item + "' is not a finite number");
     out.push_back(v);
   }
+  // getline reads "1,2,3," as three items: the empty last one is refused like "1,,3"'s.
+  if (!text.empty() && text.back() == ',')
+    throw InputError(flag + " '" + text + "': '' is not a finite number");
   if (out.size() != count)
     throw InputError(flag + " '" + text + "': expected " + std::to_string(count) +
                      " comma-separated numbers");

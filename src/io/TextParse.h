@@ -109,6 +109,26 @@ inline bool parse_double(const std::string& token, double* out) {
   return true;
 }
 
+/// Numbers separated by commas, blanks around each allowed ("1, 2.5,-3"): every value, or false
+/// at the first item that is not one parse_double takes (then *bad is that item, trimmed), so
+/// "1,,2" and "1,2," are refused rather than read as fewer numbers.
+inline bool parse_number_list(const std::string& text, std::vector<double>* values,
+                              std::string* bad) {
+  values->clear();
+  for (size_t at = 0;;) {
+    const size_t comma = std::min(text.find(',', at), text.size());
+    const std::string item = trim(text.substr(at, comma - at));
+    double value = 0;
+    if (!parse_double(item, &value)) {
+      *bad = item;
+      return false;
+    }
+    values->push_back(value);
+    if (comma == text.size()) return true;
+    at = comma + 1;
+  }
+}
+
 inline bool parse_int64(const std::string& token, int64_t* out) {
   if (token.empty() || std::isspace(static_cast<unsigned char>(token[0]))) return false;
   errno = 0;

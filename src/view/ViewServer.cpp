@@ -135,15 +135,9 @@ std::vector<double> numbers_param(const httplib::Request& req, const char* name,
                                   const std::string& what, size_t count) {
   const std::string text = req.get_param_value(name);
   std::vector<double> values;
-  for (size_t at = 0; at <= text.size();) {
-    const size_t comma = std::min(text.find(',', at), text.size());
-    double value = 0;
-    if (!text::parse_double(text.substr(at, comma - at), &value)) break;
-    values.push_back(value);
-    at = comma + 1;
-  }
-  if (!req.has_param(name) || values.size() != count ||
-      std::count(text.begin(), text.end(), ',') != std::ptrdiff_t(count - 1))
+  std::string bad;
+  if (!req.has_param(name) || !text::parse_number_list(text, &values, &bad) ||
+      values.size() != count)
     throw InputError(what + ": " + name + " " + text::quote_value(text) + ": " +
                      std::to_string(count) + " finite numbers separated by commas");
   return values;
@@ -400,14 +394,12 @@ struct ViewServer::Impl {
     std::lock_guard<std::mutex> lock(slice_mutex);
     int64_t version = 0;
     const std::shared_ptr<const Volume> v = current_volume(&version);
-    size_t total = 0;
-    for (const ViewPlane& p : planes) total += size_t(p.width) * size_t(p.height);
-    std::vector<float> out(total);
-    float* at = out.data();
-    for (int axis = 0; axis < 3; ++axis) {
-      slice_plane(layer, axis, pos[size_t(axis)], v, at, "planes");
-      at += size_t(planes[size_t(axis)].width) * size_t(planes[size_t(axis)].height);
-    }
+    size_t starts[4] = {0};
+    for (size_t axis = 0; axis < 3; ++axis)
+      starts[axis + 1] = starts[axis] + size_t(planes[axis].width) * size_t(planes[axis].height);
+    std::vector<float> out(starts[3]);
+    for (int axis = 0; axis < 3; ++axis)
+      slice_plane(layer, axis, pos[size_t(axis)], v, out.data() + starts[axis], "planes");
     res.set_header("X-Volume-Version", std::to_string(version));
     send_floats(res, std::move(out));
   }

@@ -727,6 +727,8 @@ std::vector<BadCase> bad_cases() {
       {"UnknownInterp", std::string(kSlice) + "--interp cubic", "interpolation 'cubic'"},
       {"UnknownWorld", std::string(kSlice) + "--world XYZ", "world frame 'XYZ'"},
       {"BadWindow", std::string(kSlice) + "--window 40", "--window '40'"},
+      {"WindowTrailingComma", std::string(kSlice) + "--window 40,400,",
+       "--window '40,400,': '' is not a finite number"},
       {"BadDownsampling", std::string(kSlice) + "--downsampling 0", "--downsampling 0"},
       // cuda:99 fails on every machine: "not available" without a GPU, "no such GPU" with one.
       {"CudaUnavailable", std::string(kSlice) + "--device cuda:99", "cuda:99"},

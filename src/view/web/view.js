@@ -315,7 +315,8 @@ const refreshPlanes = () => Promise.all(planes.filter((pl) => pl.def).map((pl) =
 // is left to its own loader (movePlane asked it), so a scroll is never undone by an older answer.
 async function fetchAllPlanes() {
   const pos = planes.map((pl) => state.positions[pl.axis]), defs = planes.map((pl) => pl.def);
-  const sizes = defs.map((d) => d.width * d.height), total = sizes[0] + sizes[1] + sizes[2];
+  const sizes = defs.map((d) => d.width * d.height), starts = [0, sizes[0], sizes[0] + sizes[1]];
+  const total = starts[2] + sizes[2];
   const url = `/api/planes?pos=${pos.join(',')}&layer=`;
   const wantLabels = !!(scene.labels && state.showLabels);
   const [vol, lab] = await Promise.all([
@@ -323,7 +324,7 @@ async function fetchAllPlanes() {
     wantLabels ? fetchF32(url + 'labels') : null]);
   // A growing grid that changed in flight: nothing to draw; the next poll brings the new scene.
   if ((vol && vol.length !== total) || (lab && lab.length !== total)) return null;
-  const part = (a, k) => a && a.subarray(sizes.slice(0, k).reduce((x, y) => x + y, 0), sizes.slice(0, k + 1).reduce((x, y) => x + y, 0));
+  const part = (a, k) => a && a.subarray(starts[k], starts[k] + sizes[k]);
   return planes.map((pl, k) => ({def: defs[k], pos: pos[k], vol: part(vol, k), lab: part(lab, k)}));
 }
 function applyAllPlanes(results, key, t0) {
