@@ -186,8 +186,6 @@ void run_simulate(const SimulateFlags& f) {
 
   Stopwatch load;
   const SimulationInput input = read_simulation_input(f);
-  const Volume& volume = input.volume;
-  const SimulationSource source = input.source;
   const std::string& description = input.description;
   const double load_seconds = load.seconds();
   const Simulator sim = simulator_of(f, input, given_probe, tissues, settings);

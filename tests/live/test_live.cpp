@@ -81,8 +81,9 @@ TEST(Igtl, EveryMessageTypeRoundTripsThroughPackAndParse) {
     EXPECT_EQ(m.header.timestamp, 77u);
     EXPECT_EQ(m.message_id, version == 2 ? 9u : 0u);
     EXPECT_EQ(m.metadata.size(), version == 2 ? 2u : 0u);
-    if (version == 2)
+    if (version == 2) {
       EXPECT_EQ(m.metadata[0], std::make_pair(std::string("Key"), std::string("value")));
+    }
     igtl::Image image;
     ASSERT_EQ(igtl::parse_image(m.content, image), "");
     EXPECT_EQ(image.size[0], 5);

@@ -63,7 +63,7 @@ struct CompoundSettings {
   double rejection_threshold = -std::numeric_limits<double>::infinity();
   bool fill_holes = false;
   /// Applied in order; a hole takes the first kernel that can fill it from the samples.
-  std::vector<HoleFillingKernel> hole_filling{HoleFillingKernel{}};
+  std::vector<HoleFillingKernel> hole_filling = std::vector<HoleFillingKernel>(1);
   /// PLUS's arithmetic bit for bit (docs/compounding.md §4b): the volume kept in the frames'
   /// type and rounded after every update, PLUS's uint16 accumulation buffer, its nearest and
   /// trilinear update rules, its clip extent and fan test, on the path `plus_optimization`
