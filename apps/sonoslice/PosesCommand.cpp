@@ -34,49 +34,41 @@ struct PosesFlags {
   std::optional<int> threads;
 };
 
-/// The sampler's JSON: a type name, a JSON file, or inline JSON; then the flags on top.
-nlohmann::json sampler_json(const PosesFlags& f) {
-  nlohmann::json j;
+/// The sampler's settings: a type name, a JSON file, or inline JSON, with the flags laid over
+/// them by the library (parse_sampler_json's overrides).
+SamplerSettings sampler_settings(const PosesFlags& f) {
   const std::string& s = f.sampler;
+  std::string text = s;
   if (s == "skin" || s == "mesh" || s == "region" || s == "sweep") {
-    j["type"] = s;
-  } else {
-    std::string text = s;
-    if (s.empty() || s[0] != '{') {
-      std::ifstream in(s);
-      if (!in)
-        throw InputError("--sampler '" + s +
-                         "': expected skin, mesh, region, sweep, a JSON file or inline JSON");
-      std::stringstream buffer;
-      buffer << in.rdbuf();
-      text = buffer.str();
-    }
-    try {
-      j = nlohmann::json::parse(text);
-    } catch (const nlohmann::json::exception& e) {
-      throw InputError("--sampler '" + s + "': not valid JSON (" + e.what() + ")");
-    }
-    if (!j.is_object()) throw InputError("--sampler '" + s + "': expected a JSON object");
+    text = nlohmann::json{{"type", s}}.dump();
+  } else if (s.empty() || s[0] != '{') {
+    std::ifstream in(s);
+    if (!in)
+      throw InputError("--sampler '" + s +
+                       "': expected skin, mesh, region, sweep, a JSON file or inline JSON");
+    std::stringstream buffer;
+    buffer << in.rdbuf();
+    text = buffer.str();
   }
+  nlohmann::json overrides = nlohmann::json::object();
   const auto range = [](const std::string& text, const std::string& flag) {
     const std::vector<double> v = parse_numbers(text, 2, flag);
     if (!(v[0] <= v[1])) throw InputError(flag + " " + text + ": expected lo,hi with lo <= hi");
     return nlohmann::json::array({v[0], v[1]});
   };
-  if (!f.tilt.empty()) j["tilt_deg"] = range(f.tilt, "--tilt-deg");
-  if (!f.heel_toe.empty()) j["heel_toe_deg"] = range(f.heel_toe, "--heel-toe-deg");
-  if (!f.rotation.empty()) j["rotation_deg"] = range(f.rotation, "--rotation-deg");
-  if (!f.depth.empty()) j["depth_mm"] = range(f.depth, "--depth-mm");
-  if (f.max_tries) j["max_tries"] = *f.max_tries;
-  nlohmann::json& reject = j["reject"];
-  if (reject.is_null()) reject = nlohmann::json::object();
+  if (!f.tilt.empty()) overrides["tilt_deg"] = range(f.tilt, "--tilt-deg");
+  if (!f.heel_toe.empty()) overrides["heel_toe_deg"] = range(f.heel_toe, "--heel-toe-deg");
+  if (!f.rotation.empty()) overrides["rotation_deg"] = range(f.rotation, "--rotation-deg");
+  if (!f.depth.empty()) overrides["depth_mm"] = range(f.depth, "--depth-mm");
+  if (f.max_tries) overrides["max_tries"] = *f.max_tries;
+  nlohmann::json reject = nlohmann::json::object();
   if (f.min_inside) reject["min_inside"] = *f.min_inside;
   if (f.min_body) reject["min_body"] = *f.min_body;
   if (f.label) reject["label"] = *f.label;
   if (f.min_label) reject["min_label"] = *f.min_label;
   if (f.no_gas) reject["no_gas"] = true;
-  if (reject.empty()) j.erase("reject");
-  return j;
+  if (!reject.empty()) overrides["reject"] = reject;
+  return parse_sampler_json(text, "--sampler", overrides.dump());
 }
 
 void run_poses(const PosesFlags& f) {
@@ -92,7 +84,7 @@ void run_poses(const PosesFlags& f) {
   if (ext != ".npy" && ext != ".txt" && ext != ".csv")
     throw InputError("--out '" + f.out + "': poses are written as .npy (N, 4, 4), .txt or .csv");
   setup_threads(f.threads);
-  const SamplerSettings settings = parse_sampler_json(sampler_json(f).dump(), "--sampler");
+  const SamplerSettings settings = sampler_settings(f);
   check_distinct_outputs({{"--out", f.out}}, {{"--volume", f.volume.path},
                                               {"--labels", f.labels},
                                               {"--mesh", f.mesh},

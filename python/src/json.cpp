@@ -7,11 +7,16 @@
 #include <nlohmann/json.hpp>
 
 #include "bindings.h"
+#include "sonoslice/io/JsonDepth.h"
 
 namespace sonoslice::bindings {
 namespace {
 
-nlohmann::json json_value(nb::handle value, const std::string& where) {
+nlohmann::json json_value(nb::handle value, const std::string& where, int depth = 0) {
+  // The library refuses deeper documents anyway; here the limit also stops a list that holds
+  // itself, which would recurse without end.
+  if (depth > kMaxJsonDepth)
+    throw InputError(where + ": nested deeper than " + std::to_string(kMaxJsonDepth) + " levels");
   if (value.is_none()) return nullptr;
   if (nb::isinstance<nb::bool_>(value)) return nb::cast<bool>(value);
   if (nb::isinstance<nb::int_>(value)) {
@@ -31,7 +36,7 @@ nlohmann::json json_value(nb::handle value, const std::string& where) {
     nlohmann::json out = nlohmann::json::array();
     size_t k = 0;
     for (nb::handle item : value)
-      out.push_back(json_value(item, where + "[" + std::to_string(k++) + "]"));
+      out.push_back(json_value(item, where + "[" + std::to_string(k++) + "]", depth + 1));
     return out;
   }
   // Mappings: dicts, and bound classes that read as one (Tissue).
@@ -41,13 +46,13 @@ nlohmann::json json_value(nb::handle value, const std::string& where) {
       if (!nb::isinstance<nb::str>(key))
         throw InputError(where + ": key " + nb::repr(key).c_str() + " is not a string");
       const std::string k = nb::cast<std::string>(key);
-      out[k] = json_value(value[key], where + "." + k);
+      out[k] = json_value(value[key], where + "." + k, depth + 1);
     }
     return out;
   }
   // NumPy arrays and scalars: their Python numbers and lists.
   if (nb::hasattr(value, "tolist") && !nb::isinstance<nb::str>(value))
-    return json_value(value.attr("tolist")(), where);
+    return json_value(value.attr("tolist")(), where, depth);
   throw InputError(where + ": a " + std::string(nb::type_name(value.type()).c_str()) +
                    " is not a setting value (expected numbers, strings, lists and dicts)");
 }

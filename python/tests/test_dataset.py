@@ -402,6 +402,11 @@ def test_bad_values(volumes, tmp_path):
         one_line_error(r, needle)
     r, spec = bad(volumes, tmp_path, "volumes: [\n", name="broken.yaml")
     one_line_error(r, f"SPEC '{spec}': not valid YAML")
+    # Nested deeper than Python's parsers recurse: named, not a bare RecursionError.
+    r, spec = bad(volumes, tmp_path, "samplers: " + "[" * 100000 + "]" * 100000, name="deep.yaml")
+    one_line_error(r, f"SPEC '{spec}': not valid YAML (nested too deep to read)")
+    r, spec = bad(volumes, tmp_path, '{"samplers": ' + "[" * 100000 + "]" * 100000 + "}", name="deep.json")
+    one_line_error(r, f"SPEC '{spec}': not valid JSON (nested too deep to read)")
 
 
 def test_impossible_rejection_rule_stops_after_bounded_tries(volumes, tmp_path):

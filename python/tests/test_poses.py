@@ -79,6 +79,8 @@ def test_sweeps_give_their_frames_and_json_settings(cli, ph, tmp_path):
     (["--count", "0"], "--count 0"),
     (["--min-body", "1.0", "--max-tries", "20", "--depth-mm", "-200,-200"], "20 tries"),
     (["--out", "poses.png"], "--out"),
+    (["--sampler", '{"type": "skin", "notes": ' + "[" * 1000 + "]" * 1000 + "}"],
+     "--sampler: invalid JSON (nested deeper than 64 levels)"),
 ])
 def test_bad_settings_are_one_line(cli, ph, tmp_path, extra, needle):
     args = ["poses", "--sampler", "skin", "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
@@ -95,8 +97,27 @@ def test_bad_settings_are_one_line(cli, ph, tmp_path, extra, needle):
     assert not os.path.exists(tmp_path / "bad.npy")
 
 
+def test_flags_are_laid_over_a_sampler_file(cli, ph, tmp_path):
+    spec = tmp_path / "skin.json"
+    spec.write_text(json.dumps({"type": "skin", "tilt_deg": [-5, 5], "depth_mm": [0, 2],
+                                "reject": {"min_body": 0.5}}))
+    r = run(cli, "poses", "--sampler", str(spec), "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+            "--count", "50", "--seed", "4", "--tilt-deg", "-10,10", "--min-inside", "0.9",
+            "--out", str(tmp_path / "p.npy"))
+    assert r.returncode == 0, r.stderr
+    ct = sonoslice.Volume.from_file(str(ph / "ph" / "ct.nii.gz"))
+    merged = {"type": "skin", "tilt_deg": [-10, 10], "depth_mm": [0, 2],
+              "reject": {"min_body": 0.5, "min_inside": 0.9}}
+    sampler = sonoslice.PoseSampler(merged, sonoslice.Probe.from_fanslicer(W1), ct)
+    np.testing.assert_array_equal(np.load(tmp_path / "p.npy"), sampler.sample(sonoslice.sample_seeds(4, 0, 0, 50)))
+
+
 def test_python_errors_name_the_setting():
     probe = sonoslice.Probe.workload("W1")
+    itself = []
+    itself.append(itself)  # a list that holds itself: refused, not recursed into without end
+    with pytest.raises(ValueError, match="nested deeper than 64 levels"):
+        sonoslice.PoseSampler({"type": "skin", "tilt_deg": itself}, probe)
     with pytest.raises(ValueError, match="unknown key 'tilt'"):
         sonoslice.PoseSampler({"type": "skin", "tilt": 3}, probe)
     with pytest.raises(ValueError, match="needs the CT"):

@@ -5,10 +5,12 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 
 #include "sonoslice/core/Error.h"
+#include "sonoslice/io/JsonDepth.h"
 
 namespace sonoslice {
 
@@ -29,6 +31,25 @@ auto with_json_errors_named(const std::string& where, F read) -> decltype(read()
     return read();
   } catch (const nlohmann::json::exception& e) {
     throw InputError(where + ": " + json_detail(e));
+  }
+}
+
+/// `input` (text or a stream) parsed, refusing documents nested deeper than kMaxJsonDepth with
+/// `Err` "<where>: invalid JSON (nested deeper than 64 levels)"; the JSON library's own errors
+/// (syntax, a number beyond double's range such as 1e400) become `Err` "<where>: invalid JSON
+/// (<detail>)". Every parser of JSON text in the library goes through it.
+template <typename Err = InputError, typename Input>
+nlohmann::json parse_json(Input&& input, const std::string& where) {
+  const auto depth_limit = [&where](int depth, nlohmann::json::parse_event_t, nlohmann::json&) {
+    if (depth > kMaxJsonDepth)
+      throw Err(where + ": invalid JSON (nested deeper than " + std::to_string(kMaxJsonDepth) +
+                " levels)");
+    return true;
+  };
+  try {
+    return nlohmann::json::parse(std::forward<Input>(input), depth_limit);
+  } catch (const nlohmann::json::exception& e) {
+    throw Err(where + ": invalid JSON (" + json_detail(e) + ")");
   }
 }
 
@@ -58,13 +79,7 @@ inline std::ifstream open_text_file(const std::string& path, const std::string& 
 inline nlohmann::json read_json_file(const std::string& path, const std::string& what,
                                      OpenErrorReason reason = OpenErrorReason::Omit) {
   std::ifstream in = open_text_file(path, what, reason);
-  try {
-    return nlohmann::json::parse(in);
-  } catch (const nlohmann::json::exception& e) {
-    // parse_error, and out_of_range for a number beyond double's range (1e400): both say the
-    // text is not JSON sonoslice can read.
-    throw FileError(what + " '" + path + "': invalid JSON (" + json_detail(e) + ")");
-  }
+  return parse_json<FileError>(in, what + " '" + path + "'");
 }
 
 }  // namespace sonoslice

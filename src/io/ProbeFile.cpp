@@ -158,12 +158,7 @@ ProbeGeometry parse_probe_json(const std::string& text, const std::string& sourc
                                int downsampling) {
   if (downsampling < 1 || downsampling > 64)
     throw ParameterError("downsampling", std::to_string(downsampling) + ": must be in 1..64");
-  json root;
-  try {
-    root = json::parse(text);
-  } catch (const json::exception& e) {  // parse_error, or out_of_range for a number like 1e999
-    throw FileError("probe '" + source + "': invalid JSON (" + json_detail(e) + ")");
-  }
+  const json root = parse_json<FileError>(text, "probe '" + source + "'");
   if (!root.is_object()) throw InputError("probe '" + source + "': expected a JSON object");
   ProbeGeometry p = with_json_errors_named("probe '" + source + "'", [&] {
     return root.contains("simulation") ? parse_fanslicer(root, source, downsampling)

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "../core/Text.h"
+#include "../io/JsonFile.h"
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -209,11 +210,21 @@ const char* to_string(SweepMotion motion) {
 }
 
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where) {
-  json j;
-  try {
-    j = json::parse(text);
-  } catch (const json::exception& e) {
-    throw InputError(where + ": not valid JSON (" + std::string(e.what()) + ")");
+  return from_json(parse_json(text, where), where);
+}
+
+SamplerSettings parse_sampler_json(const std::string& text, const std::string& where,
+                                   const std::string& overrides) {
+  json j = parse_json(text, where);
+  if (!j.is_object()) throw InputError(where + ": expected a JSON object");
+  const json laid_over = parse_json(overrides, "sampler overrides");
+  for (const auto& [key, value] : laid_over.items()) {
+    json& mine = j[key];
+    if (key == "reject" && mine.is_object() && value.is_object()) {
+      for (const auto& [rule, setting] : value.items()) mine[rule] = setting;
+    } else if (key != "reject" || mine.is_null()) {
+      mine = value;
+    }  // else a "reject" that is not an object: from_json names it
   }
   return from_json(j, where);
 }

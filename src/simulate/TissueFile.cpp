@@ -77,13 +77,7 @@ std::vector<Tissue> read_tissue_table(const std::string& path) {
 }
 
 std::vector<Tissue> parse_tissue_table(const std::string& text, const std::string& where) {
-  nlohmann::json doc;
-  try {
-    doc = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::exception& e) {
-    throw InputError(where + ": invalid JSON (" + json_detail(e) + ")");
-  }
-  return tissues_from(doc, where);
+  return tissues_from(parse_json(text, where), where);
 }
 
 std::string tissue_table_json(const std::vector<Tissue>& tissues) {

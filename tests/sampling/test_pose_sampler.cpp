@@ -356,7 +356,7 @@ TEST(PoseSampler, BadSettingsAreNamed) {
       std::string::npos);
   EXPECT_NE(message(R"({"type": "region"})").find("give its \"label\" or \"intensity\" range"),
             std::string::npos);
-  EXPECT_NE(message("{not json").find("not valid JSON"), std::string::npos);
+  EXPECT_NE(message("{not json").find("invalid JSON"), std::string::npos);
   // Inputs a sampler needs.
   EXPECT_THROW(PoseSampler(skin(), workload_w1_fan_probe()), InputError);  // skin without a CT
   EXPECT_THROW(PoseSampler(parse_sampler_json(R"({"type": "region", "label": 3})", "t"),

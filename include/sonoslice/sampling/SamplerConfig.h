@@ -16,4 +16,11 @@ const char* to_string(SweepMotion motion);
 /// Settings from a JSON object's text; `where` names it in messages (e.g. "samplers[0]").
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where);
 
+/// The same with `overrides`, a JSON object's text, laid over the settings' object first: each
+/// of its keys replaces the settings' own, except "reject", whose rules are replaced one by one.
+/// How `sonoslice poses` lays its flags over a sampler file: an override is checked like a key of
+/// the file (a tilt for a region sampler is refused).
+SamplerSettings parse_sampler_json(const std::string& text, const std::string& where,
+                                   const std::string& overrides);
+
 }  // namespace sonoslice

@@ -213,6 +213,8 @@ def _read_spec_file(name: str) -> dict:
             data = json.loads(text)
         except ValueError as e:
             raise SpecError(f"{where}: not valid JSON ({e})") from None
+        except RecursionError:
+            raise SpecError(f"{where}: not valid JSON (nested too deep to read)") from None
     else:
         try:
             import yaml
@@ -222,6 +224,8 @@ def _read_spec_file(name: str) -> dict:
             data = yaml.safe_load(text)
         except yaml.YAMLError as e:
             raise SpecError(f"{where}: not valid YAML ({' '.join(str(e).split())})") from None
+        except RecursionError:
+            raise SpecError(f"{where}: not valid YAML (nested too deep to read)") from None
     if not isinstance(data, dict):
         raise SpecError(f"{where}: expected a mapping of keys (seed, volumes, probes, samplers, ...) at the top")
     return data
