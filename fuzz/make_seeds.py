@@ -285,6 +285,45 @@ def main():
         {"simulation": {"fan_geometry": [0, 0, 0, 0, 0, 0], "image_dimensions": [0, 1e10],
                         "pixel_size": [0, -1]}}))
     put("probe_json", "truncated.json", json.dumps(native)[:57])
+
+    # ---- tissue tables and pose sampler settings ------------------------------------------
+    liver = {"name": "liver", "label": 3, "impedance_mrayl": 1.65, "attenuation_db_cm_mhz": 0.5,
+             "scatter_mean": 0.025, "scatter_density": 10}
+    put("tissue_json", "table.json", json.dumps({"tissues": [
+        {"name": "air", "label": 0, "impedance_mrayl": 0.0004, "attenuation_db_cm_mhz": 12,
+         "scatter_mean": 0},
+        {"name": "fat", "label": 1, "impedance_mrayl": 1.38, "attenuation_db_cm_mhz": 0.48,
+         "scatter_mean": 0.012, "colour": [255, 230, 150]}, liver], "notes": "a user's words"}, indent=2))
+    put("tissue_json", "bad-values.json", json.dumps({"tissues": [
+        dict(liver, label=65536), dict(liver, impedance_mrayl=-1), dict(liver, name=7),
+        dict(liver, scatter_density=1e308)]}).replace("1e+308", "1e400"))
+    put("tissue_json", "duplicate-labels.json", json.dumps({"tissues": [liver, dict(liver, name="b")]}))
+    put("tissue_json", "missing-key.json", '{"tissues": [{"name": "x", "label": 1}], "bogus": 1}')
+    put("tissue_json", "not-a-table.json", '[{"tissues": null}]')
+    put("tissue_json", "deep.json", '{"tissues": [], "notes": ' + "[" * 80 + "]" * 80 + "}")
+    put("tissue_json", "truncated.json", json.dumps({"tissues": [liver]})[:40])
+    put("sampler_json", "skin.json", json.dumps(
+        {"type": "skin", "threshold_hu": -500, "rotation_deg": [0, 360], "tilt_deg": [-15, 15],
+         "heel_toe_deg": [-10, 10], "depth_mm": [0, 5], "max_tries": 1000,
+         "reject": {"min_inside": 0.9, "min_body": 0.6, "no_gas": True, "gas_hu": -400,
+                    "gas_depth_mm": 5}}))
+    put("sampler_json", "region-label.json", json.dumps(
+        {"type": "region", "label": 3, "cone_deg": 30, "direction": [0, 0, 1], "anchor": "centre",
+         "reject": {"label": 3, "min_label": 0.5}}))
+    put("sampler_json", "region-intensity.json", json.dumps(
+        {"type": "region", "intensity": [-100, 100], "rotation_deg": 45}))
+    put("sampler_json", "mesh.json", json.dumps({"type": "mesh", "tilt_deg": [-5, 5]}))
+    put("sampler_json", "sweep-from-skin.json", json.dumps(
+        {"type": "sweep", "motion": "fan", "step": 1.5, "frames": 8, "jitter_mm": 0.2,
+         "jitter_deg": 0.1, "from": {"type": "skin", "reject": {"min_body": 0.5}}}))
+    put("sampler_json", "sweep-start.json", json.dumps(
+        {"type": "sweep", "motion": "rotational", "start": [POSE[0:4], POSE[4:8], POSE[8:12],
+                                                            POSE[12:16]]}))
+    put("sampler_json", "bad-values.json", '{"type": "skin", "tilt_deg": [5, -5], "max_tries": 1e400,'
+        ' "depth_mm": "a", "reject": {"min_inside": 2, "label": 2147483648}}')
+    put("sampler_json", "sweep-of-sweep.json", json.dumps(
+        {"type": "sweep", "from": {"type": "sweep", "from": {"type": "skin"}}}))
+    put("sampler_json", "deep.json", '{"type": "sweep", "from": ' * 70 + '{"type": "skin"}' + "}" * 70)
     put("fanslicer_config", "sidecar.json", json.dumps({"spacing": [0.5, 0.5, 2], "origin": [1, 2, 3],
                                                         "direction": [1, 0, 0, 0, 1, 0, 0, 0, 1]}))
     put("fanslicer_config", "sidecar-bad.json", '{"spacing": [0, -1, 1e999], "origin": [1, 2], "x": 1}')
