@@ -2,6 +2,7 @@
 // growing volume out, driven by PlusServer's reconstruction commands; `live slice` and `live
 // simulate`: a virtual probe answering each pose with the image `slice` / `simulate` makes there.
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -93,14 +94,25 @@ struct LiveCompoundFlags {
   bool quiet = false;
 };
 
+// --max-frames and --max-seconds of every live command: 0 is no limit.
+void check_stop_limits(int64_t max_frames, double max_seconds) {
+  if (max_frames < 0)
+    throw InputError("--max-frames " + std::to_string(max_frames) + ": must be >= 0 (0: no limit)");
+  if (!(max_seconds >= 0) || std::isinf(max_seconds)) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", max_seconds);
+    throw InputError("--max-seconds " + std::string(text) +
+                     ": must be a finite number >= 0 (0: no limit)");
+  }
+}
+
 void run_live_compound_command(const LiveCompoundFlags& f) {
   const IgtlEndpointOptions endpoint = f.endpoint.options();
   ReconstructionOptions options;
   options.names = flag_of;
   f.recon.apply(options);
   options.device = setup_device(f.recon.device, f.recon.threads);
-  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0 (0: no limit)");
-  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0 (0: no limit)");
+  check_stop_limits(f.max_frames, f.max_seconds);
   check_view_option(f.view);
   check_distinct_outputs({{"--out", f.out}, {"--record", f.record}, {"--stats", f.stats}},
                          {{"--config", f.config}});
@@ -269,8 +281,7 @@ void serve_virtual_probe(const char* command, const VirtualProbeFlags& f,
 }
 
 void check_probe_flags(const VirtualProbeFlags& f) {
-  if (f.max_frames < 0) throw InputError("--max-frames must be >= 0 (0: no limit)");
-  if (!(f.max_seconds >= 0)) throw InputError("--max-seconds must be >= 0 (0: no limit)");
+  check_stop_limits(f.max_frames, f.max_seconds);
   if (!f.stats.empty()) check_output_path(f.stats);
   check_view_option(f.view);
 }

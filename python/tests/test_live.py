@@ -384,7 +384,10 @@ def test_no_frame_no_volume_and_a_named_reason(cli, tmp_path):
                        (["--listen", "0", "--queue", "some"], "--queue"),
                        (["--listen", "0", "--queue-size", "0"], "--queue-size"),
                        (["--listen", "0", "--origin", "1,2,3"], "--origin"),
-                       (["--listen", "0", "--view", "70000"], "--view 70000: expected [HOST:]PORT")]:
+                       (["--listen", "0", "--view", "70000"], "--view 70000: expected [HOST:]PORT"),
+                       (["--listen", "0", "--max-seconds", "nan"], "--max-seconds nan: must be a finite number"),
+                       (["--listen", "0", "--max-seconds", "inf"], "--max-seconds inf: must be a finite number"),
+                       (["--listen", "0", "--max-frames", "-2"], "--max-frames -2: must be >= 0")]:
         r = subprocess.run([cli, "live", "compound", *args, "--spacing", "1", "--out", str(out)],
                            capture_output=True, text=True, timeout=30)
         assert r.returncode != 0 and what in r.stderr, (args, r.stderr)
