@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <csignal>
 #include <cstdint>
@@ -125,9 +126,12 @@ std::string default_text(double value) {
 
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag) {
   std::vector<double> out;
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
+  // Every item between commas, the empty ones too ("1,,3", "1,2,"), which getline would drop
+  // at the end; an empty text has none.
+  for (size_t at = 0; !text.empty() && at <= text.size();) {
+    const size_t comma = std::min(text.find(',', at), text.size());
+    const std::string item = text.substr(at, comma - at);
+    at = comma + 1;
     char* end = nullptr;
     const double v = std::strtod(item.c_str(), &end);
     while (end && *end == ' ') ++end;
@@ -135,9 +139,6 @@ std::vector<double> parse_numbers(const std::string& text, size_t count, const s
       throw InputError(flag + " '" + text + "': '" + item + "' is not a finite number");
     out.push_back(v);
   }
-  // getline reads "1,2,3," as three items: the empty last one is refused like "1,,3"'s.
-  if (!text.empty() && text.back() == ',')
-    throw InputError(flag + " '" + text + "': '' is not a finite number");
   if (out.size() != count)
     throw InputError(flag + " '" + text + "': expected " + std::to_string(count) +
                      " comma-separated numbers");

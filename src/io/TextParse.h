@@ -110,19 +110,14 @@ inline bool parse_double(const std::string& token, double* out) {
 }
 
 /// Numbers separated by commas, blanks around each allowed ("1, 2.5,-3"): every value, or false
-/// at the first item that is not one parse_double takes (then *bad is that item, trimmed), so
-/// "1,,2" and "1,2," are refused rather than read as fewer numbers.
-inline bool parse_number_list(const std::string& text, std::vector<double>* values,
-                              std::string* bad) {
+/// at the first item that is not one parse_double takes, so "1,,2" and "1,2," are refused rather
+/// than read as fewer numbers.
+inline bool parse_number_list(const std::string& text, std::vector<double>* values) {
   values->clear();
   for (size_t at = 0;;) {
     const size_t comma = std::min(text.find(',', at), text.size());
-    const std::string item = trim(text.substr(at, comma - at));
     double value = 0;
-    if (!parse_double(item, &value)) {
-      *bad = item;
-      return false;
-    }
+    if (!parse_double(trim(text.substr(at, comma - at)), &value)) return false;
     values->push_back(value);
     if (comma == text.size()) return true;
     at = comma + 1;

@@ -135,9 +135,7 @@ std::vector<double> numbers_param(const httplib::Request& req, const char* name,
                                   const std::string& what, size_t count) {
   const std::string text = req.get_param_value(name);
   std::vector<double> values;
-  std::string bad;
-  if (!req.has_param(name) || !text::parse_number_list(text, &values, &bad) ||
-      values.size() != count)
+  if (!req.has_param(name) || !text::parse_number_list(text, &values) || values.size() != count)
     throw InputError(what + ": " + name + " " + text::quote_value(text) + ": " +
                      std::to_string(count) + " finite numbers separated by commas");
   return values;
