@@ -13,6 +13,17 @@ double rigid_deviation(const Mat4& m) {
                    norm(z - cross(x, y))});
 }
 
+double scaled_rigid_deviation(const Mat4& m) {
+  const Vec3 c[3] = {m.column3(0), m.column3(1), m.column3(2)};
+  double worst = 0;
+  for (int a = 0; a < 3; ++a)
+    for (int b = a + 1; b < 3; ++b) {
+      const double cosine = std::fabs(dot(c[a], c[b])) / (norm(c[a]) * norm(c[b]));
+      worst = std::isfinite(cosine) ? std::max(worst, cosine) : 1.0;
+    }
+  return worst;
+}
+
 std::optional<Mat4> invert(const Mat4& m) {
   double a[4][8];
   double scale = 0;

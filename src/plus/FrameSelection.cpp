@@ -38,6 +38,7 @@ PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
     double deviation = 0;
     int frame = 0;
     std::string name;
+    bool from_image = false;
   } worst;
   std::string first_without_chain;
   for (int k = 0; k < sequence.frame_count; k += skip) {
@@ -69,19 +70,26 @@ PlusFrameSelection select_plus_frames(const PlusSequence& sequence,
     sel.frames.push_back(k);
     sel.to_reference.push_back(*m);
     // A tracker's transforms are rigid; one that scales or shears (a corrupt or hand-edited
-    // file) stretches the volume. PLUS uses it as given, and so does this, but says so.
+    // file) stretches the volume. PLUS uses it as given, and so does this, but says so. A
+    // transform from the image's own frame (ImageToReference, as PlusServer and `live compound
+    // --record` write it) maps pixels, so its axes carry the spacing and may be mirrored: only a
+    // shear is wrong there.
     for (const std::string& name : sequence.transform_names(k)) {
       const std::optional<Mat4> t = sequence.transform(k, name);
-      const double deviation = t ? rigid_deviation(*t) : 0.0;
-      if (deviation > worst.deviation) worst = {deviation, k, name};
+      const bool from_image = name.rfind("ImageTo", 0) == 0;
+      const double deviation = !t           ? 0.0
+                               : from_image ? scaled_rigid_deviation(*t)
+                                            : rigid_deviation(*t);
+      if (deviation > worst.deviation) worst = {deviation, k, name, from_image};
     }
   }
   if (considered > 0 && without_chain == considered) throw InputError(first_without_chain + hint);
   if (worst.deviation > 1e-3) {
     std::ostringstream s;
     s << sequence.path << ": frame " << worst.frame << "'s " << worst.name
-      << "Transform is not rigid (" << worst.deviation
-      << " from a rotation, the largest of the frames'); tracking transforms are used as given";
+      << (worst.from_image ? "Transform shears (axes " : "Transform is not rigid (")
+      << worst.deviation << (worst.from_image ? " from orthogonal" : " from a rotation")
+      << ", the largest of the frames'); tracking transforms are used as given";
     warn(s.str());
   }
   return sel;

@@ -763,6 +763,41 @@ TEST(PlusFrameSelection, NonRigidTrackingTransformsAreUsedAndNamed) {
       << warnings.all();
 }
 
+// A transform from the image's frame (ImageToReference, as PlusServer and `live compound
+// --record` write it) carries the pixel spacing and may mirror an axis: no warning for that, but
+// one for a shear.
+TEST(PlusFrameSelection, ImageTransformsMayScaleAndMirrorButNotShear) {
+  REQUIRE_PLUS_DATA();
+  PlusSequence s = read_plus_sequence(plus_data("NwirePhantomFreehand.igs.mha"));
+  const auto set_image_to_reference = [&](const Mat4& m) {
+    std::ostringstream text;
+    text.precision(17);
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) text << m.m[r][c] << " ";
+    for (int k = 0; k < s.frame_count; ++k) {
+      s.frame_fields[size_t(k)]["ImageToReferenceTransform"] = text.str();
+      s.frame_fields[size_t(k)]["ImageToReferenceTransformStatus"] = "OK";
+    }
+  };
+  Mat4 m = Mat4::identity();
+  const double spacing[3] = {0.191, 0.191, -1.0};  // a flipped z axis, as an MF image may have
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m.m[r][c] = (r == c ? 1.0 : 0.0) * spacing[c];
+  set_image_to_reference(m);
+  {
+    WarningCapture warnings;
+    const PlusFrameSelection sel = select_plus_frames(s, {}, "Image", "Reference");
+    EXPECT_EQ(sel.frames.size(), 97u);
+    EXPECT_EQ(warnings.all().find("Transform"), std::string::npos) << warnings.all();
+  }
+  m.m[0][1] = 0.1;  // the y axis leans towards x
+  set_image_to_reference(m);
+  WarningCapture warnings;
+  select_plus_frames(s, {}, "Image", "Reference");
+  EXPECT_NE(warnings.all().find("ImageToReferenceTransform shears (axes 0.4"), std::string::npos)
+      << warnings.all();
+}
+
 // A calibration applies to every frame: an all-zero one (XML, option or Python) is refused.
 TEST(PlusFrameSelection, DegenerateCalibrationIsRefused) {
   REQUIRE_PLUS_DATA();

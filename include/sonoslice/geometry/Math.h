@@ -140,6 +140,10 @@ std::optional<Mat4> invert(const Mat4& m);
 /// How far m's 3×3 part is from a rotation: the largest of |‖x‖ − 1|, |‖y‖ − 1|, |x·y| and
 /// ‖z − x × y‖ over its columns x, y, z (0 for a rigid transform).
 double rigid_deviation(const Mat4& m);
+/// How far m's 3×3 part is from a rotation whose axes may be scaled and mirrored (an image's
+/// pixel → mm map: spacing per column, a flip): the largest |cosine| between two of its columns
+/// (0 when they are orthogonal; 1 when one is zero or not finite).
+double scaled_rigid_deviation(const Mat4& m);
 
 inline Vec3 operator+(const Vec3& a, const Vec3& b) {
   return {a[0] + b[0], a[1] + b[1], a[2] + b[2]};
