@@ -281,26 +281,28 @@ def slow_spec(volumes, tmp_path):
 
 
 def start_and_interrupt(spec, out, signum):
-    """Starts a run, and sends ``signum`` once two shards are complete; its exit status."""
+    """Starts a run, and sends ``signum`` once two shards are complete; its exit status and
+    stderr."""
     proc = subprocess.Popen([sys.executable, "-m", "sonoslice", "dataset", str(spec), "--out", str(out), "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not (out / "shard-000001.tar").exists() and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
     proc.send_signal(signum)
-    proc.communicate(timeout=60)
-    return proc.returncode
+    _, stderr = proc.communicate(timeout=60)
+    return proc.returncode, stderr
 
 
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM])
 def test_resume_after_an_interrupted_run(volumes, tmp_path, signum):
     spec = slow_spec(volumes, tmp_path)
     out = tmp_path / "out"
-    status = start_and_interrupt(spec, out, signum)
+    status, stderr = start_and_interrupt(spec, out, signum)
     assert status == -signum
     assert not (out / "manifest.json").exists(), "the run ended before it was interrupted"
-    if signum == signal.SIGTERM:  # the temporaries are removed on the way out
+    if signum == signal.SIGTERM:  # the temporaries are removed on the way out, and one line said so
         assert not [n for n in os.listdir(out) if n.endswith(".tmp")]
+        assert stderr == "sonoslice: terminated; run the same command again to resume\n"
     done = {n: os.stat(out / n).st_mtime_ns for n in os.listdir(out) if n.endswith(".tar")}
     assert done, "no shard was complete when the run was interrupted"
     r = run(spec, "--out", out, "-q")

@@ -620,7 +620,9 @@ class _ShardWriter:
                 try:
                     for piece in pieces:
                         self.f.write(piece)
-                except OSError as e:  # disk full, ...: raised in the writing thread, next write or close
+                # Disk full, ... (raised in the writing thread, next write or close), or the file
+                # closed under it because the run was interrupted (ValueError).
+                except (OSError, ValueError) as e:
                     self.error = e
 
     def write(self, pieces: list) -> None:
