@@ -101,7 +101,9 @@ void run_compound(const CompoundFlags& f) {
                  (long long)grid.dims[0], (long long)grid.dims[1], (long long)grid.dims[2],
                  grid.spacing_mm[0], grid.spacing_mm[1], grid.spacing_mm[2], grid.origin_mm[0],
                  grid.origin_mm[1], grid.origin_mm[2],
-                 report.grid_from_config ? "from the configuration" : "around the frames",
+                 report.grid_given         ? "given"
+                 : report.grid_from_config ? "from the configuration"
+                                           : "around the frames",
                  to_string(s.interpolation), to_string(s.mode), s.fill_holes ? "on" : "off",
                  to_string(recon.output_type()).c_str(), recon.device().to_string().c_str());
   }

@@ -378,7 +378,8 @@ void add_live_command(CLI::App& app) {
   cmd->add_option("--image-device", c->image_device,
                   "Only IMAGE messages of this device name (default: every IMAGE)");
   cmd->add_option("--queue", c->queue,
-                  "all (default: every frame, the sender waits when --queue-size wait) or newest "
+                  "all (default: every frame, the sender waits while --queue-size frames are "
+                  "waiting) or newest "
                   "(only the newest waiting frame; the others are dropped and counted)");
   cmd->add_option("--queue-size", c->queue_size, "Frames that may wait with --queue all (16)");
   cmd->add_option("--max-frames", c->max_frames, "Stop after N frames (default 0: no limit)");

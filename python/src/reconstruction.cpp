@@ -83,6 +83,7 @@ nb::dict report_dict(const ReconstructionReport& r) {
   d["skip"] = r.skip;
   d["transform"] = r.transform;
   d["grid_from_config"] = r.grid_from_config;
+  d["grid_given"] = r.grid_given;
   d["splat_seconds"] = r.splat_seconds;
   d["finish_seconds"] = r.finish_seconds;
   return d;

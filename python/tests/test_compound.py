@@ -475,7 +475,7 @@ def test_reconstruct_plus_reports_what_it_used(nwire, nwire_config):
     assert report["frames_in_input"] == 97 and report["frames_considered"] == 49
     assert report["frames_used"] == 49 and report["skipped_reason"] == ""
     assert report["transform"] == "ImageToReference" and report["skip"] == 2
-    assert not report["grid_from_config"]  # the NWire XML gives a spacing, not an extent
+    assert not report["grid_from_config"] and not report["grid_given"]  # the NWire XML gives a spacing only
     assert report["splat_seconds"] > 0 and "49" not in report["input"] and "97 frames" in report["input"]
     with pytest.raises(ValueError, match="skip 0: must be >= 1"):
         sonoslice.reconstruct_plus(nwire, nwire_config, skip=0)
@@ -809,3 +809,9 @@ def test_a_given_grid_that_no_frame_reaches_is_said(cli, tmp_path, plus_data):
                        capture_output=True, text=True)
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert sonoslice.Volume.from_file(str(tmp_path / "near.nii")).array.any()
+    r = subprocess.run(base[:-1] + ["--origin", "-22,-137,-58", "--extent", "100,100,70", "--verbose",
+                                    "--out", str(tmp_path / "near2.nii")], capture_output=True, text=True)
+    assert r.returncode == 0 and "grid 100x100x70 at 0.5,0.5,0.5 mm, origin -22,-137,-58 (given)" in r.stderr, r.stderr
+    _, report = sonoslice.reconstruct_plus(NWIRE_MHA, NWIRE_XML, origin=(-22, -137, -58), extent=(100, 100, 70),
+                                           return_report=True)
+    assert report["grid_given"] and not report["grid_from_config"]

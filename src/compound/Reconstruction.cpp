@@ -516,6 +516,7 @@ void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
                                     const std::optional<Vec3>& spacing) {
   const std::optional<VolumeGrid> fixed = fixed_grid(config, o, *spacing);
   report.grid_from_config = fixed && !o.origin_mm;
+  report.grid_given = fixed && o.origin_mm;
   if (fixed) {
     grid = *fixed;
     warn_if_no_frame_reaches(grid);

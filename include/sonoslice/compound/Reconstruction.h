@@ -153,6 +153,7 @@ struct ReconstructionReport {
   int skip = 1;
   std::string transform;          ///< PLUS: "ImageToReference"; others: ""
   bool grid_from_config = false;  ///< the configuration's OutputOrigin/Extent, not fitted
+  bool grid_given = false;        ///< the options' origin and extent, not fitted
   /// "2 with an invalid ImageToReference transform, 1 with an image status not OK" ("" if none).
   std::string skipped_reason() const;
   double splat_seconds = 0, finish_seconds = 0;  ///< filled by run()
