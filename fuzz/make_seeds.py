@@ -473,6 +473,16 @@ def main():
         "vn 0 0 1\nvt 0 0\n" + "".join("f %d/1/1 %d/1/1 %d/1/1\n" % tuple(i + 1 for i in t) for t in tris))
     put("mesh_obj", "quad-negative.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf -4 -3 -2 -1\nf 1//1 2//1 3//1\n")
     put("mesh_obj", "garbage.obj", "v 1 2\nf 0 0 0\nf 1 2 999999\nv nan inf -inf\nvt\nmtllib x.mtl\n")
+    ply_head = "ply\nformat %s 1.0\ncomment tetra\nelement vertex 4\nproperty float x\nproperty float y\n" \
+        "property float z\nproperty uchar red\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n"
+    put("mesh_ply", "tetra-ascii.ply", ply_head % "ascii" + "".join("%g %g %g 7\n" % p for p in pts) +
+        "".join("3 %d %d %d\n" % t for t in tris))
+    for fmt, order in (("binary_little_endian", "<"), ("binary_big_endian", ">")):
+        put("mesh_ply", "tetra-%s.ply" % fmt.split("_")[1], (ply_head % fmt).encode() +
+            b"".join(struct.pack(order + "3fB", *p, 7) for p in pts) +
+            b"".join(struct.pack(order + "B3i", 3, *t) for t in tris))
+    put("mesh_ply", "x-only.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1 2\n")
+    put("mesh_ply", "truncated.ply", ply_head % "ascii" + "0 0 0 7\n1 0 0 7\n")
 
     igtl_seeds()
     dicom_seeds()

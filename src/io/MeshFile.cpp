@@ -12,6 +12,7 @@
 #include <sstream>
 #include <vector>
 
+#include "PlyParse.h"
 #include "TextParse.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/io/AtomicFile.h"
@@ -28,7 +29,6 @@
 #include <vtkOBJReader.h>
 #include <vtkOBJWriter.h>
 #include <vtkOutputWindow.h>
-#include <vtkPLYReader.h>
 #include <vtkPLYWriter.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
@@ -129,6 +129,39 @@ std::string read_whole_file(const std::string& path) {
   return bytes;
 }
 
+// Cells as offsets into a connectivity list (n + 1 offsets for n cells).
+struct Cells {
+  std::vector<int64_t> offsets{0}, connectivity;
+};
+
+vtkSmartPointer<vtkCellArray> cell_array(const Cells& c) {
+  vtkNew<vtkIdTypeArray> offsets, connectivity;
+  offsets->SetNumberOfValues(vtkIdType(c.offsets.size()));
+  for (size_t i = 0; i < c.offsets.size(); ++i) offsets->SetValue(vtkIdType(i), c.offsets[i]);
+  connectivity->SetNumberOfValues(vtkIdType(c.connectivity.size()));
+  for (size_t i = 0; i < c.connectivity.size(); ++i)
+    connectivity->SetValue(vtkIdType(i), c.connectivity[i]);
+  auto cells = vtkSmartPointer<vtkCellArray>::New();
+  cells->SetData(offsets, connectivity);
+  return cells;
+}
+
+// What the parsers below read (points x, y, z each; checked cells) as VTK's polygonal data, for
+// VTK's triangulation and point merging.
+vtkSmartPointer<vtkPolyData> poly_data(const std::vector<double>& xyz, const Cells& polys,
+                                       const Cells& strips) {
+  auto poly = vtkSmartPointer<vtkPolyData>::New();
+  vtkNew<vtkPoints> points;
+  points->SetDataTypeToDouble();
+  points->SetNumberOfPoints(vtkIdType(xyz.size() / 3));
+  for (size_t i = 0; i < xyz.size() / 3; ++i)
+    points->SetPoint(vtkIdType(i), xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+  poly->SetPoints(points);
+  poly->SetPolys(cell_array(polys));
+  poly->SetStrips(cell_array(strips));
+  return poly;
+}
+
 // ---- legacy VTK ---------------------------------------------------------------------------
 //
 // Legacy .vtk files are parsed here rather than by vtkPolyDataReader, which trusts the counts in
@@ -192,24 +225,10 @@ class LegacyVtkParser {
                            std::to_string(at_ - keyword.size()));
       }
     }
-    auto poly = vtkSmartPointer<vtkPolyData>::New();
-    vtkNew<vtkPoints> points;
-    points->SetDataTypeToDouble();
-    points->SetNumberOfPoints(vtkIdType(points_.size() / 3));
-    for (size_t i = 0; i < points_.size() / 3; ++i)
-      points->SetPoint(vtkIdType(i), points_[3 * i], points_[3 * i + 1], points_[3 * i + 2]);
-    poly->SetPoints(points);
-    poly->SetPolys(cell_array(polys_));
-    poly->SetStrips(cell_array(strips_));
-    return poly;
+    return poly_data(points_, polys_, strips_);
   }
 
  private:
-  // Cells as offsets into a connectivity list (n + 1 offsets for n cells).
-  struct Cells {
-    std::vector<vtkIdType> offsets{0}, connectivity;
-  };
-
   void header() {
     const std::string first = line();
     if (first.rfind("# vtk DataFile Version", 0) != 0)
@@ -297,19 +316,7 @@ class LegacyVtkParser {
                            std::to_string(points) + " points");
     if (n < 3) return;
     c->connectivity.insert(c->connectivity.end(), cell, cell + n);
-    c->offsets.push_back(vtkIdType(c->connectivity.size()));
-  }
-
-  static vtkSmartPointer<vtkCellArray> cell_array(const Cells& c) {
-    vtkNew<vtkIdTypeArray> offsets, connectivity;
-    offsets->SetNumberOfValues(vtkIdType(c.offsets.size()));
-    for (size_t i = 0; i < c.offsets.size(); ++i) offsets->SetValue(vtkIdType(i), c.offsets[i]);
-    connectivity->SetNumberOfValues(vtkIdType(c.connectivity.size()));
-    for (size_t i = 0; i < c.connectivity.size(); ++i)
-      connectivity->SetValue(vtkIdType(i), c.connectivity[i]);
-    auto cells = vtkSmartPointer<vtkCellArray>::New();
-    cells->SetData(offsets, connectivity);
-    return cells;
+    c->offsets.push_back(int64_t(c->connectivity.size()));
   }
 
   // "FIELD name n" and n arrays "name components tuples type" + values (skipped over).
@@ -652,11 +659,6 @@ vtkSmartPointer<vtkAlgorithm> reader_for(const std::string& path, const std::str
     r->SetFileName(path.c_str());
     return r;
   }
-  if (ext == ".ply") {
-    auto r = vtkSmartPointer<vtkPLYReader>::New();
-    r->SetFileName(path.c_str());
-    return r;
-  }
   throw InputError("mesh '" + path + "': unknown format '" + ext +
                    "' (expected .vtk, .vtp, .stl, .obj or .ply)");
 }
@@ -674,6 +676,9 @@ TriangleMesh read_mesh(const std::string& path, WorldFrame frame) {
   vtkSmartPointer<vtkPolyData> input;
   if (ext == ".vtk") {
     input = LegacyVtkParser(path, read_whole_file(path)).parse();
+  } else if (ext == ".ply") {
+    PolygonSoup soup = parse_ply(path, read_whole_file(path));
+    input = poly_data(soup.points, {std::move(soup.offsets), std::move(soup.connectivity)}, {});
   } else {
     auto reader = reader_for(path, ext);
     if (ext == ".stl") check_stl(path);

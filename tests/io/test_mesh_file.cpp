@@ -285,6 +285,95 @@ TEST(MeshFile, ObjGarbageAndBadIndicesAreRefused) {
   EXPECT_EQ(error_for(v + "vn 0 0 1\nf 1//1 2//1 3//1\n"), "");
 }
 
+// PLY is parsed by sonoslice (vtkPLYReader read on after a file without y and z: SIGSEGV). The
+// tetrahedron in the three encodings, with properties and elements sonoslice reads past.
+std::string ply_tet(const std::string& format, const std::string& list_name = "vertex_indices") {
+  const TriangleMesh tet = tetrahedron();
+  std::string b = "ply\r\nformat " + format +
+                  " 1.0\ncomment made by hand\nelement vertex 4\nproperty double x\n"
+                  "property float y\nproperty float z\nproperty uchar red\n"
+                  "element face 4\nproperty list uchar int " +
+                  list_name +
+                  "\nproperty short flags\nelement edge 1\nproperty list int uint ends\n"
+                  "end_header\n";
+  const bool big = format == "binary_big_endian";
+  const auto raw = [&](auto value) {
+    std::string bytes(sizeof(value), '\0');
+    std::memcpy(&bytes[0], &value, sizeof(value));
+    if (big) std::reverse(bytes.begin(), bytes.end());
+    return bytes;
+  };
+  for (const Vec3& v : tet.vertices)
+    b += format == "ascii"
+             ? std::to_string(v[0]) + " " + std::to_string(v[1]) + " " + std::to_string(v[2]) +
+                   " 200\n"
+             : raw(double(v[0])) + raw(float(v[1])) + raw(float(v[2])) + raw(uint8_t(200));
+  for (const auto& t : tet.triangles)
+    b += format == "ascii" ? "3 " + std::to_string(t[0]) + " " + std::to_string(t[1]) + " " +
+                                 std::to_string(t[2]) + " -1\n"
+                           : raw(uint8_t(3)) + raw(int32_t(t[0])) + raw(int32_t(t[1])) +
+                                 raw(int32_t(t[2])) + raw(int16_t(-1));
+  b += format == "ascii" ? "2 0 1\n" : raw(int32_t(2)) + raw(uint32_t(0)) + raw(uint32_t(1));
+  return b;
+}
+
+TEST(MeshFile, PlyEncodingsReadAlike) {
+  test::TempDir dir;
+  for (const char* format : {"ascii", "binary_little_endian", "binary_big_endian"})
+    for (const char* list : {"vertex_indices", "vertex_index"}) {
+      write_bytes(dir.file("m.ply"), ply_tet(format, list));
+      const TriangleMesh m = read_mesh(dir.file("m.ply"));
+      EXPECT_EQ(m.triangles.size(), 4u) << format;
+      EXPECT_EQ(m.vertices.size(), 4u) << format;
+      EXPECT_TRUE(mesh_topology(m).closed()) << format;
+      EXPECT_NEAR(std::fabs(mesh_volume(m)), 1000.0 / 6.0, 1e-9) << format << " " << list;
+    }
+}
+
+TEST(MeshFile, PlyGarbageTruncationAndBadIndicesAreRefused) {
+  test::TempDir dir;
+  auto error_for = [&](const std::string& bytes) {
+    write_bytes(dir.file("m.ply"), bytes);
+    return mesh_error(dir.file("m.ply"));
+  };
+  const std::string ascii = ply_tet("ascii"), binary = ply_tet("binary_little_endian");
+  const std::string head = "ply\nformat ascii 1.0\nelement vertex 3\n";
+  // A vertex element with x alone: VTK 9.1's reader crashed (use after free).
+  EXPECT_NE(error_for(head + "property float x\nend_header\n1 2\n")
+                .find("cannot read mesh '" + dir.file("m.ply") +
+                      "': the vertex element has no scalar property 'y'"),
+            std::string::npos);
+  EXPECT_NE(error_for("garbage\n1 2 3\n").find("not a PLY mesh (its first line is not 'ply')"),
+            std::string::npos);
+  EXPECT_NE(error_for("ply\nformat ascii 1.0\n").find("no end_header"), std::string::npos);
+  EXPECT_NE(error_for("ply\nelement vertex 0\nend_header\n").find("no format line"),
+            std::string::npos);
+  EXPECT_NE(error_for(head + "property quad x\nend_header\n").find("unknown type 'quad'"),
+            std::string::npos);
+  // Cut anywhere in the body: one line that says so, for both encodings.
+  for (const std::string& whole : {ascii, binary})
+    for (size_t cut : {size_t(2), size_t(7), size_t(20)}) {
+      const std::string e = error_for(whole.substr(0, whole.size() - cut));
+      EXPECT_NE(e.find("truncated"), std::string::npos) << cut << ": " << e;
+    }
+  // A count the file cannot hold is refused before anything of its size is allocated.
+  std::string huge = binary;
+  huge.replace(huge.find("element vertex 4"), 16, "element vertex 2000000000");
+  EXPECT_NE(error_for(huge).find("truncated: 2000000000 vertex records need at least"),
+            std::string::npos);
+  std::string bad = ascii;
+  bad.replace(bad.find("3 0 2 1 -1"), 10, "3 0 2 9 -1");
+  EXPECT_NE(error_for(bad).find("face 0 uses vertex 9, but the file has 4"), std::string::npos);
+  bad = ascii;
+  bad.replace(bad.find("3 0 2 1 -1"), 10, "3 0 2 x -1");
+  EXPECT_NE(error_for(bad).find("face 0: 'x' is not an integer"), std::string::npos);
+  bad = ascii;
+  bad.replace(bad.find("10.000000 0.000000 0.000000"), 27, "10.000000 nan 0.000000");
+  EXPECT_NE(error_for(bad).find("vertex 1: 'nan' is not a number"), std::string::npos);
+  EXPECT_NE(error_for(ascii + "7\n").find("more values after the last element ('7')"),
+            std::string::npos);
+}
+
 TEST(SurfaceConfig, FanSlicerModelsWithSpacesInNames) {
   SONOSLICE_REQUIRE_DATA();
   const std::string d = test::data_dir() + "/fanslicer";
