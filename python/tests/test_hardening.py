@@ -434,6 +434,9 @@ def test_python_volumes_tables_and_seeds_are_checked_like_the_files(cli, tmp_pat
     (tmp_path / "adir").mkdir()
     r = run_cli(cli, "info", str(tmp_path / "adir"))
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "no DICOM series" in r.stderr, r.stderr
+    (tmp_path / "adir" / "notes.txt").write_text("not DICOM\n")
+    r = run_cli(cli, "info", str(tmp_path / "adir"))
+    assert r.returncode == 1 and r.stderr.endswith("no DICOM series in the directory (1 file, none in a DICOM series)\n"), r.stderr
     r = run_cli(cli, "voxelize", str(tmp_path / "adir"), "--spacing", "1", "--out", str(tmp_path / "v.npy"))
     assert r.returncode == 1 and "cannot read mesh" in r.stderr and "it is a directory" in r.stderr, r.stderr
     mesh = os.path.join(DATA, "fanslicer", "liver.vtk")

@@ -31,6 +31,17 @@ std::string tag_text(unsigned group, unsigned element) {
   return "(" + hex4(group) + "," + hex4(element) + ")";
 }
 
+bool known_vr(const char* vr);
+
+// Whether the first six bytes of a file without the preamble start an element in the syntax GDCM
+// guesses: the file meta group, a known explicit VR, or the groups and element GDCM looks for.
+bool starts_with_element(const uint8_t first[6]) {
+  const unsigned group = unsigned(first[0] | first[1] << 8),
+                 element = unsigned(first[2] | first[3] << 8);
+  return group == 0x0002 || known_vr(reinterpret_cast<const char*>(first + 4)) || group == 0x0008 ||
+         group == 0x0800 || element == 0x0010;
+}
+
 bool known_vr(const char* vr) {
   static const char* const kVrs[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FD", "FL",
                                      "IS", "LO", "LT", "OB", "OD", "OF", "OL", "OV", "OW",
@@ -97,7 +108,7 @@ class Walker {
       if (group == 0x0800 ||
           (first_vr && group != 0x0008 && element != 0x0010 && (group > 0xff || element > 0xff)))
         little_ = false;
-      if (!first_vr && group != 0x0008 && group != 0x0800 && element != 0x0010)
+      if (!starts_with_element(first))
         fail("not a DICOM file (no \"DICM\" at byte 128, and it does not start with an element)");
       check_tail(walk(0, size_, first_vr, 0, /*top=*/true, /*until_delimiter=*/false), first_vr);
       check_pixel_format();
@@ -555,6 +566,16 @@ void check_structure(const std::string& path, const std::string& where) {
   if (::fseeko(f, 0, SEEK_END) != 0) throw FileError("cannot read " + where + ": cannot seek");
   const uint64_t size = uint64_t(::ftello(f));
   Walker(f, size, where).check(part10);
+}
+
+bool is_dicom(const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) return true;  // unreadable: check_structure says why
+  uint8_t head[132];
+  const size_t n = std::fread(head, 1, sizeof head, f);
+  std::fclose(f);
+  if (n == sizeof head && std::memcmp(head + 128, "DICM", 4) == 0) return true;
+  return n >= 6 && starts_with_element(head);
 }
 
 }  // namespace dicom

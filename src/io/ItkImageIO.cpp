@@ -529,12 +529,19 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
 
 // Every DICOM file of a folder, before GDCM's scan for series parses them all (one broken file
 // aborts it): named in the folder's words.
-void check_dicom_folder(const std::string& directory) {
+// Walks the folder's DICOM files (GDCM passes the others over); returns how many files it holds,
+// DICOM or not.
+int64_t check_dicom_folder(const std::string& directory) {
   std::error_code ec;
-  for (const auto& entry : std::filesystem::directory_iterator(directory, ec))
-    if (entry.is_regular_file(ec))
+  int64_t files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
+    if (!entry.is_regular_file(ec)) continue;
+    ++files;
+    if (dicom::is_dicom(entry.path().string()))
       dicom::check_structure(entry.path().string(), "DICOM directory '" + directory + "': file '" +
                                                         entry.path().filename().string() + "'");
+  }
+  return files;
 }
 
 // Reads the elements of `file` before its pixel data (and that element's header, not its value)
@@ -757,14 +764,18 @@ std::optional<int64_t> dicom_instance_number(const std::string& file, const std:
 
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid) {
   register_factories();
-  check_dicom_folder(directory);
+  const int64_t files = check_dicom_folder(directory);
   try {
     auto names = itk::GDCMSeriesFileNames::New();
     names->SetUseSeriesDetails(true);
     names->SetDirectory(directory);
     const auto uids = names->GetSeriesUIDs();
     if (uids.empty())
-      throw FileError("cannot read volume '" + directory + "': no DICOM series in the directory");
+      throw FileError("cannot read volume '" + directory + "': no DICOM series in the directory" +
+                      (files > 0
+                           ? " (" + std::to_string(files) + (files == 1 ? " file" : " files") +
+                                 ", none in a DICOM series)"
+                           : std::string()));
     std::string chosen;
     if (!series_uid.empty()) {
       // With series details, ITK's UIDs carry extra details after the SeriesInstanceUID.

@@ -170,6 +170,11 @@ TEST(DicomSeries, WrittenWithItkThenReadBack) {
   small.dims[2] = 3;
   write_dicom_series(test::make_volume<int16_t>(small, [](const Vec3&) { return 0.0; }),
                      dir.path().string(), "1.2.826.0.1.3680043.2.1125.2.22", 1.0, 0.0);
+  // What else lies in exported folders (a README, a Mac's .DS_Store, an empty marker) is passed
+  // over, as GDCM does, rather than refused as a broken DICOM file.
+  std::ofstream(dir.file("README.txt")) << "Exported by a PACS viewer\n";
+  std::ofstream(dir.file(".DS_Store"), std::ios::binary) << std::string("\0\0\0\1Bud1\0\0", 10);
+  std::ofstream(dir.file(".keep")).close();
 
   const auto series = list_dicom_series(dir.path().string());
   ASSERT_EQ(series.size(), 2u);
