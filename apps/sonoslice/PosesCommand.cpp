@@ -1,9 +1,8 @@
 // sonoslice poses: seeded probe poses from a sampler (skin, mesh, region, sweep) with rejection
 // on the fan's content (docs/datasets.md §2), written as .npy (N, 4, 4), .txt or .csv.
 #include <cstdio>
-#include <fstream>
+#include <filesystem>
 #include <memory>
-#include <sstream>
 
 #include <nlohmann/json.hpp>
 
@@ -38,18 +37,12 @@ struct PosesFlags {
 /// them by the library (parse_sampler_json's overrides).
 SamplerSettings sampler_settings(const PosesFlags& f) {
   const std::string& s = f.sampler;
-  std::string text = s;
-  if (s == "skin" || s == "mesh" || s == "region" || s == "sweep") {
-    text = nlohmann::json{{"type", s}}.dump();
-  } else if (s.empty() || s[0] != '{') {
-    std::ifstream in(s);
-    if (!in)
-      throw InputError("--sampler '" + s +
-                       "': expected skin, mesh, region, sweep, a JSON file or inline JSON");
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    text = buffer.str();
-  }
+  const bool is_type = s == "skin" || s == "mesh" || s == "region" || s == "sweep";
+  const bool is_file = !is_type && !s.empty() && s[0] != '{';
+  std::error_code ec;
+  if (is_file && !std::filesystem::exists(s, ec))
+    throw InputError("--sampler '" + s +
+                     "': expected skin, mesh, region, sweep, a JSON file or inline JSON");
   nlohmann::json overrides = nlohmann::json::object();
   const auto range = [](const std::string& text, const std::string& flag) {
     const std::vector<double> v = parse_numbers(text, 2, flag);
@@ -68,6 +61,8 @@ SamplerSettings sampler_settings(const PosesFlags& f) {
   if (f.min_label) reject["min_label"] = *f.min_label;
   if (f.no_gas) reject["no_gas"] = true;
   if (!reject.empty()) overrides["reject"] = reject;
+  if (is_file) return read_sampler_json(s, "--sampler", overrides.dump());
+  const std::string text = is_type ? nlohmann::json{{"type", s}}.dump() : s;
   return parse_sampler_json(text, "--sampler", overrides.dump());
 }
 

@@ -97,6 +97,21 @@ def test_bad_settings_are_one_line(cli, ph, tmp_path, extra, needle):
     assert not os.path.exists(tmp_path / "bad.npy")
 
 
+def test_a_sampler_file_is_named_in_its_errors(cli, ph, tmp_path):
+    (tmp_path / "cut.json").write_text('{"type": "skin"')
+    (tmp_path / "huge.json").write_text('{"type": "skin", "max_tries": 1e400}')
+    (tmp_path / "folder.json").mkdir()
+    for name, needle in (("cut.json", "--sampler '{}': invalid JSON ("),
+                         ("huge.json", "--sampler '{}': invalid JSON ("),
+                         ("folder.json", "cannot open --sampler '{}': it is a directory")):
+        path = str(tmp_path / name)
+        r = run(cli, "poses", "--sampler", path, "--volume", str(ph / "ph" / "ct.nii.gz"), "--probe", W1,
+                "--count", "2", "--out", str(tmp_path / "p.npy"))
+        assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+        assert needle.format(path) in r.stderr, r.stderr
+    assert not os.path.exists(tmp_path / "p.npy")
+
+
 def test_flags_are_laid_over_a_sampler_file(cli, ph, tmp_path):
     spec = tmp_path / "skin.json"
     spec.write_text(json.dumps({"type": "skin", "tilt_deg": [-5, 5], "depth_mm": [0, 2],

@@ -3,6 +3,8 @@
 #include "sonoslice/sampling/SamplerConfig.h"
 
 #include <algorithm>
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <set>
 
@@ -211,6 +213,14 @@ const char* to_string(SweepMotion motion) {
 
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where) {
   return from_json(parse_json(text, where), where);
+}
+
+SamplerSettings read_sampler_json(const std::string& path, const std::string& what,
+                                  const std::string& overrides) {
+  std::ifstream in = open_text_file(path, what);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) throw FileError("cannot read " + what + " '" + path + "'");
+  return parse_sampler_json(text, what + " '" + path + "'", overrides);
 }
 
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where,

@@ -23,4 +23,9 @@ SamplerSettings parse_sampler_json(const std::string& text, const std::string& w
 SamplerSettings parse_sampler_json(const std::string& text, const std::string& where,
                                    const std::string& overrides);
 
+/// The same read from the JSON file `path`; `what` names it in messages ("--sampler" →
+/// "--sampler 'p.json': invalid JSON (...)"), FileError when it cannot be opened or is a folder.
+SamplerSettings read_sampler_json(const std::string& path, const std::string& what,
+                                  const std::string& overrides = "{}");
+
 }  // namespace sonoslice
