@@ -369,7 +369,14 @@ Volume read_typed(const std::string& path, itk::ImageIOBase* io) {
   std::string complaint;
   {
     std::unique_ptr<CerrCapture> capture(metaio ? new CerrCapture : nullptr);
-    reader->Update();
+    try {
+      reader->Update();
+    } catch (const itk::ExceptionObject& e) {
+      // The header was read before: what fails now is the voxel data (NRRD's "fread got only
+      // 49814 2-sized things, not 1638400").
+      throw FileError("cannot read volume '" + path + "': truncated or corrupt file (" +
+                      describe(e) + ")");
+    }
     if (capture) complaint = capture->text();
   }
   if (!complaint.empty())
