@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <string>
 
 #include "../core/Text.h"
@@ -59,16 +60,22 @@ PlusOptimization parse_plus_optimization(const std::string& name, const std::str
   throw InputError(what + " \"" + name + "\": not one of NONE, PARTIAL, FULL");
 }
 
+std::string plus_hole_filling_names() {
+  std::string out;
+  const size_t n = std::size(kHoleFillingTypes);
+  for (size_t k = 0; k < n; ++k)
+    out += (k == 0       ? ""
+            : k + 1 == n ? " or "
+                         : ", ") +
+           text::upper(to_string(kHoleFillingTypes[k]));
+  return out;
+}
+
 HoleFillingKernel::Type parse_hole_filling_type(const std::string& name) {
   const std::string n = text::lower(name);
-  if (n == "nearest_neighbor" || n == "nearest") return HoleFillingKernel::NearestNeighbor;
-  if (n == "gaussian") return HoleFillingKernel::Gaussian;
-  if (n == "gaussian_accumulation") return HoleFillingKernel::GaussianAccumulation;
-  if (n == "distance_weight_inverse") return HoleFillingKernel::DistanceWeightInverse;
-  if (n == "stick") return HoleFillingKernel::Stick;
-  throw InputError("hole filling type '" + name +
-                   "': expected NEAREST_NEIGHBOR, GAUSSIAN, GAUSSIAN_ACCUMULATION, "
-                   "DISTANCE_WEIGHT_INVERSE or STICK");
+  if (n == "nearest") return HoleFillingKernel::NearestNeighbor;
+  if (const HoleFillingKernel::Type* t = text::find_named(kHoleFillingTypes, n)) return *t;
+  throw InputError("hole filling type '" + name + "': expected " + plus_hole_filling_names());
 }
 
 void HoleFillingKernel::validate(const std::string& what) const {

@@ -166,13 +166,13 @@ HoleFillingKernel read_hole_filling_element(const pugi::xml_node& node, int inde
   const std::string where =
       "VolumeReconstruction/HoleFilling/HoleFillingElement[" + std::to_string(index) + "]";
   Attributes a(node, path, where);
+  std::vector<std::string> types;  // PLUS's spellings: upper case
+  for (HoleFillingKernel::Type t : kHoleFillingTypes) types.push_back(upper(to_string(t)));
   if (!a.has("Type"))
-    throw InputError(path + ": " + where +
-                     ": no Type (GAUSSIAN, GAUSSIAN_ACCUMULATION, STICK, NEAREST_NEIGHBOR or "
-                     "DISTANCE_WEIGHT_INVERSE)");
-  const std::string type = a.choice("Type", {"GAUSSIAN", "GAUSSIAN_ACCUMULATION", "STICK",
-                                             "NEAREST_NEIGHBOR", "DISTANCE_WEIGHT_INVERSE"});
+    throw InputError(path + ": " + where + ": no Type (" + plus_hole_filling_names() + ")");
+  const std::string type = a.choice("Type", types);
   HoleFillingKernel k;
+  k.type = parse_hole_filling_type(type);
   auto require = [&](const char* name) {
     if (!a.has(name)) a.fail(name, "required for a " + type + " element");
   };
@@ -187,21 +187,17 @@ HoleFillingKernel read_hole_filling_element(const pugi::xml_node& node, int inde
       a.fail("MinimumKnownVoxelsRatio", "must be in [0, 1]");
   };
   std::vector<const char*> used;
-  if (type == "GAUSSIAN" || type == "GAUSSIAN_ACCUMULATION") {
-    k.type =
-        type == "GAUSSIAN" ? HoleFillingKernel::Gaussian : HoleFillingKernel::GaussianAccumulation;
+  if (k.type == HoleFillingKernel::Gaussian || k.type == HoleFillingKernel::GaussianAccumulation) {
     require("Stdev");
     k.stdev = a.number("Stdev");
     if (!(k.stdev > 0)) a.fail("Stdev", "must be positive");
     read_size_and_ratio();
     used = {"Stdev", "Size", "MinimumKnownVoxelsRatio"};
-  } else if (type == "NEAREST_NEIGHBOR" || type == "DISTANCE_WEIGHT_INVERSE") {
-    k.type = type == "NEAREST_NEIGHBOR" ? HoleFillingKernel::NearestNeighbor
-                                        : HoleFillingKernel::DistanceWeightInverse;
+  } else if (k.type == HoleFillingKernel::NearestNeighbor ||
+             k.type == HoleFillingKernel::DistanceWeightInverse) {
     read_size_and_ratio();
     used = {"Size", "MinimumKnownVoxelsRatio"};
   } else {
-    k.type = HoleFillingKernel::Stick;
     require("StickLengthLimit");
     k.stick_length_limit = a.integer("StickLengthLimit");
     if (k.stick_length_limit < 1) a.fail("StickLengthLimit", "must be at least 1");

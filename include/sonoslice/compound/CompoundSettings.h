@@ -42,8 +42,16 @@ struct HoleFillingKernel {
   int sticks_to_use = 1;       ///< Stick: how many of the shortest sticks are averaged
   void validate(const std::string& what) const;
 };
-/// "nearest_neighbor", "gaussian", "gaussian_accumulation", "distance_weight_inverse", "stick".
+/// Every hole-filling element (PLUS's documentation order): the one list both readers (PLUS's
+/// XML, the bindings) take their names from.
+constexpr HoleFillingKernel::Type kHoleFillingTypes[] = {
+    HoleFillingKernel::Gaussian, HoleFillingKernel::GaussianAccumulation, HoleFillingKernel::Stick,
+    HoleFillingKernel::NearestNeighbor, HoleFillingKernel::DistanceWeightInverse};
+/// "nearest_neighbor", "gaussian", "gaussian_accumulation", "distance_weight_inverse", "stick";
+/// PLUS spells them in upper case.
 const char* to_string(HoleFillingKernel::Type type);
+/// PLUS's spellings of kHoleFillingTypes for a message: "GAUSSIAN, ... or DISTANCE_WEIGHT_INVERSE".
+std::string plus_hole_filling_names();
 /// The names above or PLUS's (NEAREST_NEIGHBOR, GAUSSIAN, ...), any case.
 HoleFillingKernel::Type parse_hole_filling_type(const std::string& name);
 
