@@ -26,7 +26,7 @@ def full_phantom_ct(phantom, tmp):
         print("writing the full phantom (512x512x400) ...", flush=True)
         subprocess.run([CLI, "phantom", phantom, "--size", "full", "--format", "nii", "-q"], check=True)
     phantom = os.path.abspath(phantom)  # the benchmarks' SPECs and servers run in other folders
-    cts = [f for f in sorted(os.listdir(phantom)) if f.startswith("ct.")]
+    cts = [f for f in sorted(os.listdir(phantom)) if f.startswith("ct.") and not f.endswith(".json")]  # not a sidecar
     if not cts:
         raise SystemExit(f"{phantom}: no ct.* file (write one with `sonoslice phantom DIR --size full`)")
     return os.path.join(phantom, cts[0])

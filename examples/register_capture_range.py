@@ -46,8 +46,10 @@ def phantom_folder(phantom, tmp):
 
 
 def phantom_file(folder, prefix):
-    """The file of `folder` whose name starts with `prefix` ("ct.", "labels.")."""
-    return next(os.path.join(folder, f) for f in sorted(os.listdir(folder)) if f.startswith(prefix))
+    """The volume of `folder` whose name starts with `prefix` ("ct.", "labels."); an .npy volume's
+    .json sidecar is not one."""
+    return next(os.path.join(folder, f) for f in sorted(os.listdir(folder))
+                if f.startswith(prefix) and not f.endswith(".json"))
 
 
 def body_poses(tmp, n):
