@@ -1,9 +1,12 @@
 // Stanford PLY meshes (PlyParse.h says why they are parsed here).
 #include "PlyParse.h"
 
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <utility>
 
 #include "TextParse.h"
 #include "sonoslice/core/Error.h"
