@@ -31,17 +31,6 @@ std::string tag_text(unsigned group, unsigned element) {
   return "(" + hex4(group) + "," + hex4(element) + ")";
 }
 
-bool known_vr(const char* vr);
-
-// Whether the first six bytes of a file without the preamble start an element in the syntax GDCM
-// guesses: the file meta group, a known explicit VR, or the groups and element GDCM looks for.
-bool starts_with_element(const uint8_t first[6]) {
-  const unsigned group = unsigned(first[0] | first[1] << 8),
-                 element = unsigned(first[2] | first[3] << 8);
-  return group == 0x0002 || known_vr(reinterpret_cast<const char*>(first + 4)) || group == 0x0008 ||
-         group == 0x0800 || element == 0x0010;
-}
-
 bool known_vr(const char* vr) {
   static const char* const kVrs[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FD", "FL",
                                      "IS", "LO", "LT", "OB", "OD", "OF", "OL", "OV", "OW",
@@ -50,6 +39,15 @@ bool known_vr(const char* vr) {
   for (const char* k : kVrs)
     if (vr[0] == k[0] && vr[1] == k[1]) return true;
   return false;
+}
+
+// Whether the first six bytes of a file without the preamble start an element in the syntax GDCM
+// guesses: the file meta group, a known explicit VR, or the groups and element GDCM looks for.
+bool starts_with_element(const uint8_t first[6]) {
+  const unsigned group = unsigned(first[0] | first[1] << 8),
+                 element = unsigned(first[2] | first[3] << 8);
+  return group == 0x0002 || known_vr(reinterpret_cast<const char*>(first + 4)) || group == 0x0008 ||
+         group == 0x0800 || element == 0x0010;
 }
 
 // Explicit VRs whose length is 32 bits, after two reserved bytes.
