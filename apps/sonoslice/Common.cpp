@@ -124,14 +124,21 @@ std::string default_text(double value) {
   return out.str();
 }
 
-std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag) {
-  std::vector<double> out;
+std::vector<std::string> split_commas(const std::string& text) {
+  std::vector<std::string> items;
   // Every item between commas, the empty ones too ("1,,3", "1,2,"), which getline would drop
   // at the end; an empty text has none.
   for (size_t at = 0; !text.empty() && at <= text.size();) {
     const size_t comma = std::min(text.find(',', at), text.size());
-    const std::string item = text.substr(at, comma - at);
+    items.push_back(text.substr(at, comma - at));
     at = comma + 1;
+  }
+  return items;
+}
+
+std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag) {
+  std::vector<double> out;
+  for (const std::string& item : split_commas(text)) {
     char* end = nullptr;
     const double v = std::strtod(item.c_str(), &end);
     while (end && *end == ' ') ++end;

@@ -52,6 +52,10 @@ std::string flag_named(const std::string& parameter);
 /// "(10)", "(0.3)": a library default for a flag's help text, so that it is written once.
 std::string default_text(double value);
 
+/// "a,b,,c" → {"a", "b", "", "c"}: every item between commas, empty ones included (a list
+/// flag refuses them by name); an empty text has none.
+std::vector<std::string> split_commas(const std::string& text);
+
 /// Parses "a,b,c" into exactly `count` finite numbers; InputError naming `flag` otherwise.
 std::vector<double> parse_numbers(const std::string& text, size_t count, const std::string& flag);
 

@@ -42,10 +42,7 @@ struct RegisterFlags {
 /// "8,4,2,1" → block sizes (the settings check their range).
 std::vector<int> parse_pyramid(const std::string& text) {
   std::vector<int> levels;
-  size_t start = 0;
-  while (start <= text.size()) {
-    const size_t comma = std::min(text.find(',', start), text.size());
-    const std::string item = text.substr(start, comma - start);
+  for (const std::string& item : split_commas(text)) {
     char* end = nullptr;
     const long level = std::strtol(item.c_str(), &end, 10);
     if (item.empty() || *end != '\0' || level < std::numeric_limits<int>::min() ||
@@ -53,7 +50,6 @@ std::vector<int> parse_pyramid(const std::string& text) {
       throw InputError("--pyramid " + text +
                        ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
     levels.push_back(int(level));
-    start = comma + 1;
   }
   return levels;
 }
