@@ -203,6 +203,26 @@ TEST(AtomicOutput, TwoFileFormatsKeepTheirCompanionUnderItsRealName) {
             (std::vector<std::string>{"a.mhd", "a.raw", "b.nhdr", "b.raw", "c.hdr", "c.img"}));
 }
 
+// ITK writes a .nii.gz as .nii, which sonoslice compresses (at a faster zlib level than ITK's) in
+// the same private folder: only the .nii.gz comes out, a gzip file that reads back the same.
+TEST(AtomicOutput, NiftiGzIsCompressedWithoutLeavingTheNiiBehind) {
+  test::TempDir dir;
+  const Volume v = test::make_volume<int16_t>(test::oblique_grid({40, 30, 20}),
+                                              [](const Vec3& p) { return p[0] + 3 * p[1]; });
+  write_volume(dir.file("a.nii.gz"), v);
+  EXPECT_EQ(entries(dir.path()), (std::vector<std::string>{"a.nii.gz"}));
+  std::ifstream in(dir.file("a.nii.gz"), std::ios::binary);
+  unsigned char magic[2] = {0, 0};
+  in.read(reinterpret_cast<char*>(magic), 2);
+  EXPECT_EQ(magic[0], 0x1f);
+  EXPECT_EQ(magic[1], 0x8b);
+  EXPECT_LT(fs::file_size(dir.file("a.nii.gz")), v.byte_size() / 2);  // compressed at all
+  const Volume back = read_volume(dir.file("a.nii.gz"));
+  ASSERT_EQ(back.byte_size(), v.byte_size());
+  EXPECT_EQ(std::memcmp(back.data(), v.data(), v.byte_size()), 0);
+  EXPECT_EQ(back.grid().origin_mm, v.grid().origin_mm);
+}
+
 TEST(AtomicOutput, WriteErrorsSayWhyInPlainWords) {
   EXPECT_EQ(write_error_message("o.nii", ENOSPC), "cannot write 'o.nii': no space left on device");
   EXPECT_NE(write_error_message("o.nii", EFBIG).find("file too large"), std::string::npos);
