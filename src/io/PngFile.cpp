@@ -59,6 +59,8 @@ extern "C" void on_png_write(png_structp png, png_bytep data, size_t n) {
 
 extern "C" void on_png_flush(png_structp) {}  // unbuffered: every write went to the file
 
+constexpr int kPngZlibLevel = 4;
+
 // Returns 0 on success; on failure `state` says why. Plain C inside: see PngState.
 int encode(PngState* state, const unsigned char* pixels, int bit_depth, int width, int height,
            int components, const double spacing_mm[2]) {
@@ -81,6 +83,9 @@ int encode(PngState* state, const unsigned char* pixels, int bit_depth, int widt
   // ITK's convention (the values are mm though the unit says metres): ITK's reader, and so
   // read_volume, gets the pixel spacing back, as from the PNGs ITK wrote before.
   png_set_sCAL(png, info, PNG_SCALE_METER, spacing_mm[0], spacing_mm[1]);
+  // zlib level 4 rather than libpng's default 6: on windowed CT images 2.5 times faster for
+  // files 4 % larger; on speckle the two are alike (docs/cli.md, Files).
+  png_set_compression_level(png, kPngZlibLevel);
   png_write_info(png, info);
   if (bit_depth == 16) png_set_swap(png);  // PNG stores 16-bit samples big-endian
   const size_t row_bytes = size_t(width) * size_t(components) * size_t(bit_depth / 8);

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "../backend/ParallelFor.h"
 #include "PngFile.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/geometry/VolumeGrid.h"
@@ -102,8 +103,10 @@ class PngStackWriter : public StackWriter {
     const size_t pixels = size_t(spec_.width) * size_t(spec_.height);
     const bool rgb = spec_.components == 3;  // colour images go out as they are
     if (!rgb && !window_) window_ = auto_window(chunk_.data(), spec_.type, n, pixels, spec_.mask);
-    std::vector<uint8_t> png(rgb ? 0 : pixels);
-    for (int64_t i = 0; i < n; ++i) {
+    // One image per task over the CPU threads: encoding, not slicing, is what a folder of PNGs
+    // waits for. The first error stops the rest (the folder is then discarded whole).
+    backend::parallel_for(n, [&](int64_t i) {
+      std::vector<uint8_t> png(rgb ? 0 : pixels);
       const unsigned char* image = chunk_.data() + size_t(i) * image_bytes(spec_);
       if (!rgb)
         apply_window(image, spec_.type, pixels, window_->first, window_->second, png.data());
@@ -123,7 +126,7 @@ class PngStackWriter : public StackWriter {
         throw;
       }
       if (::close(fd) != 0) throw FileError(write_error_message(path_, errno));
-    }
+    });
   }
   void finish(OutputSet& together) override {
     const std::string poses = (fs::path(dir_->temp_path()) / "poses.txt").string();
