@@ -11,6 +11,7 @@ packages=(
   clang-format                           # scripts/check-format.sh (CI checks, never rewrites)
   clang libclang-rt-14-dev llvm          # scripts/fuzz.sh (libFuzzer, sanitizer runtimes) and
                                          # llvm-symbolizer for readable sanitizer stacks
+  lld                                    # scripts/sanitize.sh links with it (faster than ld)
   libinsighttoolkit5-dev libgdcm-tools   # ITK 5.2 (NIfTI, MetaImage, NRRD, DICOM, PNG); gdcm tools
                                          # only so GDCM's CMake config finds the files it lists
   zlib1g-dev
@@ -21,6 +22,7 @@ packages=(
   libnlopt-cxx-dev                       # registration's BOBYQA and Nelder-Mead
   googletest libgtest-dev libbenchmark-dev
   python3-venv python3-numpy python3-pytest python3-tqdm python3-torch python3-yaml  # the Python package's tests
+  python3-pytest-xdist                   # ... run on every core (scripts/test.sh)
   libopenigtlink-dev python3-crcmod      # sonoslice live's tests: an OpenIGTLink peer on Debian's
                                          # library; pyigtl's CRC (with its C extension)
   libcpp-httplib-dev                     # sonoslice view's HTTP server
