@@ -124,12 +124,12 @@ def _tqdm_callback(total: int):
 
 def _progress_and_chunk(progress, n: int, chunk: Optional[int]):
     """The C++ side's progress callback for ``n`` images (``progress``: True for a tqdm bar, a
-    callable ``(done, total)``, else none) and chunk size (default: about 1% of the images, at least
-    64, when reporting progress; else 0, all at once)."""
+    callable ``(done, total)``, else none) and chunk size (images between progress reports; default:
+    about 1% of the images, at least 64, when reporting progress; 0 for all at once)."""
     callback = _tqdm_callback(n) if progress is True else (progress if callable(progress) else None)
     if chunk is None:
-        chunk = max(64, math.ceil(n / 100)) if callback else 0
-    return callback, int(chunk)
+        return callback, max(64, math.ceil(n / 100)) if callback else 0
+    return callback, _arrays.count(chunk, "chunk")
 
 
 class _ImageSlicer:

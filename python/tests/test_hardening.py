@@ -244,6 +244,7 @@ def test_arguments_of_the_wrong_type_are_named():
         "Compounder: spacing": lambda v: sonoslice.Compounder(shape=(4, 4, 4), spacing=v),
         "world": lambda v: sonoslice.read_poses(os.path.join(DATA, "README.md"), world=v),
         "out": lambda v: sonoslice.Slicer(ct, probe).slice(np.eye(4), out=v),
+        "chunk": lambda v: sonoslice.Slicer(ct, probe).slice(np.eye(4), chunk=v),
         "grid_around: frame_shape": lambda v: sonoslice.grid_around(np.eye(4)[None], v, 1.0),
         "hole_filling[0]: size": lambda v: sonoslice.Compounder(
             shape=(4, 4, 4), spacing=1.0, hole_filling=[dict(type="gaussian", size=v, stdev=1, min_ratio=0.5)]),
@@ -256,7 +257,7 @@ def test_arguments_of_the_wrong_type_are_named():
     }
     for name, call in calls.items():
         for value in ("x", None, ["a", "b"], True):
-            if value is None and name in ("frequency", "out", "hole_filling[0]: size", "labels", "margin", "colors"):
+            if value is None and name in ("frequency", "out", "chunk", "hole_filling[0]: size", "labels", "margin", "colors"):
                 continue  # the default
             if value == "x" and name == "device":
                 continue  # cuda_available answers False for a device it does not know
@@ -268,6 +269,22 @@ def test_arguments_of_the_wrong_type_are_named():
                 assert name in message or "give" in message, (name, value, message)
             else:
                 raise AssertionError(f"{name}={value!r} was accepted")
+
+
+def test_chunks_are_whole_numbers_at_least_zero():
+    # chunk is the number of images between progress reports (0: all at once); a negative or
+    # fractional one was taken silently.
+    slicer = sonoslice.Slicer(sonoslice.Volume(np.zeros((8, 8, 8), np.float32)), sonoslice.Probe.linear(**SMALL_PROBE))
+    poses = np.repeat(np.eye(4)[None], 3, axis=0)
+    for chunk, reports in ((1, [1, 2, 3]), (2, [2, 3]), (3, [3])):
+        seen = []
+        assert slicer.slice(poses, chunk=chunk, progress=lambda d, t: seen.append(d)).shape[0] == 3
+        assert seen == reports, (chunk, seen)
+    assert slicer.slice(poses, chunk=0).shape[0] == 3
+    with pytest.raises(ValueError, match="chunk -1: must be at least 0"):
+        slicer.slice(poses, chunk=-1)
+    with pytest.raises(ValueError, match="chunk 2.5: expected a whole number"):
+        slicer.slice(poses, chunk=2.5)
 
 
 # ---- threads and --skip ---------------------------------------------------------------------------------

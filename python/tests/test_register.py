@@ -322,6 +322,7 @@ def test_missing_required_flags_are_usage_errors(cli, case):
     (["--search-trans-mm", "nan"], "--search-trans-mm"),
     (["--search-trans-mm", "1e300"], "--search-trans-mm 1e+300: must be a distance from 0 to 1e9 mm"),
     (["--pyramid", "4,0"], "--pyramid 4,0"),
+    (["--pyramid", "2,2"], "--pyramid 2,2: the block sizes must decrease"),
     (["--downsampling", "2"], "--frames"),
 ])
 def test_bad_settings_are_one_line(cli, case, extra, needle):

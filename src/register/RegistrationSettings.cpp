@@ -123,14 +123,21 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
     throw InputError(name("search_trans_mm") + " " + number(search_trans_mm) +
                      ": must be a distance from 0 to 1e9 mm");
   if (pyramid && pyramid->empty()) throw InputError(name("pyramid") + ": needs at least one level");
-  if (pyramid)
-    for (int f : *pyramid)
-      if (f < 1 || f > 64) {
-        std::string levels;
-        for (int g : *pyramid) levels += (levels.empty() ? "" : ",") + std::to_string(g);
+  if (pyramid) {
+    std::string levels;
+    for (int g : *pyramid) levels += (levels.empty() ? "" : ",") + std::to_string(g);
+    for (size_t i = 0; i < pyramid->size(); ++i) {
+      const int f = (*pyramid)[i];
+      if (f < 1 || f > 64)
         throw InputError(name("pyramid") + " " + levels +
                          ": expected block sizes from 1 to 64, coarse to fine, e.g. 8,4,2,1");
-      }
+      // Each level starts from the one before and the last gives the result: a level coarser
+      // than the one before it would throw away the finer level's accuracy.
+      if (i > 0 && f >= (*pyramid)[i - 1])
+        throw InputError(name("pyramid") + " " + levels +
+                         ": the block sizes must decrease, coarse to fine, e.g. 8,4,2,1");
+    }
+  }
   if (max_iterations < 1) throw InputError(name("max_iterations") + ": must be at least 1");
   if (!(tolerance_mm > 0) || !(tolerance_deg > 0))
     throw InputError(name("tolerance_mm") + " and " + name("tolerance_deg") + ": must be > 0");

@@ -850,6 +850,13 @@ TEST(Register, SettingsChooseTheOptimiserAndNameTheSetting) {
   t = RegistrationSettings();
   t.pyramid = std::vector<int>{4, 0};
   EXPECT_EQ(message(t, flags).rfind("--pyramid 4,0: expected block sizes from 1 to 64", 0), 0u);
+  for (std::vector<int> levels : {std::vector<int>{1, 2}, std::vector<int>{4, 4, 1}}) {
+    t.pyramid = levels;  // fine to coarse, or a level twice: the result would not be the finest
+    EXPECT_NE(message(t, {}).find(": the block sizes must decrease, coarse to fine"),
+              std::string::npos);
+  }
+  t.pyramid = std::vector<int>{4, 2};  // stopping above full resolution is allowed
+  EXPECT_EQ(message(t, {}), "no error");
   // One spelling table per choice.
   for (RegistrationMetric m :
        {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
