@@ -1,8 +1,9 @@
 #pragma once
-// Internal: case folding for the names users type (devices, frames, modes, file fields), and the
-// lookup of an enum value by its spelling.
+// Internal: case folding for the names users type (devices, frames, modes, file fields), the
+// lookup of an enum value by its spelling, and numbers as error messages quote them.
 #include <cctype>
 #include <cstddef>
+#include <sstream>
 #include <string>
 
 namespace sonoslice {
@@ -16,6 +17,13 @@ inline std::string lower(std::string s) {
 inline std::string upper(std::string s) {
   for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
   return s;
+}
+
+/// A number as a message quotes it: the shortest of iostream's default form (1.5, 1e+300, nan).
+inline std::string number(double v) {
+  std::ostringstream out;
+  out << v;
+  return out.str();
 }
 
 /// The value of `values` whose to_string() is `name`, or null.

@@ -1,7 +1,6 @@
 // Registration's settings: the spelling of its choices, the optimizer each metric gets by
 // default, and the checks that name the setting (include/sonoslice/register/Registration.h).
 #include <cmath>
-#include <sstream>
 
 #include "../core/Text.h"
 #include "sonoslice/core/Error.h"
@@ -104,11 +103,6 @@ RegistrationSettings RegistrationSettings::resolved() const {
 
 void RegistrationSettings::validate(const ParameterNames& names) const {
   const auto name = [&](const char* setting) { return spelled(names, setting); };
-  const auto number = [](double v) {
-    std::ostringstream out;
-    out << v;
-    return out.str();
-  };
   // Each start is an optimisation with its own state: a million is a typo, not a search.
   constexpr int kMaxStarts = 100000;
   if (starts && *starts < 1)
@@ -117,10 +111,10 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
     throw InputError(name("starts") + " " + std::to_string(*starts) + ": at most " +
                      std::to_string(kMaxStarts));
   if (!(search_rot_deg >= 0 && search_rot_deg <= 180))
-    throw InputError(name("search_rot_deg") + " " + number(search_rot_deg) +
+    throw InputError(name("search_rot_deg") + " " + text::number(search_rot_deg) +
                      ": must be in [0, 180] degrees");
   if (!(search_trans_mm >= 0 && search_trans_mm <= kMaxGeometryMm))
-    throw InputError(name("search_trans_mm") + " " + number(search_trans_mm) +
+    throw InputError(name("search_trans_mm") + " " + text::number(search_trans_mm) +
                      ": must be a distance from 0 to 1e9 mm");
   if (pyramid && pyramid->empty()) throw InputError(name("pyramid") + ": needs at least one level");
   if (pyramid) {
@@ -154,7 +148,7 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
         (optimizer ? "" : " (the default for " + name("metric") + " " + to_string(metric) + ")") +
         ": this sonoslice was built without NLopt (Debian: libnlopt-cxx-dev)");
   if (!(smoothness >= 0 && std::isfinite(smoothness)))
-    throw InputError(name("smoothness") + " " + number(smoothness) +
+    throw InputError(name("smoothness") + " " + text::number(smoothness) +
                      ": must be a finite weight >= 0");
   if (mode == RegistrationMode::SmoothSweep &&
       !(metric_has_derivatives(metric) && derivative_based))

@@ -13,6 +13,7 @@
 
 #include "../backend/ParallelFor.h"
 #include "../core/Random.h"
+#include "../core/Text.h"
 #include "../geometry/Sampling.h"
 #include "sonoslice/core/Error.h"
 #include "sonoslice/volume/PixelType.h"
@@ -228,9 +229,17 @@ void SamplerSettings::validate(const std::string& where) const {
     if (start) validate_poses(&*start, 1, where + ": start");
   }
   const RejectionRules& r = reject;
-  for (double f : {r.min_inside, r.min_body, r.min_label})
-    if (!(f >= 0 && f <= 1)) throw InputError(where + ": reject: fractions must be in [0, 1]");
+  for (const auto& [key, f] : {std::pair<const char*, double>{"min_inside", r.min_inside},
+                               {"min_body", r.min_body},
+                               {"min_label", r.min_label}})
+    if (!(f >= 0 && f <= 1))
+      throw InputError(where + ": reject." + key + " " + text::number(f) +
+                       ": must be a fraction in [0, 1]");
   if (r.min_label > 0 && r.label < 0) throw InputError(where + ": reject: min_label needs a label");
+  // A label alone rejects nothing: it only says which label min_label counts.
+  if (r.label >= 0 && !(r.min_label > 0))
+    throw InputError(where + ": reject.label " + std::to_string(r.label) +
+                     ": needs min_label, the fraction of the fan that must lie in that label");
   if (!(r.gas_depth_mm >= 1 && r.gas_depth_mm <= 100) || !std::isfinite(r.gas_hu))
     throw InputError(where + ": reject: gas_depth_mm must be in [1, 100] mm, gas_hu finite");
   if (max_tries < 1 || max_tries > 10000000)

@@ -2,7 +2,6 @@
 // docs/simulation.md §1; the simulation's settings: their spelling, checks and defaults.
 #include <cmath>
 #include <set>
-#include <sstream>
 #include <utility>
 
 #include "../core/Text.h"
@@ -68,14 +67,6 @@ Tissue tissue_from_hu(double hu) {
   return t;
 }
 
-namespace {
-std::string number(double v) {
-  std::ostringstream out;
-  out << v;
-  return out.str();
-}
-}  // namespace
-
 void validate_tissues(const std::vector<Tissue>& tissues, const std::string& what) {
   if (tissues.empty()) throw InputError(what + ": the tissue table is empty");
   std::set<int> labels;
@@ -90,8 +81,8 @@ void validate_tissues(const std::vector<Tissue>& tissues, const std::string& wha
     // a reflection's amplitude: at most 1): a value past them is a typo or a unit mistake.
     const auto check = [&](double value, bool above_zero, double most, const char* key) {
       if (!(above_zero ? value > 0 : value >= 0) || !(value <= most))
-        throw InputError(name + ": " + key + " " + number(value) + " must be " +
-                         (above_zero ? "> 0" : ">= 0") + " and <= " + number(most));
+        throw InputError(name + ": " + key + " " + text::number(value) + " must be " +
+                         (above_zero ? "> 0" : ">= 0") + " and <= " + text::number(most));
     };
     check(t.impedance_mrayl, true, 1000, "impedance_mrayl");
     check(t.attenuation_db_cm_mhz, false, 1000, "attenuation_db_cm_mhz");
@@ -142,16 +133,17 @@ void SimulationSettings::validate(const ParameterNames& names) const {
   // Medical ultrasound spans about 1 to 70 MHz; a dynamic range beyond 200 dB exceeds what any
   // echo (or double arithmetic's log compression of it) holds: both bounds catch typos.
   if (frequency_mhz && !(*frequency_mhz >= 0.1 && *frequency_mhz <= 100))
-    throw InputError(name("frequency_mhz") + ": frequency " + number(*frequency_mhz) +
+    throw InputError(name("frequency_mhz") + ": frequency " + text::number(*frequency_mhz) +
                      " MHz must be in [0.1, 100]");
   if (!(dynamic_range_db > 0 && dynamic_range_db <= 200))
-    throw InputError(name("dynamic_range_db") + ": dynamic range " + number(dynamic_range_db) +
-                     " dB must be in (0, 200]");
+    throw InputError(name("dynamic_range_db") + ": dynamic range " +
+                     text::number(dynamic_range_db) + " dB must be in (0, 200]");
   for (const auto& [setting, w] : {std::pair<const char*, double>{"axial_fwhm_mm", axial_fwhm_mm},
                                    {"lateral_fwhm_mm", lateral_fwhm_mm},
                                    {"elevation_fwhm_mm", elevation_fwhm_mm}})
     if (!(w >= 0) || !std::isfinite(w))
-      throw InputError(name(setting) + ": point-spread width " + number(w) + " mm must be >= 0");
+      throw InputError(name(setting) + ": point-spread width " + text::number(w) +
+                       " mm must be >= 0");
 }
 
 SimulationSettings SimulationSettings::resolved(const ParameterNames& names) const {

@@ -357,6 +357,13 @@ TEST(PoseSampler, BadSettingsAreNamed) {
   EXPECT_NE(message(R"({"type": "region"})").find("give its \"label\" or \"intensity\" range"),
             std::string::npos);
   EXPECT_NE(message("{not json").find("invalid JSON"), std::string::npos);
+  EXPECT_EQ(message(R"({"type": "skin", "reject": {"min_body": 1.5}})"),
+            "samplers[2]: reject.min_body 1.5: must be a fraction in [0, 1]");
+  // A label alone would reject nothing: it names the label that min_label counts.
+  EXPECT_EQ(message(R"({"type": "skin", "reject": {"label": 3}})"),
+            "samplers[2]: reject.label 3: needs min_label, the fraction of the fan that must lie "
+            "in that label");
+  EXPECT_EQ(message(R"({"type": "skin", "reject": {"label": 3, "min_label": 0.2}})"), "no error");
   // Inputs a sampler needs.
   EXPECT_THROW(PoseSampler(skin(), workload_w1_fan_probe()), InputError);  // skin without a CT
   EXPECT_THROW(PoseSampler(parse_sampler_json(R"({"type": "region", "label": 3})", "t"),
