@@ -805,6 +805,11 @@ def test_a_given_grid_that_no_frame_reaches_is_said(cli, tmp_path, plus_data):
     assert ("no frame reaches the output grid (along x the grid spans 99999999.75 to 100000004.75 mm, "
             "the frames -22.26 to 27.74 mm)") in r.stderr, r.stderr
     assert not sonoslice.Volume.from_file(str(tmp_path / "far.nii")).array.any()
+    # A far grid too large for memory: the memory error alone, one line, nothing written.
+    r = subprocess.run(base + ["--origin", "1e8,0,0", "--extent", "100000,100000,100000", "--out",
+                               str(tmp_path / "huge.nii")], capture_output=True, text=True)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "needs" in r.stderr and "GiB" in r.stderr, r.stderr
+    assert not (tmp_path / "huge.nii").exists()
     r = subprocess.run(base + ["--origin", "-22,-137,-58", "--extent", "100,100,70", "--out", str(tmp_path / "near.nii")],
                        capture_output=True, text=True)
     assert r.returncode == 0 and r.stderr == "", r.stderr

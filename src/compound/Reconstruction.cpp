@@ -517,10 +517,9 @@ void Reconstruction::Impl::fit_grid(const PlusReconstructionConfig* config,
   const std::optional<VolumeGrid> fixed = fixed_grid(config, o, *spacing);
   report.grid_from_config = fixed && !o.origin_mm;
   report.grid_given = fixed && o.origin_mm;
-  if (fixed) {
+  if (fixed)
     grid = *fixed;
-    warn_if_no_frame_reaches(grid);
-  } else if (source.kind == FrameSource::Kind::Beams)
+  else if (source.kind == FrameSource::Kind::Beams)
     grid = Compounder::grid_around_beams(to_reference, source.beam_geometry, *spacing);
   else
     // PLUS's rules fit the box around every usable frame, also those a skip interval leaves out
@@ -577,6 +576,8 @@ Reconstruction::Reconstruction(const FrameSource& frames, const PlusReconstructi
   // Checks the memory (ResourceError naming a spacing that fits) before allocating anything.
   im.compounder = std::make_unique<Compounder>(im.grid, im.settings, im.device, im.max_memory_bytes,
                                                im.output_type);
+  // After the checks, so that a grid refused (too large) gets its one error line only.
+  if (im.report.grid_from_config || im.report.grid_given) im.warn_if_no_frame_reaches(im.grid);
 }
 
 Reconstruction::~Reconstruction() = default;
