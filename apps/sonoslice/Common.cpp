@@ -179,6 +179,15 @@ void add_seed_option(CLI::App& cmd, std::function<void(uint64_t)> set,
       description);
 }
 
+double mesh_voxel_size(const std::optional<double>& given, bool voxelised,
+                       const std::string& which) {
+  if (given && !voxelised)
+    throw InputError("--voxel-size: applies only to meshes that are voxelised (" + which + ")");
+  const double size = given.value_or(0.5);
+  if (!(size > 0)) throw InputError("--voxel-size must be > 0 mm");
+  return size;
+}
+
 void setup_threads(const std::optional<int>& threads) {
   if (threads)
     set_cpu_threads(*threads);

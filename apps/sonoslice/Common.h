@@ -69,6 +69,12 @@ void add_threads_option(CLI::App& cmd, std::optional<int>& threads);
 void add_seed_option(CLI::App& cmd, std::function<void(uint64_t)> set,
                      const std::string& description);
 
+/// The --voxel-size of `slice` and `simulate` (meshes are voxelised at it; default 0.5 mm), where
+/// `voxelised` says whether this run voxelises meshes (`which`: the flags that make it): given
+/// otherwise, it would change nothing, so it is refused (InputError), as is a size not > 0.
+double mesh_voxel_size(const std::optional<double>& given, bool voxelised,
+                       const std::string& which = "--meshes");
+
 /// Sets the CPU thread count from --threads (unset: all hardware threads).
 void setup_threads(const std::optional<int>& threads);
 

@@ -56,7 +56,7 @@ void check_simulation_flags(const SimulateFlags& f, const std::string& command) 
         "label k (inside the k-th mesh)");
   if (f.probe.empty() && f.preset.empty())
     throw UsageError(command + ": give --probe or --preset (sonoslice simulate --list-presets)");
-  if (!(f.voxel_size > 0)) throw InputError("--voxel-size must be > 0 mm");
+  mesh_voxel_size(f.voxel_size, !f.meshes.empty());
 }
 
 std::optional<ProbeGeometry> probe_of(const SimulateFlags& f) {
@@ -107,15 +107,16 @@ SimulationInput read_simulation_input(const SimulateFlags& f) {
       meshes.push_back(read_mesh(path, frame));
       labels.push_back(uint16_t(labels.size() + 1));
     }
+    const double voxel_size = mesh_voxel_size(f.voxel_size, true);
     VolumeGrid grid;
     try {
-      grid = voxel_grid_around(meshes, f.voxel_size, f.voxel_size);
+      grid = voxel_grid_around(meshes, voxel_size, voxel_size);
     } catch (const ParameterError& e) {
       throw InputError("--voxel-size " + e.detail());
     }
     in.volume = voxelize(meshes, grid, labels);
     in.description = std::to_string(meshes.size()) + " meshes voxelised at " +
-                     std::to_string(f.voxel_size) + " mm";
+                     std::to_string(voxel_size) + " mm";
   }
   return in;
 }

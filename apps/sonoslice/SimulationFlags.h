@@ -17,7 +17,7 @@ struct SimulateFlags {
   VolumeFlags volume;
   std::string labels, tissues;
   std::vector<std::string> meshes;
-  double voxel_size = 0.5;
+  std::optional<double> voxel_size;
   std::string probe, poses, out, mask, world = "LPS";
   int downsampling = 1;
   // The simulation settings the user gave; the library has the defaults (SimulationSettings).

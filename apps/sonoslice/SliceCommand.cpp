@@ -25,7 +25,7 @@ struct SliceFlags {
   VolumeFlags volume;
   std::string labels, mesh_dir, surface_mode = "voxel", colors;
   std::vector<std::string> meshes;
-  double voxel_size = 0.5;
+  std::optional<double> voxel_size;
   std::string probe, poses, out, mask;
   std::string interp = "linear", dtype = "float32", world = "LPS", device = "cpu", window;
   double fill = 0.0;
@@ -89,14 +89,15 @@ Source make_source(const SliceFlags& f, const ProbeGeometry& probe, SliceSetting
     src.surfaces =
         std::make_unique<SurfaceSlicer>(std::move(meshes), probe, labels, settings.output_type);
   } else {
+    const double voxel_size = mesh_voxel_size(f.voxel_size, true);
     VolumeGrid grid;
     try {
-      grid = voxel_grid_around(meshes, f.voxel_size, f.voxel_size);
+      grid = voxel_grid_around(meshes, voxel_size, voxel_size);
     } catch (const ParameterError& e) {  // both the spacing and the margin are --voxel-size
       throw InputError("--voxel-size " + e.detail());
     }
     const Volume v = voxelize(meshes, grid, labels);
-    src.description += " at " + std::to_string(f.voxel_size) + " mm";
+    src.description += " at " + std::to_string(voxel_size) + " mm";
     src.slicer = std::make_unique<Slicer>(v, probe, settings, device);
   }
   return src;
@@ -118,7 +119,9 @@ void run_slice(const SliceFlags& f) {
     throw InputError("--surface-mode " + f.surface_mode + ": expected voxel or exact");
   if (!label_mode && !f.colors.empty())
     throw InputError("--colors: colour images come from labels (--labels, --meshes, --mesh-dir)");
-  if (!(f.voxel_size > 0)) throw InputError("--voxel-size must be > 0 mm");
+  const bool meshes = !f.meshes.empty() || !f.mesh_dir.empty();
+  mesh_voxel_size(f.voxel_size, meshes && f.surface_mode == "voxel",
+                  "--meshes or --mesh-dir, --surface-mode voxel");
 
   SliceSettings settings;
   settings.interpolation = parse_interpolation(f.interp);

@@ -810,6 +810,12 @@ std::vector<BadCase> bad_cases() {
       {"VoxelSizeZero",
        "slice --meshes {DIR}/in_tet.stl --voxel-size 0 --probe {FAN} --poses {POSES} --out {OUT}",
        "error: --voxel-size must be > 0 mm"},
+      {"VoxelSizeWithoutMeshes", std::string(kSlice) + "--voxel-size 0.2",
+       "error: --voxel-size: applies only to meshes that are voxelised"},
+      {"VoxelSizeWithExactSurfaces",
+       "slice --meshes {DIR}/in_tet.stl --surface-mode exact --voxel-size 0.2 --probe {FAN} "
+       "--poses {POSES} --out {OUT}",
+       "error: --voxel-size: applies only to meshes that are voxelised"},
       {"CompoundSkipZero", std::string(kCompound) + "--skip 0", "--skip 0: must be >= 1"},
       {"CompoundClipAndProbeOnSequence", std::string(kCompound) + "--poses {DIR}/p.npy",
        "a PLUS sequence carries its own transforms"},
