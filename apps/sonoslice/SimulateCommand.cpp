@@ -57,6 +57,16 @@ void check_simulation_flags(const SimulateFlags& f, const std::string& command) 
   if (f.probe.empty() && f.preset.empty())
     throw UsageError(command + ": give --probe or --preset (sonoslice simulate --list-presets)");
   mesh_voxel_size(f.voxel_size, !f.meshes.empty());
+  if (!f.output.empty() &&
+      parse_simulation_output(f.output, "--output") == SimulationOutput::Envelope) {
+    // The envelope is taken before TGC and log compression: these flags would change nothing.
+    if (f.dynamic_range)
+      throw InputError(
+          "--dynamic-range: applies to --output bmode (envelope is before log "
+          "compression)");
+    if (!f.tgc.empty())
+      throw InputError("--tgc: applies to --output bmode (envelope is before TGC)");
+  }
 }
 
 std::optional<ProbeGeometry> probe_of(const SimulateFlags& f) {

@@ -810,6 +810,14 @@ std::vector<BadCase> bad_cases() {
       {"VoxelSizeZero",
        "slice --meshes {DIR}/in_tet.stl --voxel-size 0 --probe {FAN} --poses {POSES} --out {OUT}",
        "error: --voxel-size must be > 0 mm"},
+      {"EnvelopeWithDynamicRange",
+       "simulate --volume {CT} --preset lus --poses {POSES} --out {OUT} --output envelope "
+       "--dynamic-range 40",
+       "error: --dynamic-range: applies to --output bmode"},
+      {"EnvelopeWithTgc",
+       "simulate --volume {CT} --preset lus --poses {POSES} --out {OUT} --output envelope --tgc "
+       "off",
+       "error: --tgc: applies to --output bmode"},
       {"VoxelSizeWithoutMeshes", std::string(kSlice) + "--voxel-size 0.2",
        "error: --voxel-size: applies only to meshes that are voxelised"},
       {"VoxelSizeWithExactSurfaces",
