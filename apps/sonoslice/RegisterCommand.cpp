@@ -241,7 +241,7 @@ void run_register(const RegisterFlags& f) {
     j["optimizer"] = to_string(*ran.optimizer);
     j["mode"] = to_string(ran.mode);
     j["starts"] = ran.starts ? nlohmann::json(*ran.starts) : nlohmann::json("auto");
-    if (ran.mode == RegistrationMode::SmoothSweep) j["smoothness"] = ran.smoothness;
+    if (ran.mode == RegistrationMode::SmoothSweep) j["smoothness"] = *ran.smoothness;
     j["frames"] = nlohmann::json::array();
     for (const FrameReport& r : report.frames)
       j["frames"].push_back({{"index", r.index},
@@ -373,7 +373,7 @@ void add_register_command(CLI::App& app) {
                       to_string(defaults.mode));
   cmd->add_option("--smoothness", flags->smoothness,
                   "smooth-sweep: the prior's weight relative to the frames' curvature " +
-                      default_text(defaults.smoothness));
+                      default_text(RegistrationSettings::kDefaultSmoothness));
   cmd->add_option("--mask", flags->user_mask,
                   "An HxW image: compare only its non-zero pixels (with the fan mask)");
   cmd->add_option("--report", flags->report, "Write a JSON report here");

@@ -109,8 +109,9 @@ void bind_registration(nb::module_& m) {
           [](RegistrationSettings* self, RegistrationMetric metric,
              std::optional<RegistrationOptimizer> optimizer, RegistrationMode mode,
              std::optional<int> starts, double search_rot_deg, double search_trans_mm,
-             nb::int_ seed, double smoothness, std::optional<std::vector<int>> pyramid,
-             int max_iterations, double tolerance_mm, double tolerance_deg) {
+             nb::int_ seed, std::optional<double> smoothness,
+             std::optional<std::vector<int>> pyramid, int max_iterations, double tolerance_mm,
+             double tolerance_deg) {
             RegistrationSettings s;
             s.metric = metric;
             s.optimizer = optimizer;
@@ -131,7 +132,7 @@ void bind_registration(nb::module_& m) {
           "mode"_a = settings.mode, "starts"_a.none() = nb::none(),
           "search_rot_deg"_a = settings.search_rot_deg,
           "search_trans_mm"_a = settings.search_trans_mm, "seed"_a = nb::int_(settings.seed),
-          "smoothness"_a = settings.smoothness, "pyramid"_a.none() = nb::none(),
+          "smoothness"_a.none() = nb::none(), "pyramid"_a.none() = nb::none(),
           "max_iterations"_a = settings.max_iterations, "tolerance_mm"_a = settings.tolerance_mm,
           "tolerance_deg"_a = settings.tolerance_deg,
           "optimizer: default lm for ssd and ncc, bobyqa for the others (default_optimizer). "
@@ -145,7 +146,9 @@ void bind_registration(nb::module_& m) {
       .def_ro("search_rot_deg", &RegistrationSettings::search_rot_deg)
       .def_ro("search_trans_mm", &RegistrationSettings::search_trans_mm)
       .def_ro("seed", &RegistrationSettings::seed)
-      .def_ro("smoothness", &RegistrationSettings::smoothness)
+      .def_ro("smoothness", &RegistrationSettings::smoothness,
+              "smooth-sweep's prior weight; None: not chosen yet (resolved() chooses for "
+              "smooth-sweep)")
       .def_ro("pyramid", &RegistrationSettings::pyramid,
               "None: not chosen yet (resolved() chooses)")
       .def_ro("max_iterations", &RegistrationSettings::max_iterations)
@@ -167,7 +170,8 @@ void bind_registration(nb::module_& m) {
                ", starts=" + (s.starts ? repr(*s.starts) : std::string("None")) +
                ", search_rot_deg=" + repr(s.search_rot_deg) +
                ", search_trans_mm=" + repr(s.search_trans_mm) + ", seed=" + repr(s.seed) +
-               ", smoothness=" + repr(s.smoothness) + ", pyramid=" + levels + ")";
+               ", smoothness=" + (s.smoothness ? repr(*s.smoothness) : std::string("None")) +
+               ", pyramid=" + levels + ")";
       });
 
   nb::class_<FrameReport>(m, "FrameReport", "One frame's outcome (docs/registration.md §4).")

@@ -318,6 +318,7 @@ def test_missing_required_flags_are_usage_errors(cli, case):
     (["--mode", "sweep"], "--mode sweep"),
     (["--mode", "smooth-sweep", "--metric", "mi"], "smooth-sweep"),
     (["--mode", "smooth-sweep", "--smoothness", "-1"], "--smoothness"),
+    (["--mode", "rigid-sweep", "--smoothness", "0.5"], "--smoothness: applies to --mode smooth-sweep"),
     (["--starts", "0"], "--starts 0"),
     (["--search-trans-mm", "nan"], "--search-trans-mm"),
     (["--search-trans-mm", "1e300"], "--search-trans-mm 1e+300: must be a distance from 0 to 1e9 mm"),

@@ -71,7 +71,8 @@ def test_registration_cost_is_lowest_where_the_frame_was_made(phantom, poses):
     (dict(search_trans_mm=math.nan), "search_trans_mm nan: must be a distance from 0 to 1e9 mm"),
     (dict(pyramid=[4, 0]), "pyramid 4,0: expected block sizes from 1 to 64"),
     (dict(pyramid=[1, 2, 4]), "pyramid 1,2,4: the block sizes must decrease, coarse to fine"),
-    (dict(smoothness=-1.0), "smoothness -1: must be a finite weight"),
+    (dict(smoothness=-1.0, mode=sonoslice.RegistrationMode.smooth_sweep), "smoothness -1: must be a finite weight"),
+    (dict(smoothness=0.5), "smoothness: applies to mode smooth-sweep"),
     (dict(metric=sonoslice.RegistrationMetric.mi, optimizer=sonoslice.RegistrationOptimizer.gn),
      "metric mi has no analytic derivatives: use optimizer bobyqa or nelder-mead"),
 ])

@@ -98,6 +98,7 @@ RegistrationSettings RegistrationSettings::resolved() const {
   RegistrationSettings s = *this;
   if (!s.optimizer) s.optimizer = default_optimizer(metric);
   if (!s.pyramid) s.pyramid = default_pyramid(metric);
+  if (!s.smoothness && mode == RegistrationMode::SmoothSweep) s.smoothness = kDefaultSmoothness;
   return s;
 }
 
@@ -147,9 +148,14 @@ void RegistrationSettings::validate(const ParameterNames& names) const {
         name("optimizer") + " " + to_string(o) +
         (optimizer ? "" : " (the default for " + name("metric") + " " + to_string(metric) + ")") +
         ": this sonoslice was built without NLopt (Debian: libnlopt-cxx-dev)");
-  if (!(smoothness >= 0 && std::isfinite(smoothness)))
-    throw InputError(name("smoothness") + " " + text::number(smoothness) +
+  if (smoothness && !(*smoothness >= 0 && std::isfinite(*smoothness)))
+    throw InputError(name("smoothness") + " " + text::number(*smoothness) +
                      ": must be a finite weight >= 0");
+  if (smoothness && mode != RegistrationMode::SmoothSweep)
+    throw InputError(name("smoothness") + ": applies to " + name("mode") + " " +
+                     to_string(RegistrationMode::SmoothSweep) +
+                     " (the prior between neighbouring " + "frames' corrections), not " +
+                     to_string(mode));
   if (mode == RegistrationMode::SmoothSweep &&
       !(metric_has_derivatives(metric) && derivative_based))
     throw InputError(name("mode") + " smooth-sweep: needs " + name("metric") + " ssd or ncc with " +

@@ -85,7 +85,7 @@ SweepOutcome smooth_sweep(const SweepTerms& p, const RegistrationSettings& s, co
             for (int k = 0; k < 6; ++k) sum[k / 3] += H[36 * i + 7 * k] / 3;
           }
         if (used == 0) break;  // no frame inside the volume at this level
-        for (int k = 0; k < 6; ++k) w[k] = s.smoothness * sum[k / 3] / double(used);
+        for (int k = 0; k < 6; ++k) w[k] = *s.smoothness * sum[k / 3] / double(used);
       }
       const Total current = total(each, X, w);
       ++out.iterations;

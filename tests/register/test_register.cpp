@@ -857,6 +857,16 @@ TEST(Register, SettingsChooseTheOptimiserAndNameTheSetting) {
   }
   t.pyramid = std::vector<int>{4, 2};  // stopping above full resolution is allowed
   EXPECT_EQ(message(t, {}), "no error");
+  // smooth-sweep's prior weight: chosen for that mode, refused in another (it changes nothing).
+  t = RegistrationSettings();
+  EXPECT_FALSE(t.resolved().smoothness);
+  t.mode = RegistrationMode::SmoothSweep;
+  EXPECT_EQ(*t.resolved().smoothness, RegistrationSettings::kDefaultSmoothness);
+  t.smoothness = 2.0;
+  EXPECT_EQ(*t.resolved().smoothness, 2.0);
+  t.mode = RegistrationMode::RigidSweep;
+  EXPECT_EQ(message(t, flags), "--smoothness: applies to --mode smooth-sweep (the prior between "
+                               "neighbouring frames' corrections), not rigid-sweep");
   // One spelling table per choice.
   for (RegistrationMetric m :
        {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,

@@ -118,7 +118,10 @@ struct RegistrationSettings {
   /// apart), so 1 means a 1 mm step between neighbouring corrections costs about what moving a
   /// typical frame 1 mm off its own optimum does; 0 is per-frame registration from the
   /// rigid-sweep result. The default 0.3 was the best of 0–100 on the test's noisy sweep.
-  double smoothness = 0.3;
+  /// Unset: kDefaultSmoothness in smooth-sweep mode (resolved()); set in another mode it would
+  /// change nothing, so validate() refuses it.
+  std::optional<double> smoothness;
+  static constexpr double kDefaultSmoothness = 0.3;
   /// Coarse to fine: at level k the volume is averaged over blocks of pyramid[k]³ voxels and
   /// the frame over blocks of pyramid[k]² pixels, of which one pixel per block is compared.
   /// Unset: default_pyramid(metric) (resolved()).
