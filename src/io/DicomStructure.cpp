@@ -573,7 +573,11 @@ bool is_dicom(const std::string& path) {
   const size_t n = std::fread(head, 1, sizeof head, f);
   std::fclose(f);
   if (n == sizeof head && std::memcmp(head + 128, "DICM", 4) == 0) return true;
-  return n >= 6 && starts_with_element(head);
+  // A file shorter than one element's header whose first bytes start one as GDCM guesses is
+  // DICOM, truncated: GDCM's series scan asserts on it, so it is walked (and refused) too.
+  if (n < 2) return false;
+  std::memset(head + n, 0, sizeof head - n);
+  return starts_with_element(head);
 }
 
 }  // namespace dicom

@@ -458,6 +458,15 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   fs::copy_file(meta, folder.file("broken.dcm"));
   EXPECT_NE(error_of(folder.path().string()).find("file 'broken.dcm': truncated or corrupt"),
             std::string::npos);
+  // A file shorter than one element's header that starts as one (the file meta group's first
+  // tag): GDCM's series scan asserted on it; it is walked and named like the others.
+  test::TempDir short_folder;
+  std::ofstream(short_folder.file("short.dcm"), std::ios::binary)
+      << std::string("\x02\x00\x00\x00\x41", 5);
+  EXPECT_NE(error_of(short_folder.path().string())
+                .find("file 'short.dcm': truncated file (shorter than one element)"),
+            std::string::npos)
+      << error_of(short_folder.path().string());
 }
 
 // GDCM reads what follows the pixel data, and files without the 128-byte preamble and "DICM":

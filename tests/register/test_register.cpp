@@ -865,8 +865,9 @@ TEST(Register, SettingsChooseTheOptimiserAndNameTheSetting) {
   t.smoothness = 2.0;
   EXPECT_EQ(*t.resolved().smoothness, 2.0);
   t.mode = RegistrationMode::RigidSweep;
-  EXPECT_EQ(message(t, flags), "--smoothness: applies to --mode smooth-sweep (the prior between "
-                               "neighbouring frames' corrections), not rigid-sweep");
+  EXPECT_EQ(message(t, flags),
+            "--smoothness: applies to --mode smooth-sweep (the prior between "
+            "neighbouring frames' corrections), not rigid-sweep");
   // One spelling table per choice.
   for (RegistrationMetric m :
        {RegistrationMetric::SSD, RegistrationMetric::NCC, RegistrationMetric::LNCC,
