@@ -559,22 +559,64 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
   }
 }
 
-// Every DICOM file of a folder, before GDCM's scan for series parses them all (one broken file
-// aborts it): named in the folder's words.
-// Walks the folder's DICOM files (GDCM passes the others over); returns how many files it holds,
-// DICOM or not.
-int64_t check_dicom_folder(const std::string& directory) {
-  std::error_code ec;
-  int64_t files = 0;
-  for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
-    if (!entry.is_regular_file(ec)) continue;
-    ++files;
-    if (dicom::is_dicom(entry.path().string()))
+// The DICOM files of a folder as GDCM's series scan is allowed to see them. The scan parses every
+// file it finds, guessing the syntax of those without the Part 10 preamble, and asserts (aborting
+// the process) on broken structure and on some bytes it guesses wrong (fuzzing found such files
+// of 5 to 200 bytes). So each file is first told DICOM or not (dicom::is_dicom) and walked
+// (dicom::check_structure, errors named in the folder's words), and the scan runs on a temporary
+// folder of links to the walked files only: the others (a README, .DS_Store) are passed over, as
+// GDCM passes over what it does not read, without GDCM ever parsing them.
+class WalkedDicomFolder {
+ public:
+  explicit WalkedDicomFolder(const std::string& directory) : directory_(directory) {
+    std::error_code ec;
+    std::vector<std::filesystem::path> dicom;
+    for (const auto& entry : std::filesystem::directory_iterator(directory, ec)) {
+      if (!entry.is_regular_file(ec)) continue;
+      ++files_;
+      if (!dicom::is_dicom(entry.path().string())) continue;
       dicom::check_structure(entry.path().string(), "DICOM directory '" + directory + "': file '" +
                                                         entry.path().filename().string() + "'");
+      dicom.push_back(std::filesystem::absolute(entry.path(), ec));
+    }
+    std::string pattern = (std::filesystem::temp_directory_path(ec) / "sonoslice-dicom-XXXXXX");
+    if (ec || !::mkdtemp(pattern.data()))
+      throw FileError("cannot read DICOM directory '" + directory +
+                      "': cannot make a temporary folder for its series scan (" +
+                      std::strerror(errno) + ")");
+    links_ = pattern;
+    for (const std::filesystem::path& file : dicom) {
+      std::filesystem::create_symlink(file, links_ / file.filename(), ec);
+      if (ec)
+        throw FileError("cannot read DICOM directory '" + directory + "': cannot link '" +
+                        file.filename().string() + "' for its series scan (" + ec.message() + ")");
+    }
   }
-  return files;
-}
+  ~WalkedDicomFolder() {
+    std::error_code ec;
+    if (!links_.empty()) std::filesystem::remove_all(links_, ec);
+  }
+  WalkedDicomFolder(const WalkedDicomFolder&) = delete;
+  WalkedDicomFolder& operator=(const WalkedDicomFolder&) = delete;
+
+  /// The folder for GDCM's scan (links to the walked files).
+  std::string scan_directory() const { return links_.string(); }
+  /// The files the scan listed, as paths in the folder itself.
+  std::vector<std::string> originals(const std::vector<std::string>& scanned) const {
+    std::vector<std::string> out;
+    for (const std::string& f : scanned)
+      out.push_back(
+          (std::filesystem::path(directory_) / std::filesystem::path(f).filename()).string());
+    return out;
+  }
+  /// How many files the folder holds, DICOM or not.
+  int64_t files() const { return files_; }
+
+ private:
+  std::string directory_;
+  std::filesystem::path links_;
+  int64_t files_ = 0;
+};
 
 // Reads the elements of `file` before its pixel data (and that element's header, not its value)
 // into `reader`, and checks the pixel data: it must fit in the file and hold the image's pixels
@@ -596,7 +638,7 @@ void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
                    format.GetBitsAllocated() == 12);
 }
 
-// The series' files have been walked by check_dicom_folder().
+// The series' files have been walked (WalkedDicomFolder).
 void check_dicom_slices(const std::string& directory, const std::vector<std::string>& files) {
   const std::string where = "DICOM series in '" + directory + "'";
   std::vector<DicomSlice> slices;
@@ -762,11 +804,11 @@ Volume read_image_file(const std::string& path, int64_t* colour_pixels) {
 
 std::vector<DicomSeriesInfo> list_dicom_series(const std::string& directory) {
   register_factories();
-  check_dicom_folder(directory);
+  const WalkedDicomFolder folder(directory);
   try {
     auto names = itk::GDCMSeriesFileNames::New();
     names->SetUseSeriesDetails(true);
-    names->SetDirectory(directory);
+    names->SetDirectory(folder.scan_directory());
     std::vector<DicomSeriesInfo> out;
     for (const std::string& uid : names->GetSeriesUIDs())
       out.push_back({uid, names->GetFileNames(uid).size()});
@@ -796,11 +838,12 @@ std::optional<int64_t> dicom_instance_number(const std::string& file, const std:
 
 Volume read_dicom_directory(const std::string& directory, const std::string& series_uid) {
   register_factories();
-  const int64_t files = check_dicom_folder(directory);
+  const WalkedDicomFolder folder(directory);
+  const int64_t files = folder.files();
   try {
     auto names = itk::GDCMSeriesFileNames::New();
     names->SetUseSeriesDetails(true);
-    names->SetDirectory(directory);
+    names->SetDirectory(folder.scan_directory());
     const auto uids = names->GetSeriesUIDs();
     if (uids.empty())
       throw FileError("cannot read volume '" + directory + "': no DICOM series in the directory" +
@@ -827,7 +870,7 @@ Volume read_dicom_directory(const std::string& directory, const std::string& ser
         if (n > best) best = n, chosen = uid;
       }
     }
-    const std::vector<std::string> files = names->GetFileNames(chosen);
+    const std::vector<std::string> files = folder.originals(names->GetFileNames(chosen));
     check_dicom_slices(directory, files);
     // The pixel type after rescale slope/intercept, as GDCM reports it for the first file.
     auto io = itk::GDCMImageIO::New();
