@@ -347,8 +347,9 @@ class Walker {
     if (samples_ >= 0 && samples_ != 1 && samples_ != 3 && samples_ != 4)
       fail("corrupt file (samples per pixel " + std::to_string(samples_) +
            ": DICOM images have 1, 3 or 4)");
-    if (bits_allocated_ >= 0 && bits_allocated_ % 8 && bits_allocated_ != 1 &&
-        bits_allocated_ != 12)
+    // 0 bits allocated: GDCM keeps its default bits stored (8) above it and asserts.
+    if (bits_allocated_ == 0 || (bits_allocated_ > 0 && bits_allocated_ % 8 &&
+                                 bits_allocated_ != 1 && bits_allocated_ != 12))
       bad("bits allocated " + std::to_string(bits_allocated_));
     if (bits_stored_ > 32) bad("bits stored " + std::to_string(bits_stored_));
     if (bits_stored_ >= 0 && bits_allocated_ >= 0 && bits_stored_ > bits_allocated_)

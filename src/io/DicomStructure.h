@@ -25,7 +25,7 @@ void check_structure(const std::string& path, const std::string& where);
 
 /// Whether a file is DICOM at all: "DICM" after the 128-byte preamble, or (without it) first
 /// bytes that start an element as GDCM guesses. A folder's other files (a README, a viewer's
-/// index, .DS_Store) are not, and GDCM passes them over when it lists a folder's series.
+/// index, .DS_Store) are not, and a folder's series scan does not show them to GDCM.
 bool is_dicom(const std::string& path);
 
 }  // namespace dicom
