@@ -95,7 +95,8 @@ class Walker {
       : f_(f), size_(size), where_(std::move(where)) {}
 
   // `part10`: the file has the preamble and "DICM"; otherwise its first element starts it.
-  void check(bool part10) {
+  // Returns whether the data set holds pixel data.
+  bool check(bool part10) {
     uint64_t at = part10 ? 132 : 0;
     uint8_t first[6];
     if (!read(at, first, 6)) fail("truncated file (shorter than one element)");
@@ -110,7 +111,7 @@ class Walker {
         fail("not a DICOM file (no \"DICM\" at byte 128, and it does not start with an element)");
       check_tail(walk(0, size_, first_vr, 0, /*top=*/true, /*until_delimiter=*/false), first_vr);
       check_pixel_format();
-      return;
+      return pixel_data_;
     }
     // GDCM takes a Part 10 file's meta group to start with its group length, (0002,0000) UL, and
     // reads one that does not by guesswork that this walk cannot follow.
@@ -142,7 +143,8 @@ class Walker {
       }
       at = e.value_at + e.length;
     }
-    if (syntax == "1.2.840.10008.1.2.1.99") return;  // deflated: GDCM inflates, then reads
+    // Deflated: GDCM inflates, then reads (taken to hold pixel data, so that they are checked).
+    if (syntax == "1.2.840.10008.1.2.1.99") return true;
     rle_ = syntax == "1.2.840.10008.1.2.5";
     bool explicit_vr = syntax != "1.2.840.10008.1.2";
     little_ = syntax != "1.2.840.10008.1.2.2";
@@ -153,6 +155,7 @@ class Walker {
     check_tail(walk(at, size_, explicit_vr, 0, /*top=*/true, /*until_delimiter=*/false),
                explicit_vr);
     check_pixel_format();
+    return pixel_data_;
   }
 
  private:
@@ -276,6 +279,8 @@ class Walker {
       }
       if (top && e.group == 0x0028 && e.element == 0x0008)
         number_of_frames(e);
+      else if (top && e.group == 0x0028 && e.element == 0x0004)
+        photometric_interpretation(e);
       else if (top && e.group == 0x0028 && e.length >= 2)
         note_pixel_format(e);
       if (top && e.group == 0x0008 && e.element == 0x0010 && e.length > 0) recognition_code(e);
@@ -293,6 +298,8 @@ class Walker {
   int rows_ = -1, columns_ = -1, planar_ = -1;
   int64_t frames_ = -1;
   bool pixel_data_ = false;
+  // The photometric interpretation is PALETTE COLOR (its first value counts, as above).
+  bool palette_ = false, photometric_seen_ = false;
   // RLE Lossless: the frames' fragments (the basic offset table not counted) and the shortest.
   int64_t rle_fragments_ = 0;
   uint64_t rle_shortest_ = 0;
@@ -310,6 +317,22 @@ class Walker {
     uint8_t v[2];
     if (!read(e.value_at, v, 2)) fail("truncated file");
     *value = int(u16(v, little_));
+  }
+
+  // Photometric interpretation (0028,0004), a code string, as GDCM matches it: the value up to
+  // a NUL, without its leading and trailing spaces, that names a type or starts its name (so
+  // "PALETTE COLO" is PALETTE COLOR). Only PALETTE COLOR matters here.
+  void photometric_interpretation(const Element& e) {
+    if (photometric_seen_) return;
+    photometric_seen_ = true;
+    std::string text(std::min<uint32_t>(e.length, 64), '\0');
+    if (!text.empty() && !read(e.value_at, &text[0], text.size())) fail("truncated file");
+    text = text.substr(0, text.find('\0'));
+    const size_t first = text.find_first_not_of(' '), last = text.find_last_not_of(' ');
+    text = first == std::string::npos ? "" : text.substr(first, last - first + 1);
+    const std::string palette = "PALETTE COLOR";
+    palette_ = !text.empty() && text.size() <= palette.size() &&
+               palette.compare(0, text.size(), text) == 0;
   }
 
   // Number of frames (0028,0008), an integer string: GDCM reads its leading number (leading
@@ -344,6 +367,12 @@ class Walker {
       fail(
           "corrupt file (pixel data without the rows, columns and bits allocated of its image, "
           "(0028,0010), (0028,0011) and (0028,0100))");
+    // GDCM asserts (or aborts) on palette images whose lookup tables are missing or do not fit
+    // their descriptors; sonoslice reads greyscale and RGB images, so palettes are refused.
+    if (pixel_data_ && palette_)
+      fail(
+          "PALETTE COLOR images are not supported (greyscale and RGB are; convert the palette "
+          "to RGB first)");
     if (samples_ >= 0 && samples_ != 1 && samples_ != 3 && samples_ != 4)
       fail("corrupt file (samples per pixel " + std::to_string(samples_) +
            ": DICOM images have 1, 3 or 4)");
@@ -551,7 +580,7 @@ class Walker {
 
 }  // namespace
 
-void check_structure(const std::string& path, const std::string& where) {
+bool check_structure(const std::string& path, const std::string& where) {
   std::FILE* f = std::fopen(path.c_str(), "rb");
   if (!f) throw FileError("cannot read " + where + ": " + std::strerror(errno));
   struct Close {
@@ -564,7 +593,7 @@ void check_structure(const std::string& path, const std::string& where) {
                       std::memcmp(magic, "DICM", 4) == 0;
   if (::fseeko(f, 0, SEEK_END) != 0) throw FileError("cannot read " + where + ": cannot seek");
   const uint64_t size = uint64_t(::ftello(f));
-  Walker(f, size, where).check(part10);
+  return Walker(f, size, where).check(part10);
 }
 
 bool is_dicom(const std::string& path) {

@@ -20,8 +20,8 @@ namespace dicom {
 /// in the file meta group) or whose samples per pixel or ultrasound regions GDCM would assert on.
 /// A file without the preamble (which GDCM also reads) is walked in the syntax GDCM guesses for
 /// it, its file meta group explicit or implicit; one that does not start with an element is not
-/// DICOM.
-void check_structure(const std::string& path, const std::string& where);
+/// DICOM. Returns whether its data set holds pixel data (7FE0,0010).
+bool check_structure(const std::string& path, const std::string& where);
 
 /// Whether a file is DICOM at all: "DICM" after the 128-byte preamble, or (without it) first
 /// bytes that start an element as GDCM guesses. A folder's other files (a README, a viewer's

@@ -559,11 +559,32 @@ void check_pixel_data(const std::string& where, const std::string& file, uint64_
   }
 }
 
+// Reads the elements of `file` before its pixel data (and that element's header, not its value)
+// into `reader`, and checks the pixel data: it must fit in the file and hold the image's pixels
+// (every frame of a multi-frame file). `where` names the file in messages. The caller has had
+// dicom::check_structure() walk the file first (GDCM aborts on broken structure).
+void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
+                               const std::string& where) {
+  reader.SetFileName(file.c_str());
+  const gdcm::Tag pixel_data(0x7fe0, 0x0010);
+  if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
+    throw FileError("cannot read " + where + ": not a readable DICOM file");
+  const gdcm::File& f = reader.GetFile();
+  const std::vector<unsigned int> dims = gdcm::ImageHelper::GetDimensionsValue(f);
+  const gdcm::PixelFormat format = gdcm::ImageHelper::GetPixelFormatValue(f);
+  uint64_t pixel_bytes =
+      (uint64_t(format.GetBitsAllocated()) + 7) / 8 * format.GetSamplesPerPixel();
+  for (unsigned int d : dims) pixel_bytes *= d;
+  check_pixel_data(where, file, reader.GetStreamCurrentPosition(), pixel_bytes,
+                   format.GetBitsAllocated() == 12);
+}
+
 // The DICOM files of a folder as GDCM's series scan is allowed to see them. The scan parses every
 // file it finds, guessing the syntax of those without the Part 10 preamble, and asserts (aborting
 // the process) on broken structure and on some bytes it guesses wrong (fuzzing found such files
 // of 5 to 200 bytes). So each file is first told DICOM or not (dicom::is_dicom) and walked
-// (dicom::check_structure, errors named in the folder's words), and the scan runs on a temporary
+// (dicom::check_structure, and an image's pixel data as read_checked_dicom_header checks it;
+// errors named in the folder's words), and the scan runs on a temporary
 // folder of links to the walked files only: the others (a README, .DS_Store) are passed over, as
 // GDCM passes over what it does not read, without GDCM ever parsing them.
 class WalkedDicomFolder {
@@ -575,8 +596,14 @@ class WalkedDicomFolder {
       if (!entry.is_regular_file(ec)) continue;
       ++files_;
       if (!dicom::is_dicom(entry.path().string())) continue;
-      dicom::check_structure(entry.path().string(), "DICOM directory '" + directory + "': file '" +
-                                                        entry.path().filename().string() + "'");
+      const std::string where =
+          "DICOM directory '" + directory + "': file '" + entry.path().filename().string() + "'";
+      // The scan reads each file's image too (GDCM's SerieHelper), so an image's pixel data
+      // gets the checks a single file's does.
+      if (dicom::check_structure(entry.path().string(), where)) {
+        gdcm::Reader reader;
+        read_checked_dicom_header(reader, entry.path().string(), where);
+      }
       dicom.push_back(std::filesystem::absolute(entry.path(), ec));
     }
     std::string pattern = (std::filesystem::temp_directory_path(ec) / "sonoslice-dicom-XXXXXX");
@@ -617,26 +644,6 @@ class WalkedDicomFolder {
   std::filesystem::path links_;
   int64_t files_ = 0;
 };
-
-// Reads the elements of `file` before its pixel data (and that element's header, not its value)
-// into `reader`, and checks the pixel data: it must fit in the file and hold the image's pixels
-// (every frame of a multi-frame file). `where` names the file in messages. The caller has had
-// dicom::check_structure() walk the file first (GDCM aborts on broken structure).
-void read_checked_dicom_header(gdcm::Reader& reader, const std::string& file,
-                               const std::string& where) {
-  reader.SetFileName(file.c_str());
-  const gdcm::Tag pixel_data(0x7fe0, 0x0010);
-  if (!reader.ReadUpToTag(pixel_data, {pixel_data}))
-    throw FileError("cannot read " + where + ": not a readable DICOM file");
-  const gdcm::File& f = reader.GetFile();
-  const std::vector<unsigned int> dims = gdcm::ImageHelper::GetDimensionsValue(f);
-  const gdcm::PixelFormat format = gdcm::ImageHelper::GetPixelFormatValue(f);
-  uint64_t pixel_bytes =
-      (uint64_t(format.GetBitsAllocated()) + 7) / 8 * format.GetSamplesPerPixel();
-  for (unsigned int d : dims) pixel_bytes *= d;
-  check_pixel_data(where, file, reader.GetStreamCurrentPosition(), pixel_bytes,
-                   format.GetBitsAllocated() == 12);
-}
 
 // The series' files have been walked (WalkedDicomFolder).
 void check_dicom_slices(const std::string& directory, const std::vector<std::string>& files) {

@@ -453,6 +453,12 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
                                       std::string("\x18\x00\x2e\xef", 4));
   EXPECT_NE(error_of_stack(delta).find("lacks the physical delta (0018,602E)"), std::string::npos)
       << error_of_stack(delta);
+  // A palette image, its photometric interpretation cut short as GDCM still takes it (GDCM
+  // aborted on the missing lookup tables): refused, palettes are not read.
+  const std::string palette = corrupted("palette.dcm", "MONOCHROME2 ", "PALETTE COLO");
+  EXPECT_NE(error_of_stack(palette).find("palette.dcm': PALETTE COLOR images are not supported"),
+            std::string::npos)
+      << error_of_stack(palette);
   // A folder holding one such file: every series read is refused, naming it.
   test::TempDir folder;
   fs::copy_file(meta, folder.file("broken.dcm"));
