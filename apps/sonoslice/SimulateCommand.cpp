@@ -64,8 +64,8 @@ void check_simulation_flags(const SimulateFlags& f, const std::string& command) 
       throw InputError(
           "--dynamic-range: applies to --output bmode (envelope is before log "
           "compression)");
-    if (!f.tgc.empty())
-      throw InputError("--tgc: applies to --output bmode (envelope is before TGC)");
+    if (f.tgc == "auto")  // off says what an envelope is: taken, like no flag
+      throw InputError("--tgc auto: applies to --output bmode (envelope is before TGC)");
   }
 }
 

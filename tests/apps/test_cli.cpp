@@ -816,8 +816,8 @@ std::vector<BadCase> bad_cases() {
        "error: --dynamic-range: applies to --output bmode"},
       {"EnvelopeWithTgc",
        "simulate --volume {CT} --preset lus --poses {POSES} --out {OUT} --output envelope --tgc "
-       "off",
-       "error: --tgc: applies to --output bmode"},
+       "auto",
+       "error: --tgc auto: applies to --output bmode"},
       {"VoxelSizeWithoutMeshes", std::string(kSlice) + "--voxel-size 0.2",
        "error: --voxel-size: applies only to meshes that are voxelised"},
       {"VoxelSizeWithExactSurfaces",
