@@ -470,6 +470,7 @@ def timed_browser():
     driver.quit()
 
 
+@pytest.mark.alone
 def test_live_compound_view_updates_and_ends_on_the_offline_volume(cli, timed_browser, tmp_path):
     browser = timed_browser
     pyigtl = pytest.importorskip("pyigtl")
