@@ -614,9 +614,12 @@ class WalkedDicomFolder {
     links_ = pattern;
     for (const std::filesystem::path& file : dicom) {
       std::filesystem::create_symlink(file, links_ / file.filename(), ec);
-      if (ec)
+      if (ec) {
+        const std::string why = ec.message();
+        std::filesystem::remove_all(links_, ec);  // the destructor does not run for a throw here
         throw FileError("cannot read DICOM directory '" + directory + "': cannot link '" +
-                        file.filename().string() + "' for its series scan (" + ec.message() + ")");
+                        file.filename().string() + "' for its series scan (" + why + ")");
+      }
     }
   }
   ~WalkedDicomFolder() {
