@@ -12,6 +12,8 @@
 #include <map>
 #include <sstream>
 
+#include <gdcmPhotometricInterpretation.h>
+
 #include "sonoslice/core/Error.h"
 
 namespace sonoslice {
@@ -251,7 +253,7 @@ class Walker {
       if (children) (*children)[uint32_t(e.group) << 16 | e.element] = e;
       if (explicit_vr) check_typed_vr(e);
       const bool pixel_data = e.group == 0x7fe0 && e.element == 0x0010;
-      if (top && pixel_data) pixel_data_ = true;
+      if (top && pixel_data) pixel_data_ = true, pixel_native_ = e.length != kUndefined;
       const bool regions = top && e.group == 0x0018 && e.element == 0x6011;
       Regions first_region;
       const bool sequence =
@@ -297,9 +299,12 @@ class Walker {
   int samples_ = -1, bits_allocated_ = -1, bits_stored_ = -1, representation_ = -1;
   int rows_ = -1, columns_ = -1, planar_ = -1;
   int64_t frames_ = -1;
-  bool pixel_data_ = false;
-  // The photometric interpretation is PALETTE COLOR (its first value counts, as above).
-  bool palette_ = false, photometric_seen_ = false;
+  bool pixel_data_ = false, pixel_native_ = false;  // native: not encapsulated in fragments
+  // The photometric interpretation as GDCM reads it, and its text (its first value counts, as
+  // above).
+  bool photometric_seen_ = false;
+  gdcm::PhotometricInterpretation::PIType photometric_ = gdcm::PhotometricInterpretation::UNKNOWN;
+  std::string photometric_text_;
   // RLE Lossless: the frames' fragments (the basic offset table not counted) and the shortest.
   int64_t rle_fragments_ = 0;
   uint64_t rle_shortest_ = 0;
@@ -319,20 +324,19 @@ class Walker {
     *value = int(u16(v, little_));
   }
 
-  // Photometric interpretation (0028,0004), a code string, as GDCM matches it: the value up to
-  // a NUL, without its leading and trailing spaces, that names a type or starts its name (so
-  // "PALETTE COLO" is PALETTE COLOR). Only PALETTE COLOR matters here.
+  // Photometric interpretation (0028,0004), a code string, named by GDCM's own matching (which
+  // takes a value that starts a name, "PALETTE COLO", for that name). GDCM reads the value as a
+  // C string and, given an empty one, reads before its start: blank values are told apart here.
   void photometric_interpretation(const Element& e) {
     if (photometric_seen_) return;
     photometric_seen_ = true;
     std::string text(std::min<uint32_t>(e.length, 64), '\0');
     if (!text.empty() && !read(e.value_at, &text[0], text.size())) fail("truncated file");
     text = text.substr(0, text.find('\0'));
-    const size_t first = text.find_first_not_of(' '), last = text.find_last_not_of(' ');
-    text = first == std::string::npos ? "" : text.substr(first, last - first + 1);
-    const std::string palette = "PALETTE COLOR";
-    palette_ = !text.empty() && text.size() <= palette.size() &&
-               palette.compare(0, text.size(), text) == 0;
+    photometric_text_ = text;
+    photometric_ = text.find_first_not_of(' ') == std::string::npos
+                       ? gdcm::PhotometricInterpretation::PI_END
+                       : gdcm::PhotometricInterpretation::GetPIType(text.c_str());
   }
 
   // Number of frames (0028,0008), an integer string: GDCM reads its leading number (leading
@@ -369,13 +373,36 @@ class Walker {
           "(0028,0010), (0028,0011) and (0028,0100))");
     // GDCM asserts (or aborts) on palette images whose lookup tables are missing or do not fit
     // their descriptors; sonoslice reads greyscale and RGB images, so palettes are refused.
-    if (pixel_data_ && palette_)
+    using PI = gdcm::PhotometricInterpretation;
+    if (pixel_data_ && photometric_seen_ && photometric_ == PI::PALETTE_COLOR)
       fail(
           "PALETTE COLOR images are not supported (greyscale and RGB are; convert the palette "
           "to RGB first)");
     if (samples_ >= 0 && samples_ != 1 && samples_ != 3 && samples_ != 4)
       fail("corrupt file (samples per pixel " + std::to_string(samples_) +
            ": DICOM images have 1, 3 or 4)");
+    // GDCM's decoders of uncompressed and RLE pixel data assert on the other interpretations
+    // (the YBR_PARTIAL and YBR_ICT/RCT ones of compressed syntaxes, HSV, ARGB, CMYK) and on a
+    // value that names none; its JPEG decoders convert theirs. They read past the pixel data's
+    // end for a colour interpretation of one sample per pixel, and for YBR_FULL_422 (two samples
+    // a pixel as stored) in RLE, which DICOM does not allow either.
+    if (pixel_data_ && photometric_seen_ && (pixel_native_ || rle_)) {
+      const bool grey = photometric_ == PI::MONOCHROME1 || photometric_ == PI::MONOCHROME2;
+      const bool colour = photometric_ == PI::RGB || photometric_ == PI::YBR_FULL ||
+                          (photometric_ == PI::YBR_FULL_422 && pixel_native_);
+      const std::string name = printable(photometric_text_);
+      if (!grey && !colour)
+        fail((name.empty() ? "an empty photometric interpretation"
+                           : "photometric interpretation '" + name + "'") +
+             " is not supported in " + (rle_ ? "RLE" : "uncompressed") +
+             " pixel data (MONOCHROME1, MONOCHROME2, RGB, YBR_FULL and, uncompressed, "
+             "YBR_FULL_422 are)");
+      const int samples = samples_ < 0 ? 1 : samples_;
+      if (samples != (grey ? 1 : 3))
+        fail("corrupt file (photometric interpretation '" + name + "' with " +
+             std::to_string(samples) + " sample" + (samples == 1 ? "" : "s") +
+             " per pixel: MONOCHROME1 and MONOCHROME2 have 1, RGB and YBR_FULL(_422) 3)");
+    }
     // 0 bits allocated: GDCM keeps its default bits stored (8) above it and asserts.
     if (bits_allocated_ == 0 || (bits_allocated_ > 0 && bits_allocated_ % 8 &&
                                  bits_allocated_ != 1 && bits_allocated_ != 12))
@@ -424,10 +451,12 @@ class Walker {
          " has the value representation " + text_vr(e.vr) + "; DICOM defines " +
          std::string(vrs, 2) + ")");
   }
-  static std::string text_vr(const char* vr) {
-    std::string t;
-    for (int i = 0; i < 2; ++i)
-      t += std::isprint(static_cast<unsigned char>(vr[i])) ? std::string(1, vr[i]) : "?";
+  static std::string text_vr(const char* vr) { return printable(std::string(vr, 2)); }
+  // A value for a message: other bytes than printable ASCII as '?', trailing padding dropped.
+  static std::string printable(std::string t) {
+    for (char& c : t)
+      if (!std::isprint(static_cast<unsigned char>(c))) c = '?';
+    while (!t.empty() && t.back() == ' ') t.pop_back();
     return t;
   }
 

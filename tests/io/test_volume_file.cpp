@@ -475,6 +475,52 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
       << error_of(short_folder.path().string());
 }
 
+// GDCM's decoders of uncompressed and RLE pixel data abort the process on a photometric
+// interpretation they do not convert (or none they know) and read past the pixels' end for a
+// colour one of one sample per pixel: such images are refused, named, alone or in a folder.
+// Names are matched as GDCM matches them.
+TEST(DicomFile, PhotometricInterpretationsGdcmCannotDecodeAreRefused) {
+  test::TempDir dir;
+  const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
+  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2, grey);
+  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
+  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto with = [&](const std::string& name, const std::string& photometric) {
+    std::string bytes = good;
+    const size_t at = bytes.find("MONOCHROME2 ");
+    EXPECT_NE(at, std::string::npos);
+    bytes.replace(at, photometric.size(), photometric);
+    std::ofstream(dir.file(name), std::ios::binary) << bytes;
+    return dir.file(name);
+  };
+  const std::string ict = error_of_stack(with("ict.dcm", "YBR_ICT     "));
+  EXPECT_NE(ict.find("ict.dcm': photometric interpretation 'YBR_ICT' is not supported in "
+                     "uncompressed pixel data"),
+            std::string::npos)
+      << ict;
+  const std::string blank = error_of_stack(with("blank.dcm", "            "));
+  EXPECT_NE(blank.find("blank.dcm': an empty photometric interpretation is not supported"),
+            std::string::npos)
+      << blank;
+  const std::string rgb = error_of_stack(with("rgb.dcm", "RGB         "));
+  EXPECT_NE(rgb.find("rgb.dcm': corrupt file (photometric interpretation 'RGB' with 1 sample "
+                     "per pixel"),
+            std::string::npos)
+      << rgb;
+  // MONOCHROME1, and a name cut short that GDCM takes for it, read.
+  for (const char* name : {"MONOCHROME1 ", "MONOCHROME  "}) {
+    const Volume frames = read_image_stack(with("mono1.dcm", name), "--frames");
+    EXPECT_EQ(frames.grid().dims[2], 2) << name;
+  }
+  // In a series' folder GDCM decoded it without the check ITK's reader makes of a single file.
+  test::TempDir folder;
+  fs::copy_file(dir.file("ict.dcm"), folder.file("slice.dcm"));
+  const std::string in_folder = error_of(folder.path().string());
+  EXPECT_NE(in_folder.find("file 'slice.dcm': photometric interpretation 'YBR_ICT'"),
+            std::string::npos)
+      << in_folder;
+}
+
 // GDCM reads what follows the pixel data, and files without the 128-byte preamble and "DICM":
 // both are walked first too.
 TEST(DicomFile, TailAndFilesWithoutPreambleAreWalked) {
