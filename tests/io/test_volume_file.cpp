@@ -277,6 +277,15 @@ void write_dicom_clip(const std::string& path, int w, int h, int n,
   writer->Update();
 }
 
+// Writes a 12 x 10 clip of two uint8 frames as `dir`/clip.dcm and returns its bytes, for the
+// tests that change some of them.
+std::string dicom_clip_bytes(const test::TempDir& dir,
+                             const std::function<uint8_t(int, int, int)>& value) {
+  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2, value);
+  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
 // A recorded clip is one DICOM file of N frames: read as a stack of N frames (colour ones as their
 // first component, as every frame reader does); truncated pixel data is refused, not read as
 // zeros; sonoslice does not write DICOM.
@@ -405,10 +414,8 @@ TEST(FrameFolder, FramesComeInNaturalNameOrderOrByInstanceNumber) {
 // and refuses it, for one file and for a folder of a series alike.
 TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
   test::TempDir dir;
-  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2,
-                            [](int x, int y, int k) { return uint8_t(x + y + k); });
-  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
-  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string good =
+      dicom_clip_bytes(dir, [](int x, int y, int k) { return uint8_t(x + y + k); });
   const auto corrupted = [&](const std::string& name, const std::string& element,
                              const std::string& replacement) {
     std::string bytes = good;
@@ -482,9 +489,7 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
 TEST(DicomFile, PhotometricInterpretationsGdcmCannotDecodeAreRefused) {
   test::TempDir dir;
   const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
-  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2, grey);
-  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
-  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string good = dicom_clip_bytes(dir, grey);
   const auto with = [&](const std::string& name, const std::string& photometric) {
     std::string bytes = good;
     const size_t at = bytes.find("MONOCHROME2 ");
@@ -526,9 +531,7 @@ TEST(DicomFile, PhotometricInterpretationsGdcmCannotDecodeAreRefused) {
 TEST(DicomFile, TailAndFilesWithoutPreambleAreWalked) {
   test::TempDir dir;
   const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
-  write_dicom_clip<uint8_t>(dir.file("clip.dcm"), 12, 10, 2, grey);
-  std::ifstream in(dir.file("clip.dcm"), std::ios::binary);
-  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string good = dicom_clip_bytes(dir, grey);
   const auto written = [&](const std::string& name, const std::string& bytes) {
     std::ofstream(dir.file(name), std::ios::binary) << bytes;
     return dir.file(name);
