@@ -381,27 +381,34 @@ class Walker {
     if (samples_ >= 0 && samples_ != 1 && samples_ != 3 && samples_ != 4)
       fail("corrupt file (samples per pixel " + std::to_string(samples_) +
            ": DICOM images have 1, 3 or 4)");
-    // GDCM's decoders of uncompressed and RLE pixel data assert on the other interpretations
-    // (the YBR_PARTIAL and YBR_ICT/RCT ones of compressed syntaxes, HSV, ARGB, CMYK) and on a
-    // value that names none; its JPEG decoders convert theirs. They read past the pixel data's
-    // end for a colour interpretation of one sample per pixel, and for YBR_FULL_422 (two samples
-    // a pixel as stored) in RLE, which DICOM does not allow either.
-    if (pixel_data_ && photometric_seen_ && (pixel_native_ || rle_)) {
+    // GDCM's decoders assert on the interpretations they do not convert (uncompressed and RLE:
+    // all but greyscale, RGB and YBR_FULL(_422); JPEG-LS: HSV, ARGB, CMYK, YBR_PARTIAL_420) and
+    // on a value that names none, and read past the pixels' end, or assert, for a colour
+    // interpretation of one sample per pixel or a greyscale one of three. Refused here is what
+    // DICOM does not allow either: YBR_FULL_422 in RLE, the JPEG colour spaces (YBR_PARTIAL_422,
+    // YBR_ICT, YBR_RCT) in other than JPEG-family compressed data, and the retired ones.
+    if (pixel_data_ && photometric_seen_) {
+      const bool jpeg = !pixel_native_ && !rle_;
       const bool grey = photometric_ == PI::MONOCHROME1 || photometric_ == PI::MONOCHROME2;
       const bool colour = photometric_ == PI::RGB || photometric_ == PI::YBR_FULL ||
-                          (photometric_ == PI::YBR_FULL_422 && pixel_native_);
+                          (photometric_ == PI::YBR_FULL_422 && !rle_) ||
+                          (jpeg && (photometric_ == PI::YBR_PARTIAL_422 ||
+                                    photometric_ == PI::YBR_ICT || photometric_ == PI::YBR_RCT));
       const std::string name = printable(photometric_text_);
       if (!grey && !colour)
         fail((name.empty() ? "an empty photometric interpretation"
                            : "photometric interpretation '" + name + "'") +
-             " is not supported in " + (rle_ ? "RLE" : "uncompressed") +
-             " pixel data (MONOCHROME1, MONOCHROME2, RGB, YBR_FULL and, uncompressed, "
-             "YBR_FULL_422 are)");
+             " is not supported in " +
+             (rle_            ? "RLE"
+              : pixel_native_ ? "uncompressed"
+                              : "compressed") +
+             " pixel data (MONOCHROME1, MONOCHROME2, RGB and YBR_FULL are; YBR_FULL_422 but in "
+             "RLE; YBR_PARTIAL_422, YBR_ICT and YBR_RCT in JPEG-compressed data)");
       const int samples = samples_ < 0 ? 1 : samples_;
       if (samples != (grey ? 1 : 3))
         fail("corrupt file (photometric interpretation '" + name + "' with " +
              std::to_string(samples) + " sample" + (samples == 1 ? "" : "s") +
-             " per pixel: MONOCHROME1 and MONOCHROME2 have 1, RGB and YBR_FULL(_422) 3)");
+             " per pixel: MONOCHROME1 and MONOCHROME2 have 1, the colour ones 3)");
     }
     // 0 bits allocated: GDCM keeps its default bits stored (8) above it and asserts.
     if (bits_allocated_ == 0 || (bits_allocated_ > 0 && bits_allocated_ % 8 &&

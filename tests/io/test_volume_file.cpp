@@ -14,6 +14,9 @@
 
 #include <zlib.h>
 
+#include <gdcmImageChangeTransferSyntax.h>
+#include <gdcmImageReader.h>
+#include <gdcmImageWriter.h>
 #include <itkExtractImageFilter.h>
 #include <itkGDCMImageIO.h>
 #include <itkImage.h>
@@ -244,11 +247,15 @@ TEST(DicomSeries, BrokenSeriesAreRefused) {
   }
 }
 
+// How a test clip's pixel data is stored: uncompressed, or encapsulated in fragments.
+enum class ClipCompression { None, JpegLossless, JpegLs };
+
 // Writes `frames` (W x H x N, T = uint8_t or itk::RGBPixel<uint8_t>) as one multi-frame DICOM
 // file, as an ultrasound scanner stores a clip.
 template <typename T>
 void write_dicom_clip(const std::string& path, int w, int h, int n,
-                      const std::function<T(int, int, int)>& value, bool compressed = false,
+                      const std::function<T(int, int, int)>& value,
+                      ClipCompression compression = ClipCompression::None,
                       const std::string& instance_number = "") {
   using Image = itk::Image<T, 3>;
   auto image = Image::New();
@@ -267,14 +274,28 @@ void write_dicom_clip(const std::string& path, int w, int h, int n,
                                           instance_number);
   auto io = itk::GDCMImageIO::New();
   auto writer = itk::ImageFileWriter<Image>::New();
-  if (compressed) {  // lossless JPEG, encapsulated in fragments
-    io->SetCompressionType(itk::GDCMImageIO::JPEG);
+  if (compression == ClipCompression::JpegLossless) {
     writer->UseCompressionOn();
   }
   writer->SetImageIO(io);
   writer->SetInput(image);
   writer->SetFileName(path);
   writer->Update();
+  // ITK does not write JPEG-LS: GDCM converts the file, as `gdcmconv --jpegls` does.
+  if (compression == ClipCompression::JpegLs) {
+    gdcm::ImageReader reader;
+    reader.SetFileName(path.c_str());
+    ASSERT_TRUE(reader.Read()) << path;
+    gdcm::ImageChangeTransferSyntax change;
+    change.SetTransferSyntax(gdcm::TransferSyntax::JPEGLSLossless);
+    change.SetInput(reader.GetImage());
+    ASSERT_TRUE(change.Change()) << path;
+    gdcm::ImageWriter writer_ls;
+    writer_ls.SetFileName(path.c_str());
+    writer_ls.SetFile(reader.GetFile());
+    writer_ls.SetImage(change.GetOutput());
+    ASSERT_TRUE(writer_ls.Write()) << path;
+  }
 }
 
 // Writes a 12 x 10 clip of two uint8 frames as `dir`/clip.dcm and returns its bytes, for the
@@ -330,7 +351,7 @@ TEST(DicomFile, MultiFrameClipIsAStackOfFrames) {
   EXPECT_FALSE(fs::exists(dir.file("out.dcm")));
   EXPECT_THROW(stack_format(dir.file("stack.dcm")), InputError);
   // Compressed frames: the same pixels; cut inside a fragment: refused, not decoded short.
-  write_dicom_clip<uint8_t>(dir.file("jpeg.dcm"), 30, 20, 4, grey, /*compressed=*/true);
+  write_dicom_clip<uint8_t>(dir.file("jpeg.dcm"), 30, 20, 4, grey, ClipCompression::JpegLossless);
   const Volume jpeg = read_image_stack(dir.file("jpeg.dcm"), "--frames");
   ASSERT_EQ(jpeg.grid().dims, clip.grid().dims);
   EXPECT_EQ(std::memcmp(jpeg.data(), clip.data(), clip.byte_size()), 0);
@@ -396,14 +417,16 @@ TEST(FrameFolder, FramesComeInNaturalNameOrderOrByInstanceNumber) {
   for (int k = 0; k < 4; ++k)
     write_dicom_clip<uint8_t>(
         dir.file("IM" + std::to_string(k) + ".dcm"), 12, 10, 1,
-        [&](int x, int y, int) { return grey(x, y, k); }, false, std::to_string(10 - k));
+        [&](int x, int y, int) { return grey(x, y, k); }, ClipCompression::None,
+        std::to_string(10 - k));
   const Volume frames = read_image_stack(dir.path().string(), "--frames");
   ASSERT_EQ(frames.grid().dims[2], 4);
   for (int k = 0; k < 4; ++k)
     EXPECT_EQ(frames.data_as<uint8_t>()[(k * 10 + 4) * 12 + 5], grey(5, 4, 3 - k)) << k;
   // Two images of one number: not an order, so names decide.
   write_dicom_clip<uint8_t>(
-      dir.file("IM4.dcm"), 12, 10, 1, [&](int x, int y, int) { return grey(x, y, 4); }, false, "7");
+      dir.file("IM4.dcm"), 12, 10, 1, [&](int x, int y, int) { return grey(x, y, 4); },
+      ClipCompression::None, "7");
   const Volume by_name = read_image_stack(dir.path().string(), "--frames");
   ASSERT_EQ(by_name.grid().dims[2], 5);
   for (int k = 0; k < 5; ++k)
@@ -482,16 +505,17 @@ TEST(DicomFile, BrokenStructureIsRefusedBeforeGdcmReadsIt) {
       << error_of(short_folder.path().string());
 }
 
-// GDCM's decoders of uncompressed and RLE pixel data abort the process on a photometric
-// interpretation they do not convert (or none they know) and read past the pixels' end for a
-// colour one of one sample per pixel: such images are refused, named, alone or in a folder.
+// GDCM's decoders abort the process on a photometric interpretation they do not convert (or
+// none they know) and read past the pixels' end, or abort, for a colour one of one sample per
+// pixel: such images are refused, named, alone or in a folder, uncompressed or compressed.
 // Names are matched as GDCM matches them.
 TEST(DicomFile, PhotometricInterpretationsGdcmCannotDecodeAreRefused) {
   test::TempDir dir;
   const auto grey = [](int x, int y, int k) { return uint8_t(3 * x + y + 7 * k); };
   const std::string good = dicom_clip_bytes(dir, grey);
-  const auto with = [&](const std::string& name, const std::string& photometric) {
-    std::string bytes = good;
+  const auto with = [&](const std::string& name, const std::string& photometric,
+                        const std::string& from = "") {
+    std::string bytes = from.empty() ? good : from;
     const size_t at = bytes.find("MONOCHROME2 ");
     EXPECT_NE(at, std::string::npos);
     bytes.replace(at, photometric.size(), photometric);
@@ -517,6 +541,22 @@ TEST(DicomFile, PhotometricInterpretationsGdcmCannotDecodeAreRefused) {
     const Volume frames = read_image_stack(with("mono1.dcm", name), "--frames");
     EXPECT_EQ(frames.grid().dims[2], 2) << name;
   }
+  // JPEG-LS: GDCM's decoder aborted on HSV, and on YBR_ICT for one sample per pixel.
+  write_dicom_clip<uint8_t>(dir.file("jls.dcm"), 12, 10, 2, grey, ClipCompression::JpegLs);
+  std::ifstream jls_in(dir.file("jls.dcm"), std::ios::binary);
+  const std::string jls((std::istreambuf_iterator<char>(jls_in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(read_image_stack(dir.file("jls.dcm"), "--frames").data_as<uint8_t>()[(10 + 4) * 12 + 5],
+            grey(5, 4, 1));
+  const std::string hsv = error_of_stack(with("hsv.dcm", "HSV         ", jls));
+  EXPECT_NE(hsv.find("hsv.dcm': photometric interpretation 'HSV' is not supported in compressed "
+                     "pixel data"),
+            std::string::npos)
+      << hsv;
+  const std::string jls_ict = error_of_stack(with("jls-ict.dcm", "YBR_ICT     ", jls));
+  EXPECT_NE(jls_ict.find("jls-ict.dcm': corrupt file (photometric interpretation 'YBR_ICT' with 1 "
+                         "sample per pixel"),
+            std::string::npos)
+      << jls_ict;
   // In a series' folder GDCM decoded it without the check ITK's reader makes of a single file.
   test::TempDir folder;
   fs::copy_file(dir.file("ict.dcm"), folder.file("slice.dcm"));
